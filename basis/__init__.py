@@ -1,0 +1,1 @@
+"""basis: expression bases (artist, PCA, quasi-eigen faces)."""

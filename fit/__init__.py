@@ -1,0 +1,1 @@
+"""fit: weight solving, reconstruction, QA output and the command line."""

@@ -1,0 +1,65 @@
+"""The project's error types.
+
+Every error raised on bad input derives from :class:`Mocap2MeshError`, so a
+caller (and the CLI) can tell "your input is wrong" from a bug. Each names
+the thing at fault: a file with a byte offset or line, a marker with frames,
+or an argument.
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["Mocap2MeshError", "FileFormatError", "MarkerError", "InputError"]
+
+
+class Mocap2MeshError(Exception):
+    """Base class of every error that mocap2mesh raises on bad input."""
+
+
+class InputError(Mocap2MeshError, ValueError):
+    """An argument has the wrong shape, type, units or value."""
+
+
+class FileFormatError(Mocap2MeshError, ValueError):
+    """A file is empty, truncated, corrupt, or not of the format expected.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file at fault.
+    message : str
+        What is wrong and what was expected.
+    offset : int, optional
+        Byte offset (0-based) where the problem was found, for binary files.
+    line : int, optional
+        Line number (1-based) where the problem was found, for text files.
+    """
+
+    def __init__(self, path, message: str, *, offset: int | None = None,
+                 line: int | None = None):
+        self.path = os.fspath(path) if path is not None else None
+        self.offset = offset
+        self.line = line
+        where = ""
+        if offset is not None:
+            where = f" at byte {offset}"
+        elif line is not None:
+            where = f" at line {line}"
+        super().__init__(f"{self.path}{where}: {message}")
+
+
+class MarkerError(Mocap2MeshError, ValueError):
+    """A marker is unknown, missing where it is needed, or inconsistent.
+
+    Parameters
+    ----------
+    marker : str
+        The label of the marker at fault.
+    message : str
+        What is wrong, ideally with the frames concerned.
+    """
+
+    def __init__(self, marker: str, message: str):
+        self.marker = marker
+        super().__init__(f"marker {marker!r}: {message}")

@@ -1,0 +1,244 @@
+"""The Take: one capture's marker tracks, in millimetres, NaN where missing."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from ._validation import as_float_array, as_int, as_positions, as_positive_float
+from .errors import InputError, MarkerError
+
+__all__ = ["Take", "SourceInfo", "Analog", "FILL_METHODS", "fill_code"]
+
+#: Gap-filling methods a sample can have been filled by. ``Take.filled`` holds
+#: 0 for a sample that was captured (or is still missing) and ``i + 1`` for a
+#: sample filled by ``FILL_METHODS[i]``.
+FILL_METHODS = ("spline", "rigid", "pca")
+
+
+def fill_code(method: str) -> int:
+    """The code that ``Take.filled`` stores for a fill `method`."""
+    if method not in FILL_METHODS:
+        raise InputError(f"fill method must be one of {FILL_METHODS}, got {method!r}")
+    return FILL_METHODS.index(method) + 1
+
+
+def _read_only(arr: np.ndarray) -> np.ndarray:
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True)
+class SourceInfo:
+    """Where a take came from and how it was encoded.
+
+    Attributes
+    ----------
+    path : str or None
+        The file read, or None for a take made in memory.
+    format : str
+        ``"c3d"``, ``"vicon-csv"``, ``"trc"``, ``"npz"`` or ``"memory"``.
+    units : str
+        Length unit as found in the file (positions are always converted to mm).
+    producer : str
+        The software or system that wrote the file, when the file says.
+    byte_order : str
+        ``"intel"``, ``"dec"`` or ``"mips"`` for C3D; empty otherwise.
+    storage : str
+        ``"float"`` or ``"integer"`` for C3D; ``"text"`` for text formats.
+    extra : mapping
+        Anything else worth keeping (e.g. C3D header fields, subjects).
+    """
+
+    path: str | None = None
+    format: str = "memory"
+    units: str = "mm"
+    producer: str = ""
+    byte_order: str = ""
+    storage: str = ""
+    extra: Mapping = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Analog:
+    """Analog channels recorded beside the markers (force plates, EMG, audio).
+
+    Attributes
+    ----------
+    values : ndarray of shape (n_samples, n_channels)
+        Scaled values, in each channel's units.
+    rate : float
+        Sampling rate, Hz.
+    labels : tuple of str
+        Channel labels, one per column.
+    units : tuple of str
+        Channel units, one per column (may be empty strings).
+    """
+
+    values: np.ndarray
+    rate: float
+    labels: tuple
+    units: tuple
+
+    def __post_init__(self):
+        values = as_float_array(self.values, "analog values", ndim=2)
+        object.__setattr__(self, "values", _read_only(values))
+        object.__setattr__(self, "rate", as_positive_float(self.rate, "analog rate"))
+        labels = tuple(str(s) for s in self.labels)
+        units = tuple(str(s) for s in self.units)
+        n = values.shape[1]
+        if len(labels) != n or len(units) != n:
+            raise InputError(f"analog data has {n} channels but {len(labels)} labels "
+                             f"and {len(units)} units")
+        object.__setattr__(self, "labels", labels)
+        object.__setattr__(self, "units", units)
+
+    def channel(self, label: str) -> np.ndarray:
+        """Samples of one channel, shape (n_samples,)."""
+        try:
+            return self.values[:, self.labels.index(label)].copy()
+        except ValueError:
+            raise InputError(f"no analog channel {label!r}; channels are "
+                             f"{list(self.labels)}") from None
+
+
+@dataclass(frozen=True)
+class Take:
+    """Marker tracks of one capture.
+
+    Attributes
+    ----------
+    labels : tuple of str
+        Marker labels, unique, one per marker.
+    positions : ndarray of shape (n_frames, n_markers, 3), mm
+        Marker positions; NaN (all three coordinates) where a marker is missing.
+        Read-only: derive new takes with :meth:`replace`.
+    rate : float
+        Frame rate, Hz.
+    first_frame : int
+        Frame number of the first frame, as in the source file (C3D starts at 1).
+    filled : ndarray of shape (n_frames, n_markers), uint8
+        0 for a captured (or still missing) sample, ``i + 1`` for a sample
+        filled by ``FILL_METHODS[i]``.
+    source : SourceInfo
+        Where the take came from.
+    analog : Analog or None
+        Analog channels, if the source had any.
+
+    Notes
+    -----
+    NaN policy: a missing sample is NaN in all three coordinates, never zero.
+    A sample with some but not all coordinates NaN is rejected.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> take = Take(("a", "b"), np.zeros((4, 2, 3)), rate=100.0)
+    >>> take.n_frames, take.n_markers, take.duration
+    (4, 2, 0.04)
+    """
+
+    labels: tuple
+    positions: np.ndarray
+    rate: float
+    first_frame: int = 1
+    filled: np.ndarray | None = None
+    source: SourceInfo = field(default_factory=SourceInfo)
+    analog: Analog | None = None
+
+    def __post_init__(self):
+        labels = tuple(str(s) for s in self.labels)
+        positions = as_positions(self.positions)
+        if len(labels) != positions.shape[1]:
+            raise InputError(f"take has {positions.shape[1]} markers but "
+                             f"{len(labels)} labels")
+        seen = set()
+        for label in labels:
+            if label in seen:
+                raise MarkerError(label, "label appears more than once in the take")
+            seen.add(label)
+        nan = np.isnan(positions)
+        partial = nan.any(axis=2) & ~nan.all(axis=2)
+        if partial.any():
+            t, m = np.argwhere(partial)[0]
+            raise MarkerError(labels[m], f"frame index {t} has some coordinates NaN and "
+                                         "others not; a missing sample is NaN in x, y and z")
+        if self.filled is None:
+            filled = np.zeros(positions.shape[:2], dtype=np.uint8)
+        else:
+            filled = np.array(self.filled, dtype=np.uint8, copy=True)
+            if filled.shape != positions.shape[:2]:
+                raise InputError(f"filled must have shape {positions.shape[:2]}, "
+                                 f"got {filled.shape}")
+            if filled.max(initial=0) > len(FILL_METHODS):
+                raise InputError("filled holds an unknown fill-method code")
+        object.__setattr__(self, "labels", labels)
+        object.__setattr__(self, "positions", _read_only(positions))
+        object.__setattr__(self, "filled", _read_only(filled))
+        object.__setattr__(self, "rate", as_positive_float(self.rate, "rate"))
+        object.__setattr__(self, "first_frame", as_int(self.first_frame, "first_frame"))
+        if not isinstance(self.source, SourceInfo):
+            raise InputError("source must be a SourceInfo")
+        if self.analog is not None and not isinstance(self.analog, Analog):
+            raise InputError("analog must be an Analog or None")
+
+    # -- sizes and time ---------------------------------------------------
+    @property
+    def n_frames(self) -> int:
+        """Number of frames T."""
+        return self.positions.shape[0]
+
+    @property
+    def n_markers(self) -> int:
+        """Number of markers M."""
+        return self.positions.shape[1]
+
+    @property
+    def duration(self) -> float:
+        """Length of the take in seconds, ``n_frames / rate``."""
+        return self.n_frames / self.rate
+
+    @property
+    def frames(self) -> np.ndarray:
+        """Frame numbers, shape (n_frames,), starting at `first_frame`."""
+        return self.first_frame + np.arange(self.n_frames)
+
+    @property
+    def times(self) -> np.ndarray:
+        """Time of each frame from the start of the take, s, shape (n_frames,)."""
+        return np.arange(self.n_frames) / self.rate
+
+    @property
+    def missing(self) -> np.ndarray:
+        """Boolean mask of missing samples, shape (n_frames, n_markers)."""
+        return np.isnan(self.positions[:, :, 0])
+
+    # -- markers -----------------------------------------------------------
+    def index(self, label: str) -> int:
+        """Column of marker `label`; raises MarkerError naming the known labels."""
+        try:
+            return self.labels.index(label)
+        except ValueError:
+            raise MarkerError(label, f"not in the take (markers: {', '.join(self.labels)})") from None
+
+    def indices(self, labels) -> np.ndarray:
+        """Columns of several markers, shape (len(labels),)."""
+        return np.array([self.index(label) for label in labels], dtype=np.intp)
+
+    def marker(self, label: str) -> np.ndarray:
+        """Trajectory of one marker, a new array of shape (n_frames, 3), mm."""
+        return self.positions[:, self.index(label)].copy()
+
+    def select(self, labels) -> "Take":
+        """A new take with only `labels`, in that order."""
+        idx = self.indices(labels)
+        return self.replace(labels=tuple(self.labels[i] for i in idx),
+                            positions=self.positions[:, idx],
+                            filled=self.filled[:, idx])
+
+    def replace(self, **changes) -> "Take":
+        """A new take with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)

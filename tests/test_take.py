@@ -1,0 +1,57 @@
+"""Take validation and the gap finder."""
+
+import numpy as np
+import pytest
+
+from mocap import InputError, MarkerError, Take
+from mocap.gaps import find_gaps
+
+
+def test_take_copies_and_freezes_positions():
+    pos = np.zeros((3, 2, 3))
+    take = Take(("a", "b"), pos, rate=50)
+    pos[0, 0, 0] = 7.0
+    assert take.positions[0, 0, 0] == 0.0
+    with pytest.raises(ValueError):
+        take.positions[0, 0, 0] = 1.0
+
+
+def test_take_rejects_partial_nan():
+    pos = np.zeros((3, 2, 3))
+    pos[1, 1, 2] = np.nan
+    with pytest.raises(MarkerError, match="'b': frame index 1 has some coordinates NaN"):
+        Take(("a", "b"), pos, rate=50)
+
+
+def test_take_rejects_duplicate_labels_and_bad_rate():
+    with pytest.raises(MarkerError, match="more than once"):
+        Take(("a", "a"), np.zeros((1, 2, 3)), rate=50)
+    with pytest.raises(InputError, match="rate must be positive"):
+        Take(("a",), np.zeros((1, 1, 3)), rate=0)
+    with pytest.raises(InputError, match="2 markers but 1 labels"):
+        Take(("a",), np.zeros((1, 2, 3)), rate=50)
+
+
+def test_unknown_marker_names_known_ones():
+    take = Take(("a", "b"), np.zeros((1, 2, 3)), rate=50)
+    with pytest.raises(MarkerError, match="'zz': not in the take"):
+        take.marker("zz")
+
+
+def test_find_gaps_against_a_loop():
+    rng = np.random.default_rng(0)
+    missing = rng.random((200, 7)) < 0.3
+    gaps = find_gaps(missing)
+    expect = []
+    for m in range(7):
+        t = 0
+        while t < 200:
+            if missing[t, m]:
+                s = t
+                while t < 200 and missing[t, m]:
+                    t += 1
+                expect.append((m, s, t))
+            else:
+                t += 1
+    assert list(zip(gaps.marker, gaps.start, gaps.stop)) == expect
+    assert gaps.length.sum() == missing.sum()
