@@ -1,0 +1,179 @@
+"""Marker sets: which markers are head markers, which facial region each face
+marker belongs to, rigid clusters, and the anatomical landmarks markers sit on.
+
+A marker set is a TOML file::
+
+    name = "facial-sing"
+    head = ["root-1", "root-2", "root-3", "root-4"]   # rigid head markers (>= 3)
+
+    [regions]              # every face marker in exactly one region
+    upper_lip = ["UL1", "UL2"]
+    lower_lip = ["LL1", "LL2"]
+    left_brow = []
+    right_brow = []
+    left_eye = []
+    right_eye = []
+    other = ["Chin"]       # extra region names (nose, jaw, ...) are allowed
+
+    [clusters]             # optional rigid clusters besides the head
+    # nose = ["N1", "N2", "N3"]
+
+    [landmarks]            # anatomical point (mocap.anatomy) = marker label
+    mouth_corner_left = "UL1"
+
+Left and right are the subject's own.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+from .anatomy import ANATOMICAL_POINTS
+from .errors import FileFormatError, MarkerError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = ["MarkerSet", "load_markerset", "REQUIRED_REGIONS"]
+
+#: Regions every marker set names (possibly empty): the retargeting stage keeps
+#: the upper lip from driving the lower lip, and the gestures stage takes the
+#: brows, eyes and lips as separate detail groups.
+REQUIRED_REGIONS = ("upper_lip", "lower_lip", "left_brow", "right_brow",
+                    "left_eye", "right_eye", "other")
+
+_KEYS = {"name", "head", "regions", "clusters", "landmarks", "description"}
+
+
+@dataclass(frozen=True)
+class MarkerSet:
+    """The roles of the markers of a capture.
+
+    Attributes
+    ----------
+    name : str
+    head : tuple of str
+        Rigid head markers (at least three).
+    regions : mapping of str to tuple of str
+        Face markers by facial region; every face marker in exactly one region.
+    clusters : mapping of str to tuple of str
+        Rigid clusters, the head (as ``"head"``) included.
+    landmarks : mapping of str to str
+        Anatomical point name (see :mod:`mocap.anatomy`) to marker label.
+    path : str or None
+        The file it was read from.
+    """
+
+    name: str
+    head: tuple
+    regions: Mapping[str, tuple]
+    clusters: Mapping[str, tuple] = field(default_factory=dict)
+    landmarks: Mapping[str, str] = field(default_factory=dict)
+    path: str | None = None
+
+    @property
+    def face_markers(self) -> tuple:
+        """All face markers, region by region in file order."""
+        return tuple(label for labels in self.regions.values() for label in labels)
+
+    @property
+    def markers(self) -> tuple:
+        """Head markers, then face markers."""
+        return self.head + self.face_markers
+
+    def region_of(self, label: str) -> str:
+        """The region of a face marker (``"head"`` for a head marker)."""
+        if label in self.head:
+            return "head"
+        for region, labels in self.regions.items():
+            if label in labels:
+                return region
+        raise MarkerError(label, f"not in marker set {self.name!r}")
+
+    def check_labels(self, labels, *, source: str = "the take") -> None:
+        """Raise MarkerError if a marker of this set is absent from `labels`."""
+        present = set(labels)
+        absent = [label for label in self.markers if label not in present]
+        if absent:
+            raise MarkerError(absent[0], f"marker set {self.name!r} names it but {source} "
+                                         f"has no such marker (absent: {', '.join(absent)})")
+
+
+def _labels(value, path, what) -> tuple:
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise FileFormatError(path, f"{what} must be a list of marker labels")
+    return tuple(value)
+
+
+def load_markerset(path) -> MarkerSet:
+    """Read and validate a marker-set TOML file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    MarkerSet
+
+    Raises
+    ------
+    FileFormatError
+        Unreadable TOML, unknown keys, fewer than three head markers, a marker in
+        two regions, a missing required region, an unknown anatomical point, or a
+        landmark on a marker the set does not name.
+    """
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise FileFormatError(path, f"cannot read marker set: {exc.strerror}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise FileFormatError(path, f"not valid TOML: {exc}") from None
+    unknown = set(doc) - _KEYS
+    if unknown:
+        raise FileFormatError(path, f"unknown keys {sorted(unknown)}; expected {sorted(_KEYS)}")
+    head = _labels(doc.get("head", []), path, "head")
+    if len(head) < 3:
+        raise FileFormatError(path, f"head names {len(head)} markers; a rigid head fit needs "
+                                    "at least 3")
+    raw_regions = doc.get("regions", {})
+    if not isinstance(raw_regions, dict):
+        raise FileFormatError(path, "[regions] must be a table of region = [labels]")
+    absent = [r for r in REQUIRED_REGIONS if r not in raw_regions]
+    if absent:
+        raise FileFormatError(path, f"[regions] lacks {', '.join(absent)} (list them, empty if "
+                                    "the capture has no such markers)")
+    regions, owner = {}, {label: "head" for label in head}
+    for region, value in raw_regions.items():
+        labels = _labels(value, path, f"region {region!r}")
+        for label in labels:
+            if label in owner:
+                raise FileFormatError(path, f"marker {label!r} is in both {owner[label]!r} "
+                                            f"and {region!r}")
+            owner[label] = region
+        regions[region] = labels
+    clusters = {"head": head}
+    for cluster, value in doc.get("clusters", {}).items():
+        labels = _labels(value, path, f"cluster {cluster!r}")
+        unknown_labels = [label for label in labels if label not in owner]
+        if unknown_labels or len(labels) < 3:
+            raise FileFormatError(path, f"cluster {cluster!r} must name at least 3 markers of "
+                                        f"the set (unknown: {unknown_labels})")
+        clusters[cluster] = labels
+    landmarks = {}
+    for point, label in doc.get("landmarks", {}).items():
+        if point not in ANATOMICAL_POINTS:
+            raise FileFormatError(path, f"unknown anatomical point {point!r} in [landmarks]; "
+                                        f"known: {', '.join(ANATOMICAL_POINTS)}")
+        if label not in owner:
+            raise FileFormatError(path, f"landmark {point!r} names marker {label!r}, which "
+                                        "the set does not list")
+        landmarks[point] = label
+    return MarkerSet(name=str(doc.get("name", path.stem)), head=head, regions=regions,
+                     clusters=clusters, landmarks=landmarks, path=str(path))
