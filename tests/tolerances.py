@@ -7,3 +7,33 @@ CSV_VS_C3D_MM = 0.01
 #: A rigid transform recovered from exact data: rotation (deg) and translation (mm).
 RIGID_EXACT_DEG = 1e-8
 RIGID_EXACT_MM = 1e-8
+#: Implicit PCA (operator) against a dense SVD of the materialized mesh sequence:
+#: eigenvalues, relative to each eigenvalue.
+PCA_IMPLICIT_RTOL = 1e-8
+#: Streaming PCA (randomized, incremental) eigenvalues against a dense SVD when the
+#: data is a low-rank signal plus noise 1e-3 times smaller (exact to rounding when
+#: the rank is at most n_components + 10).
+PCA_STREAMING_RTOL = 1e-5
+#: Largest principal angle between a fitted and the dense PCA subspace, radians.
+PCA_ANGLE_RAD = 1e-6
+#: Exact identities of PCA/quasi-eigen maths (projections, traces), relative.
+PCA_EXACT_RTOL = 1e-10
+#: Distances between the 8 markers of the rigid box, markers.trc vs markers.c3d
+#: (two trials of one session): marker jitter, mm.
+TRC_BOX_VS_C3D_MM = 1.0
+#: The same C3D trial stored as int16 x scale and as float32: float32 resolution, relative.
+C3D_FLOAT32_RTOL = 1e-6
+#: Mesh-geometry results that only rounding separates from their oracle, mesh units.
+MESH_EXACT = 1e-9
+#: A similarity recovered by marker binding from exact data: scale (relative), rotation, mm.
+BIND_EXACT = 1e-8
+#: Bound marker points vs the layout they were simulated from (0.2 mm noise, 2 mm skin
+#: offset), mm: mean and worst marker.
+BIND_LAYOUT_MEAN_MM = 0.5
+BIND_LAYOUT_MAX_MM = 1.5
+#: glTF stores float32: positions of a ~20 cm face agree to this, cm.
+GLTF_FLOAT32_CM = 1e-5
+#: Objective of the batched weight solver against lsq_linear(bvls) / lstsq, relative.
+SOLVE_OBJECTIVE_REL = 1e-9
+#: Independent KKT check of solved weights (relative to the gradient's terms).
+SOLVE_KKT_REL = 1e-8

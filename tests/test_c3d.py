@@ -1,0 +1,396 @@
+"""C3D reader and writer: against ezc3d, a brute-force struct decoder and known facts."""
+
+from __future__ import annotations
+
+import struct
+import warnings
+
+import ezc3d
+import numpy as np
+import pytest
+
+from mocap import Take, read
+from mocap._c3d_numbers import BYTE_ORDERS
+from mocap.c3d import read_c3d, read_c3d_parameters, write_c3d
+from mocap.errors import FileFormatError, InputError
+from mocap.take import Analog
+from mocap.units import mm_per_unit
+from tolerances import C3D_FLOAT32_RTOL, C3D_VS_EZC3D_MM
+
+# Files ezc3d 1.7.2 opens with their points (it fails on the MIPS files,
+# Dance.c3d, facial-sing.c3d and bad_parameter_section.c3d; it segfaults on the
+# latter with ignore_bad_formatting; it opens phasespace_sample.c3d with 0 points).
+EZC3D_FILES = [f"c3d-samples/sample_01/Eb015{k}.c3d" for k in ("pi", "pr", "vi", "vr")] + \
+    [f"c3d-samples/sample_02/{k}.c3d" for k in ("dec_int", "dec_real", "pc_int", "pc_real")] + \
+    [f"c3d-samples/sample_08/{k}.c3d" for k in ("EB015PI", "TESTAPI", "TESTBPI", "TESTCPI",
+                                                 "TESTDPI")] + \
+    ["c3d-samples/sample_16/basketball.c3d", "c3d-samples/sample_33/bigparlove.c3d",
+     "vicon-nexus/markers.c3d"]
+# Files ezc3d cannot give us the points of: checked against the brute-force decoder.
+OTHER_FILES = [f"c3d-samples/sample_01/Eb015{k}.c3d" for k in ("si", "sr")] + \
+    [f"c3d-samples/sample_02/{k}.c3d" for k in ("sgi_int", "sgi_real")] + \
+    ["c3d-samples/sample_06/MACsample.c3d", "c3d-samples/sample_13/Dance.c3d",
+     "c3d-samples/sample_18/bad_parameter_section.c3d",
+     "c3d-samples/sample_20/phasespace_sample.c3d", "captures/facial-sing.c3d"]
+
+
+def _quiet_read(path) -> Take:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return read_c3d(path)
+
+
+def brute_force_points(path):
+    """Independent oracle: header-driven decoding, one struct.unpack per value.
+
+    Returns positions (n_frames, n_points, 3) in file units with NaN where the
+    residual is negative. DEC floats are decoded by swapping words and dividing
+    by 4 (not the bit-level method of the reader).
+    """
+    buf = path.read_bytes()
+    proc = buf[(buf[0] - 1) * 512 + 3]
+    end = ">" if proc == 86 else "<"
+
+    def f32(raw):
+        if proc == 85:
+            return struct.unpack("<f", raw[2:4] + raw[0:2])[0] / 4
+        return struct.unpack(end + "f", raw)[0]
+
+    n_points, analog_words, first, last = struct.unpack(end + "4H", buf[2:10])
+    scale = f32(buf[12:16])
+    offset = (struct.unpack(end + "H", buf[16:18])[0] - 1) * 512
+    size = 4 if scale < 0 else 2
+    frame = (4 * n_points + analog_words) * size
+    n_frames = min(last - first + 1, (len(buf) - offset) // frame)
+    out = np.full((n_frames, n_points, 3), np.nan)
+    for t in range(n_frames):
+        for m in range(n_points):
+            at = offset + t * frame + m * 4 * size
+            if scale < 0:
+                x, y, z, r = (f32(buf[at + 4 * i:at + 4 * i + 4]) for i in range(4))
+            else:
+                x, y, z, r = (v * abs(scale) if i < 3 else v for i, v in
+                              enumerate(struct.unpack(end + "4h", buf[at:at + 8])))
+            if r >= 0:
+                out[t, m] = x, y, z
+    return out
+
+
+# -- every file ---------------------------------------------------------------
+def test_reads_every_corpus_file(shared_data):
+    files = sorted((shared_data / "c3d-samples").rglob("*.c3d")) + \
+        [shared_data / "captures/facial-sing.c3d", shared_data / "vicon-nexus/markers.c3d"]
+    assert len(files) >= 24
+    for path in files:
+        take = _quiet_read(path)
+        assert take.n_frames > 0 and take.n_markers > 0, path
+        assert take.source.format == "c3d" and take.source.path == str(path)
+        assert take.source.byte_order in BYTE_ORDERS
+        assert take.source.storage in ("float", "integer")
+        assert len(set(take.labels)) == take.n_markers
+
+
+@pytest.mark.parametrize("name", EZC3D_FILES)
+def test_agrees_with_ezc3d(shared_data, name):
+    path = shared_data / name
+    take = _quiet_read(path)
+    ez = ezc3d.c3d(str(path))
+    points = ez["data"]["points"][:3].transpose(2, 1, 0) * mm_per_unit(take.source.units)
+    assert points.shape == take.positions.shape
+    np.testing.assert_array_equal(np.isnan(points[:, :, 0]), take.missing)
+    np.testing.assert_allclose(take.positions, points, atol=C3D_VS_EZC3D_MM, rtol=0)
+    assert take.rate == pytest.approx(float(ez["parameters"]["POINT"]["RATE"]["value"][0]))
+    assert take.first_frame == ez["header"]["points"]["first_frame"] + 1
+    ez_labels = [s.strip() for s in ez["parameters"]["POINT"]["LABELS"]["value"]][:take.n_markers]
+    same = [i for i, s in enumerate(ez_labels) if s and ez_labels.count(s) == 1]
+    assert [take.labels[i] for i in same] == [ez_labels[i] for i in same]
+    analogs = ez["data"]["analogs"][0].T
+    if analogs.size:
+        np.testing.assert_allclose(take.analog.values, analogs, rtol=1e-6, atol=1e-9)
+    else:
+        assert take.analog is None
+
+
+@pytest.mark.parametrize("name", OTHER_FILES)
+def test_agrees_with_brute_force_decoder(shared_data, name):
+    path = shared_data / name
+    take = _quiet_read(path)
+    expected = brute_force_points(path) * mm_per_unit(take.source.units)
+    np.testing.assert_array_equal(np.isnan(expected[:, :, 0]), take.missing)
+    np.testing.assert_allclose(take.positions, expected, rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("encoding", ["pr", "si", "sr", "vi", "vr"])
+def test_sample_01_encodings_decode_identically(shared_data, encoding):
+    ref = read_c3d(shared_data / "c3d-samples/sample_01/Eb015pi.c3d")
+    take = read_c3d(shared_data / f"c3d-samples/sample_01/Eb015{encoding}.c3d")
+    assert take.labels == ref.labels and take.rate == ref.rate
+    np.testing.assert_array_equal(take.missing, ref.missing)
+    # integer files hold int16 x scale; float files the same numbers rounded to float32
+    np.testing.assert_allclose(take.positions, ref.positions, rtol=C3D_FLOAT32_RTOL, atol=0)
+    np.testing.assert_allclose(take.analog.values, ref.analog.values, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("machine", ["pc", "dec", "sgi"])
+def test_sample_02_integer_and_float_differ_by_one_scale_unit(shared_data, machine):
+    folder = shared_data / "c3d-samples/sample_02"
+    integer = read_c3d(folder / f"{machine}_int.c3d")
+    real = read_c3d(folder / f"{machine}_real.c3d")
+    scale = float(read_c3d_parameters(folder / f"{machine}_int.c3d")["POINT"]["SCALE"])
+    assert (integer.source.storage, real.source.storage) == ("integer", "float")
+    np.testing.assert_array_equal(integer.missing, real.missing)
+    diff = np.abs(integer.positions - real.positions)[~integer.missing]
+    assert diff.max() <= scale * (1 + 1e-6)
+
+
+def test_facial_sing_facts(shared_data):
+    take = read_c3d(shared_data / "captures/facial-sing.c3d")
+    assert (take.n_markers, take.n_frames, take.rate) == (38, 3000, 100.0)
+    assert (take.source.byte_order, take.source.storage, take.source.units) == \
+        ("intel", "float", "mm")
+    assert take.analog is None                      # no ANALOG group in this file
+    face = [i for i, s in enumerate(take.labels) if s.startswith("section")]
+    missing = take.missing[:, face]
+    assert missing.sum() == 751 and np.count_nonzero(missing.any(axis=0)) == 6
+    longest = 0
+    for column in missing.T:                          # brute-force run lengths
+        run = 0
+        for gone in column:
+            run = run + 1 if gone else 0
+            longest = max(longest, run)
+    assert longest == 192
+    assert take.missing[:, take.index("Unlabeled1")].sum() == 2965
+    assert not (take.positions == 0).all(axis=2).any()  # residual -1 with xyz 0 is NaN
+
+
+def test_vicon_nexus_facts(shared_data):
+    take = read(shared_data / "vicon-nexus/markers.c3d")
+    assert (take.n_markers, take.n_frames, int(take.missing.sum())) == (51, 580, 305)
+    assert take.analog.values.shape == (580 * 20, 38) and take.analog.rate == 2000.0
+    assert take.source.producer.startswith("Vicon Nexus")
+
+
+def test_duplicate_labels_made_unique_with_warning_at_caller(shared_data):
+    with pytest.warns(UserWarning) as record:
+        take = read_c3d(shared_data / "c3d-samples/sample_06/MACsample.c3d")
+    dup = [w for w in record if "duplicate point labels made unique" in str(w.message)]
+    assert len(dup) == 1 and dup[0].filename == __file__
+    assert "RTHI_2" in take.labels and len(set(take.labels)) == take.n_markers
+
+
+def test_header_scale_wins_over_a_conflicting_point_scale(shared_data):
+    # MACsample's POINT:SCALE (0.0215) disagrees with the header (0.0551); only the
+    # header's gives an adult shoulder-to-hip distance (~0.4-0.6 m).
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        take = read_c3d(shared_data / "c3d-samples/sample_06/MACsample.c3d")
+    assert any("differs from POINT:SCALE" in str(w.message) for w in record)
+    trunk = np.linalg.norm(take.marker("RSHO") - take.marker("RHIP"), axis=1)
+    assert 400 < np.nanmedian(trunk) < 600
+
+
+def test_header_only_file_gets_fallback_labels(shared_data):
+    with pytest.warns(UserWarning, match="no POINT:UNITS; assuming mm"):
+        take = read_c3d(shared_data / "c3d-samples/sample_20/phasespace_sample.c3d")
+    assert take.labels[:2] == ("point1", "point2") and take.n_markers == 40
+
+
+# -- synthetic files through the writer ---------------------------------------
+def _take(n_frames=30, n_markers=3, *, analog=True, first_frame=5, seed=0) -> Take:
+    rng = np.random.default_rng(seed)
+    positions = rng.uniform(-900, 900, size=(n_frames, n_markers, 3))
+    positions[3:7, -1] = np.nan
+    positions[-1, 0] = np.nan
+    channels = None
+    if analog:
+        values = rng.normal(size=(4 * n_frames, 2))
+        channels = Analog(values, 400.0, ("mic", "emg"), ("V", "mV"))
+    return Take([f"m{i}" for i in range(n_markers)], positions, 100.0,
+                first_frame=first_frame, analog=channels)
+
+
+def _f32(a):
+    return a.astype(np.float32).astype(np.float64)
+
+
+@pytest.mark.parametrize("n_markers", [3, 300])
+def test_writer_output_read_back_by_ezc3d_and_us(tmp_path, n_markers):
+    take = _take(n_markers=n_markers)
+    path = tmp_path / "out.c3d"
+    write_c3d(take, path)
+    ez = ezc3d.c3d(str(path))
+    points = ez["data"]["points"][:3].transpose(2, 1, 0)
+    np.testing.assert_array_equal(points, _f32(take.positions))      # NaN where missing
+    labels = list(ez["parameters"]["POINT"]["LABELS"]["value"])
+    if n_markers > 255:
+        labels += list(ez["parameters"]["POINT"]["LABELS2"]["value"])
+    assert tuple(labels) == take.labels
+    assert float(ez["parameters"]["POINT"]["RATE"]["value"][0]) == take.rate
+    assert ez["header"]["points"]["first_frame"] + 1 == take.first_frame
+    np.testing.assert_array_equal(ez["data"]["analogs"][0].T, _f32(take.analog.values))
+    back = read_c3d(path)
+    np.testing.assert_array_equal(back.positions, _f32(take.positions))
+    assert (back.labels, back.rate, back.first_frame) == (take.labels, take.rate,
+                                                          take.first_frame)
+    assert back.analog.labels == take.analog.labels and back.analog.units == take.analog.units
+    np.testing.assert_array_equal(back.analog.values, _f32(take.analog.values))
+    assert (back.source.byte_order, back.source.storage) == ("intel", "float")
+
+
+def test_writer_stores_missing_as_residual_minus_one_and_zeros(tmp_path):
+    take = _take(analog=False)
+    write_c3d(take, tmp_path / "out.c3d")
+    raw = brute_force_points(tmp_path / "out.c3d")         # NaN from residual < 0 only
+    np.testing.assert_array_equal(np.isnan(raw[:, :, 0]), take.missing)
+    buf = (tmp_path / "out.c3d").read_bytes()
+    offset = (struct.unpack("<H", buf[16:18])[0] - 1) * 512
+    words = np.frombuffer(buf, "<f4", count=take.n_frames * take.n_markers * 4,
+                          offset=offset).reshape(take.n_frames, take.n_markers, 4)
+    assert (words[take.missing] == [0, 0, 0, -1]).all()
+
+
+def test_long_take_frame_count_from_trial(tmp_path):
+    take = _take(n_frames=70_000, n_markers=1, analog=False, first_frame=7)
+    write_c3d(take, tmp_path / "long.c3d")
+    back = read_c3d(tmp_path / "long.c3d")
+    assert (back.n_frames, back.first_frame) == (70_000, 7)
+    assert ezc3d.c3d(str(tmp_path / "long.c3d"))["data"]["points"].shape[2] == 70_000
+
+
+def _patched(tmp_path, take, old: bytes, new: bytes):
+    path = tmp_path / "in.c3d"
+    write_c3d(take, path)
+    buf = path.read_bytes()
+    assert buf.count(old) == 1
+    path.write_bytes(buf.replace(old, new))
+    return path
+
+
+@pytest.mark.parametrize("unit, factor", [("cm", 10.0), ("m ", 1000.0), ("mm", 1.0)])
+def test_units_converted_to_mm(tmp_path, unit, factor):
+    take = _take(analog=False)
+    path = _patched(tmp_path, take, b"UNITS\x08\x00\xff\x01\x02mm", b"UNITS\x08\x00\xff\x01\x02"
+                    + unit.encode())
+    back = read_c3d(path)
+    assert back.source.units == unit.strip()
+    np.testing.assert_allclose(back.positions, _f32(take.positions) * factor, rtol=1e-12)
+
+
+def test_header_data_pointer_wrong_uses_point_data_start(tmp_path):
+    take = _take()
+    path = tmp_path / "in.c3d"
+    write_c3d(take, path)
+    buf = bytearray(path.read_bytes())
+    buf[16:18] = struct.pack("<H", 60000)
+    path.write_bytes(bytes(buf))
+    with pytest.warns(UserWarning, match="using POINT:DATA_START"):
+        back = read_c3d(path)
+    np.testing.assert_array_equal(back.positions, _f32(take.positions))
+
+
+def test_unknown_parameter_type_is_skipped(tmp_path):
+    take = _take()
+    path = _patched(tmp_path, take, b"GEN_SCALE\t\x00\x04\x00", b"GEN_SCALE\t\x00\x03\x00")
+    with pytest.warns(UserWarning, match="unknown type 3; skipped"):
+        back = read_c3d(path)
+    np.testing.assert_array_equal(back.positions, _f32(take.positions))
+
+
+def test_truncated_data_reads_complete_frames_with_warning(tmp_path):
+    take = _take(analog=False)
+    path = tmp_path / "in.c3d"
+    write_c3d(take, path)
+    buf = path.read_bytes()
+    frame = take.n_markers * 16
+    offset = (struct.unpack("<H", buf[16:18])[0] - 1) * 512
+    path.write_bytes(buf[:offset + 10 * frame + 7])
+    with pytest.warns(UserWarning, match="data section is truncated: 10 complete frames"):
+        back = read_c3d(path)
+    np.testing.assert_array_equal(back.positions, _f32(take.positions[:10]))
+
+
+# -- errors -----------------------------------------------------------------------
+def _corrupt(tmp_path, edit):
+    path = tmp_path / "bad.c3d"
+    write_c3d(_take(), path)
+    buf = bytearray(path.read_bytes())
+    path.write_bytes(bytes(edit(buf)))
+    return path
+
+
+def _set(buf, at, raw):
+    buf[at:at + len(raw)] = raw
+    return buf
+
+
+def _set_point(buf, name, raw):
+    """Overwrite the value of scalar parameter POINT:`name` as our writer lays it out."""
+    key = bytes([len(name), 1]) + name.encode()
+    return _set(buf, buf.index(key) + len(key) + 4, raw)
+
+
+@pytest.mark.parametrize("edit, match, offset", [
+    (lambda b: b"", "file is empty", 0),
+    (lambda b: b[:100], "ends inside the 512-byte header", 100),
+    (lambda b: _set(b, 1, b"\x51"), "not a C3D file: byte 1 is 81", 1),
+    (lambda b: _set(b, 0, b"\xc8"), "bad parameter-section pointer", 0),
+    (lambda b: _set(b, 0, b"\x01"), "bad parameter-section pointer", 0),
+    (lambda b: _set(b, 515, b"\x57"), "unknown processor type 87", 515),
+    (lambda b: _set_point(_set(b, 16, b"\x00\x00"), "DATA_START", b"\x00\x00"),
+     "bad data-section pointer", 16),
+    (lambda b: b[:(b[16] - 1) * 512 + 20], "holds no complete frame", None),
+    (lambda b: _set(b, 2, bytes(4)), "frames hold no point and no analog value", 2),
+    (lambda b: _set_point(_set(b, 12, struct.pack("<f", 0.0)), "SCALE", bytes(4)),
+     "cannot tell float from integer", 12),
+    (lambda b: _set_point(_set(b, 20, struct.pack("<f", -1.0)), "RATE", bytes(4)),
+     "no frame rate", 20),
+    (lambda b: b.replace(b"\xff\x01\x02mm", b"\xff\x01\x02kg"), "not a length unit", None),
+])
+def test_corrupt_files_raise_with_offset(tmp_path, edit, match, offset):
+    path = _corrupt(tmp_path, edit)
+    with pytest.raises(FileFormatError, match=match) as info:
+        read_c3d(path)
+    assert info.value.path == str(path)
+    if offset is not None:
+        assert info.value.offset == offset
+    elif match == "holds no complete frame":
+        assert info.value.offset == path.stat().st_size
+
+
+def test_unreadable_path(tmp_path):
+    with pytest.raises(FileFormatError, match="cannot read file"):
+        read_c3d(tmp_path / "absent.c3d")
+    with pytest.raises(InputError, match="path must be a str or os.PathLike"):
+        read_c3d(3)
+
+
+@pytest.mark.parametrize("take, match", [
+    (Take(("a",), np.zeros((0, 1, 3)), 100.0), "no frames"),
+    (Take(("a",), np.zeros((2, 1, 3)), 100.0, first_frame=-1), "first_frame must be >= 0"),
+    (Take(("a" * 300,), np.zeros((2, 1, 3)), 100.0), "longer than 255 bytes"),
+    (Take(("a",), np.zeros((2, 1, 3)), 100.0,
+          analog=Analog(np.zeros((5, 1)), 250.0, ("x",), ("V",))), "whole number of samples"),
+])
+def test_writer_rejects_what_c3d_cannot_hold(tmp_path, take, match):
+    with pytest.raises(InputError, match=match):
+        write_c3d(take, tmp_path / "out.c3d")
+    assert not list(tmp_path.iterdir())                   # nothing left behind
+
+
+def test_writer_never_overwrites_an_input(tmp_path):
+    path = tmp_path / "in.c3d"
+    write_c3d(_take(), path)
+    before = path.read_bytes()
+    with pytest.raises(InputError, match="refusing to overwrite an input"):
+        write_c3d(_take(seed=1), path, inputs=[path])
+    assert path.read_bytes() == before
+    with pytest.raises(InputError, match="take must be a Take"):
+        write_c3d("not a take", tmp_path / "x.c3d")
+
+
+def test_read_c3d_parameters(shared_data):
+    params = read_c3d_parameters(shared_data / "c3d-samples/sample_33/bigparlove.c3d")
+    assert params["MANUFACTURER"]["COMPANY"] == "Vicon"
+    assert int(params["POINT"]["DATA_START"]) == 188
+    ez = ezc3d.c3d(str(shared_data / "c3d-samples/sample_33/bigparlove.c3d"))
+    assert list(params["POINT"]["LABELS"]) == list(ez["parameters"]["POINT"]["LABELS"]["value"])
