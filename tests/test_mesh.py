@@ -1,0 +1,257 @@
+"""Face meshes (mocap.mesh) and mesh landmarks (mocap.mesh_landmarks)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import igl
+import numpy as np
+import pytest
+import trimesh
+
+from mocap.anatomy import ANATOMICAL_POINTS, MASKLE_POINTS
+from mocap.errors import FileFormatError, InputError
+from mocap.mesh import (MESH_FORMATS, Mesh, boundary_loops, degenerate_faces, face_normals,
+                        load_mesh, save_obj, vertex_normals)
+from mocap.mesh_landmarks import check_mesh_landmarks, load_mesh_landmarks
+from tolerances import GLTF_FLOAT32_CM, MESH_EXACT
+
+HERE = Path(__file__).resolve().parent
+ICT_LANDMARKS = HERE / "ict_landmarks.toml"
+
+
+@pytest.fixture(scope="module")
+def ict_dir(shared_data) -> Path:
+    return shared_data / "ict-face"
+
+
+@pytest.fixture(scope="module")
+def ict(ict_dir) -> Mesh:
+    return load_mesh(ict_dir / "generic_neutral_mesh.obj", units="cm")
+
+
+def _polygons_by_loop(path) -> list[list[int]]:
+    """Brute-force oracle: the OBJ's polygons, 0-based, line by line."""
+    polys = []
+    for line in Path(path).read_text().splitlines():
+        if line.startswith("f "):
+            polys.append([int(tok.split("/")[0]) - 1 for tok in line.split()[1:]])
+    return polys
+
+
+# ---------------------------------------------------------------- loading
+
+def test_ict_mesh_loads_with_file_order_and_fan_triangles(ict, ict_dir):
+    assert ict.units == "cm"
+    assert ict.n_vertices == 9409
+    polys = _polygons_by_loop(ict_dir / "generic_neutral_mesh.obj")
+    assert len(ict.polygon_sizes) == len(polys) == 9230
+    assert ict.n_faces == sum(len(p) - 2 for p in polys)
+    expected = [[p[0], p[k + 1], p[k + 2]] for p in polys for k in range(len(p) - 2)]
+    np.testing.assert_array_equal(ict.faces, expected)
+    np.testing.assert_array_equal(ict.polygon_corners, np.concatenate(polys))
+    ref = trimesh.load(ict_dir / "generic_neutral_mesh.obj", process=False,
+                       maintain_order=True)
+    np.testing.assert_array_equal(ict.vertices, ref.vertices)
+    assert not ict.vertices.flags.writeable
+
+
+def test_expression_meshes_share_the_neutral_triangles(ict, ict_dir):
+    shape = load_mesh(ict_dir / "expressions" / "jawOpen.obj")
+    assert ict.same_topology(shape)
+    assert not np.allclose(shape.vertices, ict.vertices)
+
+
+_PLAIN = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0.5\nf 1 2 3 4\nf 2 5 6\nf 3 2 6 4 1\n"
+_VARIANTS = {
+    "plain": _PLAIN,
+    "slashes": _PLAIN.replace("f 1 2 3 4", "f 1/1/1 2/2/2 3/3/3 4/4/4").replace(
+        "f 2 5 6", "f 2//1 5//1 6//1"),
+    "negative": _PLAIN.replace("f 2 5 6", "f -5 -2 -1"),
+    "tabs-crlf": _PLAIN.replace("v 1 0 0", "v\t1\t0\t0").replace("\n", "\r\n"),
+    "extras": "# comment\nmtllib x.mtl\n" + _PLAIN.replace("v 2 0 0", "v 2 0 0 1.0")
+              + "vt 0 0\nvn 0 0 1\ns off\n",
+}
+
+
+@pytest.mark.parametrize("variant", sorted(_VARIANTS))
+def test_obj_variants_give_the_same_mesh(tmp_path, variant):
+    path = tmp_path / "m.obj"
+    path.write_text(_VARIANTS[variant])
+    mesh = load_mesh(path)
+    np.testing.assert_array_equal(mesh.polygon_sizes, [4, 3, 5])
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 2, 3], [1, 4, 5], [2, 1, 5],
+                                               [2, 5, 3], [2, 3, 0]])
+    np.testing.assert_array_equal(mesh.face_polygon, [0, 0, 1, 2, 2, 2])
+    np.testing.assert_array_equal(mesh.vertices[5], [2, 1, 0.5])
+
+
+_BAD_OBJ = [
+    ("v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite coordinates"),
+    ("v 0 0 inf\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite coordinates"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", "line 4: face indexes vertex 4, out of range"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "line 4: face indexes vertex 0"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", "line 4: face has 2 corners"),
+    ("v 0 0 0\nv 1 x 0\nv 0 1 0\nf 1 2 3\n", "line 2: vertex coordinates are not numbers"),
+    ("v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n", "line 2: vertex line needs 3 coordinates"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3.5\n", "line 4: face indices are not integers"),
+    ("# nothing\n", "empty mesh: no vertices"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "empty mesh: no faces"),
+]
+
+
+@pytest.mark.parametrize("text,message", _BAD_OBJ, ids=[m for _, m in _BAD_OBJ])
+def test_bad_obj_is_rejected_naming_the_file(tmp_path, text, message):
+    path = tmp_path / "bad.obj"
+    path.write_text(text)
+    with pytest.raises(FileFormatError, match="bad.obj.*" + message.replace("(", r"\(")):
+        load_mesh(path)
+
+
+def test_unknown_format_and_missing_file(tmp_path):
+    with pytest.raises(FileFormatError, match="unknown mesh format '.stl'"):
+        load_mesh(tmp_path / "m.stl")
+    with pytest.raises(FileFormatError, match="cannot read mesh"):
+        load_mesh(tmp_path / "absent.obj")
+    with pytest.raises(InputError, match="unknown length unit 'furlong'"):
+        load_mesh(tmp_path / "absent.obj", units="furlong")
+
+
+def test_degenerate_faces_warn_and_are_found(tmp_path):
+    path = tmp_path / "deg.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\nf 1 1 3\n")
+    with pytest.warns(UserWarning, match=r"deg.obj: 2 degenerate \(zero-area\) triangles"):
+        mesh = load_mesh(path)
+    np.testing.assert_array_equal(degenerate_faces(mesh.vertices, mesh.faces), [1, 2])
+
+
+@pytest.mark.parametrize("suffix", [s for s in MESH_FORMATS if s != ".obj"])
+def test_ply_and_gltf_keep_vertex_order(ict, tmp_path, suffix):
+    path = tmp_path / f"face{suffix}"
+    trimesh.Trimesh(ict.vertices, ict.faces, process=False).export(path)
+    mesh = load_mesh(path, units="cm")
+    # trimesh writes float32 to both formats
+    np.testing.assert_allclose(mesh.vertices, ict.vertices, atol=GLTF_FLOAT32_CM, rtol=0)
+    np.testing.assert_array_equal(mesh.faces, ict.faces)
+
+
+def test_mesh_constructor_validates():
+    v = np.eye(3)
+    with pytest.raises(InputError, match="out of range for 3 vertices"):
+        Mesh(v, [[0, 1, 3]])
+    with pytest.raises(InputError, match=r"faces must have shape \(F, 3\)"):
+        Mesh(v, [[0, 1, 2, 0]])
+    with pytest.raises(InputError, match="face_polygon does not match polygon_sizes"):
+        Mesh(v, [[0, 1, 2]], face_polygon=[0], polygon_sizes=[4])
+    with pytest.raises(InputError, match="vertices contains infinite values"):
+        Mesh([[0, 0, np.inf], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+
+
+# ---------------------------------------------------------------- geometry
+
+def test_vertex_normals_match_igl_and_batch(ict):
+    ours = vertex_normals(ict.vertices, ict.faces)
+    ref = igl.per_vertex_normals(ict.vertices, ict.faces,
+                                 igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA)
+    np.testing.assert_allclose(ours, ref, atol=MESH_EXACT)
+    rng = np.random.default_rng(0)
+    frames = ict.vertices + rng.normal(0, 0.05, (3,) + ict.vertices.shape)
+    batch = vertex_normals(frames, ict.faces)
+    for frame, normals in zip(frames, batch):
+        np.testing.assert_allclose(normals, vertex_normals(frame, ict.faces), atol=MESH_EXACT)
+    faces_n = face_normals(ict.vertices, ict.faces)
+    np.testing.assert_allclose(faces_n, igl.per_face_normals(ict.vertices, ict.faces,
+                                                             np.zeros(3)), atol=MESH_EXACT)
+    nose_tip = 4857
+    assert ours[nose_tip, 2] > 0.9  # outward, towards the viewer (+z)
+
+
+def test_ict_has_four_boundary_loops(ict):
+    loops = boundary_loops(ict)
+    assert len(loops) == 4
+    ref = igl.boundary_loop_all(ict.faces) if hasattr(igl, "boundary_loop_all") else None
+    if ref is not None:
+        assert sorted(map(len, ref)) == sorted(map(len, loops))
+        assert {frozenset(map(int, r)) for r in ref} == {frozenset(l.tolist()) for l in loops}
+    all_edges = np.sort(ict.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    edges = set(map(tuple, all_edges.tolist()))
+    for loop in loops:  # consecutive loop vertices share an edge of the mesh
+        pairs = np.sort(np.c_[loop, np.roll(loop, -1)], axis=1)
+        assert all(tuple(pair) in edges for pair in pairs.tolist())
+    centres = np.array([ict.vertices[l].mean(axis=0) for l in loops[1:]])
+    mouth = np.argmin(centres[:, 1])
+    eyes = np.delete(centres, mouth, axis=0)
+    assert abs(centres[mouth, 0]) < 0.1 and np.all(eyes[:, 1] > centres[mouth, 1] + 4)
+    assert sorted(np.sign(eyes[:, 0])) == [-1, 1]
+
+
+def test_save_obj_round_trip_keeps_quads(ict, tmp_path):
+    out = tmp_path / "copy.obj"
+    save_obj(ict, out)
+    back = load_mesh(out)
+    np.testing.assert_array_equal(back.vertices, ict.vertices)
+    np.testing.assert_array_equal(back.polygon_sizes, ict.polygon_sizes)
+    np.testing.assert_array_equal(back.faces, ict.faces)
+    tri = tmp_path / "tri.obj"
+    save_obj(ict.vertices, tri, faces=ict.faces)
+    assert np.all(load_mesh(tri).polygon_sizes == 3)
+    with pytest.raises(InputError, match="refusing to overwrite an input file"):
+        save_obj(ict, out, inputs=[out])
+    with pytest.raises(InputError, match="save_obj needs faces"):
+        save_obj(ict.vertices, tri)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["copy.obj", "tri.obj"]
+
+
+# ---------------------------------------------------------------- mesh landmarks
+
+def test_ict_landmarks_follow_the_multipie_68_ids(ict, ict_dir):
+    marks = load_mesh_landmarks(ICT_LANDMARKS, ict)
+    assert set(MASKLE_POINTS) <= set(marks)
+    assert {"nose_tip", "chin", "brow_inner_left", "brow_outer_right"} <= set(marks)
+    ibug = json.loads((ict_dir / "vertex_indices.json").read_text())["multi_pie_68_landmarks"]
+    # iBUG-68: 36-41 right eye, 42-47 left eye (subject's), 48/54 mouth corners, 30 nose tip
+    for point, index in [("eye_outer_right", 36), ("eye_inner_right", 39),
+                         ("eye_inner_left", 42), ("eye_outer_left", 45),
+                         ("mouth_corner_right", 48), ("mouth_corner_left", 54),
+                         ("upper_lip_top", 51), ("lower_lip_bottom", 57),
+                         ("nose_tip", 30), ("chin", 8)]:
+        assert marks[point] == ibug[index], point
+    x = ict.vertices[:, 0]
+    for point, vertex in marks.items():
+        if point.endswith("_left"):
+            assert x[vertex] > 0.5, point       # the subject's left is +x on the ICT face
+        if point.endswith("_right"):
+            assert x[vertex] < -0.5, point
+    y = ict.vertices[:, 1]
+    assert y[marks["upper_lip_top"]] > y[marks["upper_lip_bottom"]] \
+        >= y[marks["lower_lip_top"]] > y[marks["lower_lip_bottom"]]
+    assert y[marks["forehead"]] > y[marks["brow_mid_left"]] > y[marks["eye_outer_left"]] \
+        > y[marks["nose_tip"]] > y[marks["chin"]]
+
+
+_BAD_LANDMARKS = [
+    ("[landmarks]\nnose_tipp = 3\n", "unknown anatomical point 'nose_tipp'"),
+    ("[landmarks]\nnose_tip = 99\n", "landmark 'nose_tip' is vertex 99, out of range"),
+    ("[landmarks]\nnose_tip = -1\n", "landmark 'nose_tip' is vertex -1, out of range"),
+    ("[landmarks]\nnose_tip = 1.5\n", "landmark 'nose_tip' must be a vertex id"),
+    ("n_vertices = 12\n[landmarks]\nnose_tip = 1\n", "written for a mesh of 12 vertices"),
+    ("mesh = 'x'\n", "needs a non-empty \\[landmarks\\] table"),
+    ("colour = 1\n[landmarks]\nnose_tip = 1\n", "unknown keys \\['colour'\\]"),
+    ("[landmarks\n", "not valid TOML"),
+]
+
+
+@pytest.mark.parametrize("text,message", _BAD_LANDMARKS, ids=[m for _, m in _BAD_LANDMARKS])
+def test_bad_landmark_files(tmp_path, text, message):
+    path = tmp_path / "marks.toml"
+    path.write_text(text)
+    with pytest.raises(FileFormatError, match="marks.toml: .*" + message):
+        load_mesh_landmarks(path, 10)
+
+
+def test_check_mesh_landmarks_in_memory():
+    assert check_mesh_landmarks({"chin": np.int64(3)}, 4) == {"chin": 3}
+    with pytest.raises(InputError, match="landmarks must be a mapping"):
+        check_mesh_landmarks([("chin", 3)], 4)
+    assert all(p in ANATOMICAL_POINTS for p in load_mesh_landmarks(ICT_LANDMARKS))
