@@ -37,3 +37,14 @@ GLTF_FLOAT32_CM = 1e-5
 SOLVE_OBJECTIVE_REL = 1e-9
 #: Independent KKT check of solved weights (relative to the gradient's terms).
 SOLVE_KKT_REL = 1e-8
+#: Heat-method geodesic distance against the exact distance (relative), max and mean.
+GEODESIC_HEAT_MAX_REL = 0.08
+GEODESIC_HEAT_MEAN_REL = 0.03
+#: RBF operator against scipy.interpolate.RBFInterpolator (relative to the data scale).
+RBF_VS_SCIPY_RTOL = 1e-9
+#: Rigid-cluster gap fill of noise-free rigid data, mm.
+GAPFILL_RIGID_MM = 1e-9
+#: PCA gap fill of noise-free data of low rank, mm (iterative path: converged to 1e-10).
+GAPFILL_LOW_RANK_MM = 1e-6
+#: Our gap-aware low-pass against scipy.signal.sosfiltfilt on gap-free data, mm.
+LOWPASS_VS_SCIPY_MM = 1e-9

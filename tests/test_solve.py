@@ -1,0 +1,214 @@
+"""Exact batched weight solving against scipy's lsq_linear(bvls) and numpy's lstsq."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import lsq_linear
+
+from fit.solve import WeightSolution, solve_weights
+from mocap.errors import InputError
+from tests.tolerances import SOLVE_KKT_REL, SOLVE_OBJECTIVE_REL
+
+N_SHAPES, N_ROWS, N_FRAMES = 12, 30, 60
+
+BOUNDS = {
+    "none": (-np.inf, np.inf),
+    "unit": (0.0, 1.0),
+    "epsilon": (-0.1, 1.1),
+    "per-shape": (np.r_[np.zeros(6), np.full(6, -np.inf)],
+                  np.r_[np.full(6, np.inf), np.linspace(0.2, 1.0, 6)]),
+}
+BASES = ("random", "ill-conditioned", "rank-deficient")
+
+
+def make_basis(kind: str, rng) -> np.ndarray:
+    basis = rng.standard_normal((N_ROWS, N_SHAPES))
+    if kind == "ill-conditioned":
+        u, _, vt = np.linalg.svd(basis, full_matrices=False)
+        basis = u @ np.diag(np.logspace(0, -5, N_SHAPES)) @ vt
+    elif kind == "rank-deficient":
+        basis[:, 3] = basis[:, 4] + basis[:, 5]
+        basis[:, 7] = basis[:, 8]
+    return basis
+
+
+def make_data(basis, rng, n_frames=N_FRAMES):
+    truth = rng.uniform(-0.4, 1.4, (n_frames, basis.shape[1]))
+    return truth @ basis.T + 0.1 * rng.standard_normal((n_frames, basis.shape[0]))
+
+
+def half_cost(basis, w, data):
+    return 0.5 * np.sum((w @ basis.T - data) ** 2, axis=1)
+
+
+def oracle_cost(basis, data, lo, hi):
+    """Per-frame optimum: lstsq when unbounded, else lsq_linear(bvls) to convergence."""
+    if np.isinf(lo).all() and np.isinf(hi).all():
+        return half_cost(basis, np.linalg.lstsq(basis, data.T, rcond=None)[0].T, data)
+    results = [lsq_linear(basis, d, bounds=(lo, hi), method="bvls", max_iter=10_000)
+               for d in data]
+    assert all(r.status > 0 for r in results), "the oracle did not converge"
+    return half_cost(basis, np.array([r.x for r in results]), data)
+
+
+def assert_kkt(basis, data, w, lo, hi):
+    """KKT conditions checked from scratch: feasibility, stationarity, multiplier signs."""
+    lo, hi = np.broadcast_to(lo, w.shape[1:]), np.broadcast_to(hi, w.shape[1:])
+    assert np.all(w >= lo) and np.all(w <= hi)
+    grad = (w @ basis.T - data) @ basis
+    size = np.abs(w) @ np.abs(basis.T @ basis) + np.abs(data @ basis)
+    rel = grad / size
+    at_lo, at_hi = np.isclose(w, lo, rtol=0, atol=1e-12), np.isclose(w, hi, rtol=0, atol=1e-12)
+    interior = ~at_lo & ~at_hi
+    assert np.abs(rel[interior]).max(initial=0) < SOLVE_KKT_REL
+    assert rel[at_lo].min(initial=0) > -SOLVE_KKT_REL
+    assert rel[at_hi].max(initial=0) < SOLVE_KKT_REL
+
+
+@pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
+@pytest.mark.parametrize("kind", BASES)
+@pytest.mark.parametrize("bounds", BOUNDS, ids=str)
+def test_objective_equals_oracle(kind, bounds):
+    rng = np.random.default_rng([BASES.index(kind), list(BOUNDS).index(bounds)])
+    basis = make_basis(kind, rng)
+    data = make_data(basis, rng)
+    lo, hi = (np.broadcast_to(np.asarray(b, float), (N_SHAPES,)) for b in BOUNDS[bounds])
+    sol = solve_weights(basis, data, lower=BOUNDS[bounds][0], upper=BOUNDS[bounds][1])
+    assert isinstance(sol, WeightSolution)
+    assert sol.status == 0 and sol.converged.all()
+    assert sol.rank == (10 if kind == "rank-deficient" else N_SHAPES)
+    np.testing.assert_allclose(sol.cost, half_cost(basis, sol.weights, data), rtol=1e-12)
+    np.testing.assert_allclose(sol.cost, oracle_cost(basis, data, lo, hi),
+                               rtol=SOLVE_OBJECTIVE_REL)
+    assert_kkt(basis, data, sol.weights, lo, hi)
+
+
+@pytest.mark.parametrize("bounds", ["unit", "epsilon"])
+def test_warm_and_cold_start_agree(bounds):
+    rng = np.random.default_rng(3)
+    basis = make_basis("random", rng)
+    # A smooth sequence, where the warm start is meant to help.
+    t = np.linspace(0, 4 * np.pi, 200)[:, None]
+    truth = 0.5 + 0.8 * np.sin(t + np.arange(N_SHAPES))
+    data = truth @ basis.T + 0.05 * rng.standard_normal((len(t), N_ROWS))
+    lo, hi = BOUNDS[bounds]
+    warm = solve_weights(basis, data, lower=lo, upper=hi, warm_start=True)
+    cold = solve_weights(basis, data, lower=lo, upper=hi, warm_start=False)
+    assert warm.status == cold.status == 0
+    np.testing.assert_allclose(warm.cost, cold.cost, rtol=SOLVE_OBJECTIVE_REL)
+
+
+def test_marker_layout_equals_flat_layout():
+    rng = np.random.default_rng(4)
+    basis = make_basis("random", rng)
+    data = make_data(basis, rng)
+    flat = solve_weights(basis, data, lower=0, upper=1)
+    markers = solve_weights(basis.T.reshape(N_SHAPES, N_ROWS // 3, 3),
+                            data.reshape(N_FRAMES, N_ROWS // 3, 3), lower=0, upper=1)
+    np.testing.assert_allclose(markers.cost, flat.cost, rtol=1e-12)
+    np.testing.assert_allclose(markers.weights, flat.weights, atol=1e-9)
+
+
+def test_mask_leaves_rows_out_exactly():
+    rng = np.random.default_rng(5)
+    basis = make_basis("random", rng)
+    data = make_data(basis, rng, n_frames=30)
+    markers = np.ones((30, N_ROWS // 3), bool)
+    markers[5:12, 2] = False
+    markers[20:, [0, 7]] = False
+    data3 = data.reshape(30, -1, 3).copy()
+    data3[~markers] = np.nan
+    sol = solve_weights(basis.T.reshape(N_SHAPES, -1, 3), data3, lower=0, upper=1,
+                        mask=markers)
+    rows = np.repeat(markers, 3, axis=1)
+    expected = []
+    for valid, d in zip(rows, data):
+        x = lsq_linear(basis[valid], d[valid], bounds=(0, 1), method="bvls").x
+        expected.append(0.5 * np.sum((basis[valid] @ x - d[valid]) ** 2))
+    assert sol.status == 0
+    np.testing.assert_allclose(sol.cost, expected, rtol=SOLVE_OBJECTIVE_REL)
+
+
+def test_rank_deficient_basis_warns():
+    rng = np.random.default_rng(6)
+    basis = make_basis("rank-deficient", rng)
+    with pytest.warns(RuntimeWarning, match=r"rank 10 < 12 shapes"):
+        solve_weights(basis, make_data(basis, rng), lower=0, upper=1)
+
+
+def test_unconverged_frames_are_reported():
+    rng = np.random.default_rng(7)
+    basis = make_basis("ill-conditioned", rng)
+    data = make_data(basis, rng)
+    with pytest.warns(RuntimeWarning, match="did not converge"):
+        sol = solve_weights(basis, data, lower=0, upper=1, max_iter=1, warm_start=False)
+    assert sol.status == 1
+    assert not sol.converged.all()
+    assert np.all(sol.kkt_residual[~sol.converged] > 1e-9)
+    assert np.all((sol.weights >= 0) & (sol.weights <= 1))
+
+
+def test_inputs_are_not_mutated():
+    rng = np.random.default_rng(8)
+    basis = make_basis("random", rng)
+    data = make_data(basis, rng)
+    before = basis.copy(), data.copy()
+    solve_weights(basis, data, lower=0, upper=1)
+    np.testing.assert_array_equal(basis, before[0])
+    np.testing.assert_array_equal(data, before[1])
+
+
+BAD_INPUTS = [
+    ({"data": "nan"}, r"data is NaN in frame 3 \(row 4, marker 1\)"),
+    ({"data": "short"}, r"data must be \(n_frames, 30\)"),
+    ({"basis": "4d"}, r"basis must be \(K, n_shapes\) or \(n_shapes, n_markers, 3\)"),
+    ({"lower": 1.0, "upper": 0.0}, r"bounds of shape 0 are empty"),
+    ({"lower": np.zeros(3)}, r"lower must be a number or an array of 12 bounds"),
+    ({"upper": np.nan}, r"upper contains NaN"),
+    ({"smoothness": -1.0}, r"smoothness must be finite and >= 0"),
+    ({"smoothness": 1.0, "mask": "ones"}, r"smoothness cannot be combined with mask"),
+    ({"mask": "wrong"}, r"mask must have shape"),
+    ({"tol": 0.0}, r"tol must be a positive number"),
+    ({"max_iter": 0}, r"max_iter must be at least 1"),
+]
+
+
+@pytest.mark.parametrize("change, message", BAD_INPUTS, ids=lambda x: str(x)[:40])
+def test_bad_input_raises(change, message):
+    rng = np.random.default_rng(9)
+    basis = make_basis("random", rng)
+    data = make_data(basis, rng, n_frames=5)
+    kwargs = dict(change)
+    if kwargs.pop("data", None) == "nan":
+        data[3, 4] = np.nan
+    elif change.get("data") == "short":
+        data = data[:, :-1]
+    if kwargs.pop("basis", None) == "4d":
+        basis = basis[None, None]
+    if kwargs.get("mask") == "ones":
+        kwargs["mask"] = np.ones(data.shape, bool)
+    elif kwargs.get("mask") == "wrong":
+        kwargs["mask"] = np.ones((5, 2), bool)
+    with pytest.raises(InputError, match=message):
+        solve_weights(basis, data, **kwargs)
+
+
+@pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
+def test_real_basis_against_bvls(shared_data):
+    """The 53 ICT shapes at 30 vertices (mm), sparse weights in [0, 1]."""
+    trimesh = pytest.importorskip("trimesh")
+    face = shared_data / "ict-face"
+    paths = sorted((face / "expressions").glob("*.obj"))
+    neutral = trimesh.load(face / "generic_neutral_mesh.obj", process=False).vertices
+    rng = np.random.default_rng(10)
+    picked = rng.choice(len(neutral), 30, replace=False)
+    basis = 10.0 * np.stack([trimesh.load(p, process=False).vertices[picked] - neutral[picked]
+                             for p in paths])
+    weights = np.clip(rng.normal(0.1, 0.3, (8, len(paths))), 0, 1)
+    data = np.einsum("tn,nmk->tmk", weights, basis) + 0.2 * rng.standard_normal((8, 30, 3))
+    sol = solve_weights(basis, data, lower=0, upper=1)
+    flat = basis.reshape(len(paths), -1).T
+    expected = oracle_cost(flat, data.reshape(8, -1), np.zeros(len(paths)), np.ones(len(paths)))
+    assert sol.status == 0
+    np.testing.assert_allclose(sol.cost, expected, rtol=SOLVE_OBJECTIVE_REL)

@@ -1,0 +1,136 @@
+"""Moving average, temporally smooth weights, and the sampling estimator."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import lsq_linear
+
+from fit.sampling_estimator import estimate_weights_by_sampling
+from fit.solve import solve_weights
+from fit.temporal import EDGE_MODES, moving_average
+from mocap.errors import InputError
+from tests.tolerances import SOLVE_OBJECTIVE_REL
+
+
+def brute_moving_average(data, window, edge):
+    half = window // 2
+    out = np.full(data.shape, np.nan)
+    for t in range(len(data)):
+        idx = np.arange(t - half, t + half + 1)
+        if edge == "nearest":
+            idx = np.clip(idx, 0, len(data) - 1)
+        else:
+            idx = idx[(idx >= 0) & (idx < len(data))]
+        win = data[idx]
+        count = np.sum(~np.isnan(win), axis=0)
+        out[t] = np.where(count > 0, np.nansum(win, axis=0) / np.maximum(count, 1), np.nan)
+    return out
+
+
+@pytest.mark.parametrize("edge", EDGE_MODES)
+@pytest.mark.parametrize("window", [1, 3, 41])
+def test_moving_average_matches_loop(edge, window):
+    rng = np.random.default_rng(window)
+    data = 100 * rng.standard_normal((90, 4, 3))
+    data[rng.random((90, 4)) < 0.2] = np.nan
+    data[10:70, 1] = np.nan  # a gap longer than the window
+    got = moving_average(data, window=window, edge=edge)
+    np.testing.assert_allclose(got, brute_moving_average(data, window, edge), atol=1e-9)
+    assert np.isnan(got).any() == (window < 60)
+
+
+def test_moving_average_keeps_constant_and_input():
+    data = np.full((50, 2), 3.0)
+    before = data.copy()
+    np.testing.assert_allclose(moving_average(data), 3.0)
+    np.testing.assert_array_equal(data, before)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"window": 4}, "window must be an odd number of frames"),
+    ({"window": 0}, "window must be at least 1"),
+    ({"edge": "wrap"}, "edge must be one of"),
+])
+def test_moving_average_bad_input(kwargs, message):
+    with pytest.raises(InputError, match=message):
+        moving_average(np.zeros((5, 3)), **kwargs)
+
+
+def stacked_problem(basis, data, lam):
+    """The whole sequence as one least-squares problem: data rows, then √λ (w_t − w_{t−1})."""
+    T, n = len(data), basis.shape[1]
+    diff = np.diff(np.eye(T), axis=0)
+    big = np.vstack([np.kron(np.eye(T), basis), np.sqrt(lam) * np.kron(diff, np.eye(n))])
+    rhs = np.concatenate([data.ravel(), np.zeros((T - 1) * n)])
+    return big, rhs
+
+
+def sequence_cost(basis, data, lam, w):
+    return 0.5 * np.sum((w @ basis.T - data) ** 2) + 0.5 * lam * np.sum(np.diff(w, axis=0) ** 2)
+
+
+@pytest.mark.parametrize("bounds", [(-np.inf, np.inf), (0.0, 1.0), (-0.1, 1.1)])
+@pytest.mark.parametrize("lam", [0.3, 10.0])
+def test_smoothness_matches_stacked_oracle(bounds, lam):
+    rng = np.random.default_rng(int(lam * 10))
+    T, n, K = 9, 5, 12
+    basis = rng.standard_normal((K, n))
+    data = rng.uniform(-0.3, 1.3, (T, n)) @ basis.T + 0.2 * rng.standard_normal((T, K))
+    sol = solve_weights(basis, data, lower=bounds[0], upper=bounds[1], smoothness=lam)
+    big, rhs = stacked_problem(basis, data, lam)
+    if np.isinf(bounds[0]):
+        ref = np.linalg.lstsq(big, rhs, rcond=None)[0]
+    else:
+        ref = lsq_linear(big, rhs, bounds=bounds, method="bvls", max_iter=10_000).x
+    assert sol.status == 0
+    expected = sequence_cost(basis, data, lam, ref.reshape(T, n))
+    got = sequence_cost(basis, data, lam, sol.weights)
+    assert abs(got - expected) <= SOLVE_OBJECTIVE_REL * expected
+    np.testing.assert_allclose(sol.cost, 0.5 * np.sum((sol.weights @ basis.T - data) ** 2, 1))
+
+
+def test_smoothness_reduces_frame_to_frame_change():
+    rng = np.random.default_rng(11)
+    basis = rng.standard_normal((15, 4))
+    data = rng.uniform(0, 1, (40, 4)) @ basis.T + 0.5 * rng.standard_normal((40, 15))
+    rough = solve_weights(basis, data, lower=0, upper=1)
+    smooth = solve_weights(basis, data, lower=0, upper=1, smoothness=5.0)
+    assert np.abs(np.diff(smooth.weights, axis=0)).sum() < np.abs(
+        np.diff(rough.weights, axis=0)).sum()
+
+
+@pytest.mark.parametrize("eps", [0.0, 0.2])
+def test_sampling_estimator_is_feasible_and_never_beats_exact(eps):
+    rng = np.random.default_rng(12)
+    basis = rng.standard_normal((24, 6))
+    data = rng.uniform(-eps, 1 + eps, (30, 6)) @ basis.T + 0.1 * rng.standard_normal((30, 24))
+    est = estimate_weights_by_sampling(basis, data, lower=-eps, upper=1 + eps, seed=1)
+    exact = solve_weights(basis, data, lower=-eps, upper=1 + eps)
+    assert np.all((est.weights >= -eps) & (est.weights <= 1 + eps))
+    assert np.all(est.cost >= exact.cost * (1 - 1e-12))
+    again = estimate_weights_by_sampling(basis, data, lower=-eps, upper=1 + eps, seed=1)
+    np.testing.assert_array_equal(again.weights, est.weights)
+
+
+def test_sampling_estimator_matches_brute_force_neighbours():
+    rng = np.random.default_rng(13)
+    basis = rng.standard_normal((9, 3))
+    data = rng.uniform(0, 1, (7, 3)) @ basis.T
+    est = estimate_weights_by_sampling(basis, data, n_samples=50, n_neighbors=5, seed=2)
+    samples = np.random.default_rng(2).random((50, 3))
+    dist = np.linalg.norm(data[:, None, :] - (samples @ basis.T)[None], axis=2)
+    near = np.argsort(dist, axis=1)[:, :5]
+    inv = 1.0 / np.take_along_axis(dist, near, axis=1)
+    expected = np.einsum("tk,tkn->tn", inv / inv.sum(1, keepdims=True), samples[near])
+    np.testing.assert_allclose(est.weights, expected, rtol=1e-12)
+    np.testing.assert_allclose(est.distance, dist.min(axis=1), rtol=1e-12)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"upper": np.inf}, "needs finite lower and upper bounds"),
+    ({"n_samples": 10, "n_neighbors": 11}, r"n_neighbors \(11\) must not exceed"),
+])
+def test_sampling_estimator_bad_input(kwargs, message):
+    with pytest.raises(InputError, match=message):
+        estimate_weights_by_sampling(np.eye(3), np.zeros((2, 3)), **kwargs)
