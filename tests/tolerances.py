@@ -48,3 +48,8 @@ GAPFILL_RIGID_MM = 1e-9
 GAPFILL_LOW_RANK_MM = 1e-6
 #: Our gap-aware low-pass against scipy.signal.sosfiltfilt on gap-free data, mm.
 LOWPASS_VS_SCIPY_MM = 1e-9
+#: Absolute floor of eigenvalue comparisons, as a fraction of the largest eigenvalue:
+#: a covariance (Gram) method knows every eigenvalue to ~ε·λ₁ only.
+PCA_EIG_FLOOR = 1e-13
+#: Arrays exported as float32 (glTF weights, mesh sequences), relative to the largest magnitude.
+EXPORT_FLOAT32_REL = 1e-6

@@ -1,0 +1,137 @@
+"""Heat-method geodesic distances against exact geodesics and known geometry."""
+
+from __future__ import annotations
+
+import igl
+import numpy as np
+import pytest
+import trimesh
+
+from mocap import InputError
+from mocap.geodesic import HeatGeodesics
+from tolerances import GEODESIC_HEAT_MAX_REL, GEODESIC_HEAT_MEAN_REL
+
+
+def slit_grid(n: int = 25, slit: float = 0.6):
+    """Unit-square grid (criss-cross triangles) cut along y = 0.5 for x < `slit`.
+
+    Returns vertices (V, 3), triangles (F, 3), and the ids of the vertex rows
+    just above and just below the cut (sharing x), as (upper, lower).
+    """
+    xs = np.linspace(0.0, 1.0, n)
+    gx, gy = np.meshgrid(xs, xs, indexing="ij")
+    vertices = np.c_[gx.ravel(), gy.ravel(), np.zeros(n * n)]
+    ids = np.arange(n * n).reshape(n, n)
+    mid, tip = (n - 1) // 2, int(round(slit * (n - 1)))
+    faces = []
+    lower_ids = ids.copy()
+    if slit > 0:
+        # Duplicate the cut vertices (x < tip) for the cells below the cut.
+        dup = np.arange(n * n, n * n + tip)
+        vertices = np.r_[vertices, vertices[ids[:tip, mid]]]
+        lower_ids[:tip, mid] = dup
+    for i in range(n - 1):
+        for j in range(n - 1):
+            grid = lower_ids if j < mid else ids
+            a, b, c, d = grid[i, j], grid[i + 1, j], grid[i + 1, j + 1], grid[i, j + 1]
+            faces += [[a, b, c], [a, c, d]] if (i + j) % 2 else [[a, b, d], [b, c, d]]
+    return vertices, np.array(faces), ids[:, mid], lower_ids[:, mid]
+
+
+def test_flat_grid_matches_euclidean_and_exact():
+    v, f, _, _ = slit_grid(slit=0.0)
+    geo = HeatGeodesics(v, f)
+    sources = np.array([0, 12 * 25 + 12, 7 * 25 + 3])
+    heat = geo.from_vertices(sources)
+    euclid = np.linalg.norm(v[None, :, :] - v[sources, None, :], axis=2)
+    exact = np.stack([igl.exact_geodesic(v, f, VS=np.array([s]), VT=np.arange(len(v)))
+                      for s in sources])
+    np.testing.assert_allclose(exact, euclid, atol=1e-9)
+    far = euclid > 0.25                         # the heat method is O(h) near the source
+    rel = np.abs(heat - euclid)[far] / euclid[far]
+    assert rel.max() < GEODESIC_HEAT_MAX_REL
+    assert rel.mean() < GEODESIC_HEAT_MEAN_REL
+    assert np.all(heat[np.arange(3), sources] == 0.0)
+
+
+def test_slit_forces_the_way_around():
+    v, f, upper, lower = slit_grid()
+    geo = HeatGeodesics(v, f)
+    a, b = upper[3], lower[3]              # facing each other across the cut
+    tip = v[upper[np.flatnonzero(upper == lower)[0]]]    # first vertex not cut
+    around = np.linalg.norm(v[a] - tip) + np.linalg.norm(tip - v[b])
+    heat = geo.from_vertices([a])[0, b]
+    exact = igl.exact_geodesic(v, f, VS=np.array([a]), VT=np.array([b]))[0]
+    assert np.linalg.norm(v[a] - v[b]) == 0.0
+    np.testing.assert_allclose(exact, around, rtol=1e-9)
+    np.testing.assert_allclose(heat, exact, rtol=GEODESIC_HEAT_MAX_REL)
+
+
+def test_surface_points_blend_vertex_fields():
+    v, f, _, _ = slit_grid(slit=0.0)
+    geo = HeatGeodesics(v, f)
+    corner = f[40, 1]
+    at_vertex = geo.from_surface_points([40], [[0.0, 1.0, 0.0]])
+    np.testing.assert_array_equal(at_vertex, geo.from_vertices([corner]))
+    bary = np.array([[0.2, 0.5, 0.3]])
+    blended = geo.from_surface_points([40], bary)
+    np.testing.assert_allclose(blended[0], bary[0] @ geo.from_vertices(f[40]), rtol=1e-12)
+
+
+def test_symmetric_fields_agree_with_point_distances():
+    v, f, _, _ = slit_grid()
+    geo = HeatGeodesics(v, f)
+    rng = np.random.default_rng(3)
+    faces = rng.choice(len(f), 8, replace=False)
+    bary = rng.dirichlet(np.ones(3), 8)
+    raw = geo.at_surface_points(geo.from_surface_points(faces, bary), faces, bary)
+    dist = geo.between_surface_points(faces, bary)
+    fields = geo.from_surface_points(faces, bary, symmetric=True)
+    np.testing.assert_allclose(dist, dist.T, atol=1e-12)
+    np.testing.assert_allclose(dist, (raw + raw.T) / 2 - np.diag(np.diag(raw)), atol=1e-9)
+    np.testing.assert_allclose(geo.at_surface_points(fields, faces, bary), dist, atol=1e-9)
+
+
+def test_locate_recovers_surface_points():
+    v, f, _, _ = slit_grid(slit=0.0)
+    v = v + np.c_[np.zeros((len(v), 2)), 0.1 * np.sin(3 * v[:, 0])]
+    geo = HeatGeodesics(v, f)
+    rng = np.random.default_rng(4)
+    faces = rng.choice(len(f), 10, replace=False)
+    bary = rng.dirichlet(np.ones(3) * 3, 10)
+    points = np.einsum("pk,pkd->pd", bary, v[f[faces]])
+    got_faces, got_bary = geo.locate(points)
+    np.testing.assert_array_equal(got_faces, faces)
+    np.testing.assert_allclose(got_bary, bary, atol=1e-9)
+
+
+def test_ict_mouth_is_open(shared_data):
+    mesh = trimesh.load(shared_data / "ict-face" / "generic_neutral_mesh.obj", process=False)
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)   # quads split by trimesh
+    assert f.shape == (2 * 9230, 3)
+    upper_inner, lower_inner = 5533, 5517       # Multi-PIE landmarks 62 and 66
+    dist = HeatGeodesics(v, f).from_vertices([upper_inner])[0, lower_inner]
+    assert dist > 20 * np.linalg.norm(v[upper_inner] - v[lower_inner])
+
+
+@pytest.mark.parametrize("faces, match", [
+    (np.array([[0, 1, 2, 3]]), r"shape \(n_faces, 3\)"),
+    (np.array([[0, 1, 9]]), r"faces index vertices 0\.\.3"),
+    (np.array([[0.0, 1, 2]]), "integer vertex ids"),
+    (np.array([[0, 1, 2]]), "2 connected pieces"),
+])
+def test_mesh_errors(faces, match):
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 0]])
+    with pytest.raises(InputError, match=match):
+        HeatGeodesics(v, faces)
+
+
+def test_point_errors():
+    v, f, _, _ = slit_grid(n=5, slit=0.0)
+    geo = HeatGeodesics(v, f)
+    with pytest.raises(InputError, match="expected non-negative weights summing to 1"):
+        geo.from_surface_points([0], [[0.5, 0.6, 0.0]])
+    with pytest.raises(InputError, match=r"face_ids must be in 0\.\.31"):
+        geo.from_surface_points([32], [[1.0, 0.0, 0.0]])
+    with pytest.raises(InputError, match="sources must be vertex ids"):
+        geo.from_vertices([25])
