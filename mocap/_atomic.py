@@ -31,15 +31,23 @@ def atomic_path(path, *, inputs=()):
         The final output file. Its directory must exist.
     inputs : iterable of path, optional
         Files this output must never replace.
+
+    Raises
+    ------
+    InputError
+        `path` is an input, its directory is missing, or writing fails
+        (permissions, disk full): ``"<path>: cannot write: <reason>"``.
     """
     path = Path(path)
     refuse_overwrite(path, inputs)
-    if not path.parent.exists():
-        raise InputError(f"{path}: directory {path.parent} does not exist")
+    if not path.parent.is_dir():
+        raise InputError(f"{path}: cannot write: directory {path.parent} does not exist")
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         yield tmp
         os.replace(tmp, path)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from None
     finally:
         if tmp.exists():
             tmp.unlink()

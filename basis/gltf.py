@@ -1,0 +1,194 @@
+"""glTF 2.0 export of a basis as morph targets, with an optional weight animation.
+
+One scene, one node, one mesh with one triangle primitive: the neutral's
+POSITION and NORMAL, uint32 indices, and one morph target per shape (POSITION
+displacements). The shape names go to ``mesh.extras.targetNames``, which
+Blender, three.js and :func:`basis.artist.load_artist_basis` read. Weights of
+a take become an animation of the node's ``weights``.
+
+Units and axes: glTF is in metres, +Y up, the front of an asset facing +Z.
+Positions are scaled from the mesh's ``units`` to metres (cm × 0.01,
+mm × 0.001); axes are written as they are, so the mesh must already be Y-up
+and facing +Z, as the ICT face is (nose tip at the largest z). A mesh without
+units is written unscaled, with a warning.
+"""
+
+from __future__ import annotations
+
+import base64
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+
+from mocap._validation import as_float_array, as_positive_float
+from mocap.errors import InputError
+from mocap.mesh import Mesh, vertex_normals
+from mocap.units import mm_per_unit
+
+from mocap._atomic import atomic_path
+
+from .basis_io import as_shape_names
+
+__all__ = ["GLTF_FORMATS", "write_gltf"]
+
+#: File extensions :func:`write_gltf` writes: binary GLB, or JSON with the buffer embedded.
+GLTF_FORMATS = (".glb", ".gltf")
+
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+
+
+class _Buffer:
+    """One glTF buffer assembled from float32/uint32 arrays, one view each."""
+
+    def __init__(self):
+        self.chunks, self.views, self.accessors, self.length = [], [], [], 0
+
+    def add(self, arr: np.ndarray, kind: str, *, target: int | None = None) -> int:
+        """Append `arr` (count, k) or (count,) as one view and accessor; return its index."""
+        component = pygltflib.UNSIGNED_INT if arr.dtype == np.uint32 else pygltflib.FLOAT
+        data = np.ascontiguousarray(arr, dtype="<u4" if component == pygltflib.UNSIGNED_INT
+                                    else "<f4")
+        raw = data.tobytes()  # every element is 4 bytes: views stay 4-byte aligned
+        stride = data.itemsize * data.shape[1] if target == _ARRAY_BUFFER else None
+        self.views.append(pygltflib.BufferView(buffer=0, byteOffset=self.length,
+                                               byteLength=len(raw), byteStride=stride,
+                                               target=target))
+        columns = data.reshape(len(data), -1)
+        self.accessors.append(pygltflib.Accessor(
+            bufferView=len(self.views) - 1, componentType=component, count=len(data),
+            type=kind, min=columns.min(axis=0).tolist(), max=columns.max(axis=0).tolist()))
+        self.chunks.append(raw)
+        self.length += len(raw)
+        return len(self.accessors) - 1
+
+    def blob(self) -> bytes:
+        return b"".join(self.chunks)
+
+
+def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None,
+               rate: float | None = None, name: str = "face", inputs=()) -> None:
+    """Write a neutral mesh and its basis as glTF morph targets.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``*.glb`` (binary) or ``*.gltf`` (JSON, buffer embedded as a data URI).
+        Written to a temporary file beside it, then renamed.
+    neutral : Mesh
+        The neutral, Y-up and facing +Z; its ``units`` set the scale to metres.
+    displacements : array_like of shape (n, N, 3), mesh units
+        One displacement field per shape. No NaN.
+    names : sequence of str, length n
+        Shape names (``mesh.extras.targetNames``), unique.
+    weights : array_like of shape (T, n), optional
+        Weights of each frame: an animation with one LINEAR sampler (input:
+        times ``t / rate`` s, output: the T × n weights frame after frame)
+        targeting the node's ``weights``. No NaN.
+    rate : float, optional
+        Frame rate, Hz; required with `weights`, only with them.
+    name : str
+        Name of the node, mesh and animation.
+    inputs : iterable of path, optional
+        Files never to replace (the neutral's own file is always protected).
+
+    Raises
+    ------
+    InputError
+        Unknown extension, shapes or names inconsistent with the neutral, NaN
+        or infinite values, `rate` missing or given without `weights`, the file
+        cannot be written (named).
+
+    Warns
+    -----
+    UserWarning
+        The neutral has no units: positions are written unscaled.
+
+    Notes
+    -----
+    Accessors are float32 (positions, normals, times, weights) or uint32
+    (indices), each in its own 4-byte-aligned view with ``min``/``max`` of the
+    stored values; vertex-attribute views carry ``byteStride`` 12. NORMAL is
+    the area-weighted vertex normal of the neutral (``+Z`` where no face
+    defines one); morph targets carry no NORMAL displacement. Default morph
+    weights are 0.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in GLTF_FORMATS:
+        raise InputError(f"{path}: unknown glTF extension {path.suffix!r}; expected one of "
+                         f"{', '.join(GLTF_FORMATS)}")
+    if not isinstance(neutral, Mesh):
+        raise InputError(f"neutral must be a Mesh, got {type(neutral).__name__}")
+    n_vertices = neutral.n_vertices
+    displacements = as_float_array(displacements, "displacements", shape=(None, n_vertices, 3),
+                                   allow_nan=False)
+    names = as_shape_names(names, len(displacements))
+    times, weights = _animation(weights, rate, len(names))
+    scale = _to_metres(neutral)
+
+    normals = vertex_normals(neutral.vertices, neutral.faces)
+    normals[np.linalg.norm(normals, axis=1) == 0] = (0.0, 0.0, 1.0)
+    buf = _Buffer()
+    indices = buf.add(neutral.faces.reshape(-1).astype(np.uint32), pygltflib.SCALAR,
+                      target=_ELEMENT_ARRAY_BUFFER)
+    position = buf.add(neutral.vertices * scale, pygltflib.VEC3, target=_ARRAY_BUFFER)
+    normal = buf.add(normals, pygltflib.VEC3, target=_ARRAY_BUFFER)
+    targets = [{"POSITION": buf.add(d * scale, pygltflib.VEC3, target=_ARRAY_BUFFER)}
+               for d in displacements]
+    primitive = pygltflib.Primitive(
+        attributes=pygltflib.Attributes(POSITION=position, NORMAL=normal), indices=indices,
+        mode=pygltflib.TRIANGLES, targets=targets)
+    mesh = pygltflib.Mesh(name=name, primitives=[primitive], weights=[0.0] * len(names),
+                          extras={"targetNames": list(names)})
+    animations = []
+    if weights is not None:
+        sampler = pygltflib.AnimationSampler(
+            input=buf.add(times, pygltflib.SCALAR), output=buf.add(weights.reshape(-1),
+                                                                   pygltflib.SCALAR),
+            interpolation=pygltflib.ANIM_LINEAR)
+        channel = pygltflib.AnimationChannel(
+            sampler=0, target=pygltflib.AnimationChannelTarget(node=0, path="weights"))
+        animations = [pygltflib.Animation(name=name, samplers=[sampler], channels=[channel])]
+    gltf = pygltflib.GLTF2(
+        asset=pygltflib.Asset(version="2.0", generator="mocap2mesh"), scene=0,
+        scenes=[pygltflib.Scene(nodes=[0])], nodes=[pygltflib.Node(name=name, mesh=0)],
+        meshes=[mesh], animations=animations, accessors=buf.accessors,
+        bufferViews=buf.views, buffers=[pygltflib.Buffer(byteLength=buf.length)])
+    _save(gltf, buf.blob(), path, [*inputs, neutral.path])
+
+
+def _animation(weights, rate, n: int):
+    """Times (T,) s and weights (T, n), or (None, None) without weights."""
+    if weights is None:
+        if rate is not None:
+            raise InputError("rate is only used with weights (the animation's frame rate)")
+        return None, None
+    if rate is None:
+        raise InputError("weights need the take's rate (Hz) to time the animation")
+    rate = as_positive_float(rate, "rate")
+    weights = as_float_array(weights, "weights", shape=(None, n), allow_nan=False)
+    if len(weights) == 0:
+        raise InputError("weights has no frames")
+    return np.arange(len(weights)) / rate, weights
+
+
+def _to_metres(neutral: Mesh) -> float:
+    if neutral.units is None:
+        warnings.warn("the neutral mesh has no units: positions are written unscaled, "
+                      "as if in metres", stacklevel=3)
+        return 1.0
+    return mm_per_unit(neutral.units) / 1000.0
+
+
+def _save(gltf: pygltflib.GLTF2, blob: bytes, path: Path, inputs) -> None:
+    if path.suffix.lower() == ".gltf":
+        gltf.buffers[0].uri = ("data:application/octet-stream;base64,"
+                               + base64.b64encode(blob).decode("ascii"))
+    else:
+        gltf.set_binary_blob(blob)
+    with atomic_path(path, inputs=inputs) as tmp:
+        if path.suffix.lower() == ".gltf":
+            gltf.save_json(str(tmp))
+        else:
+            gltf.save_binary(str(tmp))

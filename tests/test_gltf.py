@@ -1,0 +1,226 @@
+"""glTF export (basis.gltf): written, then re-read with pygltflib, trimesh and basis.artist."""
+
+from __future__ import annotations
+
+import base64
+import struct
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+import pytest
+import trimesh
+
+from basis.artist import load_artist_basis
+from basis.gltf import GLTF_FORMATS, write_gltf
+from mocap.errors import InputError
+from mocap.mesh import Mesh, load_mesh
+from tolerances import EXPORT_FLOAT32_REL, GLTF_FLOAT32_CM
+
+#: Metres per unit: the oracle of the unit conversion.
+_METRES = {"mm": 0.001, "cm": 0.01, "m": 1.0}
+_DTYPES = {pygltflib.FLOAT: "<f4", pygltflib.UNSIGNED_INT: "<u4",
+           pygltflib.UNSIGNED_SHORT: "<u2"}
+_WIDTH = {"SCALAR": 1, "VEC3": 3}
+
+
+def _buffer(gltf: pygltflib.GLTF2) -> bytes:
+    uri = gltf.buffers[0].uri
+    if uri is None:
+        return gltf.binary_blob()
+    assert uri.startswith("data:application/octet-stream;base64,")
+    return base64.b64decode(uri.split(",", 1)[1])
+
+
+def _read(gltf: pygltflib.GLTF2, index: int) -> np.ndarray:
+    """Decode an accessor (count, width) by hand from its view and buffer."""
+    acc = gltf.accessors[index]
+    view = gltf.bufferViews[acc.bufferView]
+    dtype = np.dtype(_DTYPES[acc.componentType])
+    width = _WIDTH[acc.type]
+    stride = view.byteStride or dtype.itemsize * width
+    data = _buffer(gltf)
+    start = view.byteOffset + (acc.byteOffset or 0)
+    assert start + stride * (acc.count - 1) + dtype.itemsize * width <= view.byteOffset \
+        + view.byteLength <= len(data)
+    return np.ndarray((acc.count, width), dtype=dtype, buffer=data, offset=start,
+                      strides=(stride, dtype.itemsize))
+
+
+def _check_accessors(gltf: pygltflib.GLTF2) -> None:
+    """min/max equal numpy's on the stored values; views 4-byte aligned; strides set."""
+    for i, acc in enumerate(gltf.accessors):
+        values = _read(gltf, i)
+        np.testing.assert_array_equal(acc.min, values.min(axis=0))
+        np.testing.assert_array_equal(acc.max, values.max(axis=0))
+    for view in gltf.bufferViews:
+        assert view.byteOffset % 4 == 0 and view.byteLength % 4 == 0
+        if view.target == pygltflib.ARRAY_BUFFER:
+            assert view.byteStride == 12
+
+
+def _grid(units: str | None, n: int = 5) -> Mesh:
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
+    rng = np.random.default_rng(1)
+    vertices = np.column_stack([x.ravel(), y.ravel(), rng.normal(scale=0.2, size=n * n)])
+    i = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)).ravel()
+    faces = np.concatenate([np.column_stack([i, i + 1, i + n + 1]),
+                            np.column_stack([i, i + n + 1, i + n])])
+    return Mesh(vertices, faces, units=units)
+
+
+@pytest.fixture(scope="module")
+def ict(shared_data):
+    folder = shared_data / "ict-face"
+    return load_artist_basis(folder / "generic_neutral_mesh.obj", folder / "expressions",
+                             names=["jawOpen", "mouthSmile_L", "eyeBlink_R", "browInnerUp_L"],
+                             units="cm")
+
+
+def test_ict_face_as_animated_morph_targets(ict, tmp_path):
+    rng = np.random.default_rng(0)
+    weights = rng.random((24, ict.n_shapes))
+    path = tmp_path / "face.glb"
+    write_gltf(path, ict.neutral, ict.displacements, ict.names, weights=weights, rate=60.0)
+
+    gltf = pygltflib.GLTF2().load(str(path))
+    _check_accessors(gltf)
+    (mesh,), (prim,) = gltf.meshes, gltf.meshes[0].primitives
+    assert mesh.extras["targetNames"] == list(ict.names) and mesh.weights == [0.0] * 4
+    assert gltf.accessors[prim.attributes.POSITION].count == ict.neutral.n_vertices
+    indices = _read(gltf, prim.indices).reshape(-1, 3)
+    np.testing.assert_array_equal(indices, ict.neutral.faces)
+    np.testing.assert_allclose(_read(gltf, prim.attributes.POSITION) / _METRES["cm"],
+                               ict.neutral.vertices, rtol=0, atol=GLTF_FLOAT32_CM)
+    normals = _read(gltf, prim.attributes.NORMAL)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
+    # the face looks along +Z: normals at the nose tip point forward
+    assert normals[np.argmax(ict.neutral.vertices[:, 2]), 2] > 0.9
+    assert len(prim.targets) == ict.n_shapes
+    for target, disp in zip(prim.targets, ict.displacements):
+        np.testing.assert_allclose(_read(gltf, target["POSITION"]) / _METRES["cm"], disp,
+                                   rtol=0, atol=GLTF_FLOAT32_CM)
+
+    (anim,) = gltf.animations
+    (sampler,), (channel,) = anim.samplers, anim.channels
+    assert sampler.interpolation == "LINEAR"
+    assert (channel.target.node, channel.target.path) == (0, "weights")
+    assert gltf.nodes[channel.target.node].mesh == 0
+    times = _read(gltf, sampler.input)[:, 0]
+    np.testing.assert_allclose(times, np.arange(24) / 60.0, rtol=EXPORT_FLOAT32_REL)
+    np.testing.assert_allclose(_read(gltf, sampler.output).reshape(24, ict.n_shapes), weights,
+                               rtol=0, atol=EXPORT_FLOAT32_REL)
+
+    # an independent reader (another engineer's): the basis comes back, in metres
+    in_metres = Mesh(ict.neutral.vertices * _METRES["cm"], ict.neutral.faces, units="m")
+    back = load_artist_basis(in_metres, path)
+    assert back.names == ict.names
+    np.testing.assert_allclose(back.displacements / _METRES["cm"], ict.displacements,
+                               rtol=0, atol=GLTF_FLOAT32_CM)
+    loaded = trimesh.load(path, process=False)
+    geometry = loaded.to_geometry() if isinstance(loaded, trimesh.Scene) else loaded
+    assert len(geometry.vertices) == ict.neutral.n_vertices
+    assert len(geometry.faces) == ict.neutral.n_faces
+
+
+@pytest.mark.parametrize("suffix", GLTF_FORMATS)
+@pytest.mark.parametrize("units", sorted(_METRES))
+def test_units_become_metres(tmp_path, suffix, units):
+    neutral = _grid(units)
+    disp = np.random.default_rng(2).normal(size=(3, neutral.n_vertices, 3))
+    path = tmp_path / f"grid{suffix}"
+    write_gltf(path, neutral, disp, ["a", "b", "c"])
+    gltf = pygltflib.GLTF2().load(str(path))
+    _check_accessors(gltf)
+    assert gltf.animations == []
+    prim = gltf.meshes[0].primitives[0]
+    scale = _METRES[units]
+    for target, d in zip(prim.targets, disp):
+        decoded = _read(gltf, target["POSITION"])
+        np.testing.assert_allclose(decoded, d * scale, rtol=0,
+                                   atol=EXPORT_FLOAT32_REL * np.abs(d * scale).max())
+    np.testing.assert_allclose(_read(gltf, prim.attributes.POSITION), neutral.vertices * scale,
+                               rtol=0, atol=EXPORT_FLOAT32_REL * neutral.vertices.max() * scale)
+    metres = Mesh(neutral.vertices * scale, neutral.faces, units="m")
+    back = load_artist_basis(metres, path)
+    np.testing.assert_allclose(back.displacements, disp * scale, rtol=0,
+                               atol=EXPORT_FLOAT32_REL * np.abs(disp * scale).max())
+
+
+def test_glb_chunks_are_aligned(tmp_path):
+    neutral = _grid("cm", n=3)
+    path = tmp_path / "a.glb"
+    write_gltf(path, neutral, np.ones((1, 9, 3)), ["only"], weights=np.ones((5, 1)),
+               rate=30)
+    raw = path.read_bytes()
+    magic, version, length = struct.unpack("<4sII", raw[:12])
+    assert (magic, version, length) == (b"glTF", 2, len(raw))
+    offset = 12
+    while offset < len(raw):
+        chunk_length, _ = struct.unpack("<II", raw[offset:offset + 8])
+        assert chunk_length % 4 == 0
+        offset += 8 + chunk_length
+    assert offset == len(raw)
+
+
+def test_one_frame_animation_and_unitless_mesh(tmp_path):
+    neutral = _grid(None, n=3)
+    path = tmp_path / "a.gltf"
+    with pytest.warns(UserWarning, match="no units: positions are written unscaled"):
+        write_gltf(path, neutral, np.zeros((2, 9, 3)), ["a", "b"],
+                   weights=[[0.25, 0.5]], rate=24)
+    gltf = pygltflib.GLTF2().load(str(path))
+    _check_accessors(gltf)
+    sampler = gltf.animations[0].samplers[0]
+    assert _read(gltf, sampler.input).tolist() == [[0.0]]
+    assert _read(gltf, sampler.output).ravel().tolist() == [0.25, 0.5]
+    np.testing.assert_allclose(_read(gltf, gltf.meshes[0].primitives[0].attributes.POSITION),
+                               neutral.vertices, atol=1e-6)
+
+
+def test_output_never_replaces_the_neutral(tmp_path):
+    neutral = _grid("cm", n=3)
+    src = tmp_path / "neutral.glb"
+    write_gltf(src, neutral, np.zeros((1, 9, 3)), ["a"])
+    loaded = load_mesh(src, units="m")
+    with pytest.raises(InputError, match="refusing to overwrite an input file"):
+        write_gltf(src, loaded, np.zeros((1, 9, 3)), ["a"])
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(names=["a"]), "names has 1 entries but displacements has 2 shapes"),
+    (dict(names=["a", "a"]), "names must be unique: 'a' appears twice"),
+    (dict(names="ab"), "names must be a sequence of strings"),
+    (dict(names=["a", ""]), "names must be non-empty strings"),
+    (dict(names=[], displacements=np.zeros((0, 9, 3))), "displacements has no shapes"),
+    (dict(displacements=np.zeros((2, 8, 3))), r"displacements must have shape \(any, 9, 3\)"),
+    (dict(displacements=np.full((2, 9, 3), np.nan)), "displacements contains NaN"),
+    (dict(weights=np.array([[0.0, np.nan]]), rate=30), r"weights contains NaN"),
+    (dict(weights=np.zeros((4, 3)), rate=30), r"weights must have shape \(any, 2\)"),
+    (dict(weights=np.zeros((0, 2)), rate=30), "weights has no frames"),
+    (dict(weights=np.zeros((4, 2))), "weights need the take's rate"),
+    (dict(rate=30), "rate is only used with weights"),
+    (dict(weights=np.zeros((4, 2)), rate=-1), "rate must be positive"),
+    (dict(path="face.fbx"), "unknown glTF extension '.fbx'"),
+    (dict(neutral=np.zeros((9, 3))), "neutral must be a Mesh"),
+])
+def test_invalid_input_is_refused(tmp_path, kwargs, message):
+    args = dict(path="face.glb", neutral=_grid("cm", n=3), displacements=np.zeros((2, 9, 3)),
+                names=["a", "b"])
+    args.update(kwargs)
+    path = tmp_path / args.pop("path")
+    with pytest.raises(InputError, match=message):
+        write_gltf(path, args.pop("neutral"), args.pop("displacements"), args.pop("names"),
+                   **args)
+    assert not path.exists()
+
+
+def test_unwritable_directory_names_the_file(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    with pytest.raises(InputError, match=r"a_file/face\.glb: cannot write"):
+        write_gltf(blocker / "face.glb", _grid("cm", n=3), np.zeros((1, 9, 3)), ["a"])
+    with pytest.raises(InputError, match="directory .*missing_dir does not exist"):
+        write_gltf(tmp_path / "missing_dir" / "face.glb", _grid("cm", n=3),
+                   np.zeros((1, 9, 3)), ["a"])
+    assert Path(blocker).read_text() == ""
