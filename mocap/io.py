@@ -12,7 +12,7 @@ __all__ = ["read", "write", "READ_FORMATS", "WRITE_FORMATS"]
 #: Extensions that :func:`read` accepts.
 READ_FORMATS = (".c3d", ".csv", ".trc", ".npz")
 #: Extensions that :func:`write` accepts.
-WRITE_FORMATS = (".c3d", ".csv", ".npz")
+WRITE_FORMATS = (".c3d", ".csv", ".trc", ".npz")
 
 
 def _extension(path, allowed) -> str:
@@ -59,7 +59,7 @@ def read(path) -> Take:
 
 
 def write(take: Take, path, *, inputs=()) -> None:
-    """Write `take` as C3D, Vicon Nexus CSV or ``.npz`` by extension, atomically.
+    """Write `take` as C3D, Vicon Nexus CSV, TRC or ``.npz`` by extension, atomically.
 
     Parameters
     ----------
@@ -75,6 +75,9 @@ def write(take: Take, path, *, inputs=()) -> None:
     elif ext == ".csv":
         from .vicon_csv import write_vicon_csv
         write_vicon_csv(take, path, inputs=inputs)
+    elif ext == ".trc":
+        from .trc import write_trc
+        write_trc(take, path, inputs=inputs)
     else:
         from .take_npz import write_take_npz
         write_take_npz(take, path, inputs=inputs)
