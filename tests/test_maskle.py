@@ -1,0 +1,270 @@
+"""The Maskle: asset round trip, placement, geometry kernels vs oracles, transfer invariance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.optimize import linprog
+
+from basis.maskle import (CHANNEL_KINDS, FIT_STATUSES, Mask, fit_mask, landmark_points,
+                          load_default_mask, load_mask, maskle_weights, save_mask,
+                          shepard_coefficients, smoothing_operator)
+from basis.maskle._geometry import TriangleIndex, nearest_ray_hits, triangles_intersect
+from basis.maskle.build_default import build_default_mask
+from fit.cli import main
+from mocap.anatomy import MASKLE_POINTS
+from mocap.errors import FileFormatError, InputError
+from mocap.markerset import REQUIRED_REGIONS
+from mocap.mesh import load_mesh
+from mocap.mesh_landmarks import load_mesh_landmarks
+from tolerances import MESH_EXACT
+
+LANDMARKS = "tests/ict_landmarks.toml"
+
+
+@pytest.fixture(scope="module")
+def ict(shared_data):
+    mesh = load_mesh(shared_data / "ict-face" / "generic_neutral_mesh.obj")
+    return mesh, load_mesh_landmarks(LANDMARKS, mesh)
+
+
+@pytest.fixture(scope="module")
+def mask():
+    return build_default_mask()
+
+
+def _random_rotation(rng):
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q * np.linalg.det(q)
+
+
+# --- asset -----------------------------------------------------------------------------
+
+def test_default_mask_file_is_the_built_mask(mask):
+    shipped = load_default_mask()
+    np.testing.assert_array_equal(shipped.vertices, mask.vertices)
+    np.testing.assert_array_equal(shipped.weights, mask.weights)
+    assert set(REQUIRED_REGIONS) <= set(shipped.channel_names)
+    regions = shipped.weights[:, [shipped.channel_names.index(r) for r in REQUIRED_REGIONS]]
+    np.testing.assert_allclose(regions.sum(axis=1), 1.0, atol=1e-12)
+
+
+def test_mask_round_trip(mask, tmp_path):
+    path = tmp_path / "m.npz"
+    save_mask(mask, path)
+    back = load_mask(path)
+    for name in ("vertices", "polygons", "weights", "origins", "tongue_root", "tongue_tip"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(mask, name))
+    assert back.channel_names == mask.channel_names
+    assert back.channel_kinds == mask.channel_kinds
+    assert back.landmarks == mask.landmarks
+
+
+def test_mask_landmarks_are_the_maskle_points(mask):
+    assert set(mask.landmarks) == set(MASKLE_POINTS)
+    assert set(mask.channel_kinds) <= set(CHANNEL_KINDS)
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(weights="over"), "mask weights must lie in"),
+    (dict(landmarks="drop"), "mask lacks landmarks"),
+    (dict(channel_kinds="bad"), "channel kind 'muscle' unknown"),
+    (dict(polygons="out"), "index vertices outside"),
+])
+def test_mask_validation(mask, change, match):
+    kw = dict(vertices=mask.vertices, polygons=mask.polygons, channel_names=mask.channel_names,
+              channel_kinds=mask.channel_kinds, weights=mask.weights, origins=mask.origins,
+              landmarks=dict(mask.landmarks), tongue_root=mask.tongue_root,
+              tongue_tip=mask.tongue_tip)
+    if "weights" in change:
+        kw["weights"] = mask.weights + 0.5
+    if "landmarks" in change:
+        kw["landmarks"].pop("eye_inner_left")
+    if "channel_kinds" in change:
+        kw["channel_kinds"] = ("muscle",) + mask.channel_kinds[1:]
+    if "polygons" in change:
+        kw["polygons"] = mask.polygons + mask.n_vertices
+    with pytest.raises(InputError, match=match):
+        Mask(**kw)
+
+
+def test_load_mask_rejects_other_files(tmp_path):
+    path = tmp_path / "x.npz"
+    np.savez(path, a=np.zeros(3))
+    with pytest.raises(FileFormatError, match="not a mask file"):
+        load_mask(path)
+
+
+# --- geometry kernels ------------------------------------------------------------------
+
+def _lp_intersect(a, b) -> bool:
+    """Oracle: do convex hulls of two triangles meet? (feasibility LP on barycentrics)."""
+    a_eq = np.zeros((5, 6))
+    a_eq[:3, :3], a_eq[:3, 3:] = a.T, -b.T
+    a_eq[3, :3] = a_eq[4, 3:] = 1
+    res = linprog(np.zeros(6), A_eq=a_eq, b_eq=[0, 0, 0, 1, 1], bounds=(0, None),
+                  method="highs")
+    return res.status == 0
+
+
+def test_triangle_intersection_matches_lp_oracle():
+    rng = np.random.default_rng(3)
+    a = rng.random((300, 3, 3))
+    b = rng.random((300, 3, 3)) * 0.8 + 0.1
+    got = triangles_intersect(a, b)
+    want = np.array([_lp_intersect(x, y) for x, y in zip(a, b)])
+    np.testing.assert_array_equal(got, want)
+    assert 20 < got.sum() < 280        # both outcomes are exercised
+
+
+def test_ray_hits_match_trimesh():
+    rng = np.random.default_rng(4)
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    tri = sphere.vertices[sphere.faces]
+    origins = rng.normal(size=(200, 3)) * 0.3
+    dirs = rng.normal(size=(200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    face, t = nearest_ray_hits(origins, dirs, TriangleIndex(tri), 10.0)
+    inter = trimesh.ray.ray_triangle.RayMeshIntersector(sphere)
+    for sign in (1, -1):
+        loc, ray, _ = inter.intersects_location(origins, sign * dirs, multiple_hits=False)
+        dist = np.full(len(origins), np.inf)
+        dist[ray] = np.linalg.norm(loc - origins[ray], axis=1)
+        if sign == 1:
+            best = dist
+        else:
+            best = np.minimum(best, dist)
+    assert np.all(face >= 0)
+    np.testing.assert_allclose(np.abs(t), best, atol=MESH_EXACT)
+
+
+def test_shepard_reproduces_corners_and_constants():
+    rng = np.random.default_rng(5)
+    corners = rng.random((50, 4, 3))
+    valid = np.ones((50, 4), bool)
+    valid[::3, 3] = False
+    coef = shepard_coefficients(corners[:, 1], corners, valid)
+    np.testing.assert_array_equal(coef, np.eye(4)[np.ones(50, int)])
+    points = rng.random((50, 3))
+    coef = shepard_coefficients(points, corners, valid)
+    np.testing.assert_allclose(coef @ np.ones(4), 1.0, atol=1e-14)
+    assert np.all(coef[~valid] == 0)
+
+
+def test_smoothing_keeps_unit_interval_and_constants():
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    rng = np.random.default_rng(6)
+    defined = rng.random(len(sphere.vertices)) < 0.8
+    op = smoothing_operator(sphere.faces, defined, iterations=5)
+    w = rng.random(len(defined))
+    out = op @ w
+    assert out.min() >= 0 and out.max() <= 1
+    np.testing.assert_allclose(op @ np.ones(len(defined)), 1.0, atol=1e-12)
+    np.testing.assert_array_equal(out[~defined], w[~defined])   # undefined untouched
+
+
+# --- fitting and transfer on the ICT face --------------------------------------------
+
+def test_placement_maps_landmarks_on_a_scaled_face(ict, mask):
+    mesh, marks = ict
+    fit = fit_mask(mask, mesh, marks, max_iterations=1)
+    copy = mesh.with_vertices(mesh.vertices * 2.5 + [3.0, -1.0, 7.0])
+    fit2 = fit_mask(mask, copy, marks, max_iterations=1)
+    assert fit2.scale == pytest.approx(2.5 * fit.scale, rel=1e-10)
+    np.testing.assert_allclose(fit2.placed, fit.placed * 2.5 + [3.0, -1.0, 7.0], atol=1e-8)
+    # landmarks land on the face landmarks in the face's plane (in front by the standoff)
+    ids = [mask.landmarks[p] for p in MASKLE_POINTS]
+    offset = fit.placed[ids] - landmark_points(mesh, marks)
+    sideways = offset - np.outer(offset @ fit.forward, fit.forward)
+    lip = [MASKLE_POINTS.index("upper_lip_bottom"), MASKLE_POINTS.index("lower_lip_top")]
+    others = np.setdiff1d(np.arange(10), lip)
+    assert np.abs(sideways[others]).max() < 0.2 * fit.scale
+
+
+def test_fit_freezes_every_vertex(ict, mask):
+    mesh, marks = ict
+    fit = fit_mask(mask, mesh, marks)
+    assert fit.status in FIT_STATUSES
+    assert fit.status == "all_frozen" and fit.frozen.all()
+    # the mask moved back towards the face and stays in front of the face's back
+    assert np.all((fit.vertices - fit.placed) @ fit.forward <= 1e-12)
+
+
+def test_transfer_is_invariant_to_similarity(ict, mask):
+    mesh, marks = ict
+    rng = np.random.default_rng(8)
+    rot = _random_rotation(rng)
+    moved = mesh.with_vertices(3.0 * mesh.vertices @ rot.T + [10.0, 2.0, -5.0])
+    a = maskle_weights(mesh, marks, mask)
+    b = maskle_weights(moved, marks, mask)
+    both = a.hit & b.hit
+    assert (a.hit != b.hit).sum() <= 0.01 * a.hit.sum()
+    diff = np.abs(a.weights[both] - b.weights[both])
+    assert diff.mean() < 1e-3
+    assert a.fit.n_iterations == b.fit.n_iterations
+    regions = a.region_masks()
+    np.testing.assert_allclose(regions[a.hit].sum(axis=1), 1.0, atol=1e-12)
+    assert np.isnan(regions[~a.hit]).all()
+    assert np.all((a.weights[a.hit] >= 0) & (a.weights[a.hit] <= 1))
+
+
+def test_missing_landmark_is_an_error(ict, mask):
+    mesh, marks = ict
+    partial = {k: v for k, v in marks.items() if k != "mouth_corner_left"}
+    with pytest.raises(InputError, match="face landmarks lack mouth_corner_left"):
+        fit_mask(mask, mesh, partial)
+
+
+def test_coincident_landmarks_are_an_error(ict, mask):
+    mesh, marks = ict
+    same = {p: marks["nose_tip"] for p in MASKLE_POINTS}
+    with pytest.raises(InputError, match="collinear or coincident"):
+        fit_mask(mask, mesh, same)
+
+
+def test_bad_option_is_an_error(ict, mask):
+    mesh, marks = ict
+    with pytest.raises(InputError, match="b must be positive"):
+        fit_mask(mask, mesh, marks, b=0.0)
+
+
+def test_region_masks_need_regions(mask):
+    from basis.maskle import MaskleWeights
+    w = MaskleWeights(("jaw",), ("bone",), np.zeros((3, 1)), np.ones(3, bool),
+                      np.zeros(0, np.int64))
+    with pytest.raises(InputError, match="paints no region"):
+        w.region_masks()
+
+
+# --- command line ----------------------------------------------------------------------
+
+def test_cli_writes_weights(ict, shared_data, tmp_path, capsys):
+    out, csv, png = tmp_path / "w.npz", tmp_path / "w.csv", tmp_path / "w.png"
+    mesh_path = str(shared_data / "ict-face" / "generic_neutral_mesh.obj")
+    assert main(["maskle", mesh_path, "--landmarks", LANDMARKS, "-o", str(out),
+                 "--csv", str(csv), "--picture", str(png)]) == 0
+    with np.load(out) as doc:
+        weights, hit, regions = doc["weights"], doc["hit"], doc["region_masks"]
+    assert weights.shape == (ict[0].n_vertices, len(load_default_mask().channel_names))
+    assert np.isnan(weights[~hit]).all() and not np.isnan(weights[hit]).any()
+    np.testing.assert_allclose(regions[hit].sum(axis=1), 1.0, atol=1e-12)
+    rows = csv.read_text().splitlines()
+    assert len(rows) == ict[0].n_vertices + 1 and png.stat().st_size > 0
+
+
+def test_cli_bad_landmarks_exit_1(shared_data, tmp_path, capsys):
+    bad = tmp_path / "l.toml"
+    bad.write_text("[landmarks]\nnose_tip = 4857\n")
+    mesh_path = str(shared_data / "ict-face" / "generic_neutral_mesh.obj")
+    assert main(["maskle", mesh_path, "--landmarks", str(bad), "-o",
+                 str(tmp_path / "o.npz")]) == 1
+    assert "face landmarks lack" in capsys.readouterr().err
+
+
+def test_cli_output_must_be_npz(shared_data, tmp_path, capsys):
+    mesh_path = str(shared_data / "ict-face" / "generic_neutral_mesh.obj")
+    assert main(["maskle", mesh_path, "--landmarks", LANDMARKS, "-o",
+                 str(tmp_path / "o.txt")]) == 1
+    assert "must be an .npz file" in capsys.readouterr().err
