@@ -1,0 +1,206 @@
+"""``mocap2mesh synth`` and ``mocap2mesh bind``: simulated and real captures, error paths."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mocap
+from fit.cli import main
+from mocap.bind import load_binding
+from mocap.layout import load_marker_layout
+from mocap.markerset import load_markerset
+from mocap.mesh import load_mesh
+from mocap.synth import load_capture_truth
+from tolerances import BIND_CLI_SIM_MAX_MM, BIND_CLI_SIM_MEAN_MM
+
+HERE = Path(__file__).resolve().parent
+LAYOUT = HERE / "ict_marker_layout.toml"
+ICT_MARKERSET = HERE / "ict_markerset.toml"
+ICT_LANDMARKS = HERE / "ict_landmarks.toml"
+SING_MARKERSET = HERE / "facial_sing_markerset.toml"
+MM_PER_CM = 10.0
+NEUTRAL_S = 3.0        # the simulated performance rests this long, then makes faces
+
+
+@pytest.fixture(scope="module")
+def ict(shared_data) -> Path:
+    return shared_data / "ict-face"
+
+
+def _performance_csv(path: Path) -> Path:
+    """4 s at 30 Hz: rest for NEUTRAL_S, then jaw, blink, brows and smile (one frame dropped)."""
+    t = np.delete(np.arange(121) / 30.0, 70)
+    ramp = np.clip((t - NEUTRAL_S) / 0.3, 0, 1)
+    rows = ["time,JawOpen,EyeBlinkLeft,BrowInnerUp,MouthSmileLeft,BlendShapeCount"]
+    rows += [f"{ti:.6f},{0.8 * r:.6f},{r:.6f},{0.6 * r:.6f},{0.5 * r:.6f},61"
+             for ti, r in zip(t, ramp)]
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    return path
+
+
+def _synth_args(ict, performance, output, *extra):
+    return ["synth", "--mesh", str(ict / "generic_neutral_mesh.obj"), "--shapes",
+            str(ict / "expressions"), "--performance", str(performance), "--layout", str(LAYOUT),
+            "--markerset", str(ICT_MARKERSET), "-o", str(output), *extra]
+
+
+def _bind_args(ict, capture, output, *extra, markerset=ICT_MARKERSET, landmarks=ICT_LANDMARKS):
+    return ["bind", str(capture), "--markerset", str(markerset), "--mesh",
+            str(ict / "generic_neutral_mesh.obj"), "--landmarks", str(landmarks),
+            "-o", str(output), *extra]
+
+
+@pytest.fixture(scope="module", params=[".c3d", ".csv"])
+def simulated(request, ict, tmp_path_factory):
+    """A simulated capture (noise 0.2 mm, gaps, head motion) and its truth file."""
+    folder = tmp_path_factory.mktemp("sim")
+    capture, truth = folder / f"capture{request.param}", folder / "truth.npz"
+    performance = _performance_csv(folder / "performance.csv")
+    with pytest.warns(UserWarning, match=r"48 shapes of .*expressions have no weight column"):
+        code = main(_synth_args(ict, performance, capture, "--truth", str(truth), "--gaps",
+                                "8", "--noise", "0.2", "--seed", "4", "--head-motion", "15,30"))
+    assert code == 0
+    return capture, truth
+
+
+def test_synth_writes_the_capture_and_its_truth(simulated):
+    capture, truth_path = simulated
+    take, truth = mocap.read(capture), load_capture_truth(truth_path)
+    assert take.n_frames == truth.n_frames == 401 and take.rate == truth.rate == 100.0
+    assert take.labels == truth.labels
+    assert set(take.labels) == set(load_markerset(ICT_MARKERSET).markers)
+    np.testing.assert_array_equal(take.missing, truth.missing)
+    assert truth.missing.any()
+    error = (take.positions - truth.markers_world)[~truth.missing]
+    assert error.std() == pytest.approx(0.2, rel=0.1)
+    jaw = truth.shape_names.index("jawOpen")
+    t = np.arange(truth.n_frames) / truth.rate
+    np.testing.assert_allclose(truth.weights[:, jaw], 0.8 * np.clip((t - NEUTRAL_S) / 0.3, 0, 1),
+                               atol=5e-6)                  # the CSV holds 6 decimals
+
+
+@pytest.mark.parametrize("stabilize", [False, True])
+def test_bind_recovers_the_layout_of_a_simulated_capture(simulated, ict, tmp_path, capsys,
+                                                         stabilize):
+    capture, truth_path = simulated
+    output = tmp_path / "binding.json"
+    extra = ["--skin-offset", "2", "-v"] + (["--stabilize"] if stabilize else [])
+    assert main(_bind_args(ict, capture, output, *extra)) == 0
+    frame = int(re.search(r"^frame\s+(\d+)", capsys.readouterr().out, re.M).group(1))
+    truth = load_capture_truth(truth_path)
+    # at rest, or where the ramp is still below the noise (0.2 mm)
+    assert truth.weights[frame].max() < 0.1 and not truth.missing[frame].any()
+    binding = load_binding(output)
+    mesh = load_mesh(ict / "generic_neutral_mesh.obj", units="cm")
+    layout = load_marker_layout(LAYOUT, mesh)
+    expected = layout.positions(mesh.vertices, offset=False)[[layout.index(x)
+                                                              for x in binding.labels]]
+    error = MM_PER_CM * np.linalg.norm(binding.marker_points(mesh.vertices) - expected, axis=1)
+    print(f"simulated {capture.suffix} stabilize={stabilize}: frame {frame}, bound points vs "
+          f"layout mean {error.mean():.3f} mm, max {error.max():.3f} mm "
+          f"({binding.labels[int(np.argmax(error))]}); scale x 10 = {binding.scale * 10:.4f}")
+    assert error.mean() < BIND_CLI_SIM_MEAN_MM and error.max() < BIND_CLI_SIM_MAX_MM
+    assert binding.scale * MM_PER_CM == pytest.approx(1, abs=0.01)
+    assert np.abs(binding.distances - 2.0).max() < 1.0
+    doc = json.loads(output.read_text())
+    assert len(doc["distances_mm"]) == len(doc["labels"]) == 66
+
+
+def test_bind_facial_sing(shared_data, ict, tmp_path, capsys):
+    capture = shared_data / "captures" / "facial-sing.c3d"
+    output = tmp_path / "sing.json"
+    with pytest.warns(UserWarning, match=r"markers are more than 3.0 mm off .*root-"):
+        assert main(_bind_args(ict, capture, output, "-v", markerset=SING_MARKERSET)) == 0
+    report = capsys.readouterr().out
+    print(report)
+    binding = load_binding(output)
+    markerset = load_markerset(SING_MARKERSET)
+    assert binding.labels == markerset.markers                 # Unlabeled1 left out
+    face = np.isin(binding.labels, markerset.face_markers)
+    assert np.median(binding.distances[face]) < 3.0
+    assert binding.converged and binding.n_landmarks == len(markerset.landmarks)
+    # a face of real size: ICT is in cm, so ~0.1 cm per capture mm
+    assert 0.07 < binding.scale < 0.13
+    for label, dist in zip(binding.labels, binding.distances):
+        assert re.search(rf"^\s+{re.escape(label)}\s+{dist:.3f}$", report, re.M)
+
+
+def test_bind_a_given_frame_without_icp(shared_data, ict, tmp_path):
+    capture = shared_data / "captures" / "facial-sing.c3d"
+    output = tmp_path / "sing0.json"
+    with pytest.warns(UserWarning):
+        assert main(_bind_args(ict, capture, output, "--frame", "0", "--no-icp",
+                               markerset=SING_MARKERSET)) == 0
+    binding = load_binding(output)
+    assert binding.n_iterations == 0 and "no ICP" in binding.message
+
+
+# ---------------------------------------------------------------- error paths
+
+def _fails(argv, capsys, *patterns):
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    for pattern in patterns:
+        assert re.search(pattern, err), err
+
+
+def test_synth_performance_naming_no_shape(ict, tmp_path, capsys):
+    perf = tmp_path / "strange.csv"
+    perf.write_text("time,Foo,Bar\n0,0,0\n1,1,1\n", encoding="utf-8")
+    _fails(_synth_args(ict, perf, tmp_path / "x.c3d"), capsys,
+           r"strange\.csv: none of its weight columns \(Foo, Bar\)")
+    assert not (tmp_path / "x.c3d").exists()
+
+
+def test_synth_layout_of_another_mesh(ict, tmp_path, capsys):
+    layout = tmp_path / "small.toml"
+    layout.write_text('n_vertices = 100\n[markers]\na = { vertex = 1 }\n', encoding="utf-8")
+    args = _synth_args(ict, _performance_csv(tmp_path / "p.csv"), tmp_path / "x.c3d")
+    args[args.index("--layout") + 1] = str(layout)
+    _fails(args, capsys, r"small\.toml: written for a mesh of 100 vertices, but the mesh has "
+                         r"9409")
+
+
+def test_synth_rejects_an_output_it_cannot_write(ict, tmp_path, capsys):
+    _fails(_synth_args(ict, _performance_csv(tmp_path / "p.csv"), tmp_path / "x.npz"), capsys,
+           r"x\.npz: the capture must be \.c3d or \.csv")
+
+
+def test_synth_bad_head_motion_is_a_usage_error(ict, tmp_path, capsys):
+    args = _synth_args(ict, tmp_path / "p.csv", tmp_path / "x.c3d", "--head-motion", "15")
+    assert main(args) == 2
+    assert "expected DEG,MM" in capsys.readouterr().err
+
+
+def test_bind_landmarks_of_another_mesh(simulated, ict, tmp_path, capsys):
+    landmarks = tmp_path / "marks.toml"
+    landmarks.write_text("n_vertices = 100\n[landmarks]\nnose_tip = 4\n", encoding="utf-8")
+    _fails(_bind_args(ict, simulated[0], tmp_path / "b.json", landmarks=landmarks), capsys,
+           r"marks\.toml: written for a mesh of 100 vertices, but the mesh has 9409")
+
+
+def test_bind_missing_landmarks_file(simulated, ict, tmp_path, capsys):
+    _fails(_bind_args(ict, simulated[0], tmp_path / "b.json", landmarks=tmp_path / "no.toml"),
+           capsys, r"no\.toml: cannot read mesh landmarks")
+    assert not (tmp_path / "b.json").exists()
+
+
+def test_bind_markerset_of_another_capture(simulated, ict, tmp_path, capsys):
+    _fails(_bind_args(ict, simulated[0], tmp_path / "b.json", markerset=SING_MARKERSET),
+           capsys, r"marker 'root-1': marker set 'facial-sing' names it but .*capture\.")
+
+
+def test_bind_frame_beyond_the_take(simulated, ict, tmp_path, capsys):
+    _fails(_bind_args(ict, simulated[0], tmp_path / "b.json", "--frame", "401"), capsys,
+           r"frame index 401 is beyond the take's 401 frames")
+
+
+def test_bind_refuses_to_overwrite_its_input(simulated, ict, capsys):
+    _fails(_bind_args(ict, simulated[0], simulated[0]), capsys,
+           r"refusing to overwrite an input file")
