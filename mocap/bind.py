@@ -406,7 +406,8 @@ def pick_neutral_frame(positions) -> int:
     -------
     int
         Among the frames where every marker is visible, the one of smallest
-        root-mean-square distance to the per-marker median over those frames.
+        root-mean-square distance to the rest pose: the per-marker median over
+        every frame in which that marker is visible.
 
     Raises
     ------
@@ -415,16 +416,18 @@ def pick_neutral_frame(positions) -> int:
 
     Notes
     -----
-    A face spends most of a take near rest, so the per-marker median of the
-    complete frames approximates the rest pose, robust to expressions that
-    last less than half the take.
+    A face spends most of a take near rest, so the per-marker median
+    approximates the rest pose, robust to expressions that last less than half
+    the take. The median is taken over all visible samples of each marker, not
+    only over complete frames: gaps come more often with expressions (lips
+    hidden by a smile, eyelids in a blink), so complete frames lean away from rest.
     """
     positions = as_float_array(positions, "positions", shape=(None, None, 3))
     complete = np.flatnonzero(~np.isnan(positions).any(axis=(1, 2)))
     if len(complete) == 0:
         raise InputError("no frame has every marker visible; fill gaps first or select "
                          "markers")
+    rest = np.nanmedian(positions, axis=0)
     frames = positions[complete]
-    median = np.median(frames, axis=0)
-    rms = np.sqrt(np.mean(np.sum((frames - median) ** 2, axis=-1), axis=-1))
+    rms = np.sqrt(np.mean(np.sum((frames - rest) ** 2, axis=-1), axis=-1))
     return int(complete[np.argmin(rms)])

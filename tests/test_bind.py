@@ -359,3 +359,20 @@ def test_pick_neutral_frame():
     assert np.sqrt(np.mean(np.sum((frames[chosen] - rest) ** 2, -1))) < 1.0
     with pytest.raises(InputError, match="no frame has every marker visible"):
         pick_neutral_frame(np.full((4, 2, 3), np.nan))
+
+
+def test_neutral_frame_not_biased_by_gaps_during_expressions():
+    """Gaps that come with expressions must not pull the rest estimate towards them."""
+    rng = np.random.default_rng(3)
+    rest = rng.normal(0, 30, (10, 3))
+    expression = rest + rng.normal(0, 5, (10, 3))
+    n = 200
+    positions = np.repeat(rest[None], n, axis=0)
+    active = np.zeros(n, bool)
+    active[60:130] = True                        # a third of the take is an expression...
+    positions[active] = expression
+    positions += rng.normal(0, 0.05, positions.shape)
+    hidden = np.flatnonzero(~active)[:80]        # ...and most rest frames have a gap
+    positions[hidden, 0] = np.nan
+    frame = pick_neutral_frame(positions)
+    assert not active[frame]
