@@ -1,0 +1,249 @@
+"""Gap filling (mocap.clean.fill_gaps) against known trajectories.
+
+Oracles: analytic sinusoids with the cubic-spline error bound, a rigid body in
+known motion (rigid fill exact), data of exact low rank (PCA fill exact),
+scipy's Rotation.align_vectors for the batched Kabsch fit.
+"""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mocap import InputError, MarkerError, Take
+from mocap.clean import FILL_OPTIONS, fill_gaps
+from mocap.clean import _pca_fill
+from mocap.clean._rigid_fill import kabsch
+from mocap.take import fill_code
+from tolerances import GAPFILL_LOW_RANK_MM, GAPFILL_RIGID_MM
+
+FILLING = tuple(m for m in FILL_OPTIONS if m != "none")
+RATE = 100.0
+N_FRAMES = 400
+HEAD = [f"root-{i}" for i in range(1, 7)]
+CLUSTERS = {"head": HEAD}
+
+
+def head_take(n_face=6, seed=0):
+    """Six head markers on a rigid body in known smooth motion, plus face markers
+    carried by the head with their own smooth local motion. Noise-free."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(N_FRAMES) / RATE
+    body = rng.normal(scale=60.0, size=(6 + n_face, 3))
+    local = np.zeros((N_FRAMES, 6 + n_face, 3))
+    freq = rng.uniform(0.3, 1.5, size=(n_face, 3))
+    phase = rng.uniform(0, 6, (n_face, 3))
+    local[:, 6:] = 5.0 * np.sin(2 * np.pi * freq * t[:, None, None] + phase)
+    rot = Rotation.from_rotvec(np.column_stack([0.4 * np.sin(2 * t), 0.3 * np.cos(3 * t),
+                                                0.2 * np.sin(t)]))
+    trans = np.column_stack([100 * np.sin(t), 30 * t, 10 * np.cos(5 * t)])
+    pos = np.einsum("tij,tmj->tmi", rot.as_matrix(), body + local) + trans[:, None]
+    labels = HEAD + [f"face-{i}" for i in range(n_face)]
+    return Take(labels, pos, rate=RATE)
+
+
+def low_rank_take(n_markers=10, rank=3, seed=1):
+    """Positions = mean + rank modes with sinusoidal scores of similar amplitude."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(N_FRAMES) / RATE
+    modes = rng.normal(scale=10.0, size=(rank, n_markers, 3))
+    scores = np.sin(2 * np.pi * rng.uniform(0.3, 2.0, rank) * t[:, None] + rng.uniform(0, 6, rank))
+    pos = rng.normal(scale=100.0, size=(n_markers, 3)) + np.einsum("tr,rmc->tmc", scores, modes)
+    return Take([f"m{i}" for i in range(n_markers)], pos, rate=RATE)
+
+
+def with_gaps(take, gaps):
+    """A copy of `take` with samples removed: gaps = [(label, start, stop), ...]."""
+    pos = take.positions.copy()
+    for label, start, stop in gaps:
+        pos[start:stop, take.index(label)] = np.nan
+    return take.replace(positions=pos)
+
+
+# -- the pieces against their oracles ---------------------------------------------
+def test_kabsch_recovers_exact_transform_and_matches_scipy():
+    rng = np.random.default_rng(3)
+    n_fits, n_points = 50, 6
+    src = rng.normal(scale=50, size=(n_fits, n_points, 3))
+    rot = Rotation.random(n_fits, random_state=4)
+    trans = rng.normal(scale=100, size=(n_fits, 3))
+    dst = np.einsum("fij,fkj->fki", rot.as_matrix(), src) + trans[:, None]
+    weights = np.ones((n_fits, n_points))
+    weights[np.arange(n_fits), rng.integers(0, n_points, n_fits)] = 0   # one point unused
+    src_nan = np.where(weights[..., None] > 0, src, np.nan)
+    r, t = kabsch(src_nan, dst, weights)
+    np.testing.assert_allclose(r, rot.as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(t, trans, atol=1e-9)
+
+    noisy = dst + rng.normal(scale=2.0, size=dst.shape)
+    w = weights * rng.uniform(0.5, 2.0, size=weights.shape)
+    r, t = kabsch(src, noisy, w)
+    for f in range(n_fits):
+        cs = (w[f, :, None] * src[f]).sum(0) / w[f].sum()
+        cd = (w[f, :, None] * noisy[f]).sum(0) / w[f].sum()
+        ref, _ = Rotation.align_vectors(noisy[f] - cd, src[f] - cs, weights=w[f])
+        np.testing.assert_allclose(r[f], ref.as_matrix(), atol=1e-10)
+        np.testing.assert_allclose(t[f], cd - ref.as_matrix() @ cs, atol=1e-8)
+
+
+@pytest.mark.parametrize("gap", [5, 20, 40])
+def test_spline_fill_of_sinusoid_within_the_cubic_spline_bound(gap):
+    t = np.arange(N_FRAMES) / RATE
+    amp, omega = 10.0, 2 * np.pi * 1.0
+    truth = amp * np.sin(omega * t[:, None] + np.array([0.0, 1.0, 2.0]))
+    start = 150
+    take = with_gaps(Take(("a",), truth[:, None], rate=RATE), [("a", start, start + gap)])
+    got = fill_gaps(take, method="spline").take.positions[start:start + gap, 0]
+    err = np.abs(got - truth[start:start + gap]).max()
+    h = (gap + 1) / RATE                               # the spline piece spanning the gap
+    bound = 5 / 384 * amp * omega ** 4 * h ** 4         # (5/384) h^4 max|f''''|
+    linear = amp * omega ** 2 * h ** 2 / 8              # linear interpolation's bound
+    assert err <= 2 * bound
+    assert err < linear
+
+
+def test_rigid_fill_is_exact_on_rigid_data_with_partial_donors():
+    truth = head_take()
+    take = with_gaps(truth, [("root-3", 100, 180), ("root-5", 120, 140), ("root-1", 170, 200)])
+    result = fill_gaps(take, method="rigid", clusters=CLUSTERS)
+    np.testing.assert_allclose(result.take.positions[:, :6], truth.positions[:, :6],
+                               atol=GAPFILL_RIGID_MM, rtol=0)
+    assert result.n_missing == 0
+    assert set(result.gaps["method"]) == {"rigid"}
+
+
+def test_rigid_fill_leaves_frames_without_three_donors():
+    truth = head_take(n_face=0).select(HEAD[:4])
+    take = with_gaps(truth, [("root-1", 100, 150), ("root-2", 120, 130)])
+    result = fill_gaps(take, method="rigid", clusters={"head": HEAD[:4]})
+    row = result.gaps.set_index("marker").loc["root-1"]
+    assert row["filled"] == 40
+    assert row["reason"].startswith("10 frames left: 3 donors")
+    assert np.isnan(result.take.positions[120:130, 0]).all()
+    np.testing.assert_allclose(result.take.positions[100:120, 0], truth.positions[100:120, 0],
+                               atol=GAPFILL_RIGID_MM, rtol=0)
+
+
+@pytest.mark.parametrize("path", ["complete", "iterative"])
+def test_pca_fill_is_exact_on_low_rank_data(path, monkeypatch):
+    truth = low_rank_take(n_markers=6)
+    gaps = [("m2", 150, 230), ("m4", 300, 320)]
+    if path == "iterative":
+        # Two donors missing in every 50-frame block outside m2's gap: no frame has
+        # m2 and any MIN_DONORS donors all visible, so the iterative PCA is needed.
+        pairs = [("m0", "m1"), ("m3", "m5"), ("m1", "m4"), ("m0", "m5"), ("m3", "m4")]
+        blocks = [(0, 50), (50, 100), (100, 150), (230, 280), (280, 330), (330, 400)]
+        for (start, stop), pair in zip(blocks, pairs + pairs):
+            gaps += [(label, start, stop) for label in pair]
+    take = with_gaps(truth, gaps)
+    calls = []
+    original = _pca_fill._components_iterative
+    monkeypatch.setattr(_pca_fill, "_components_iterative",
+                        lambda *a: calls.append(1) or original(*a))
+    result = fill_gaps(take, method="pca", extrapolate=True)
+    got = result.take.positions[150:230, 2]
+    np.testing.assert_allclose(got, truth.positions[150:230, 2], atol=GAPFILL_LOW_RANK_MM, rtol=0)
+    assert bool(calls) == (path == "iterative")
+
+
+# -- behaviour shared by every method -----------------------------------------------
+@pytest.mark.parametrize("method", FILLING)
+def test_fill_records_codes_and_keeps_captured_samples(method):
+    take = with_gaps(head_take(), [("root-2", 50, 80), ("face-1", 200, 230), ("face-3", 10, 12)])
+    before = take.positions.copy()
+    result = fill_gaps(take, method=method, clusters=CLUSTERS)
+    np.testing.assert_array_equal(take.positions, before)        # caller's take unchanged
+    assert not take.filled.any()
+    out = result.take
+    seen = ~take.missing
+    np.testing.assert_array_equal(out.positions[seen], take.positions[seen])
+    newly = take.missing & ~out.missing
+    assert (out.filled[~newly] == 0).all()
+    for row in result.gaps.itertuples():
+        codes = out.filled[row.start:row.stop, out.index(row.marker)]
+        if row.method == "none":
+            assert row.filled == 0 and (codes == 0).all() and row.reason
+        else:
+            assert (codes == fill_code(row.method)).sum() == row.filled
+            assert method in ("auto", row.method)
+    assert result.n_filled == int(newly.sum()) == int(result.gaps["filled"].sum())
+    assert result.n_missing == int(out.missing.sum())
+
+
+@pytest.mark.parametrize("method", FILLING)
+def test_edge_gaps_need_extrapolate(method):
+    truth = head_take()
+    take = with_gaps(truth, [("root-4", 0, 15), ("root-6", N_FRAMES - 10, N_FRAMES)])
+    kept = fill_gaps(take, method=method, clusters=CLUSTERS)
+    assert kept.n_filled == 0
+    assert kept.gaps["reason"].str.contains("first or last frame").all()
+    extra = fill_gaps(take, method=method, clusters=CLUSTERS, extrapolate=True)
+    assert extra.n_missing == 0
+    if method in ("rigid", "auto"):
+        np.testing.assert_allclose(extra.take.positions, truth.positions,
+                                   atol=GAPFILL_RIGID_MM, rtol=0)
+
+
+@pytest.mark.parametrize("method", FILLING)
+@pytest.mark.parametrize("max_gap, filled", [(None, {"root-2", "face-0"}), (10, {"face-0"}),
+                                             (0, set())])
+def test_max_gap_limits_what_is_filled(method, max_gap, filled):
+    take = with_gaps(head_take(), [("root-2", 100, 130), ("face-0", 200, 205)])
+    result = fill_gaps(take, method=method, max_gap=max_gap, clusters=CLUSTERS)
+    done = set(result.gaps.loc[result.gaps["filled"] > 0, "marker"])
+    if method == "rigid":
+        filled = filled - {"face-0"}          # not in a cluster
+    assert done == filled
+    longer = result.gaps["length"] > (np.inf if max_gap is None else max_gap)
+    assert result.gaps.loc[longer, "reason"].str.startswith("longer than max_gap").all()
+
+
+def test_auto_chooses_rigid_then_pca_then_spline():
+    take = with_gaps(head_take(), [("root-2", 100, 130), ("face-0", 200, 240)])
+    result = fill_gaps(take, method="auto", clusters=CLUSTERS)
+    assert dict(zip(result.gaps["marker"], result.gaps["method"])) == {"root-2": "rigid",
+                                                                      "face-0": "pca"}
+    few = with_gaps(head_take(n_face=0).select(HEAD[:_pca_fill.MIN_DONORS]),
+                    [("root-1", 100, 110)])
+    assert fill_gaps(few, method="auto").gaps["method"].tolist() == ["spline"]
+
+
+def test_method_none_only_reports():
+    take = with_gaps(head_take(), [("root-2", 100, 130), ("face-0", 0, 5)])
+    result = fill_gaps(take, method="none", clusters=CLUSTERS)
+    np.testing.assert_array_equal(result.take.positions, take.positions)
+    assert result.gaps[["marker", "start", "stop", "length"]].values.tolist() == [
+        ["root-2", 100, 130, 30], ["face-0", 0, 5, 5]]
+    assert (result.gaps["reason"] == "method is 'none'").all()
+
+
+def test_rigid_leaves_markers_outside_clusters_and_keeps_earlier_fill_codes():
+    take = with_gaps(head_take(), [("face-2", 100, 130)])
+    filled = np.zeros(take.filled.shape, np.uint8)
+    filled[5, 7] = fill_code("spline")
+    take = take.replace(filled=filled)
+    result = fill_gaps(take, method="rigid", clusters=CLUSTERS)
+    assert result.gaps["reason"].tolist() == ["not in any rigid cluster"]
+    assert result.take.filled[5, 7] == fill_code("spline")
+
+
+# -- errors: one per message ----------------------------------------------------------
+@pytest.mark.parametrize("kwargs, error, match", [
+    ({"method": "woltring"}, InputError, r"method must be one of .*'woltring'"),
+    ({"max_gap": -1}, InputError, "max_gap must be at least 0, got -1"),
+    ({"max_gap": 2.5}, InputError, "max_gap must be an integer"),
+    ({"method": "rigid"}, InputError, "method 'rigid' needs clusters"),
+    ({"clusters": {"head": HEAD[:3]}}, InputError,
+     "cluster 'head' has 3 markers: a rigid fill needs 3 donors"),
+    ({"clusters": {"head": HEAD + ["nose"]}}, MarkerError, "'nose': not in the take"),
+    ({"clusters": HEAD}, InputError, "clusters must be a mapping"),
+    ({"clusters": {"head": "root-1"}}, InputError, "must be a list of marker labels"),
+    ({"extrapolate": "yes"}, InputError, "extrapolate must be True or False"),
+])
+def test_fill_gaps_errors(kwargs, error, match):
+    with pytest.raises(error, match=match):
+        fill_gaps(head_take(), **kwargs)
+
+
+def test_fill_gaps_rejects_arrays():
+    with pytest.raises(InputError, match="take must be a Take, got ndarray"):
+        fill_gaps(np.zeros((3, 1, 3)))
