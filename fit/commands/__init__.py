@@ -1,0 +1,1 @@
+"""Subcommands of the ``mocap2mesh`` command line, one module each."""
