@@ -167,7 +167,7 @@ class Stabilization:
 
 def stabilize(take: Take, head_markers, *, reference: str = "mean",
               reference_frame: int | None = None, weights=None, robust: bool = True,
-              slip_threshold: float = 1.0, min_slip_frames: int = 1,
+              slip_threshold: float = 1.0, min_slip_frames: int = 5,
               invalid: str = "nan", max_iter: int = 100) -> Stabilization:
     """Remove the rigid head motion from a take.
 
@@ -192,8 +192,10 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
         (iteratively reweighted least squares, all frames at once).
     slip_threshold : float, default 1.0
         Residual (mm) above which a head marker is reported as slipped.
-    min_slip_frames : int, default 1
-        Shortest run of frames reported as a slip.
+    min_slip_frames : int, default 5
+        Shortest run of frames reported as a slip. A slip is sustained; a
+        shorter excursion (a spike, or a filter's end effect) is still
+        down-weighted by the robust fit but not reported.
     invalid : {"nan", "interpolate", "raise"}
         Frames without a fit: NaN transform; transform interpolated from the
         nearest valid frames (slerp for R, linear for t, the nearest valid
