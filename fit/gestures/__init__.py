@@ -1,0 +1,21 @@
+"""Expressive facial gestures (Ju & Lee 2008): decomposition of takes and speech-driven synthesis.
+
+- :mod:`.analysis`: F = R N + Σ c_i B_i + P + Σ D_j + T from a stabilized take;
+- :mod:`.speech`: speech intensity S(t) from a WAV file or an analog channel;
+- :mod:`.clip`: reference clips (the palette of styles);
+- :mod:`.timeline`: styles painted on time segments, per feature;
+- :mod:`.mrf`: the Markov random field synthesis;
+- :mod:`.transfer`: details moved to a target face by compact RBFs, mesh outputs.
+"""
+
+from .analysis import DETAIL_GROUPS, ESTIMATORS, LIP_REGIONS, GestureAnalysis, analyze_gestures
+from .clip import GestureClip, clip_from_analysis, clip_from_performance, load_clip, save_clip
+from .mrf import GestureSynthesis, candidate_distances, pick_candidate, synthesize_gestures
+from .speech import analog_intensity, read_wav, speech_intensity, wav_intensity
+from .timeline import FEATURES, Segment, Timeline, load_timeline, parse_timeline
+
+__all__ = ["GestureAnalysis", "analyze_gestures", "DETAIL_GROUPS", "LIP_REGIONS", "ESTIMATORS",
+           "GestureClip", "clip_from_analysis", "clip_from_performance", "load_clip", "save_clip",
+           "GestureSynthesis", "synthesize_gestures", "candidate_distances", "pick_candidate",
+           "speech_intensity", "read_wav", "wav_intensity", "analog_intensity",
+           "FEATURES", "Segment", "Timeline", "load_timeline", "parse_timeline"]
