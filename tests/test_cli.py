@@ -7,17 +7,16 @@ import pytest
 
 import mocap
 from fit.cli import main
-from fit.demo_session import MARKERSET_TOML, make_demo_session
+from fit.demo import make_demo_session
 
 
 @pytest.fixture(scope="module")
 def session_files(tmp_path_factory):
     """The demo capture as .npz and .c3d, with its marker set."""
     root = tmp_path_factory.mktemp("session")
-    session = make_demo_session(seconds=6.0)
-    mocap.write(session.take, root / "take.npz")
-    mocap.write(session.take, root / "take.c3d")
-    (root / "markerset.toml").write_text(MARKERSET_TOML)
+    session = make_demo_session(root, seconds=6.0)
+    mocap.write(session.capture.take, root / "take.npz")
+    mocap.write(session.capture.take, root / "take.c3d")
     return root, session
 
 
@@ -40,7 +39,7 @@ def test_info_json_counts_missing_samples(session_files, capsys):
     root, session = session_files
     assert main(["info", str(root / "take.npz"), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
-    take = session.take
+    take = session.capture.take
     assert info["labels"] == list(take.labels)
     assert info["frames"] == take.n_frames and info["rate"] == take.rate
     assert info["units"] == "mm"
@@ -51,7 +50,7 @@ def test_info_table(session_files, capsys):
     root, _ = session_files
     assert main(["info", str(root / "take.c3d")]) == 0
     out = capsys.readouterr().out
-    assert "720 from frame 1, 120 Hz" in out and "head-1" in out
+    assert "720 from frame 1, 120 Hz" in out and session_files[1].head_markers[0] in out
 
 
 def test_ingest_refuses_to_overwrite_its_input(session_files, capsys):
@@ -82,7 +81,7 @@ def test_ingest_stabilized_matches_truth(session_files, tmp_path):
     take = mocap.read(out)
     head = np.load(tmp_path / "clean.head.npz")
     assert head["rotation"].shape == (take.n_frames, 3, 3)
-    truth = session.head_frame_positions
+    truth = session.capture.truth.markers_head
     ok = ~np.isnan(take.positions[..., 0])
     assert take.filled.any() and ok.mean() > 0.97
     # our reference head frame differs from the generator's by one fixed rigid motion
