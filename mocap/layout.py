@@ -18,7 +18,6 @@ file's polygons).
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -27,13 +26,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._atomic import atomic_path
+from ._toml import read_toml
 from .errors import FileFormatError, InputError, MarkerError
 from .mesh import Mesh
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = ["MarkerLayout", "make_layout", "load_marker_layout", "save_marker_layout"]
 
@@ -266,12 +262,7 @@ def load_marker_layout(path, mesh: Mesh) -> MarkerLayout:
         different from the mesh's, or a bad marker specification (named).
     """
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read layout: {exc.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise FileFormatError(path, f"not valid TOML: {exc}") from None
+    doc = read_toml(path, "layout")
     unknown = set(doc) - _KEYS
     if unknown:
         raise FileFormatError(path, f"unknown keys {sorted(unknown)}; expected {sorted(_KEYS)}")

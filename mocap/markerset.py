@@ -26,18 +26,14 @@ Left and right are the subject's own.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
+from ._toml import read_toml
 from .anatomy import ANATOMICAL_POINTS
 from .errors import FileFormatError, MarkerError
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = ["MarkerSet", "load_markerset", "REQUIRED_REGIONS"]
 
@@ -129,12 +125,7 @@ def load_markerset(path) -> MarkerSet:
         landmark on a marker the set does not name.
     """
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read marker set: {exc.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise FileFormatError(path, f"not valid TOML: {exc}") from None
+    doc = read_toml(path, "marker set")
     unknown = set(doc) - _KEYS
     if unknown:
         raise FileFormatError(path, f"unknown keys {sorted(unknown)}; expected {sorted(_KEYS)}")

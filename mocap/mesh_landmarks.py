@@ -16,18 +16,14 @@ landmark of the same name when markers are bound to the mesh
 from __future__ import annotations
 
 import numbers
-import sys
 from pathlib import Path
 from typing import Mapping
 
+from ._toml import read_toml
 from .anatomy import ANATOMICAL_POINTS
 from .errors import FileFormatError, InputError
 from .mesh import Mesh
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = ["load_mesh_landmarks", "check_mesh_landmarks"]
 
@@ -100,12 +96,7 @@ def load_mesh_landmarks(path, mesh: Mesh | int | None = None) -> dict[str, int]:
         the mesh's.
     """
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read mesh landmarks: {exc.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise FileFormatError(path, f"not valid TOML: {exc}") from None
+    doc = read_toml(path, "mesh landmarks")
     unknown = set(doc) - _KEYS
     if unknown:
         raise FileFormatError(path, f"unknown keys {sorted(unknown)}; expected {sorted(_KEYS)}")

@@ -20,18 +20,14 @@ palette is a candidate.
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
+from mocap._toml import read_toml
 from mocap.errors import FileFormatError, InputError
 from mocap._validation import as_positive_float, as_int
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = ["Segment", "Timeline", "load_timeline", "parse_timeline", "FEATURES"]
 
@@ -194,10 +190,5 @@ def parse_timeline(doc: Mapping, *, path=None) -> Timeline:
 def load_timeline(path) -> Timeline:
     """Read a timeline TOML file; errors as :func:`parse_timeline`, plus unreadable TOML."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read timeline: {exc.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise FileFormatError(path, f"not valid TOML: {exc}") from None
+    doc = read_toml(path, "timeline")
     return parse_timeline(doc, path=path)
