@@ -1,0 +1,305 @@
+"""Reconstruction error of a take in marker (or vertex) space: α of eq. 6 and friends.
+
+Compare several bases (hand-made, quasi-eigen, PCA) by calling
+:func:`reconstruction_errors` once per basis on the same capture, then
+:func:`summary_frame` for one table.
+
+References
+----------
+Kim & Ko, "Intuitive quasi-eigen faces", GRAPHITE 2007, section 5.5, eq. 5-6.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+import pandas as pd
+from scipy.signal import find_peaks
+
+from mocap._validation import as_choice, as_float_array, as_int, as_positions
+from mocap.errors import InputError, MarkerError
+
+__all__ = ["ReconstructionErrors", "reconstruction_errors", "summary_frame",
+           "FRAME_METRICS"]
+
+#: Per-frame series by which frames can be ranked (:meth:`ReconstructionErrors.worst_frames`).
+FRAME_METRICS = ("alpha", "displacement_error", "rms", "max_error")
+
+
+def _read_only(arr: np.ndarray) -> np.ndarray:
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class ReconstructionErrors:
+    """Errors of one reconstruction of a take, per frame, per marker and per sample.
+
+    A sample (frame t, marker j) counts when the captured and the reconstructed
+    positions are both present; others are excluded from every statistic and
+    counted in ``n_missing``.
+
+    Attributes
+    ----------
+    name : str
+        Label of the reconstruction (the basis: ``"H"``, ``"QE"``, ``"PCA"``).
+    labels : tuple of str
+        Marker (or vertex) names, one per column.
+    errors : ndarray, shape (T, M), mm
+        ‖v*_tj − v_tj‖; NaN where the sample is excluded.
+    alpha : ndarray, shape (T,), %
+        Eq. 6 per frame: 100·‖v* − v‖/‖v* − origin‖ over the frame's samples.
+    displacement_error : ndarray, shape (T,), %
+        100·‖d* − d‖/‖d*‖ with d = v − neutral; NaN where ‖d*‖ = 0.
+    rms : ndarray, shape (T,), mm
+        Root mean square of the frame's errors.
+    max_error : ndarray, shape (T,), mm
+        Largest error of the frame.
+    n_valid : ndarray of int, shape (T,)
+        Samples counted in each frame (frames with none have NaN statistics).
+    marker_mean, marker_p95, marker_rms, marker_max : ndarray, shape (M,), mm
+        Per marker over its counted frames: mean, 95th percentile (linear
+        interpolation), root mean square and largest error.
+    n_missing : ndarray of int, shape (M,)
+        Frames in which the marker was excluded.
+    origin : ndarray, shape (3,), mm
+        Origin used for α.
+    totals : dict of str to float
+        Take-wide figures; see :meth:`summary`.
+    """
+
+    name: str
+    labels: tuple
+    errors: np.ndarray
+    alpha: np.ndarray
+    displacement_error: np.ndarray
+    rms: np.ndarray
+    max_error: np.ndarray
+    n_valid: np.ndarray
+    marker_mean: np.ndarray
+    marker_p95: np.ndarray
+    marker_rms: np.ndarray
+    marker_max: np.ndarray
+    n_missing: np.ndarray
+    origin: np.ndarray
+    totals: dict
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames T."""
+        return self.errors.shape[0]
+
+    def summary(self) -> dict:
+        """Take-wide figures, a new dict.
+
+        Keys: ``alpha`` (eq. 6 pooled over all counted samples of the take, %),
+        ``alpha_mean`` and ``alpha_max`` (over frames, %), ``displacement_error``
+        (pooled, %), ``rms_mm``, ``mean_mm``, ``p95_mm``, ``max_mm`` (over all
+        counted samples), ``worst_frame`` (index of the largest per-frame RMS),
+        ``n_samples`` (counted) and ``n_missing`` (excluded).
+        """
+        return dict(self.totals)
+
+    def worst_frames(self, n: int = 5, *, by: str = "rms", separation: int = 1) -> np.ndarray:
+        """Indices of the `n` worst frames, worst first.
+
+        Parameters
+        ----------
+        n : int
+            How many frames (fewer if the take has fewer peaks).
+        by : str
+            One of ``FRAME_METRICS``.
+        separation : int
+            Minimum distance between two frames returned, frames: with
+            ``separation > 1`` each is a local peak of a distinct event;
+            with 1, simply the `n` largest values.
+
+        Returns
+        -------
+        ndarray of int, shape (≤ n,)
+            Frames with NaN statistics are never returned.
+        """
+        n = as_int(n, "n", minimum=1)
+        separation = as_int(separation, "separation", minimum=1)
+        series = getattr(self, as_choice(by, "by", FRAME_METRICS))
+        if separation == 1:
+            ranked = np.argsort(-np.nan_to_num(series, nan=-np.inf), kind="stable")
+            return ranked[np.isfinite(series[ranked])][:n]
+        padded = np.concatenate(([-np.inf], np.nan_to_num(series, nan=-np.inf), [-np.inf]))
+        peaks, _ = find_peaks(padded, distance=separation, plateau_size=1)
+        peaks = peaks - 1
+        peaks = peaks[np.isfinite(series[peaks])]
+        return peaks[np.argsort(-series[peaks], kind="stable")][:n]
+
+    def to_frame(self, by: str = "frame") -> pd.DataFrame:
+        """The statistics as a table.
+
+        Parameters
+        ----------
+        by : {"frame", "marker"}
+            One row per frame (columns ``alpha``, ``displacement_error``,
+            ``rms_mm``, ``max_mm``, ``n_valid``) or per marker (index the labels;
+            columns ``mean_mm``, ``p95_mm``, ``rms_mm``, ``max_mm``, ``n_missing``).
+        """
+        if as_choice(by, "by", ("frame", "marker")) == "frame":
+            return pd.DataFrame({"alpha": self.alpha,
+                                 "displacement_error": self.displacement_error,
+                                 "rms_mm": self.rms, "max_mm": self.max_error,
+                                 "n_valid": self.n_valid},
+                                index=pd.RangeIndex(self.n_frames, name="frame"))
+        return pd.DataFrame({"mean_mm": self.marker_mean, "p95_mm": self.marker_p95,
+                             "rms_mm": self.marker_rms, "max_mm": self.marker_max,
+                             "n_missing": self.n_missing},
+                            index=pd.Index(self.labels, name="marker"))
+
+
+def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """100·√num/√den, NaN where den is 0 (or NaN)."""
+    out = np.full(np.shape(num), np.nan)
+    ok = den > 0
+    np.divide(100 * np.sqrt(num), np.sqrt(den, where=ok, out=np.ones_like(den)),
+              out=out, where=ok)
+    return out
+
+
+def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
+                          labels=None, name: str = "") -> ReconstructionErrors:
+    """Errors of a reconstruction v against the capture v*, per frame and per marker.
+
+    Parameters
+    ----------
+    captured : array_like, shape (T, M, 3), mm
+        v*, NaN where a marker is missing.
+    reconstructed : array_like, shape (T, M, 3), mm
+        v = neutral + Σ wᵢ eᵢ, NaN where not reconstructed.
+    neutral : array_like, shape (M, 3), mm
+        The rest positions v⁰ that displacements d = v − v⁰ are taken from;
+        no NaN.
+    origin : array_like, shape (3,), mm, optional
+        Origin of the coordinates in which α measures ‖v*‖. Default: the
+        centroid of `neutral`.
+    labels : sequence of str, optional
+        Names of the M markers (default ``"0"``, ``"1"``, ...).
+    name : str
+        Label of this reconstruction (the basis).
+
+    Returns
+    -------
+    ReconstructionErrors
+
+    Raises
+    ------
+    InputError
+        Shapes disagree, or infinite values.
+    MarkerError
+        `neutral` has NaN for a marker.
+
+    Notes
+    -----
+    Eq. 6 of the paper, per frame t over its counted samples j,
+
+        α_t = 100 · √(Σ_j ‖v*_tj − v_tj‖²) / √(Σ_j ‖v*_tj − o‖²),
+
+    has a numerator that does not depend on the origin o but a denominator
+    that does: the same errors give a smaller α when the face sits far from
+    the origin (a head 1.6 m from the capture volume's origin makes any error
+    look tiny). The paper does not state its origin, so its α values (0.62 %
+    to 5.2 %) only compare bases with each other. The default origin, the
+    centroid of the rest positions, makes ‖v* − o‖ the size of the face.
+    The displacement-relative error 100·‖d* − d‖/‖d*‖ does not depend on the
+    origin but grows without bound near the neutral pose (NaN at ‖d*‖ = 0);
+    the RMS in mm depends on neither.
+
+    NaN policy: a sample missing from either array is excluded and counted in
+    ``n_missing``; a frame without samples gets NaN statistics.
+    """
+    captured = as_positions(captured, "captured")
+    reconstructed = as_positions(reconstructed, "reconstructed")
+    if reconstructed.shape != captured.shape:
+        raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
+                         f"got {reconstructed.shape}")
+    n_frames, n_markers, _ = captured.shape
+    neutral = as_float_array(neutral, "neutral", shape=(n_markers, 3))
+    labels = (tuple(str(i) for i in range(n_markers)) if labels is None
+              else tuple(str(s) for s in labels))
+    if len(labels) != n_markers:
+        raise InputError(f"labels must name the {n_markers} markers, got {len(labels)}")
+    bad = np.isnan(neutral).any(axis=1)
+    if bad.any():
+        raise MarkerError(labels[int(np.argmax(bad))],
+                          "neutral position is NaN; displacements need every rest position")
+    origin = (neutral.mean(axis=0) if origin is None
+              else as_float_array(origin, "origin", shape=(3,), allow_nan=False))
+
+    valid = ~(np.isnan(captured).any(axis=2) | np.isnan(reconstructed).any(axis=2))
+    sq_err = np.where(valid, ((captured - reconstructed) ** 2).sum(axis=2), 0.0)
+    sq_pos = np.where(valid, ((captured - origin) ** 2).sum(axis=2), 0.0)
+    sq_disp = np.where(valid, ((captured - neutral) ** 2).sum(axis=2), 0.0)
+    errors = np.where(valid, np.sqrt(sq_err), np.nan)
+
+    n_valid = valid.sum(axis=1)
+    per_frame_err = sq_err.sum(axis=1)
+    has = n_valid > 0
+    frame_nan = np.where(has, 1.0, np.nan)
+    alpha = _ratio(per_frame_err, sq_pos.sum(axis=1))
+    disp = _ratio(per_frame_err, sq_disp.sum(axis=1))
+    rms = np.sqrt(per_frame_err / np.maximum(n_valid, 1)) * frame_nan
+    max_error = np.max(np.where(valid, errors, -np.inf), axis=1, initial=-np.inf)
+    max_error = np.where(has, max_error, np.nan)
+
+    n_frames_valid = valid.sum(axis=0)
+    marker_has = np.where(n_frames_valid > 0, 1.0, np.nan)
+    marker_mean = np.where(valid, errors, 0).sum(axis=0) / np.maximum(n_frames_valid, 1)
+    marker_rms = np.sqrt(sq_err.sum(axis=0) / np.maximum(n_frames_valid, 1))
+    marker_max = np.max(np.where(valid, errors, -np.inf), axis=0, initial=-np.inf)
+    if valid.all():
+        marker_p95 = np.percentile(errors, 95, axis=0)
+    else:
+        counted = errors[:, n_frames_valid > 0]
+        marker_p95 = np.full(n_markers, np.nan)
+        marker_p95[n_frames_valid > 0] = np.nanpercentile(counted, 95, axis=0)
+
+    n_samples = int(valid.sum())
+    all_err = errors[valid]
+    totals = {
+        "alpha": float(_ratio(sq_err.sum(), sq_pos.sum())),
+        "alpha_mean": float(np.nanmean(alpha)) if has.any() else np.nan,
+        "alpha_max": float(np.nanmax(alpha)) if has.any() else np.nan,
+        "displacement_error": float(_ratio(sq_err.sum(), sq_disp.sum())),
+        "rms_mm": float(np.sqrt(sq_err.sum() / n_samples)) if n_samples else np.nan,
+        "mean_mm": float(all_err.mean()) if n_samples else np.nan,
+        "p95_mm": float(np.percentile(all_err, 95)) if n_samples else np.nan,
+        "max_mm": float(all_err.max()) if n_samples else np.nan,
+        "worst_frame": int(np.nanargmax(rms)) if has.any() else -1,
+        "n_samples": n_samples,
+        "n_missing": int(valid.size - n_samples),
+    }
+    return ReconstructionErrors(
+        name=str(name), labels=labels, errors=_read_only(errors),
+        alpha=_read_only(alpha), displacement_error=_read_only(disp),
+        rms=_read_only(rms), max_error=_read_only(max_error),
+        n_valid=_read_only(n_valid), marker_mean=_read_only(marker_mean * marker_has),
+        marker_p95=_read_only(marker_p95), marker_rms=_read_only(marker_rms * marker_has),
+        marker_max=_read_only(np.where(n_frames_valid > 0, marker_max, np.nan)),
+        n_missing=_read_only(n_frames - n_frames_valid), origin=_read_only(origin),
+        totals=totals)
+
+
+def summary_frame(results) -> pd.DataFrame:
+    """One row per reconstruction (basis) with the figures of :meth:`ReconstructionErrors.summary`.
+
+    Parameters
+    ----------
+    results : sequence of ReconstructionErrors, or mapping of name to it
+        Rows are named by the mapping's keys, else by each result's ``name``.
+    """
+    if isinstance(results, Mapping):
+        items = list(results.items())
+    else:
+        items = [(r.name, r) for r in results]
+    if not items:
+        raise InputError("results is empty: give at least one ReconstructionErrors")
+    return pd.DataFrame([r.summary() for _, r in items],
+                        index=pd.Index([k for k, _ in items], name="basis"))

@@ -1,0 +1,119 @@
+"""Marker-space QA of reconstructions: charts, marker views, overlay video and a
+self-contained HTML report per take.
+
+:func:`build_report` runs it all for one take and several bases; the modules
+beside it draw each piece on its own.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+from mocap.errors import InputError
+
+from ..metrics import reconstruction_errors
+from .html import ingest_stats, write_report
+from .plots import plot_alpha, plot_coverage, plot_error_heatmap, plot_marker_errors
+from .video import write_overlay_video
+from .views import plot_frame_views
+
+__all__ = ["build_report"]
+
+
+def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=None,
+                 origin=None, pca=None, ingest=None, video: bool = False,
+                 video_step: int = 1, n_worst: int = 5, exaggerate: float = 1.0,
+                 name: str | None = None) -> dict:
+    """Metrics, figures, (video) and the HTML report of one take.
+
+    Parameters
+    ----------
+    take : mocap.take.Take
+        The captured markers that were reconstructed, head-stabilized, mm, NaN
+        where missing; typically ``stabilized.select(markerset.face_markers)``
+        (head markers would dilute α).
+    reconstructions : mapping of basis name to array_like (T, M, 3), mm
+        Reconstructed positions of the take's markers, one per basis.
+    neutral : array_like, shape (M, 3), mm
+        Rest positions (no NaN).
+    out_dir : str or os.PathLike
+        Existing directory; receives ``<name>-*.png``, ``<name>.html`` (and
+        ``<name>-<basis>.mp4``).
+    markerset : mocap.markerset.MarkerSet, optional
+        Regions (grouping) and landmarks (view orientation).
+    origin : array_like (3,), mm, optional
+        Origin of α (default: centroid of `neutral`).
+    pca : basis.pca.PCAModel, optional
+        Adds the coverage curve.
+    ingest : fit.ingest.IngestResult, optional
+        Adds the ingestion table.
+    video : bool
+        Also write an overlay video per basis.
+    video_step : int
+        Draw every n-th frame in the video.
+    n_worst : int
+        Worst frames shown and listed (of the first basis, by RMS).
+    exaggerate : float
+        Error vectors drawn this many times longer in views and video.
+    name : str, optional
+        File stem and title; default the take's file stem or ``"take"``.
+
+    Returns
+    -------
+    dict of str to pathlib.Path
+        Every file written, keyed ``"html"``, ``"alpha"``, ``"coverage"``,
+        ``"heatmap-<basis>"``, ``"markers-<basis>"``, ``"views-<basis>"``,
+        ``"video-<basis>"``.
+    """
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        raise InputError(f"{out_dir}: output directory does not exist")
+    if not reconstructions:
+        raise InputError("reconstructions is empty: give at least one basis")
+    name = name or (Path(take.source.path).stem if take.source.path else "take")
+    results = {basis: reconstruction_errors(take.positions, rec, neutral, origin=origin,
+                                            labels=take.labels, name=basis)
+               for basis, rec in reconstructions.items()}
+    first = next(iter(results.values()))
+    separation = max(1, take.n_frames // 50)
+    worst = {b: r.worst_frames(n_worst, separation=separation) for b, r in results.items()}
+    files, images = {}, {}
+
+    def out(key: str, suffix: str = ".png") -> Path:
+        files[key] = out_dir / f"{name}-{key}{suffix}"
+        return files[key]
+
+    plot_alpha(results, out("alpha"), rate=take.rate, worst=worst,
+               first_frame=take.first_frame)
+    images["α(t) per basis"] = files["alpha"]
+    for basis, res in results.items():
+        plot_error_heatmap(res, out(f"heatmap-{basis}"), markerset=markerset, rate=take.rate)
+        plot_marker_errors(res, out(f"markers-{basis}"), markerset=markerset)
+        plot_frame_views(take.positions, reconstructions[basis], worst[basis][:3],
+                         out(f"views-{basis}"), neutral=neutral, labels=take.labels,
+                         markerset=markerset, exaggerate=exaggerate,
+                         first_frame=take.first_frame,
+                         title=f"{basis}: captured (red) vs reconstructed (blue) at the "
+                               "worst frames" + (f", errors ×{exaggerate:g}"
+                                                 if exaggerate != 1 else "")
+                               + "; front: subject's left on the right")
+        images[f"{basis}: error per marker and frame"] = files[f"heatmap-{basis}"]
+        images[f"{basis}: mean and 95th percentile per marker"] = files[f"markers-{basis}"]
+        images[f"{basis}: worst frames, front and side"] = files[f"views-{basis}"]
+        if video:
+            write_overlay_video(take.positions, reconstructions[basis],
+                                out(f"video-{basis}", ".mp4"), neutral=neutral,
+                                rate=take.rate, labels=take.labels, markerset=markerset,
+                                step=video_step, exaggerate=exaggerate,
+                                first_frame=take.first_frame)
+    if pca is not None:
+        plot_coverage(pca, out("coverage"))
+        images["PCA coverage"] = files["coverage"]
+    files["html"] = out_dir / f"{name}.html"
+    write_report(files["html"], results, images, title=f"Reconstruction QA: {name}",
+                 first_frame=take.first_frame, worst=worst, markerset=markerset,
+                 ingest=ingest_stats(ingest) if ingest is not None else None,
+                 notes=f"{take.n_frames} frames at {take.rate:g} Hz, "
+                       f"{len(first.labels)} markers, bases: {', '.join(results)}.")
+    return files

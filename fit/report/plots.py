@@ -1,0 +1,290 @@
+"""QA charts of reconstruction errors (PNG): α over time, marker × time heatmap,
+per-marker errors by region, PCA coverage."""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.patches import Patch
+from matplotlib.ticker import FuncFormatter, LogLocator
+
+from mocap.errors import InputError
+
+from .._figures import new_figure, save_figure
+from ..metrics import ReconstructionErrors
+
+__all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "plot_coverage",
+           "region_groups", "distinct_colours"]
+
+
+def region_groups(labels, markerset=None) -> tuple[np.ndarray, list]:
+    """Order markers region by region.
+
+    Parameters
+    ----------
+    labels : sequence of str
+        The markers, in their column order.
+    markerset : mocap.markerset.MarkerSet, optional
+        Gives the regions (in file order); markers it does not name go last, in
+        a group ``"unassigned"``. Without it, one group ``"markers"``.
+
+    Returns
+    -------
+    order : ndarray of int, shape (M,)
+        Columns in display order.
+    groups : list of (region, start, stop)
+        Each region's slice of the display order.
+    """
+    labels = list(labels)
+    if markerset is None:
+        return np.arange(len(labels)), [("markers", 0, len(labels))]
+    column = {label: i for i, label in enumerate(labels)}
+    named = [("head", markerset.head), *markerset.regions.items()]
+    order, groups, seen = [], [], set()
+    for region, members in named:
+        cols = [column[m] for m in members if m in column]
+        if cols:
+            groups.append((region, len(order), len(order) + len(cols)))
+            order += cols
+            seen.update(cols)
+    rest = [i for i in range(len(labels)) if i not in seen]
+    if rest:
+        groups.append(("unassigned", len(order), len(order) + len(rest)))
+        order += rest
+    return np.array(order, dtype=np.intp), groups
+
+
+def distinct_colours(n: int) -> list:
+    """`n` well-separated colours: tab10, then Dark2, then repeating."""
+    palette = list(colormaps["tab10"].colors) + list(colormaps["Dark2"].colors)
+    return [palette[i % len(palette)] for i in range(n)]
+
+
+def _as_results(results) -> dict:
+    if isinstance(results, ReconstructionErrors):
+        return {results.name or "reconstruction": results}
+    if isinstance(results, Mapping):
+        out = dict(results)
+    else:
+        out = {r.name: r for r in results}
+    if not out:
+        raise InputError("results is empty: give at least one ReconstructionErrors")
+    return out
+
+
+def _time_axis(n_frames: int, rate: float | None) -> tuple[np.ndarray, str]:
+    if rate is None:
+        return np.arange(n_frames, dtype=float), "frame index"
+    return np.arange(n_frames) / rate, "time (s)"
+
+
+def plot_alpha(results, path, *, rate: float | None = None, worst: Mapping | None = None,
+               n_worst: int = 5, separation: int | None = None, first_frame: int = 0,
+               log: bool | None = None, title: str | None = None) -> None:
+    """α(t) of eq. 6 for each basis on one chart, the worst frames marked (PNG).
+
+    Parameters
+    ----------
+    results : mapping of name to ReconstructionErrors, or a sequence of them
+        One curve each.
+    path : str or os.PathLike
+    rate : float, optional
+        Frame rate, Hz: time in seconds on the x axis (else frame indices).
+    worst : mapping of name to frame indices, optional
+        Frames to mark on each curve (ranked); default each result's
+        `n_worst` worst frames by RMS, at least `separation` frames apart.
+    n_worst : int
+    separation : int, optional
+        Default T / 50.
+    first_frame : int
+        Added to the frame indices in the labels (the take's frame numbers).
+    log : bool, optional
+        Logarithmic α axis; default when the bases' median α differ by over 10×.
+    """
+    results = _as_results(results)
+    first = next(iter(results.values()))
+    x, xlabel = _time_axis(first.n_frames, rate)
+    separation = separation or max(1, first.n_frames // 50)
+    if worst is None:
+        worst = {name: r.worst_frames(n_worst, separation=separation)
+                 for name, r in results.items()}
+    medians = [np.nanmedian(r.alpha) for r in results.values()]
+    if log is None:
+        positive = [m for m in medians if m > 0]
+        log = len(positive) > 1 and max(positive) / min(positive) > 10
+    fig = new_figure(11, 4.8)
+    ax = fig.add_subplot()
+    for (name, res), colour in zip(results.items(), distinct_colours(len(results))):
+        ax.plot(x, res.alpha, lw=0.8, color=colour,
+                label=f"{name}: α = {res.totals['alpha']:.3g} % over the take, "
+                      f"max {res.totals['alpha_max']:.3g} %")
+        frames = np.asarray(worst.get(name, ()), dtype=np.intp)
+        ax.scatter(x[frames], res.alpha[frames], s=40, facecolor="none", edgecolor=colour,
+                   linewidth=1.5, zorder=3)
+        for rank, t in enumerate(frames, start=1):
+            ax.annotate(f"#{rank}: {t + first_frame}", (x[t], res.alpha[t]), fontsize=7,
+                        color=colour, xytext=(0, 7 + 9 * (rank % 2)), ha="center",
+                        textcoords="offset points",
+                        bbox=dict(boxstyle="square,pad=0.1", fc="white", ec="none", alpha=0.7))
+    if log:
+        ax.set_yscale("log")
+    else:
+        ax.set_ylim(0, ax.get_ylim()[1] * 1.08)
+    ax.set_xlim(x[0], x[-1])
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("α (%)")
+    origin = ", ".join(f"{v:.0f}" for v in first.origin)
+    ax.set_title(title or f"Reconstruction error α (eq. 6, origin at ({origin}) mm); "
+                          "circles: worst frames by RMS, #rank: frame")
+    fig.legend(loc="outside upper center", fontsize=8, ncol=min(len(results), 3),
+               frameon=False)
+    ax.grid(alpha=0.3, which="both")
+    save_figure(fig, path)
+
+
+def _region_labels_right(ax, groups) -> None:
+    """White separators between the heatmap's region rows, region names on the right."""
+    for _, start, _ in groups[1:]:
+        ax.axhline(start - 0.5, color="white", lw=1.5)
+    sec = ax.secondary_yaxis("right")
+    sec.set_yticks([(start + stop - 1) / 2 for _, start, stop in groups],
+                   labels=[name.replace("_", " ") for name, _, _ in groups], fontsize=8)
+    sec.tick_params(length=0)
+
+
+def plot_error_heatmap(errors: ReconstructionErrors, path, *, markerset=None,
+                       rate: float | None = None, vmax: float | None = None,
+                       title: str | None = None) -> None:
+    """Marker × time heatmap of the error (mm), markers grouped by region (PNG).
+
+    Parameters
+    ----------
+    errors : ReconstructionErrors
+    path : str or os.PathLike
+    markerset : mocap.markerset.MarkerSet, optional
+        Groups the rows by region (separators and region names on the right).
+    rate : float, optional
+        Frame rate, Hz, for a time axis in seconds.
+    vmax : float, optional
+        Top of the colour scale, mm; default the 99.5th percentile of the errors
+        (larger errors saturate). Excluded samples are grey.
+    """
+    order, groups = region_groups(errors.labels, markerset)
+    data = errors.errors[:, order].T
+    if vmax is None:
+        finite = data[np.isfinite(data)]
+        vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
+    x, xlabel = _time_axis(errors.n_frames, rate)
+    step = x[1] - x[0] if len(x) > 1 else 1.0
+    n = len(order)
+    fig = new_figure(12, min(max(3.5, 0.17 * n + 1.8), 14.0))
+    ax = fig.add_subplot()
+    cmap = colormaps["magma"].with_extremes(bad="#b0b0b0")
+    image = ax.imshow(np.ma.masked_invalid(data), aspect="auto", interpolation="nearest",
+                      cmap=cmap, vmin=0, vmax=vmax,
+                      extent=(x[0], x[-1] + step, n - 0.5, -0.5))
+    ax.set_yticks(range(n))
+    ax.set_yticklabels([errors.labels[i] for i in order],
+                       fontsize=max(4, min(8, 400 // max(n, 1))))
+    _region_labels_right(ax, groups)
+    ax.set_xlabel(xlabel)
+    fig.colorbar(image, ax=ax, label="error (mm)", extend="max", pad=0.01)
+    ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker and frame "
+                          f"(RMS {errors.totals['rms_mm']:.2f} mm; grey = missing)")
+    save_figure(fig, path)
+
+
+def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
+                       title: str | None = None) -> None:
+    """Mean and 95th-percentile error of each marker, grouped and coloured by region (PNG).
+
+    Parameters
+    ----------
+    errors : ReconstructionErrors
+    path : str or os.PathLike
+    markerset : mocap.markerset.MarkerSet, optional
+        Regions; without it all markers share one colour.
+    """
+    order, groups = region_groups(errors.labels, markerset)
+    gap = 0.8
+    pos = np.concatenate([np.arange(start, stop) + gap * k
+                          for k, (_, start, stop) in enumerate(groups)])
+    colours = np.empty(len(order), dtype=object)
+    palette = distinct_colours(len(groups))
+    for k, (_, start, stop) in enumerate(groups):
+        colours[start:stop] = [palette[k]] * (stop - start)
+    fig = new_figure(max(8.0, 0.28 * len(order) + 2.5), 5.0)
+    ax = fig.add_subplot()
+    ax.bar(pos, errors.marker_p95[order], width=0.8, color=list(colours), alpha=0.35)
+    ax.bar(pos, errors.marker_mean[order], width=0.45, color=list(colours))
+    ax.set_xticks(pos)
+    ax.set_xticklabels([errors.labels[i] for i in order], rotation=70, ha="right",
+                       rotation_mode="anchor", fontsize=7)
+    sec = ax.secondary_xaxis("top")
+    sec.set_xticks([(pos[start] + pos[stop - 1]) / 2 for _, start, stop in groups],
+                   labels=[name.replace("_", " ") for name, _, _ in groups], fontsize=8,
+                   rotation=30, ha="left", rotation_mode="anchor")
+    sec.tick_params(length=0)
+    for k, (_, start, _) in enumerate(groups[1:], start=1):
+        ax.axvline(pos[start] - 0.5 - gap / 2, color="grey", lw=0.6, ls=":")
+    ax.set_xlim(pos[0] - 0.8, pos[-1] + 0.8)
+    ax.set_ylabel("error (mm)")
+    fig.legend(handles=[Patch(color="grey", alpha=0.35, label="95th percentile (wide, pale)"),
+                        Patch(color="grey", label="mean (narrow)")],
+               loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+    ax.grid(axis="y", alpha=0.3)
+    ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker "
+                          f"(mean {errors.totals['mean_mm']:.2f} mm, "
+                          f"95th percentile {errors.totals['p95_mm']:.2f} mm)")
+    save_figure(fig, path)
+
+
+def plot_coverage(model, path, *, thresholds=(0.99, 0.995), title: str | None = None) -> None:
+    """Cumulative PCA coverage against the number of components m (PNG).
+
+    Parameters
+    ----------
+    model : basis.pca.PCAModel
+        Its ``coverage()`` (fraction of the total variance, shape (m,)).
+    path : str or os.PathLike
+    thresholds : sequence of float in (0, 1]
+        Drawn as horizontal lines, with the smallest m reaching each marked
+        (or "not reached with the m kept").
+    """
+    cov = np.asarray(model.coverage(), dtype=float)
+    thresholds = [float(t) for t in thresholds]
+    if not all(0 < t <= 1 for t in thresholds):
+        raise InputError(f"thresholds must be in (0, 1], got {thresholds}")
+    m = np.arange(1, len(cov) + 1)
+    fig = new_figure(12, 4.5)
+    covered, uncovered = fig.subplots(1, 2)
+    covered.plot(m, 100 * cov, "o-", ms=3, lw=1, color="black")
+    rest = np.maximum(100 * (1 - cov), 1e-12)
+    uncovered.semilogy(m, rest, "o-", ms=3, lw=1, color="black")
+    for threshold, colour in zip(thresholds, distinct_colours(len(thresholds) + 1)[1:]):
+        reached = np.nonzero(cov >= threshold * (1 - 1e-12))[0]
+        covered.axhline(100 * threshold, color=colour, lw=0.8, ls="--")
+        uncovered.axhline(100 * (1 - threshold), color=colour, lw=0.8, ls="--")
+        if reached.size:
+            k = int(reached[0]) + 1
+            label = f"{100 * threshold:g} % reached at m = {k}"
+            for ax, y in ((covered, 100 * cov[k - 1]), (uncovered, rest[k - 1])):
+                ax.axvline(k, color=colour, lw=0.8, ls=":")
+                ax.plot(k, y, "o", color=colour, ms=7)
+        else:
+            label = f"{100 * threshold:g} % not reached with m = {len(cov)}"
+        covered.plot([], [], "o--", color=colour, label=label)
+    covered.set_ylim(top=100.5)
+    covered.set_ylabel("variance covered (%)")
+    uncovered.set_ylabel("variance not covered, 100 − coverage (%)")
+    uncovered.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+    uncovered.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    covered.legend(loc="lower right", fontsize=8)
+    for ax in (covered, uncovered):
+        ax.set_xlim(0.5, len(cov) + 0.5)
+        ax.set_xlabel("number of components m")
+        ax.grid(alpha=0.3, which="both")
+    fig.suptitle(title or f"PCA coverage ({len(cov)} components kept)")
+    save_figure(fig, path)

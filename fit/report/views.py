@@ -1,0 +1,135 @@
+"""Captured (red) vs reconstructed (blue) markers at chosen frames, front and
+side views with error vectors, as Figure 4 of the quasi-eigen faces paper (PNG)."""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.collections import LineCollection
+
+from mocap._validation import as_float_array, as_positions
+from mocap.errors import InputError
+
+from .._figures import new_figure, save_figure
+from ..ingest_plots import _front_view_axes
+
+__all__ = ["view_axes", "plot_frame_views"]
+
+CAPTURED_COLOUR = "#d62728"
+RECONSTRUCTED_COLOUR = "#1f5fd6"
+
+
+def view_axes(neutral, labels, markerset=None) -> np.ndarray:
+    """Screen axes of the front view: rows right, up, depth (out of the face).
+
+    Parameters
+    ----------
+    neutral : array_like, shape (M, 3), mm
+        Rest positions of the markers named by `labels` (NaN rows ignored).
+    labels : sequence of str
+    markerset : mocap.markerset.MarkerSet, optional
+        Its landmarks orient the view (the subject's left on the viewer's
+        right); without it, or if a landmark is absent, the principal axes.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        Orthonormal rows (right, up, depth); ``p @ axes.T`` gives screen
+        coordinates, mm.
+    """
+    neutral = as_float_array(neutral, "neutral", shape=(len(labels), 3))
+    labels = list(labels)
+    face = [m for m in (markerset.face_markers if markerset else ()) if m in labels]
+    if markerset is not None and face:
+        points = neutral[[labels.index(m) for m in face]]
+        # _front_view_axes reads landmarks by position in markerset.face_markers.
+        full = np.full((len(markerset.face_markers), 3), np.nan)
+        full[[markerset.face_markers.index(m) for m in face]] = points
+        right, up = _front_view_axes(full, markerset)
+        if np.isfinite(right).all() and np.isfinite(up).all():
+            return np.array([right, up, np.cross(right, up)])
+    finite = neutral[np.isfinite(neutral).all(axis=1)]
+    right, up = _front_view_axes(finite, _NoLandmarks)
+    return np.array([right, up, np.cross(right, up)])
+
+
+class _NoLandmarks:
+    """A stand-in marker set without landmarks: principal axes only."""
+
+    face_markers: tuple = ()
+    landmarks: dict = {}
+
+
+def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=None,
+                     markerset=None, exaggerate: float = 1.0, first_frame: int = 0,
+                     names=None, title: str | None = None) -> None:
+    """Front and side views of captured and reconstructed markers at some frames (PNG).
+
+    Parameters
+    ----------
+    captured, reconstructed : array_like, shape (T, M, 3), mm
+        Head-stabilized positions, NaN where missing (those markers are not drawn).
+    frames : sequence of int
+        Frame indices (0-based), one row of views each.
+    path : str or os.PathLike
+    neutral : array_like, shape (M, 3), mm
+        Rest positions; orient the views (see :func:`view_axes`) and are drawn
+        in light grey.
+    labels : sequence of str, optional
+        Marker names (needed with `markerset`).
+    markerset : mocap.markerset.MarkerSet, optional
+    exaggerate : float
+        Error vectors drawn this many times longer (the blue dot at
+        captured + exaggerate·(reconstructed − captured)); said in the title.
+    first_frame : int
+        Added to the indices in the panel titles (the take's frame numbers).
+    names : sequence of str, optional
+        A caption per frame (e.g. "RMS 2.1 mm").
+    """
+    captured = as_positions(captured, "captured")
+    reconstructed = as_positions(reconstructed, "reconstructed")
+    if reconstructed.shape != captured.shape:
+        raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
+                         f"got {reconstructed.shape}")
+    frames = np.atleast_1d(np.asarray(frames, dtype=np.intp))
+    if frames.size == 0 or frames.min() < 0 or frames.max() >= captured.shape[0]:
+        raise InputError(f"frames must be 1 or more indices in [0, {captured.shape[0]}), "
+                         f"got {frames.tolist()}")
+    labels = tuple(str(i) for i in range(captured.shape[1])) if labels is None else labels
+    axes3 = view_axes(neutral, labels, markerset)
+    neutral = np.asarray(neutral, dtype=float)
+    centre = np.nanmean(neutral, axis=0)               # screen origin: the rest centroid
+    rest = (neutral - centre) @ axes3.T
+    cap = (captured[frames] - centre) @ axes3.T        # (F, M, 3) screen coordinates
+    rec = cap + exaggerate * (reconstructed[frames] - captured[frames]) @ axes3.T
+    every = np.concatenate([rest[None], cap, rec]).reshape(-1, 3)
+    lo, hi = np.nanmin(every, axis=0) - 4, np.nanmax(every, axis=0) + 4
+    span = hi - lo
+    fig = new_figure(1.2 + 0.028 * len(frames) * (span[0] + span[2]), 0.028 * span[1] + 1.6)
+    grid = fig.subplots(1, 2 * len(frames), sharey=True,
+                        width_ratios=[span[0], span[2]] * len(frames))
+    for k, t in enumerate(frames):
+        err = np.linalg.norm(reconstructed[t] - captured[t], axis=1)
+        caption = (names[k] if names is not None
+                   else f"RMS {np.sqrt(np.nanmean(err ** 2)):.2f} mm")
+        for ax, h, view in ((grid[2 * k], 0, "front"), (grid[2 * k + 1], 2, "side")):
+            ax.scatter(rest[:, h], rest[:, 1], s=10, color="#cccccc", zorder=1)
+            segs = np.stack([cap[k][:, [h, 1]], rec[k][:, [h, 1]]], axis=1)
+            ax.add_collection(LineCollection(segs, colors="black", linewidths=0.8, zorder=2))
+            ax.scatter(cap[k][:, h], cap[k][:, 1], s=28, color=CAPTURED_COLOUR, zorder=3,
+                       label="captured")
+            ax.scatter(rec[k][:, h], rec[k][:, 1], s=10, color=RECONSTRUCTED_COLOUR,
+                       zorder=3, label="reconstructed")
+            ax.set_xlim(lo[h], hi[h])
+            ax.set_ylim(lo[1], hi[1])
+            ax.set_aspect("equal")
+            ax.tick_params(labelsize=7)
+            ax.set_xlabel(f"{view} (mm)", fontsize=8)
+        grid[2 * k].set_title(f"frame {t + first_frame}: {caption}", fontsize=9, loc="left")
+    grid[0].set_ylabel("up (mm)", fontsize=8)
+    handles, texts = grid[0].get_legend_handles_labels()
+    scale = "" if exaggerate == 1 else f", error vectors ×{exaggerate:g}"
+    fig.legend(handles, texts, loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+    fig.suptitle(title or f"Captured (red) vs reconstructed (blue){scale}; grey: rest pose. "
+                          "Front: subject's left on the right; side: face to the right",
+                 fontsize=10)
+    save_figure(fig, path)

@@ -1,0 +1,241 @@
+"""QA report: charts, marker views, overlay video and HTML, on the real capture."""
+
+from __future__ import annotations
+
+import base64
+from html.parser import HTMLParser
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+import mocap
+from basis.pca import pca_streaming
+from fit.metrics import reconstruction_errors
+from fit.report import build_report
+from fit.report.html import render_report
+from fit.report.plots import plot_coverage, region_groups
+from fit.report.video import write_overlay_video
+from fit.report.views import (CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_views,
+                              view_axes)
+from mocap.errors import InputError
+from mocap.markerset import load_markerset
+from mocap.stabilize import stabilize
+
+MARKERSET = Path(__file__).parent / "facial_sing_markerset.toml"
+N_FRAMES = 600
+
+
+@pytest.fixture(scope="module")
+def case(shared_data):
+    """The first frames of facial-sing, stabilized, and two 'reconstructions':
+    the capture plus smooth error fields of a few mm (one on the lips only)."""
+    ms = load_markerset(MARKERSET)
+    take = mocap.read(shared_data / "captures" / "facial-sing.c3d")
+    take = take.replace(positions=take.positions[:N_FRAMES], filled=take.filled[:N_FRAMES])
+    face = stabilize(take, ms.head).take.select(ms.face_markers)
+    rng = np.random.default_rng(0)
+    t = np.arange(face.n_frames)[:, None, None]
+    bump = np.exp(-0.5 * ((t - 400) / 15.0) ** 2)
+    lips = np.isin(face.labels, ms.regions["lower_lip"] + ms.regions["mouth_corners"])
+    small = 0.3 * np.sin(t / 40 + rng.uniform(0, 6, size=(1, face.n_markers, 3)))
+    qe = face.positions + small + 4.0 * bump * lips[None, :, None]
+    h = face.positions + 3 * small + 6.0 * bump
+    neutral = face.positions[0]
+    return ms, face, {"QE": qe, "H": h}, neutral
+
+
+@pytest.fixture(scope="module")
+def report(case, tmp_path_factory):
+    ms, face, recs, neutral = case
+    disp = np.nan_to_num(face.positions - neutral)
+    pca = pca_streaming(disp.reshape(face.n_frames, -1, 3), n_components=25)
+    out = tmp_path_factory.mktemp("report")
+    files = build_report(face, recs, neutral, out, markerset=ms, pca=pca, name="sing")
+    results = {b: reconstruction_errors(face.positions, r, neutral, labels=face.labels, name=b)
+               for b, r in recs.items()}
+    return files, results, pca
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+def test_region_groups_follow_the_markerset(case):
+    ms, face, _, _ = case
+    labels = list(face.labels[::-1]) + ["extra"]
+    order, groups = region_groups(labels, ms)
+    shown = [labels[i] for i in order]
+    assert shown[:len(ms.face_markers)] == list(ms.face_markers)
+    assert groups[-1] == ("unassigned", len(labels) - 1, len(labels))
+    assert [g[0] for g in groups[:-1]] == [r for r, m in ms.regions.items() if m]
+    assert sorted(order.tolist()) == list(range(len(labels)))
+
+
+def test_front_view_puts_the_subjects_left_on_the_viewers_right(case):
+    ms, face, _, neutral = case
+    axes = view_axes(neutral, face.labels, ms)
+    np.testing.assert_allclose(axes @ axes.T, np.eye(3), atol=1e-12)
+    screen = neutral @ axes.T
+    col = {label: i for i, label in enumerate(face.labels)}
+    for left, right in (("section1-1", "section2-1"), ("section11-1", "section12-1"),
+                        ("section5-1", "section6-1")):          # left/right mirror pairs
+        assert screen[col[left], 0] > screen[col[right], 0]
+    assert screen[col["section1-1"], 1] > screen[col["section14-2"], 1]    # brow above chin
+    assert screen[col["section7-2"], 2] > screen[col["section5-2"], 2]     # nose tip in front
+    # The capture's own axes (marker-set file): subject's left +x, up +z.
+    assert axes[0, 0] > 0.9 and axes[1, 2] > 0.9
+
+
+def test_pngs_are_non_trivial(report):
+    files, _, _ = report
+    pngs = [p for k, p in files.items() if p.suffix == ".png"]
+    assert len(pngs) == 1 + 3 * 2 + 1
+    for path in pngs:
+        width, height = _png_size(path)
+        assert path.stat().st_size > 10_000, path.name
+        image = cv2.imread(str(path))
+        assert image.shape == (height, width, 3)
+        packed = image.astype(np.int64) @ np.array([1, 256, 65536])
+        assert len(np.unique(packed)) > 50, path.name
+    # Figure sizes in inches at 120 dpi.
+    assert _png_size(files["alpha"]) == (1320, 576)
+    assert _png_size(files["coverage"]) == (1440, 540)
+
+
+@pytest.mark.parametrize("basis", ["QE", "H"])
+def test_views_show_captured_and_reconstructed_colours(report, basis):
+    files, _, _ = report
+    image = cv2.imread(str(files[f"views-{basis}"]))[:, :, ::-1].astype(int)
+    for colour in (CAPTURED_COLOUR, RECONSTRUCTED_COLOUR):
+        rgb = np.array([int(colour[i:i + 2], 16) for i in (1, 3, 5)])
+        assert (np.abs(image - rgb).sum(axis=2) < 30).sum() > 500
+
+
+def test_coverage_without_reaching_the_threshold(report, tmp_path):
+    _, _, pca = report
+    path = tmp_path / "cov.png"
+    plot_coverage(pca.truncate(3), path, thresholds=(0.995,))
+    assert path.stat().st_size > 10_000
+    with pytest.raises(InputError, match="thresholds must be in"):
+        plot_coverage(pca, path, thresholds=(99.5,))
+
+
+class _Page(HTMLParser):
+    """Images, external references and table cells (data-value, else the text)."""
+
+    def __init__(self):
+        super().__init__()
+        self.images, self.links, self.tables = [], [], {}
+        self._table = self._row = None
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        if tag == "img":
+            self.images.append(attrs["src"])
+        if tag in ("link", "script", "iframe") or "href" in attrs:
+            self.links.append((tag, attrs))
+        if tag == "table":
+            self._table = self.tables.setdefault(attrs["id"], [])
+        elif tag == "tr" and self._table is not None:
+            self._row = []
+            self._table.append(self._row)
+        elif tag in ("td", "th") and self._row is not None:
+            self._row.append(attrs.get("data-value", ""))
+
+    def handle_data(self, data):
+        if self._row and self._row[-1] == "":
+            self._row[-1] = data
+
+    def handle_endtag(self, tag):
+        if tag == "table":
+            self._table = self._row = None
+
+
+def test_html_is_self_contained_and_its_numbers_are_the_metrics(report):
+    files, results, _ = report
+    page = _Page()
+    page.feed(files["html"].read_text(encoding="utf-8"))
+    page.close()
+    assert page.links == []
+    pngs = sorted(p.read_bytes() for p in files.values() if p.suffix == ".png")
+    assert all(src.startswith("data:image/png;base64,") for src in page.images)
+    embedded = sorted(base64.b64decode(src.split(",", 1)[1]) for src in page.images)
+    assert embedded == pngs
+    summary = page.tables["summary"][1:]
+    keys = ["alpha", "alpha_mean", "alpha_max", "displacement_error", "rms_mm", "mean_mm",
+            "p95_mm", "max_mm"]
+    for row, res in zip(summary, results.values()):
+        assert [float(v) for v in row[1:1 + len(keys)]] == [res.summary()[k] for k in keys]
+        assert int(row[1 + len(keys)]) == res.summary()["worst_frame"] + 1   # frame number
+    markers = page.tables["markers"][1:]
+    qe, h = results["QE"], results["H"]
+    assert len(markers) == len(qe.labels)
+    got = np.array([[float(v) for v in row[2:8]] for row in markers])
+    want = np.column_stack([qe.marker_mean, qe.marker_p95, qe.marker_max,
+                            h.marker_mean, h.marker_p95, h.marker_max])
+    np.testing.assert_array_equal(got, want)
+    worst = page.tables["worst"][1:]
+    assert [row[0] for row in worst] == ["QE"] * 5 + ["H"] * 5
+    for row in worst:
+        res, frame = results[row[0]], int(row[2]) - 1           # frame numbers start at 1
+        assert [float(v) for v in row[3:7]] == [res.alpha[frame], res.displacement_error[frame],
+                                                res.rms[frame], res.max_error[frame]]
+    top_qe = int(worst[0][2]) - 1
+    assert results["QE"].rms[top_qe] == np.nanmax(results["QE"].rms)
+
+
+def test_html_errors(report):
+    _, results, _ = report
+    with pytest.raises(InputError, match="results is empty"):
+        render_report({}, {}, title="x")
+    with pytest.raises(InputError, match="is not a PNG"):
+        render_report(results, {"bad": b"GIF89a"}, title="x")
+
+
+@pytest.mark.parametrize("step,fps", [(1, None), (3, 24.0)])
+def test_video_round_trip(case, tmp_path, step, fps):
+    ms, face, recs, neutral = case
+    n = 150
+    path = tmp_path / "overlay.mp4"
+    written = write_overlay_video(face.positions[:n], recs["H"][:n], path, neutral=neutral,
+                                  rate=face.rate, labels=face.labels, markerset=ms,
+                                  step=step, fps=fps, size=(320, 240))
+    assert written == len(range(0, n, step))
+    video = cv2.VideoCapture(str(path))
+    try:
+        assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == written
+        assert (video.get(cv2.CAP_PROP_FRAME_WIDTH), video.get(cv2.CAP_PROP_FRAME_HEIGHT)) \
+            == (320, 240)
+        assert video.get(cv2.CAP_PROP_FPS) == pytest.approx(fps or face.rate / step)
+        frames = 0
+        while True:
+            ok, image = video.read()
+            if not ok:
+                break
+            frames += 1
+            b, g, r = (image[..., i].astype(int) for i in range(3))
+            assert ((r > 150) & (g < 110) & (b < 110)).any()   # captured markers in red
+            assert ((b > 150) & (r < 110)).any()               # reconstructed in blue
+        assert frames == written
+    finally:
+        video.release()
+    assert [p.name for p in tmp_path.iterdir()] == ["overlay.mp4"]   # no temp file left
+
+
+def test_view_and_video_errors(case, tmp_path):
+    ms, face, recs, neutral = case
+    with pytest.raises(InputError, match="frames must be 1 or more indices"):
+        plot_frame_views(face.positions, recs["H"], [N_FRAMES], tmp_path / "v.png",
+                         neutral=neutral)
+    with pytest.raises(InputError, match="reconstructed must have the shape"):
+        write_overlay_video(face.positions, recs["H"][:10], tmp_path / "v.mp4",
+                            neutral=neutral, rate=100.0)
+    with pytest.raises(InputError, match="step must be at least 1"):
+        write_overlay_video(face.positions, recs["H"], tmp_path / "v.mp4",
+                            neutral=neutral, rate=100.0, step=0)
+    with pytest.raises(InputError, match="output directory does not exist"):
+        build_report(face, recs, neutral, tmp_path / "absent")
