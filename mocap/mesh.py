@@ -442,8 +442,10 @@ def vertex_normals(vertices, faces) -> np.ndarray:
     vertices = as_float_array(vertices, "vertices")
     if vertices.ndim < 2 or vertices.shape[-1] != 3:
         raise InputError(f"vertices must have shape (..., N, 3), got {vertices.shape}")
-    faces = np.asarray(faces, dtype=np.int64)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     n = vertices.shape[-2]
+    if len(faces) == 0:
+        return np.zeros_like(vertices)
     incidence = sp.csr_matrix((np.ones(faces.size), (faces.ravel(),
                                                      np.repeat(np.arange(len(faces)), 3))),
                               shape=(n, len(faces)))

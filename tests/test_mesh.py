@@ -255,3 +255,9 @@ def test_check_mesh_landmarks_in_memory():
     with pytest.raises(InputError, match="landmarks must be a mapping"):
         check_mesh_landmarks([("chin", 3)], 4)
     assert all(p in ANATOMICAL_POINTS for p in load_mesh_landmarks(ICT_LANDMARKS))
+
+
+def test_vertex_normals_of_a_mesh_without_faces_are_zero():
+    verts = np.random.default_rng(0).normal(size=(2, 5, 3))
+    normals = vertex_normals(verts, np.zeros((0, 3), int))
+    assert normals.shape == verts.shape and not normals.any()

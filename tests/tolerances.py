@@ -63,3 +63,18 @@ SYNTH_HEAD_EXACT = 1e-9
 #: frame picked automatically): bound points vs the layout, mm (the issue asks < 1 mm).
 BIND_CLI_SIM_MEAN_MM = 0.5
 BIND_CLI_SIM_MAX_MM = 1.0
+#: Rendered sphere silhouette (pixels not background) against pi r^2, relative.
+RENDER_SILHOUETTE_REL = 0.01
+#: Rendered colour against the shading formula, 8-bit levels (rounding, colour-map LUT).
+RENDER_RGB_LEVELS = 2
+#: Retargeting: an RBF operator at its own centres, and an affine field through TPS of
+#: degree 1 (relative to the data scale; float64 solves of well-conditioned systems).
+RETARGET_EXACT = 1e-8
+#: `mocap2mesh retarget` on a simulated capture (0.2 mm noise, head motion, gaps filled):
+#: RMS vertex error over the moving vertices, as a fraction of their RMS motion (issue 3
+#: aims at 0.1 for the best variant; the default TPS must at least do this well).
+RETARGET_CLI_SIM_REL = 0.3
+#: `mocap2mesh basis` on a synthetic take (float32 archive of the retargeted vertices, a
+#: randomized PCA exact to rounding at rank <= m + 10): bases and moves vs a dense SVD,
+#: relative to the largest value compared.
+BASIS_CLI_REL = 1e-5
