@@ -318,7 +318,9 @@ def _geodesic_setup(centers, points, mesh, center_faces, center_bary):
                          f"(face {faces[bad]}); center_faces/center_bary must locate "
                          "the centers on the mesh")
     between = geo.at_surface_points(fields, faces, center_bary)
-    return fields, 0.5 * (between + between.T)
+    # the heat method can return -1e-16 at a source; a distance is never negative
+    # (and the thin-plate kernel takes its logarithm)
+    return np.maximum(fields, 0.0), np.maximum(0.5 * (between + between.T), 0.0)
 
 
 def build_rbf_operator(centers, points, *, kernel: str = "thin_plate_spline",

@@ -299,3 +299,24 @@ def test_painted_mask_errors():
         painted_region_weights([[0.0, 0.0]], ["a", "b"])
     with pytest.raises(InputError, match="names must be distinct strings"):
         painted_region_weights([[1.0, 0.0]], ["a", "a"])
+
+
+def test_geodesic_thin_plate_spline_on_the_ict_face(shared_data):
+    """Heat-method distances of ~-1e-16 at a source must not turn the TPS log into NaN.
+
+    The geodesic TPS kernel is indefinite on this mesh, so it is shifted (and no
+    longer interpolates), but an affine field stays exact: it lies in the span of
+    the polynomial part, whatever the kernel.
+    """
+    import trimesh
+
+    mesh = trimesh.load(shared_data / "ict-face" / "generic_neutral_mesh.obj", process=False)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    idx = np.random.default_rng(0).choice(len(vertices), 30, replace=False)
+    with pytest.warns(UserWarning, match="positive definite"):
+        op = build_rbf_operator(vertices[idx], vertices, kernel="thin_plate_spline",
+                                distance="geodesic", mesh=(vertices, faces))
+    assert np.isfinite(op.matrix).all()
+    affine = np.random.default_rng(1).normal(size=(3, 3))
+    field = op.apply((vertices[idx] @ affine)[None], dtype=np.float64)[0]
+    np.testing.assert_allclose(field, vertices @ affine, atol=1e-8)
