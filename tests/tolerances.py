@@ -71,8 +71,8 @@ RENDER_RGB_LEVELS = 2
 #: degree 1 (relative to the data scale; float64 solves of well-conditioned systems).
 RETARGET_EXACT = 1e-8
 #: `mocap2mesh retarget` on a simulated capture (0.2 mm noise, head motion, gaps filled):
-#: RMS vertex error over the moving vertices, as a fraction of their RMS motion (issue 3
-#: aims at 0.1 for the best variant; the default TPS must at least do this well).
+#: RMS error at the face markers' skin points, as a fraction of their RMS motion (the
+#: operator interpolates there: what is left is noise, skin offset and binding error).
 RETARGET_CLI_SIM_REL = 0.3
 #: `mocap2mesh basis` on a synthetic take (float32 archive of the retargeted vertices, a
 #: randomized PCA exact to rounding at rank <= m + 10): bases and moves vs a dense SVD,
