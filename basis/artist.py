@@ -16,6 +16,7 @@ import numpy as np
 from mocap._validation import as_float_array
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh import Mesh, load_mesh
+from mocap.units import mm_per_unit
 
 __all__ = ["ArtistBasis", "load_artist_basis"]
 
@@ -99,7 +100,8 @@ def load_artist_basis(neutral, shapes, *, names: Sequence[str] | None = None,
         ``*.obj`` in name order unless `names` is given); or a glTF/GLB file whose
         first mesh with morph targets holds the shapes, named by
         ``mesh.extras.targetNames`` (else ``target_0``, ...). glTF positions are
-        taken in the neutral's units.
+        metres (the glTF convention) and are converted to the neutral's units;
+        when the neutral has no units they are taken as they are.
     names : sequence of str, optional
         The shapes to load, in this order.
     units : str, optional
@@ -168,8 +170,9 @@ def _gltf_shapes(neutral: Mesh, path: Path, names):
     if mesh is None:
         raise FileFormatError(path, "no mesh with morph targets")
     buffers = {}
-    base = np.concatenate([_accessor(gltf, path, p.attributes.POSITION, buffers)
-                           for p in mesh.primitives])
+    to_mesh_units = 1.0 if neutral.units is None else 1000.0 / mm_per_unit(neutral.units)
+    base = to_mesh_units * np.concatenate([_accessor(gltf, path, p.attributes.POSITION, buffers)
+                                           for p in mesh.primitives])
     n_targets = len(mesh.primitives[0].targets)
     if any(len(p.targets or ()) != n_targets for p in mesh.primitives):
         raise FileFormatError(path, "primitives of the morphed mesh have different target counts")
@@ -192,8 +195,8 @@ def _gltf_shapes(neutral: Mesh, path: Path, names):
     vertices = np.empty((len(names), neutral.n_vertices, 3))
     for i, name in enumerate(names):
         t = all_names.index(name)
-        delta = np.concatenate([_accessor(gltf, path, p.targets[t]["POSITION"], buffers)
-                                for p in mesh.primitives])
+        delta = to_mesh_units * np.concatenate(
+            [_accessor(gltf, path, p.targets[t]["POSITION"], buffers) for p in mesh.primitives])
         vertices[i] = base + delta
     return names, vertices
 

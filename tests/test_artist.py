@@ -142,7 +142,9 @@ def test_gltf_morph_targets(basis, tmp_path, suffix):
     names = ["jawOpen", "mouthSmile_L", "browDown_R"]
     deltas = [basis.displacements[basis.index(n)] for n in names]
     path = tmp_path / f"face{suffix}"
-    _write_gltf(path, basis.neutral.vertices, deltas, names, basis.neutral.faces)
+    cm_to_m = 0.01                                   # glTF stores metres
+    _write_gltf(path, basis.neutral.vertices * cm_to_m, [d * cm_to_m for d in deltas], names,
+                basis.neutral.faces)
     loaded = load_artist_basis(basis.neutral, path)
     assert loaded.names == tuple(names)
     np.testing.assert_allclose(loaded.displacements, np.stack(deltas), atol=GLTF_FLOAT32_CM)
@@ -155,13 +157,14 @@ def test_gltf_mismatches(basis, tmp_path):
     _write_gltf(path, basis.neutral.vertices[:10], [np.zeros((10, 3))], ["a"], [[0, 1, 2]])
     with pytest.raises(FileFormatError, match="small.glb: has 10 vertices but the neutral has"):
         load_artist_basis(basis.neutral, path)
-    path = tmp_path / "metres.glb"
-    _write_gltf(path, basis.neutral.vertices / 100, [np.zeros((9409, 3))], ["a"],
+    path = tmp_path / "centimetres.glb"                # not metres: wrong for glTF
+    _write_gltf(path, basis.neutral.vertices, [np.zeros((9409, 3))], ["a"],
                 basis.neutral.faces)
-    with pytest.raises(FileFormatError, match="metres.glb: base positions differ"):
+    with pytest.raises(FileFormatError, match="centimetres.glb: base positions differ"):
         load_artist_basis(basis.neutral, path)
     path = tmp_path / "ok.glb"
-    _write_gltf(path, basis.neutral.vertices, [np.zeros((9409, 3))], ["a"], basis.neutral.faces)
+    _write_gltf(path, basis.neutral.vertices / 100, [np.zeros((9409, 3))], ["a"],
+                basis.neutral.faces)
     with pytest.raises(InputError, match="ok.glb: no morph target named b"):
         load_artist_basis(basis.neutral, path, names=["b"])
 

@@ -111,12 +111,15 @@ def test_ict_face_as_animated_morph_targets(ict, tmp_path):
     np.testing.assert_allclose(_read(gltf, sampler.output).reshape(24, ict.n_shapes), weights,
                                rtol=0, atol=EXPORT_FLOAT32_REL)
 
-    # an independent reader (another engineer's): the basis comes back, in metres
-    in_metres = Mesh(ict.neutral.vertices * _METRES["cm"], ict.neutral.faces, units="m")
-    back = load_artist_basis(in_metres, path)
-    assert back.names == ict.names
-    np.testing.assert_allclose(back.displacements / _METRES["cm"], ict.displacements,
-                               rtol=0, atol=GLTF_FLOAT32_CM)
+    # an independent reader (another engineer's): the basis comes back in the
+    # neutral's units, from metres in the file
+    for neutral, per_cm in ((ict.neutral, 1.0),
+                            (Mesh(ict.neutral.vertices * _METRES["cm"], ict.neutral.faces,
+                                  units="m"), _METRES["cm"])):
+        back = load_artist_basis(neutral, path)
+        assert back.names == ict.names
+        np.testing.assert_allclose(back.displacements / per_cm, ict.displacements,
+                                   rtol=0, atol=GLTF_FLOAT32_CM)
     loaded = trimesh.load(path, process=False)
     geometry = loaded.to_geometry() if isinstance(loaded, trimesh.Scene) else loaded
     assert len(geometry.vertices) == ict.neutral.n_vertices
