@@ -261,8 +261,9 @@ def plot_coverage(model, path, *, thresholds=(0.99, 0.995), title: str | None = 
     fig = new_figure(12, 4.5)
     covered, uncovered = fig.subplots(1, 2)
     covered.plot(m, 100 * cov, "o-", ms=3, lw=1, color="black")
-    rest = np.maximum(100 * (1 - cov), 1e-12)
-    uncovered.semilogy(m, rest, "o-", ms=3, lw=1, color="black")
+    rest = 100 * (1 - cov)
+    shown = rest > 1e-9 * rest[0]        # the last components can cover "all" to rounding
+    uncovered.semilogy(m[shown], rest[shown], "o-", ms=3, lw=1, color="black")
     for threshold, colour in zip(thresholds, distinct_colours(len(thresholds) + 1)[1:]):
         reached = np.nonzero(cov >= threshold * (1 - 1e-12))[0]
         covered.axhline(100 * threshold, color=colour, lw=0.8, ls="--")
@@ -279,7 +280,7 @@ def plot_coverage(model, path, *, thresholds=(0.99, 0.995), title: str | None = 
     covered.set_ylim(top=100.5)
     covered.set_ylabel("variance covered (%)")
     uncovered.set_ylabel("variance not covered, 100 − coverage (%)")
-    uncovered.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+    uncovered.yaxis.set_major_locator(LogLocator(numticks=12))
     uncovered.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     covered.legend(loc="lower right", fontsize=8)
     for ax in (covered, uncovered):
