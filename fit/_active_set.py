@@ -5,9 +5,10 @@ with one symmetric positive semi-definite ``G`` (n × n) shared by all frames.
 All frames iterate together: a frame's iterate is fixed by its *state*
 (int8 per variable: -1 at the lower bound, +1 at the upper bound, 0 free) and
 each iteration solves every frame's reduced system ``G_FF w_F = c_F − G_FA w_A``.
-Frames with the same free set share one inverse of their masked matrix, so an
-iteration costs one (pseudo-)inverse per *distinct* free set plus a gathered
-matrix-vector product per frame.
+No frame inverts an n × n matrix: G⁻¹ is computed once, and each frame
+factors only an m × m system, m = min(|F|, |A|) (usually the few bound
+weights, through the Schur complement of G⁻¹). Frames with the same m are
+factored together by Gaussian elimination vectorized over frames.
 
 Two phases: a primal-dual active-set (semismooth Newton) iteration, which
 changes many variables at once and converges in a few iterations, then, for
@@ -15,7 +16,9 @@ frames where it has not converged (it can cycle when G is far from an
 M-matrix), the monotone primal active-set method (one release per iteration,
 step to the first blocking bound), which cannot cycle on a strictly convex
 problem. Convergence is declared only from the KKT residual of the clipped
-final weights, never from the iteration itself.
+final weights, never from the iteration itself. Reduced solves get iterative
+refinement (ill-conditioned G) only where the state is optimal but the KKT
+residual misses the tolerance.
 """
 
 from __future__ import annotations
@@ -24,27 +27,34 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Frames per chunk of the gathered (chunk, n, n) products (memory budget).
-_CHUNK = 2048
-#: Frames between two seeds of the warm start (they are solved first).
-WARM_STRIDE = 16
+#: Most frames factored together (their (m, m, frames) systems stay in cache).
+_CHUNK = 512
+#: Fewest frames of a batch whose size is padded up to the next batch's.
+_MIN_BATCH = 64
+#: Rows of the products with G and G⁻¹ (see :func:`_dot`).
+_DOT_ROWS = 64
+#: Frames solved together (working set of the iterations).
+_BLOCK = 16384
 #: Iterations of the primal-dual phase before the monotone fallback takes over.
-_PDAS_ITER = 5
+_PDAS_ITER = 3
 #: An eigenvalue of G below this fraction of the largest one counts as zero.
 RANK_RTOL = 1e3 * np.finfo(float).eps
-#: Above this condition number of G, each reduced solve gets one refinement step.
+#: Above this condition number of G, reduced solves that must be exact get a
+#: refinement step (two above its square).
 _REFINE_COND = 1e6
 
 
 @dataclass(frozen=True)
 class BoxQP:
-    """The shared part of every frame's problem: G, bounds, rank."""
+    """The shared part of every frame's problem: G, its inverse, bounds, rank."""
 
     G: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
     rank: int
     cond: float
+    #: G⁻¹ (symmetrized), None when G is singular.
+    inverse: np.ndarray | None
 
     @classmethod
     def build(cls, G, lo, hi) -> "BoxQP":
@@ -53,7 +63,11 @@ class BoxQP:
         top = max(eig[-1], np.finfo(float).tiny)
         rank = int(np.count_nonzero(eig > RANK_RTOL * top))
         cond = top / eig[0] if eig[0] > 0 else np.inf
-        return cls(G=G, lo=lo, hi=hi, rank=rank, cond=float(cond))
+        inverse = None
+        if rank == len(G):
+            inverse = np.linalg.inv(G)
+            inverse = 0.5 * (inverse + inverse.T)
+        return cls(G=G, lo=lo, hi=hi, rank=rank, cond=float(cond), inverse=inverse)
 
     @property
     def n(self) -> int:
@@ -74,49 +88,146 @@ class BoxQP:
         return np.where(state < 0, lo, np.where(state > 0, hi, 0.0))
 
 
-def _masked_inverses(qp: BoxQP, free: np.ndarray) -> np.ndarray:
-    """(Pseudo-)inverses of G masked to each row of ``free`` (u, n), identity elsewhere."""
-    scale = float(np.mean(np.diag(qp.G))) or 1.0
-    both = free[:, :, None] & free[:, None, :]
-    mats = np.where(both, qp.G, 0.0)
-    diag = np.arange(qp.n)
-    mats[:, diag, diag] += np.where(free, 0.0, scale)
-    if qp.singular:
-        top = np.linalg.eigvalsh(qp.G)[-1]
-        return np.linalg.pinv(mats, rcond=RANK_RTOL * top / max(top, scale),
-                              hermitian=True)
-    return np.linalg.inv(mats)
+def reduced_solve(qp: BoxQP, state: np.ndarray, c: np.ndarray, *, unconstrained=None,
+                  refine: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Weights with bound variables at their bounds and free ones stationary.
+
+    Each frame solves ``G_FF w_F = c_F − G_FA w_A`` through the smaller of its
+    free set F and bound set A: directly (|F| × |F|), or, when G is invertible
+    and fewer variables are bound, through the Schur complement of G⁻¹:
+    ``w = u + G⁻¹λ`` with ``(G⁻¹)_AA λ_A = w_A − u_A``, u = G⁻¹c the
+    unconstrained minimizer (`unconstrained`, computed if not given), an
+    |A| × |A| system. Frames are sorted by that size and factored in batches.
+    Every pass corrects ``w`` by the reduced solve of its residual; with
+    ``refine``, ill-conditioned problems get more passes (iterative refinement).
+    Returns the weights and the gradient ``G w − c``, both (T, n).
+    """
+    free = state == 0
+    n_free = np.count_nonzero(free, axis=1)
+    via_bound = (2 * n_free > qp.n) & (qp.inverse is not None)
+    size = np.where(via_bound, qp.n - n_free, n_free)
+    batches = [(rows, sel, _factor(qp, _principal(qp.inverse if bound else qp.G, sel)))
+               for rows, bound, sel in _batches(free, via_bound, size)]
+    w = qp.bound_values(state)
+    # Frames of each path, as a slice when they are all of them (views, no copies).
+    schur = slice(None) if via_bound.all() else np.flatnonzero(via_bound)
+    direct = slice(None) if not via_bound.any() else np.flatnonzero(~via_bound)
+    resid = np.zeros((len(c), qp.n + 1))
+    if via_bound.any():
+        if unconstrained is None:
+            unconstrained = _dot(c, qp.inverse)
+        resid[schur, :-1] = unconstrained[schur] - w[schur]
+    if not via_bound.all():
+        resid[direct, :-1] = c[direct] - _dot(w[direct], qp.G)
+    for left in range(_refinements(qp.cond) if refine else 0, -1, -1):
+        coef = np.zeros_like(resid)
+        for rows, sel, solve in batches:
+            coef[rows, sel] = solve(resid[rows, sel])
+        delta = coef[:, :-1]
+        if via_bound.any():
+            delta[schur] = resid[schur, :-1] - _dot(delta[schur], qp.inverse)
+        w = w + np.where(free, delta, 0.0)
+        grad = _dot(w, qp.G) - c
+        if left:
+            resid[:, :-1] = -grad
+            if via_bound.any():
+                resid[schur, :-1] = _dot(resid[schur, :-1], qp.inverse)
+    return w, grad
 
 
-def _apply(inverses: np.ndarray, which: np.ndarray, vec: np.ndarray) -> np.ndarray:
-    """``inverses[which[t]] @ vec[t]`` for every frame, in chunks."""
-    out = np.empty_like(vec)
-    if len(inverses) == 1:
-        return vec @ inverses[0].T
-    for start in range(0, len(vec), _CHUNK):
-        part = slice(start, start + _CHUNK)
-        out[part] = np.matmul(inverses[which[part]], vec[part, :, None])[:, :, 0]
+def _dot(a, mat):
+    """``a @ mat`` for (T, n) ``a``, as products of ``_DOT_ROWS`` rows.
+
+    Products that small stay single-threaded in BLAS: on a machine whose cores
+    are busy, threaded products of skinny matrices mostly wait.
+    """
+    rows = len(a) - len(a) % _DOT_ROWS
+    out = np.empty((len(a), mat.shape[1]))
+    out[:rows].reshape(-1, _DOT_ROWS, out.shape[1])[:] = np.matmul(
+        a[:rows].reshape(-1, _DOT_ROWS, a.shape[1]), mat)
+    out[rows:] = a[rows:] @ mat
     return out
 
 
-def reduced_solve(qp: BoxQP, state: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Weights with bound variables at their bounds and free ones stationary.
+def _refinements(cond: float) -> int:
+    """Refinement steps that bring a reduced solve to full accuracy."""
+    return 0 if cond <= _REFINE_COND else 1 if cond <= _REFINE_COND ** 2 else 2
 
-    Frames are grouped by free set; one refinement step is added when G is
-    ill-conditioned, because an explicit inverse is not backward stable.
+
+def _batches(free, via_bound, size):
+    """Batches (frames, via_bound, sel) of frames solved together.
+
+    Frames sorted by path and size; a batch holds up to ``_CHUNK`` frames,
+    and fewer than ``_MIN_BATCH`` frames of one size join (padded up) the
+    frames of the next size.
+    ``sel`` (width, frames) indexes each frame's smaller set, padded with n.
     """
-    free = state == 0
-    fixed_part = qp.bound_values(state)
-    rhs = np.where(free, c - fixed_part @ qp.G, 0.0)
-    keys, which = np.unique(np.packbits(free, axis=1), axis=0, return_inverse=True)
-    which = which.ravel()
-    masks = np.unpackbits(keys, axis=1, count=qp.n).astype(bool)
-    inverses = _masked_inverses(qp, masks)
-    step = _apply(inverses, which, rhs)
-    if qp.cond > _REFINE_COND:
-        resid = np.where(free, rhs - step @ qp.G, 0.0)
-        step += _apply(inverses, which, resid)
-    return fixed_part + np.where(free, step, 0.0)
+    order = np.lexsort((size, via_bound))
+    key = (size + (len(free[0]) + 1) * via_bound)[order]
+    ends = np.r_[np.flatnonzero(np.diff(key)) + 1, len(order)]
+    start = 0
+    for end in ends:
+        if end - start < _MIN_BATCH and end < len(order) and \
+                via_bound[order[end]] == via_bound[order[start]]:
+            continue
+        for first in range(start, end, _CHUNK):
+            rows = order[first:min(first + _CHUNK, end)]
+            bound = bool(via_bound[rows[0]])
+            mask = ~free[rows] if bound else free[rows]
+            width = int(size[rows[-1]])
+            if width:
+                yield rows[None, :], bound, _padded_index(mask, width)
+        start = end
+
+
+def _padded_index(mask, width):
+    """(width, frames): indices of the True entries of each row of ``mask``, padded with n."""
+    frame, index = np.nonzero(mask)
+    place = np.cumsum(mask, axis=1)[frame, index] - 1
+    out = np.full((width, len(mask)), mask.shape[1])
+    out[place, frame] = index
+    return out
+
+
+def _principal(mat, sel):
+    """Principal submatrices ``mat[sel, sel]``, (m, m, frames) for ``sel`` (m, frames).
+
+    Index n (the padding) selects a row and column of the identity.
+    """
+    n = len(mat)
+    ext = np.zeros((n + 1, n + 1))
+    ext[:n, :n] = mat
+    out = np.take(ext.ravel(), sel[:, None, :] * (n + 1) + sel[None, :, :])
+    diag = np.arange(len(sel))
+    out[diag, diag] += sel == n
+    return out
+
+
+def _factor(qp, mats):
+    """Solver ``rhs (m, frames) -> mats⁻¹ rhs`` for the batch ``mats`` (m, m, frames).
+
+    Gaussian elimination without pivoting (the matrices are symmetric positive
+    definite), vectorized over frames; a pseudo-inverse when G is singular.
+    """
+    if qp.singular:
+        top = np.linalg.eigvalsh(qp.G)[-1]
+        pinv = np.linalg.pinv(mats.transpose(2, 0, 1), rcond=RANK_RTOL * top / max(top, 1.0),
+                              hermitian=True)
+        return lambda rhs: np.einsum("tij,jt->it", pinv, rhs)
+    m = len(mats)
+    for k in range(m - 1):
+        mats[k + 1:, k] /= mats[k, k]
+        mats[k + 1:, k + 1:] -= mats[k + 1:, k, None] * mats[k, None, k + 1:]
+
+    def solve(rhs):
+        x = rhs.copy()
+        for k in range(m - 1):
+            x[k + 1:] -= mats[k + 1:, k] * x[k]
+        for k in range(m - 1, -1, -1):
+            x[k] -= np.einsum("jt,jt->t", mats[k, k + 1:], x[k + 1:])
+            x[k] /= mats[k, k]
+        return x
+    return solve
 
 
 def kkt_residual(w, g, scale, lo, hi, *, atol=None) -> np.ndarray:
@@ -142,38 +253,55 @@ def kkt_residual(w, g, scale, lo, hi, *, atol=None) -> np.ndarray:
     return np.maximum(stat, feas).max(axis=1, initial=0.0)
 
 
-def residual(qp: BoxQP, w: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """KKT residual of frames ``w`` (T, n) for linear terms ``c`` (T, n)."""
-    g = w @ qp.G - c
-    scale = np.abs(w) @ np.abs(qp.G) + np.abs(c)
-    return kkt_residual(w, g, scale, qp.lo, qp.hi)
+def residual(qp: BoxQP, w: np.ndarray, c: np.ndarray, grad=None) -> np.ndarray:
+    """KKT residual of frames ``w`` (T, n) for linear terms ``c`` (T, n).
+
+    ``grad``, the gradient ``G w − c``, is computed when not given.
+    """
+    grad = _dot(w, qp.G) - c if grad is None else grad
+    scale = _dot(np.abs(w), np.abs(qp.G)) + np.abs(c)
+    return kkt_residual(w, grad, scale, qp.lo, qp.hi)
 
 
-def cold_state(qp: BoxQP, c: np.ndarray) -> np.ndarray:
-    """State of the unconstrained minimizer clipped to the bounds."""
-    w = reduced_solve(qp, np.zeros(c.shape, np.int8), c)
-    state = np.where(w < qp.lo, -1, np.where(w > qp.hi, 1, 0)).astype(np.int8)
+def start_state(qp: BoxQP, c: np.ndarray, unconstrained=None) -> np.ndarray:
+    """Active set of the unconstrained minimizer (given, or solved) clipped to the bounds.
+
+    Only the clipped weights that the gradient there pushes outwards stay bound.
+    """
+    if unconstrained is None:
+        unconstrained = reduced_solve(qp, np.zeros(c.shape, np.int8), c)[0]
+    w = np.clip(unconstrained, qp.lo, qp.hi)
+    g = _dot(w, qp.G) - c
+    state = np.where((w <= qp.lo) & (g > 0), -1,
+                     np.where((w >= qp.hi) & (g < 0), 1, 0)).astype(np.int8)
     state[:, qp.fixed] = -1
     return state
 
 
-def _pdas(qp, c, state, max_iter, tol, n_iter):
+def _pdas(qp, c, u, state, max_iter, tol, n_iter):
     """Primal-dual active-set iterations; returns weights and the converged mask."""
     T = len(c)
     w = np.empty_like(c)
     done = np.zeros(T, bool)
     todo = np.arange(T)
     for _ in range(max_iter):
-        s = state[todo]
-        wt = reduced_solve(qp, s, c[todo])
+        s, ct, ut = state[todo], c[todo], _rows_of(u, todo)
+        wt, g = reduced_solve(qp, s, ct, unconstrained=ut)
         n_iter[todo] += 1
-        ok = residual(qp, wt, c[todo]) <= tol
-        g = wt @ qp.G - c[todo]
         new = s.copy()
         new[(s == 0) & (wt < qp.lo)] = -1
         new[(s == 0) & (wt > qp.hi)] = 1
         new[((s == -1) & (g < 0)) | ((s == 1) & (g > 0))] = 0
         new[:, qp.fixed] = -1
+        # Only a state that reproduces itself is optimal (up to accuracy).
+        check = np.nonzero((new == s).all(axis=1))[0]
+        ok = np.zeros(len(todo), bool)
+        ok[check] = residual(qp, wt[check], ct[check], g[check]) <= tol
+        redo = check[~ok[check]]
+        if redo.size and _refinements(qp.cond):
+            wt[redo], g[redo] = reduced_solve(qp, s[redo], ct[redo], refine=True,
+                                              unconstrained=_rows_of(ut, redo))
+            ok[redo] = residual(qp, wt[redo], ct[redo], g[redo]) <= tol
         w[todo] = wt
         state[todo] = np.where(ok[:, None], s, new)
         done[todo[ok]] = True
@@ -183,15 +311,20 @@ def _pdas(qp, c, state, max_iter, tol, n_iter):
     return w, done
 
 
-def _primal(qp, c, w, state, max_iter, tol, n_iter):
+def _rows_of(u, rows):
+    """``u[rows]``, or None when there is no ``u`` (singular G)."""
+    return None if u is None else u[rows]
+
+
+def _primal(qp, c, u, w, state, max_iter, tol, n_iter):
     """Monotone primal active-set iterations from feasible ``w`` (in place)."""
     done = np.zeros(len(c), bool)
     todo = np.arange(len(c))
     for _ in range(max_iter):
         if not todo.size:
             break
-        s, wt, ct = state[todo], w[todo], c[todo]
-        target = reduced_solve(qp, s, ct)
+        s, wt, ct, ut = state[todo], w[todo], c[todo], _rows_of(u, todo)
+        target = reduced_solve(qp, s, ct, unconstrained=ut)[0]
         n_iter[todo] += 1
         step = target - wt
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -203,16 +336,24 @@ def _primal(qp, c, w, state, max_iter, tol, n_iter):
         blocked = (s == 0) & (ratio <= alpha[:, None]) & (alpha[:, None] < 1.0)
         s = np.where(blocked, np.where(step < 0, -1, 1), s).astype(np.int8)
         wt = np.where(s != 0, qp.bound_values(s), np.clip(wt, qp.lo, qp.hi))
-        g = wt @ qp.G - ct
-        scale = np.abs(wt) @ np.abs(qp.G) + np.abs(ct)
-        ok = kkt_residual(wt, g, scale, qp.lo, qp.hi) <= tol
-        # Release the worst wrong-signed multiplier of frames at their subproblem optimum.
-        wrong = np.where(s == -1, -g, np.where(s == 1, g, 0.0)) / np.maximum(
+        # Frames at their subproblem optimum: optimal, or release the worst
+        # wrong-signed multiplier, or (nothing to release) refine the solve.
+        at = np.nonzero(alpha >= 1.0)[0]
+        wa, sa, ca = wt[at], s[at], ct[at]
+        g = _dot(wa, qp.G) - ca
+        scale = _dot(np.abs(wa), np.abs(qp.G)) + np.abs(ca)
+        ok = np.zeros(len(todo), bool)
+        ok[at] = kkt_residual(wa, g, scale, qp.lo, qp.hi) <= tol
+        wrong = np.where(sa == -1, -g, np.where(sa == 1, g, 0.0)) / np.maximum(
             scale, np.finfo(float).tiny)
         wrong[:, qp.fixed] = 0.0
-        release = (alpha >= 1.0) & ~ok & (wrong.max(axis=1) > 0)
-        rows = np.nonzero(release)[0]
-        s[rows, wrong[rows].argmax(axis=1)] = 0
+        release = ~ok[at] & (wrong.max(axis=1) > 0)
+        redo = at[~ok[at] & ~release]
+        if redo.size and _refinements(qp.cond):
+            wt[redo], grad = reduced_solve(qp, s[redo], ct[redo], refine=True,
+                                           unconstrained=_rows_of(ut, redo))
+            ok[redo] = residual(qp, wt[redo], ct[redo], grad) <= tol
+        s[at[release], wrong[release].argmax(axis=1)] = 0
         w[todo], state[todo] = wt, s
         done[todo[ok]] = True
         todo = todo[~ok]
@@ -223,33 +364,26 @@ def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
                  warm_start: bool):
     """Solve every frame's box QP; returns (weights, n_iter, kkt, converged).
 
-    With ``warm_start``, every ``WARM_STRIDE``-th frame is solved first from a
-    cold start (the clipped unconstrained minimizer), and every other frame
-    starts from the final active set of the seed frame before it.
+    With ``warm_start`` every frame starts from :func:`start_state` (the
+    active set of its clipped unconstrained minimizer), else with every
+    weight free (one more iteration). Frames go through in blocks of ``_BLOCK``.
     """
     T = len(c)
-    n_iter = np.zeros(T, np.int64)
-    if warm_start and T > WARM_STRIDE:
-        seeds = np.arange(0, T, WARM_STRIDE)
-        w_seed, it_seed, state_seed = _solve_from(
-            qp, c[seeds], cold_state(qp, c[seeds]), tol, max_iter)
-        rest = np.setdiff1d(np.arange(T), seeds)
-        w_rest, it_rest, _ = _solve_from(
-            qp, c[rest], state_seed[rest // WARM_STRIDE], tol, max_iter)
-        w = np.empty_like(c)
-        w[seeds], w[rest] = w_seed, w_rest
-        n_iter[seeds], n_iter[rest] = it_seed, it_rest
-    else:
-        w, n_iter, _ = _solve_from(qp, c, cold_state(qp, c), tol, max_iter)
+    w, n_iter = np.empty_like(c), np.zeros(T, np.int64)
+    for start in range(0, T, _BLOCK):
+        part = slice(start, start + _BLOCK)
+        cp = c[part]
+        u = None if qp.inverse is None else _dot(cp, qp.inverse)
+        state = start_state(qp, cp, u) if warm_start else np.zeros(cp.shape, np.int8)
+        w[part], n_iter[part] = _solve_from(qp, cp, u, state, tol, max_iter)
     kkt = residual(qp, w, c)
     return w, n_iter, kkt, kkt <= tol
 
 
-def _solve_from(qp, c, state, tol, max_iter):
-    """Both phases from an initial state; returns (clipped weights, n_iter, state)."""
-    state = state.copy()
+def _solve_from(qp, c, u, state, tol, max_iter):
+    """Both phases from an initial state (updated in place); returns (clipped w, n_iter)."""
     n_iter = np.zeros(len(c), np.int64)
-    w, done = _pdas(qp, c, state, min(_PDAS_ITER, max_iter), tol, n_iter)
+    w, done = _pdas(qp, c, u, state, min(_PDAS_ITER, max_iter), tol, n_iter)
     rest = np.nonzero(~done)[0]
     if rest.size:
         ws, ss = w[rest], state[rest]
@@ -257,8 +391,7 @@ def _solve_from(qp, c, state, tol, max_iter):
         ss = np.where(outside, np.where(ws < qp.lo, -1, 1), ss).astype(np.int8)
         ws = np.where(ss != 0, qp.bound_values(ss), ws)
         it = np.zeros(rest.size, np.int64)
-        _primal(qp, c[rest], ws, ss, max_iter, tol, it)
+        _primal(qp, c[rest], _rows_of(u, rest), ws, ss, max_iter, tol, it)
         w[rest], state[rest] = ws, ss
         n_iter[rest] += it
-    w = np.clip(w, qp.lo, qp.hi)
-    return w, n_iter, state
+    return np.clip(w, qp.lo, qp.hi), n_iter

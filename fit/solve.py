@@ -80,9 +80,12 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
         are left out of that frame's problem exactly (frames are grouped by
         mask pattern, each pattern with its own BᵀB). Not with `smoothness`.
     warm_start : bool, default True
-        Start every frame from the active set of a frame solved before it
-        (every 16th frame is solved first, cold-started from the clipped
-        unconstrained minimizer). Does not change the result, only the work.
+        Start every frame from the active set of its unconstrained minimizer
+        clipped to the bounds (one product with (BᵀB)⁻¹; the clipped weights
+        whose gradient points inwards are freed), instead of with every
+        weight free. Does not change the result, only the work. (The
+        active set of a neighbouring frame is a worse start: with noisy
+        data, weights near a bound flip between frames.)
     smoothness : float, default 0
         λ ≥ 0: minimize Σ_t ½‖B w_t − d_t‖² + ½ λ Σ_t ‖w_t − w_{t−1}‖² over
         the whole sequence instead (see :func:`fit.temporal.solve_smooth`).
@@ -113,8 +116,11 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
     -----
     With G = BᵀB and c_t = Bᵀd_t each frame is the QP ``½ wᵀGw − c_tᵀw``.
     Frames iterate together (primal-dual active set, then the monotone
-    primal active-set method for those left); every reduced system
-    ``G_FF w_F = c_F − G_FA w_A`` is solved once per distinct free set.
+    primal active-set method for those left). Every reduced system
+    ``G_FF w_F = c_F − G_FA w_A`` is solved through the smaller of the free
+    set F and the bound set A: with A small, ``w = G⁻¹(c + λ)`` where λ,
+    zero off A, solves the |A| × |A| system ``(G⁻¹)_AA λ_A = w_A − (G⁻¹c)_A``
+    (G⁻¹ computed once); frames of equal size are factored together.
 
     References
     ----------

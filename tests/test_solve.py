@@ -88,7 +88,7 @@ def test_objective_equals_oracle(kind, bounds):
 def test_warm_and_cold_start_agree(bounds):
     rng = np.random.default_rng(3)
     basis = make_basis("random", rng)
-    # A smooth sequence, where the warm start is meant to help.
+    # A smooth sequence: the start (clipped unconstrained minimizer or all free) must not matter.
     t = np.linspace(0, 4 * np.pi, 200)[:, None]
     truth = 0.5 + 0.8 * np.sin(t + np.arange(N_SHAPES))
     data = truth @ basis.T + 0.05 * rng.standard_normal((len(t), N_ROWS))
@@ -212,3 +212,59 @@ def test_real_basis_against_bvls(shared_data):
     expected = oracle_cost(flat, data.reshape(8, -1), np.zeros(len(paths)), np.ones(len(paths)))
     assert sol.status == 0
     np.testing.assert_allclose(sol.cost, expected, rtol=SOLVE_OBJECTIVE_REL)
+
+
+@pytest.mark.parametrize("kind", ["random", "ill-conditioned"])
+@pytest.mark.parametrize("bound_fraction", [0.2, 0.8], ids=["few-bound", "most-bound"])
+def test_reduced_solve_matches_dense_solve(kind, bound_fraction):
+    """Both paths (Schur complement of G⁻¹ over few bound weights, direct over few
+    free ones) against a dense solve of each frame's reduced system."""
+    from fit._active_set import BoxQP, reduced_solve
+
+    rng = np.random.default_rng([11, BASES.index(kind), int(10 * bound_fraction)])
+    basis = make_basis(kind, rng)
+    G, c = basis.T @ basis, make_data(basis, rng, n_frames=150) @ basis
+    qp = BoxQP.build(G, np.zeros(N_SHAPES), np.ones(N_SHAPES))
+    bound = rng.random(c.shape) < bound_fraction
+    state = np.where(bound, np.where(rng.random(c.shape) < 0.5, -1, 1), 0).astype(np.int8)
+    w, grad = reduced_solve(qp, state, c, refine=True)
+    np.testing.assert_array_equal(w[bound], np.where(state[bound] < 0, 0.0, 1.0))
+    np.testing.assert_allclose(grad, w @ G - c, rtol=0, atol=1e-12 * np.abs(c).max())
+    scale = np.abs(w) @ np.abs(G) + np.abs(c)
+    assert np.all(np.abs(grad[~bound]) <= 1e-11 * scale[~bound])
+    if kind == "random":
+        for t in range(len(c)):
+            f, a = ~bound[t], bound[t]
+            wf = np.linalg.solve(G[np.ix_(f, f)], c[t, f] - G[np.ix_(f, a)] @ w[t, a])
+            np.testing.assert_allclose(w[t, f], wf, rtol=1e-10, atol=1e-12)
+
+
+def test_mostly_bound_frames_against_bvls():
+    """Weights far outside [0, 1]: most end at a bound (the direct, |F| × |F| path)."""
+    rng = np.random.default_rng(12)
+    basis = make_basis("random", rng)
+    truth = rng.uniform(-3.0, 4.0, (N_FRAMES, N_SHAPES))
+    data = truth @ basis.T + 0.1 * rng.standard_normal((N_FRAMES, N_ROWS))
+    sol = solve_weights(basis, data, lower=0, upper=1)
+    at_bound = np.count_nonzero((sol.weights == 0) | (sol.weights == 1), axis=1)
+    assert np.mean(2 * at_bound > N_SHAPES) > 0.5
+    assert sol.status == 0
+    lo, hi = np.zeros(N_SHAPES), np.ones(N_SHAPES)
+    np.testing.assert_allclose(sol.cost, oracle_cost(basis, data, lo, hi),
+                               rtol=SOLVE_OBJECTIVE_REL)
+    assert_kkt(basis, data, sol.weights, lo, hi)
+
+
+def test_frames_are_solved_independently():
+    """Batching (sorting by set size, chunks, blocks) does not couple frames."""
+    rng = np.random.default_rng(13)
+    basis = make_basis("random", rng)
+    data = make_data(basis, rng, n_frames=700)
+    whole = solve_weights(basis, data, lower=0, upper=1)
+    order = rng.permutation(len(data))
+    parts = [solve_weights(basis, data[idx], lower=0, upper=1)
+             for idx in np.array_split(order, 7)]
+    weights = np.empty_like(whole.weights)
+    for idx, part in zip(np.array_split(order, 7), parts):
+        weights[idx] = part.weights
+    np.testing.assert_allclose(weights, whole.weights, rtol=0, atol=1e-10)
