@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 from mocap._validation import as_choice, as_int, as_positive_float
 from mocap.clean import FILL_OPTIONS as FILL_CHOICES
-from mocap.clean import FillResult, fill_gaps, lowpass, resample
+from mocap.clean import (FillResult, LabelSwap, fill_gaps, find_label_swaps, fix_label_swaps,
+                         lowpass, resample)
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.stabilize import Stabilization, stabilize
@@ -35,8 +36,12 @@ class IngestOptions:
         New frame rate, Hz; None keeps the rate.
     stabilize : bool
         Express all markers in the head frame (needs the marker set's head markers).
+    fix_swaps : bool
+        Find runs of frames where two markers exchanged labels and exchange them
+        back, before gap filling (:func:`mocap.clean.find_label_swaps`).
     """
 
+    fix_swaps: bool = False
     fill: str = "auto"
     max_gap: int | None = None
     lowpass_hz: float | None = None
@@ -61,6 +66,8 @@ class IngestResult:
     ----------
     raw : Take
         The take as read.
+    swaps : tuple of LabelSwap
+        Label swaps found and repaired (empty unless asked).
     fill : FillResult or None
         What gap filling did, gap by gap (None when filling was off).
     cleaned : Take
@@ -70,6 +77,7 @@ class IngestResult:
     """
 
     raw: Take
+    swaps: tuple[LabelSwap, ...]
     fill: FillResult | None
     cleaned: Take
     stabilization: Stabilization | None
@@ -84,8 +92,8 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
            options: IngestOptions = IngestOptions()) -> IngestResult:
     """Clean and stabilize a take.
 
-    Stages, in order: gap filling (rigid clusters from the marker set), low-pass,
-    resampling, head stabilization.
+    Stages, in order: label-swap repair (if asked), gap filling (rigid clusters
+    from the marker set), low-pass, resampling, head stabilization.
 
     Parameters
     ----------
@@ -112,7 +120,10 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     if options.stabilize and markerset is None:
         raise InputError("stabilization needs a marker set naming the head markers")
     clusters = dict(markerset.clusters) if markerset is not None else None
-    cleaned, fill = take, None
+    cleaned, fill, swaps = take, None, ()
+    if options.fix_swaps:
+        swaps = find_label_swaps(cleaned)
+        cleaned = fix_label_swaps(cleaned, swaps)
     if options.fill != "none":
         fill = fill_gaps(cleaned, method=options.fill, max_gap=options.max_gap,
                          clusters=clusters)
@@ -122,7 +133,8 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     if options.resample_hz is not None:
         cleaned = resample(cleaned, options.resample_hz)
     stab = stabilize(cleaned, markerset.head) if options.stabilize else None
-    return IngestResult(raw=take, fill=fill, cleaned=cleaned, stabilization=stab)
+    return IngestResult(raw=take, swaps=swaps, fill=fill, cleaned=cleaned,
+                        stabilization=stab)
 
 
 def save_head_motion(stabilization: Stabilization, path, *, inputs=()) -> None:

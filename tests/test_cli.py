@@ -97,3 +97,21 @@ def test_demo_runs(tmp_path, capsys):
     assert main(["demo", "-o", str(tmp_path / "demo")]) == 0
     assert "demo session" in capsys.readouterr().out
     assert (tmp_path / "demo" / "ingest" / "gaps.png").exists()
+
+
+def test_ingest_fix_swaps_undoes_an_injected_label_swap(session_files, tmp_path):
+    root, session = session_files
+    take = session.capture.take
+    rest = np.nanmedian(take.positions, axis=0)
+    seen = ~take.missing[190:270].any(axis=0)          # a pair visible around the swap
+    face = [i for i, label in enumerate(take.labels)
+            if label not in session.head_markers and seen[i]]
+    a = face[0]
+    b = min((i for i in face if i != a), key=lambda i: np.linalg.norm(rest[i] - rest[a]))
+    swapped = take.positions.copy()
+    swapped[200:260, [a, b]] = swapped[200:260, [b, a]]
+    mocap.write(take.replace(positions=swapped), tmp_path / "swapped.npz")
+    out = tmp_path / "fixed.npz"
+    assert main(["ingest", str(tmp_path / "swapped.npz"), "-o", str(out), "--fix-swaps",
+                 "--fill", "none"]) == 0
+    np.testing.assert_array_equal(mocap.read(out).positions, take.positions)
