@@ -390,7 +390,9 @@ def _eigenvector(horn: np.ndarray, lam: np.ndarray) -> np.ndarray:
     """
     adj = _adjugate4(horn - lam * np.eye(4)[..., None])
     best = np.argmax(np.abs(adj[np.arange(4), np.arange(4)]), axis=0)
-    q = np.choose(best, np.swapaxes(adj, 0, 1))
+    q = adj[:, 0]
+    for k in (1, 2, 3):                     # a select, cheaper than np.choose
+        q = np.where(best == k, adj[:, k], q)
     return q / np.sqrt((q * q).sum(axis=0))
 
 

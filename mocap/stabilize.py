@@ -41,10 +41,14 @@ _TUKEY_C = 10.0
 #: Robust weights never go below this, so a frame never loses its rank.
 _WEIGHT_FLOOR = 1e-3
 #: Convergence: largest change of a robust weight in the Huber warm-up and in
-#: the final Tukey phase, and of the mean shape (mm).
+#: the final Tukey phase, and of the mean shape as a fraction of the noise
+#: scale (1e-7 mm at the noise floor; far below the mean's own uncertainty,
+#: about sigma / sqrt(n_frames)).
 _HUBER_TOL = 1e-2
 _WEIGHT_TOL = 1e-7
-_SHAPE_TOL_MM = 1e-7
+_SHAPE_RTOL = 1e-4
+#: Frames of the first, cheap Procrustes pass that starts the mean shape.
+_START_FRAMES = 1024
 
 
 @dataclass(frozen=True)
@@ -226,15 +230,17 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
 
     Every frame is fitted to the reference at once (:func:`mocap.rigid.fit_rigid`:
     rigid, no scale, never a reflection). For ``"mean"`` the reference is
-    re-averaged in the head frame and re-posed onto `reference_frame` until it
-    moves less than 1e-7 mm (generalized Procrustes). With `robust`, the noise
-    scale ``sigma = median(r) / 1.5382`` (at least 1 um) of the residuals r is
-    then fixed and each sample is reweighted by Huber's function (``k = 3
-    sigma``) until the weights settle to 1e-2, then by a redescending weight:
-    1 up to ``4 sigma``, Tukey's biweight on the excess, 0 beyond ``10 sigma``
-    (floored at 1e-3 so that no frame loses its rank), to 1e-7. Only frames
-    whose weights still change are refitted; the mean is re-averaged after
-    each phase. Slips are reported from the final residuals, also without
+    the generalized-Procrustes mean: started from at most 1024 frames spread
+    over the take, then re-averaged in the head frame over all frames and
+    re-posed onto `reference_frame` until it moves less than 1e-4 times the
+    noise scale ``sigma = median(r) / 1.5382`` (at least 1 um) of the
+    residuals r. With `robust`, sigma is then fixed and each sample is
+    reweighted by Huber's function (``k = 3 sigma``) until the weights
+    settle to 1e-2, then by a redescending weight: 1 up to ``4 sigma``,
+    Tukey's biweight on the excess, 0 beyond ``10 sigma`` (floored at 1e-3
+    so that no frame loses its rank), to 1e-7, alternating with the mean
+    shape until both settle. Only frames whose weights still change are
+    refitted. Slips are reported from the final residuals, also without
     `robust` (detected, not down-weighted).
 
     Examples
@@ -372,13 +378,15 @@ def _reference_index(reference, reference_frame, n_frames, possible, base, label
 def _solve(head, base, reference, ref_index, robust, max_iter):
     """Generalized Procrustes and robust reweighting, all frames at once.
 
-    Works on frames-last arrays: y (3, n_head, n_frames). First the mean
-    shape is iterated with the caller's weights; then, with the noise scale
-    fixed, the Huber and then the Tukey weights are iterated, refitting only
-    the frames whose weights still change, and the mean shape re-averaged
-    until it settles. Returns rotation (n_frames, 3, 3), translation
-    (n_frames, 3), valid, shape, robust weights (n_frames, n_head), noise
-    scale, number of fit passes and convergence flag.
+    Works on frames-last arrays: y (3, n_head, n_frames). The mean shape
+    starts from a subsample of frames; without `robust` it is iterated to
+    convergence. With `robust`, after one full fit and re-average the noise
+    scale is fixed, the Huber weights are iterated (shape fixed), the shape
+    re-averaged once, then the Tukey weights and the shape until both
+    settle, refitting only the frames whose weights still change. Returns
+    rotation (n_frames, 3, 3), translation (n_frames, 3), valid, shape,
+    robust weights (n_frames, n_head), noise scale, number of fit passes and
+    convergence flag.
     """
     y = frames_last(head)
     seen = ~np.isnan(head[..., 0]).T
@@ -398,31 +406,63 @@ def _solve(head, base, reference, ref_index, robust, max_iter):
                                                base * robust_w * known[:, None])
         return rot, trans, ok
 
-    def settle_shape(fit):
-        """Re-average the mean shape until it moves less than the tolerance."""
+    def settle_shape(fit, sigma):
+        """Re-average the mean shape until it moves less than the tolerance.
+
+        The fit returned is the last one, made with the shape before the last
+        (sub-tolerance) move: no pass is spent only to confirm convergence.
+        """
         nonlocal shape
         while reference == "mean" and state["passes"] < max_iter:
             new = _mean_shape(y, base * robust_w, fit, ref_index, shape)
             change = np.abs(new - shape).max() if not np.isnan(shape).any() else np.inf
             shape = new
-            if change <= _SHAPE_TOL_MM:
+            if change <= _SHAPE_RTOL * sigma:
                 return fit, True
             fit = fit_all()
         return fit, reference == "frame"
 
-    fit, settled = settle_shape(fit_all())
+    if reference == "mean":
+        shape = _start_shape(y, base, shape, ref_index)
+        state["passes"] += 1
+    fit, settled = fit_all(), reference == "frame"
+    if not settled and robust:    # one re-average; the robust phases settle the shape
+        shape = _mean_shape(y, base, fit, ref_index, shape)
+    elif not settled:             # a first noise scale, for the tolerance only
+        fit, settled = settle_shape(fit, _noise_scale(_residuals(shape, fit, y, seen), base))
     sigma = _noise_scale(_residuals(shape, fit, y, seen), base)
     if robust:
-        for loss, tol in (("huber", _HUBER_TOL), ("tukey", _WEIGHT_TOL)):
-            settled = False
-            while not settled and state["passes"] < max_iter:
-                done = _reweight(shape, fit, y, seen, base, robust_w, sigma, loss, tol,
-                                 state, max_iter)
-                fit, settled = settle_shape(fit)
-                settled = settled and done
+        # Huber warm-up with the shape fixed, one re-average, then Tukey weights
+        # and mean shape until both settle.
+        _reweight(shape, fit, y, seen, base, robust_w, sigma, "huber", _HUBER_TOL, state,
+                  max_iter)
+        if reference == "mean":
+            shape = _mean_shape(y, base * robust_w, fit, ref_index, shape)
+        settled = False
+        while not settled and state["passes"] < max_iter:
+            done = _reweight(shape, fit, y, seen, base, robust_w, sigma, "tukey", _WEIGHT_TOL,
+                             state, max_iter)
+            fit, settled = settle_shape(fit, sigma)
+            settled = settled and done
     rotation, translation, valid = fit
     return (np.moveaxis(rotation, -1, 0), translation.T, valid, shape, robust_w.T, sigma,
             state["passes"], settled)
+
+
+def _start_shape(y, base, shape, ref_index) -> np.ndarray:
+    """A first mean shape, posed onto `ref_index`: at most _START_FRAMES frames fitted to `shape`.
+
+    Close to the mean of all frames (within about sigma / sqrt(_START_FRAMES)),
+    so that the full fits that follow start near convergence.
+    """
+    fitted = np.flatnonzero(np.count_nonzero(base > 0, axis=0) >= 3)
+    sub = np.union1d(fitted[np.linspace(0, len(fitted) - 1, min(_START_FRAMES, len(fitted)))
+                            .astype(np.intp)], [ref_index])
+    known = ~np.isnan(shape[:, 0])
+    rot, trans, _, _, ok = fit_frames_last(np.where(known[:, None], shape, 0.0), y[..., sub],
+                                           base[:, sub] * known[:, None])
+    return _mean_shape(y[..., sub], base[:, sub], (rot, trans, ok),
+                       int(np.searchsorted(sub, ref_index)), shape)
 
 
 def _reweight(shape, fit, y, seen, base, robust_w, sigma, loss, tol, state, max_iter) -> bool:
@@ -431,19 +471,21 @@ def _reweight(shape, fit, y, seen, base, robust_w, sigma, loss, tol, state, max_
     Returns whether the weights settled (every change below `tol`).
     """
     rotation, translation, valid = fit
-    frames = np.arange(y.shape[-1])
+    everything = slice(None)                # views, not copies, on the first round
+    frames = everything
     while state["passes"] < max_iter:
         part = (rotation[..., frames], translation[:, frames], valid[frames])
         new_w = _robust_weights(_residuals(shape, part, y[..., frames], seen[:, frames])
                                 / sigma, loss)
         change = np.where(base[:, frames] > 0, np.abs(new_w - robust_w[:, frames]), 0.0)
         robust_w[:, frames] = new_w
-        frames = frames[change.max(axis=0) > tol]
+        moving = change.max(axis=0) > tol
+        frames = np.flatnonzero(moving) if frames is everything else frames[moving]
         if frames.size == 0:
             return True
         state["passes"] += 1
         rot, trans, _, _, ok = fit_frames_last(shape, y[..., frames],
-                                               (base * robust_w)[:, frames])
+                                               base[:, frames] * robust_w[:, frames])
         rotation[..., frames], translation[:, frames], valid[frames] = rot, trans, ok
     return False
 

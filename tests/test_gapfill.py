@@ -2,7 +2,7 @@
 
 Oracles: analytic sinusoids with the cubic-spline error bound, a rigid body in
 known motion (rigid fill exact), data of exact low rank (PCA fill exact),
-scipy's Rotation.align_vectors for the batched Kabsch fit.
+scipy's Rotation.align_vectors for the batched Kabsch fit the rigid fill uses.
 """
 
 import numpy as np
@@ -12,7 +12,8 @@ from scipy.spatial.transform import Rotation
 from mocap import InputError, MarkerError, Take
 from mocap.clean import FILL_OPTIONS, fill_gaps
 from mocap.clean import _pca_fill
-from mocap.clean._rigid_fill import kabsch
+from mocap.clean._rigid_fill import donor_weights
+from mocap.rigid import fit_rigid
 from mocap.take import fill_code
 from tolerances import GAPFILL_LOW_RANK_MM, GAPFILL_RIGID_MM
 
@@ -60,7 +61,7 @@ def with_gaps(take, gaps):
 
 
 # -- the pieces against their oracles ---------------------------------------------
-def test_kabsch_recovers_exact_transform_and_matches_scipy():
+def test_rigid_fit_recovers_exact_transform_and_matches_scipy():
     rng = np.random.default_rng(3)
     n_fits, n_points = 50, 6
     src = rng.normal(scale=50, size=(n_fits, n_points, 3))
@@ -70,13 +71,15 @@ def test_kabsch_recovers_exact_transform_and_matches_scipy():
     weights = np.ones((n_fits, n_points))
     weights[np.arange(n_fits), rng.integers(0, n_points, n_fits)] = 0   # one point unused
     src_nan = np.where(weights[..., None] > 0, src, np.nan)
-    r, t = kabsch(src_nan, dst, weights)
+    fit = fit_rigid(src_nan, dst, weights)
+    r, t = fit.rotation, fit.translation
     np.testing.assert_allclose(r, rot.as_matrix(), atol=1e-12)
     np.testing.assert_allclose(t, trans, atol=1e-9)
 
     noisy = dst + rng.normal(scale=2.0, size=dst.shape)
     w = weights * rng.uniform(0.5, 2.0, size=weights.shape)
-    r, t = kabsch(src, noisy, w)
+    fit = fit_rigid(src, noisy, w)
+    r, t = fit.rotation, fit.translation
     for f in range(n_fits):
         cs = (w[f, :, None] * src[f]).sum(0) / w[f].sum()
         cd = (w[f, :, None] * noisy[f]).sum(0) / w[f].sum()
@@ -121,6 +124,58 @@ def test_rigid_fill_leaves_frames_without_three_donors():
     assert np.isnan(result.take.positions[120:130, 0]).all()
     np.testing.assert_allclose(result.take.positions[100:120, 0], truth.positions[100:120, 0],
                                atol=GAPFILL_RIGID_MM, rtol=0)
+
+
+def _slid(truth, column, offset):
+    """`truth` with marker `column` moved by `offset` (n_frames, 3) in the head's body frame."""
+    rot = Rotation.from_rotvec(np.column_stack([0.4 * np.sin(2 * truth.times),
+                                                0.3 * np.cos(3 * truth.times),
+                                                0.2 * np.sin(truth.times)])).as_matrix()
+    pos = truth.positions.copy()
+    pos[:, column] += np.einsum("tij,tj->ti", rot, offset)
+    return truth.replace(positions=pos)
+
+
+def test_rigid_fill_interpolates_in_the_donors_frame():
+    # The target slides at constant velocity on the head (a head band creeping,
+    # 2.7 mm over the gap): linear in the body frame, curved in the world.
+    slide = np.outer(np.arange(N_FRAMES), [0.02, -0.01, 0.015])
+    truth = _slid(head_take(n_face=0), 0, slide)
+    start, stop = 150, 250
+    result = fill_gaps(with_gaps(truth, [("root-1", start, stop)]), method="rigid",
+                       clusters=CLUSTERS)
+    np.testing.assert_allclose(result.take.positions[start:stop, 0],
+                               truth.positions[start:stop, 0], atol=GAPFILL_RIGID_MM, rtol=0)
+
+
+def test_rigid_fill_down_weights_a_donor_that_moves_relative_to_the_target():
+    # root-6 wanders 4 mm on the head; the others are rigid with the target root-1.
+    wander = 4.0 * np.sin(2 * np.pi * 0.7 * np.arange(N_FRAMES)[:, None] / RATE + [0, 1, 2])
+    truth = _slid(head_take(n_face=0), 5, wander)
+    start, stop = 150, 250
+    take = with_gaps(truth, [("root-1", start, stop)])
+    got = fill_gaps(take, method="rigid", clusters=CLUSTERS).take.positions[start:stop, 0]
+    err = np.linalg.norm(got - truth.positions[start:stop, 0], axis=1)
+    # Oracle of an unweighted fill: all donors carried from the frame before the gap.
+    pos = truth.positions
+    naive = fit_rigid(pos[start - 1, 1:6], pos[start:stop, 1:6])
+    naive_err = np.linalg.norm(naive.apply(pos[start - 1, :1])[:, 0] - pos[start:stop, 0], axis=1)
+    assert naive_err.max() > 0.3
+    assert err.max() < 0.02 * naive_err.max()
+
+
+def test_donor_weights_are_inverse_distance_variances_near_the_gap():
+    rng = np.random.default_rng(5)
+    pos = rng.normal(scale=3.0, size=(400, 5, 3)) + rng.normal(scale=80.0, size=(5, 3))
+    pos[rng.random((400, 5)) < 0.2] = np.nan
+    pos[:, 4] = np.nan                           # never seen: the smallest other weight
+    pos[250:300, 0] = np.nan
+    donors = np.array([1, 2, 3, 4])
+    got = donor_weights(pos, 0, 250, 300, donors)
+    near = np.r_[150:250, 300:400]               # RIGIDITY_FRAMES = 100 each side
+    expect = [1 / (np.nanvar(np.linalg.norm(pos[near, d] - pos[near, 0], axis=1)) + 0.1 ** 2)
+              for d in donors[:3]]
+    np.testing.assert_allclose(got, expect + [min(expect)], rtol=1e-12)
 
 
 @pytest.mark.parametrize("path", ["complete", "iterative"])

@@ -125,6 +125,34 @@ def test_slipping_marker_is_detected_and_down_weighted():
     assert np.median(err_plain) > 0.2                    # the slip biases a plain fit
 
 
+def slipped_take(n_frames=400):
+    """make_take with root-3 slipping 5 mm on the head in frames 150-249."""
+    take, rot, trans = make_take(n_frames=n_frames, noise=0.2)
+    pos = take.positions.copy()
+    pos[150:250, 2] += rot[150:250] @ np.array([3.0, 0.0, 4.0])
+    return take.replace(positions=pos), rot, trans
+
+
+@pytest.mark.parametrize("robust", [True, False])
+def test_mean_shape_is_the_weighted_average_of_the_aligned_frames(robust):
+    # The fixed point of generalized Procrustes with the final weights, robust or not.
+    take, _, _ = slipped_take()
+    st = stabilize(take, HEAD, robust=robust)
+    aligned = st.to_head(take.positions[:, :6])
+    mean = (st.weights[..., None] * aligned).sum(axis=0) / st.weights.sum(axis=0)[:, None]
+    np.testing.assert_allclose(mean, st.reference_shape, atol=1e-3 * st.noise)
+    assert st.converged
+
+
+def test_subsampled_start_reaches_the_same_solution(monkeypatch):
+    take, _, _ = slipped_take(n_frames=1500)
+    fast = stabilize(take, HEAD, reference_frame=700)
+    monkeypatch.setattr("mocap.stabilize._START_FRAMES", 10 ** 9)   # start from every frame
+    full = stabilize(take, HEAD, reference_frame=700)
+    np.testing.assert_allclose(fast.take.positions, full.take.positions, atol=1e-3 * full.noise)
+    np.testing.assert_allclose(fast.weights, full.weights, atol=1e-3)
+
+
 def test_frames_with_fewer_than_three_head_markers_are_flagged():
     take, rot, _ = make_take()
     pos = take.positions.copy()

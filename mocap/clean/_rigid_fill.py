@@ -1,62 +1,64 @@
 """Rigid-cluster fill: carry a marker along with the donors of its cluster.
 
-The rigid transform that takes the donors from a reference frame (where the
-target was seen) to each frame of the gap is fitted for all gap frames at once
-with a batched, weighted Kabsch solve (one stacked 3x3 SVD).
+The donors' rigid motion over the gap is found by :func:`mocap.stabilize.stabilize`
+(one batched fit of all frames to their generalized-Procrustes mean shape),
+with each donor weighted by how rigidly it moved with the target next to the
+gap. The target's position in the donors' local frame, known at the frames
+just before and after the gap, is interpolated linearly over the gap and
+carried back to the world.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-#: Donors a rigid fit needs in a frame (and in the reference frame).
+from ..stabilize import stabilize
+from ..take import Take
+
+#: Donors a rigid fit needs in a frame (and in a reference frame).
 MIN_DONORS = 3
+#: Frames on each side of the gap over which a donor's rigidity with the target is measured.
+RIGIDITY_FRAMES = 100
+#: Floor of the standard deviation of a donor-target distance, mm (about the
+#: marker noise): below it a donor is as good as perfectly rigid.
+RIGIDITY_FLOOR_MM = 0.1
+#: Frame rate given to the windows passed to ``stabilize`` (it does not use it), Hz.
+_RATE = 100.0
 
 
-def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray):
-    """Batched weighted rigid fit ``target ≈ R @ source + t``, no scaling, no reflection.
+def donor_weights(positions: np.ndarray, target: int, start: int, stop: int,
+                  donors: np.ndarray) -> np.ndarray:
+    """Weight of each donor: the inverse variance of its distance to the target near the gap.
 
     Parameters
     ----------
-    source, target : ndarray of shape (n_fits, n_points, 3)
-        Point sets; entries with zero weight may be NaN.
-    weights : ndarray of shape (n_fits, n_points)
-        Non-negative; each row needs at least three non-collinear points with
-        positive weight.
+    positions : ndarray of shape (n_frames, n_markers, 3), mm, NaN where missing
+    target : int
+    start, stop : int
+        The gap, frame indices.
+    donors : ndarray of int, shape (n_donors,)
 
     Returns
     -------
-    rotation : ndarray of shape (n_fits, 3, 3)
-    translation : ndarray of shape (n_fits, 3)
+    ndarray of shape (n_donors,)
+        ``1 / (var d + RIGIDITY_FLOOR_MM**2)``, with ``d`` the distance to the
+        target over the ``RIGIDITY_FRAMES`` frames before and after the gap
+        where both are visible. A donor seen there with the target fewer than
+        twice gets the smallest weight of the others (all 1 if none is).
     """
-    w = np.asarray(weights, dtype=np.float64)[..., None]
-    src = np.where(w > 0, source, 0.0)
-    dst = np.where(w > 0, target, 0.0)
-    total = w.sum(axis=1)
-    c_src = (w * src).sum(axis=1) / total
-    c_dst = (w * dst).sum(axis=1) / total
-    cov = np.einsum("fki,fkj->fij", w * (src - c_src[:, None]), dst - c_dst[:, None])
-    u, _, vt = np.linalg.svd(cov)
-    # R = V diag(1, 1, d) U^T with d = sign det(V U^T): the proper rotation.
-    d = np.where(np.linalg.det(u @ vt) < 0, -1.0, 1.0)
-    vt[:, 2, :] *= d[:, None]
-    rotation = np.swapaxes(u @ vt, 1, 2)
-    translation = c_dst - np.einsum("fij,fj->fi", rotation, c_src)
-    return rotation, translation
-
-
-def _carry(positions, visible, target, donors, ref, frames):
-    """Target at `frames` carried rigidly from frame `ref`; NaN where < 3 donors."""
-    w = visible[frames][:, donors] & visible[ref, donors]
-    ok = w.sum(axis=1) >= MIN_DONORS
-    out = np.full((len(frames), 3), np.nan)
-    if ok.any():
-        n = int(ok.sum())
-        src = np.broadcast_to(positions[ref, donors], (n, len(donors), 3))
-        dst = positions[frames[ok]][:, donors]
-        rot, trans = kabsch(src, dst, w[ok])
-        out[ok] = rot @ positions[ref, target] + trans
-    return out
+    n_frames = positions.shape[0]
+    side = np.r_[max(start - RIGIDITY_FRAMES, 0):start, stop:min(stop + RIGIDITY_FRAMES, n_frames)]
+    dist = np.linalg.norm(positions[side][:, donors] - positions[side, target, None], axis=-1)
+    seen = ~np.isnan(dist)
+    count = seen.sum(axis=0)
+    assessed = count >= 2
+    if not assessed.any():
+        return np.ones(len(donors))
+    d = np.where(seen, dist, 0.0)
+    mean = d.sum(axis=0) / np.maximum(count, 1)
+    var = (np.where(seen, d - mean, 0.0) ** 2).sum(axis=0) / np.maximum(count, 1)
+    weights = 1.0 / (var + RIGIDITY_FLOOR_MM ** 2)
+    return np.where(assessed, weights, weights[assessed].min())
 
 
 def fill_rigid(positions: np.ndarray, visible: np.ndarray, target: int, start: int,
@@ -77,31 +79,47 @@ def fill_rigid(positions: np.ndarray, visible: np.ndarray, target: int, start: i
     Returns
     -------
     ndarray of shape (stop - start, 3), mm
-        NaN in frames where no reference could be used (fewer than three
-        donors visible in both the frame and the reference frame).
+        NaN in frames with fewer than three donors visible, or without a
+        reference frame on either side.
 
     Notes
     -----
-    The references are the nearest frames before and after the gap where the
-    target and at least three donors are visible. From each, the donors'
-    rigid motion into every gap frame (one batched Kabsch fit) carries the
-    target's reference position along; the two estimates are blended
-    linearly in time (one alone where only one exists). On noise-free rigid
-    data both estimates are exact. (Averaging the cluster shape over several
-    reference frames was tried on facial-sing.c3d and did not help: its head
-    markers deform slowly rather than jitter.)
+    The reference frames are the nearest frames before and after the gap
+    where the target and at least three donors are visible. Over the frames
+    from one to the other, ``stabilize(reference="mean", robust=False)``
+    fits the donors' mean shape to every frame, each donor weighted by
+    :func:`donor_weights`; the target's local position is known at the
+    reference frames and interpolated linearly in time between them (held
+    when there is only one). Interpolating in the donors' frame, not in the
+    world, follows the slow drift of a head band, and the weights keep a
+    donor that slips relative to the target from turning the whole cluster.
+    On noise-free rigid data the fill is exact. (Robust reweighting within
+    the gap, ``robust=True``, was tried on facial-sing.c3d: its head markers
+    deform with the face, and the fill got worse.)
     """
     frames = np.arange(start, stop)
     ref_ok = visible[:, target] & (visible[:, donors].sum(axis=1) >= MIN_DONORS)
     refs = np.flatnonzero(ref_ok)
     i = np.searchsorted(refs, start)
-    sides = [(ref, _carry(positions, visible, target, donors, ref, frames))
-             for ref in (refs[i - 1:i] if i > 0 else refs[:0]).tolist() + refs[i:i + 1].tolist()]
-    if not sides:
+    before = int(refs[i - 1]) if i > 0 else None
+    after = int(refs[i]) if i < len(refs) else None
+    if before is None and after is None:
         return np.full((len(frames), 3), np.nan)
-    if len(sides) == 1:
-        return sides[0][1]
-    (t0, before), (t1, after) = sides
-    alpha = ((frames - t0) / (t1 - t0))[:, None]
-    blend = (1 - alpha) * before + alpha * after
-    return np.where(np.isnan(blend), np.where(np.isnan(before), after, before), blend)
+    lo = start if before is None else before
+    hi = stop if after is None else after + 1
+    # Donors never visible in a frame with 3 visible donors cannot be placed.
+    window = visible[lo:hi, donors]
+    usable = donors[(window & (window.sum(axis=1) >= MIN_DONORS)[:, None]).any(axis=0)]
+    columns = np.append(usable, target)
+    labels = tuple(str(c) for c in columns)
+    take = Take(labels, positions[lo:hi, columns], rate=_RATE)
+    st = stabilize(take, labels[:-1], robust=False,
+                   weights=donor_weights(positions, target, start, stop, usable))
+    local = st.take.positions[:, -1]
+    path = np.full((hi - lo, 3), np.nan)
+    if before is None or after is None:
+        path[start - lo:stop - lo] = local[0 if after is None else -1]
+    else:
+        alpha = ((frames - before) / (after - before))[:, None]
+        path[start - lo:stop - lo] = (1.0 - alpha) * local[0] + alpha * local[-1]
+    return st.to_world(path[:, None])[start - lo:stop - lo, 0]

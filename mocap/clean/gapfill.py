@@ -142,7 +142,10 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
     method : {"spline", "rigid", "pca", "auto", "none"}
         ``"spline"``: cubic spline through the marker's own visible samples.
         ``"rigid"``: carried along with at least three donors of its rigid
-        cluster (batched Kabsch fit from the nearest reference frames).
+        cluster (one batched fit of the donors' mean shape to every frame,
+        each donor weighted by how rigidly it moved with the marker next to
+        the gap; the marker's position in the donors' frame interpolated
+        between the reference frames before and after the gap).
         ``"pca"``: from the markers visible throughout the gap through the
         principal components of the marker coordinates (Gløersen & Federolf
         2016). ``"auto"``: per gap, rigid if the marker's cluster has three
