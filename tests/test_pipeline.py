@@ -1,0 +1,171 @@
+"""Stages of the whole chain on a short demo session, against independent solvers."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from scipy.optimize import lsq_linear
+
+import mocap
+from basis.basis_io import load_basis
+from fit.demo import make_demo_session
+from fit.ingest import IngestOptions
+from fit.pipeline import (SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
+                          bind_stage, complete_span, fit_stage, ingest_stage, marker_basis,
+                          retarget_stage, solve_mesh_space)
+from fit.solve import solve_weights
+from mocap.errors import InputError
+from mocap.markerset import load_markerset
+from mocap.mesh import load_mesh
+from mocap.mesh_landmarks import load_mesh_landmarks
+from tests.tolerances import SOLVE_OBJECTIVE_REL
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    """A 3 s demo session through ingest, bind, retarget and the bases."""
+    session = make_demo_session(tmp_path_factory.mktemp("session"), seconds=3.0)
+    paths = session.paths
+    markerset = load_markerset(paths["markerset"])
+    mesh = load_mesh(paths["neutral"])
+    landmarks = load_mesh_landmarks(paths["landmarks"], mesh)
+    ingested = ingest_stage(mocap.read(paths["capture"]), markerset, IngestOptions())
+    take = complete_span(ingested.take, markerset.face_markers)
+    bound = bind_stage(take, markerset, mesh, landmarks, options=BindOptions(skin_offset=2.0))
+    retargeted = retarget_stage(take, bound, mesh, markerset)
+    bases = basis_stage(retargeted, load_basis(paths["shapes"]))
+    return dict(take=take, bound=bound, retargeted=retargeted, bases=bases, mesh=mesh,
+                markerset=markerset)
+
+
+@pytest.fixture(scope="module")
+def fitted(chain):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # QE: rank ≤ m + 1 by construction
+        return {space: fit_stage(chain["take"], chain["bound"], chain["retargeted"],
+                                 chain["bases"], options=FitOptions(space=space))
+                for space in SPACES}
+
+
+def test_h_weights_solve_marker_problem_like_lsq_linear(chain, fitted):
+    basis = chain["bases"].bases["H"]
+    B = marker_basis(chain["bound"].binding, basis.displacements,
+                     chain["retargeted"].labels).reshape(len(basis.names), -1).T
+    D = chain["retargeted"].displacements.reshape(len(fitted["marker"].weights["H"]), -1)
+    sol = fitted["marker"].solutions["H"]
+    assert np.all((sol.weights >= 0) & (sol.weights <= 1))
+    for t in np.linspace(0, len(D) - 1, 6).astype(int):
+        ref = lsq_linear(B, D[t], bounds=(0, 1), method="bvls", max_iter=10_000)
+        ours = 0.5 * np.sum((B @ sol.weights[t] - D[t]) ** 2)
+        assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + 1e-15
+        assert sol.cost[t] == pytest.approx(ours, rel=1e-12)
+
+
+def test_pca_marker_fit_is_least_squares_with_mean_fixed(chain, fitted):
+    basis = chain["bases"].bases["PCA"]
+    at = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels)
+    B = at[1:].reshape(len(at) - 1, -1).T
+    D = chain["retargeted"].displacements
+    D = D.reshape(len(D), -1) - at[0].ravel()
+    ref = np.linalg.lstsq(B, D.T, rcond=None)[0].T
+    weights = fitted["marker"].weights["PCA"]
+    np.testing.assert_array_equal(weights[:, 0], 1.0)
+    np.testing.assert_allclose(weights[:, 1:], ref, atol=1e-8 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("space", SPACES)
+def test_reconstruction_is_neutral_plus_basis_in_mm(chain, fitted, space):
+    bound, fit = chain["bound"], fitted[space]
+    binding = bound.binding
+    labels = chain["retargeted"].labels
+    neutral = chain["take"].select(labels).positions[bound.frame]
+    at = marker_basis(binding, chain["bases"].bases["QE"].displacements, labels)
+    disp_mesh = np.einsum("tn,nmc->tmc", fit.weights["QE"], at)
+    # back to capture mm through the binding's inverse similarity (independent path)
+    expected = binding.to_capture(binding.to_mesh(neutral) + disp_mesh)
+    np.testing.assert_allclose(fit.reconstructed["QE"], expected, atol=1e-9)
+
+
+@pytest.mark.parametrize("bounds", [(-np.inf, np.inf), (0.0, 1.0), (-0.1, 1.1)])
+@pytest.mark.parametrize("with_offset", [False, True])
+def test_mesh_space_reduction_equals_materialized_solve(bounds, with_offset):
+    rng = np.random.default_rng(3)
+    n, N, M, T = 6, 40, 9, 25
+    E = rng.standard_normal((n, N, 3))
+    W = rng.standard_normal((N, M))
+    D = 0.3 * rng.standard_normal((T, M, 3))
+    offset = 0.2 * rng.standard_normal((N, 3)) if with_offset else np.zeros((N, 3))
+    target = np.einsum("nm,tmc->tnc", W, D) - offset
+    dense = solve_weights(E.reshape(n, -1).T, target.reshape(T, -1), lower=bounds[0],
+                          upper=bounds[1])
+    ours = solve_mesh_space(E, W, D, offset=offset if with_offset else None,
+                            lower=bounds[0], upper=bounds[1])
+    np.testing.assert_allclose(ours.weights, dense.weights, atol=1e-8)
+    np.testing.assert_allclose(ours.cost, dense.cost, rtol=1e-8)
+
+
+def test_mesh_space_fit_matches_materialized_on_the_chain(chain, fitted):
+    basis = chain["bases"].bases["H"]
+    W = chain["retargeted"].operator.matrix
+    W = W.toarray() if hasattr(W, "toarray") else W
+    D = chain["retargeted"].displacements[::20]
+    target = np.einsum("nm,tmc->tnc", W, D).reshape(len(D), -1)
+    dense = solve_weights(basis.displacements.reshape(len(basis.names), -1).T, target,
+                          lower=0, upper=1)
+    np.testing.assert_allclose(fitted["mesh"].weights["H"][::20], dense.weights, atol=1e-7)
+
+
+def test_complete_span_drops_incomplete_end_frames():
+    pos = np.zeros((6, 2, 3))
+    pos[:2, 0] = np.nan
+    pos[5, 1] = np.nan
+    pos[3, 1] = np.nan                        # inside the span: kept
+    take = mocap.Take(("a", "b"), pos, rate=100.0, first_frame=10)
+    cut = complete_span(take, ["a", "b"])
+    assert cut.first_frame == 12 and cut.n_frames == 3
+    np.testing.assert_array_equal(np.isnan(cut.positions[:, 1, 0]), [False, True, False])
+
+
+def test_complete_span_rejects_a_take_without_a_complete_frame():
+    pos = np.zeros((3, 2, 3))
+    pos[:, 0] = np.nan
+    with pytest.raises(InputError, match="no frame has every face marker"):
+        complete_span(mocap.Take(("a", "b"), pos, rate=100.0), ["a", "b"])
+
+
+@pytest.mark.parametrize("cls, kwargs, match", [
+    (FitOptions, {"space": "vertex"}, "space must be one of"),
+    (FitOptions, {"h_epsilon": -0.1}, "h_epsilon must be a finite number >= 0"),
+    (FitOptions, {"smoothness": float("nan")}, "smoothness must be a finite number >= 0"),
+    (BasisOptions, {"pca_coverage": 1.5}, r"pca_coverage must be in \(0, 1\]"),
+    (BasisOptions, {"pca_components": 0}, "pca_components must be at least 1"),
+    (BasisOptions, {"qe_missing": "drop"}, "qe_missing must be one of"),
+    (BindOptions, {"frame": -1}, "frame must be at least 0"),
+    (BindOptions, {"icp": 1}, "icp must be true or false"),
+    (BindOptions, {"skin_offset": -1.0}, "skin_offset must be a finite number >= 0"),
+    (BindOptions, {"max_distance_warn": 0.0}, "max_distance_warn must be positive"),
+])
+def test_option_errors(cls, kwargs, match):
+    with pytest.raises(InputError, match=match):
+        cls(**kwargs)
+
+
+def test_bind_frame_beyond_take(chain):
+    take = chain["take"]
+    with pytest.raises(InputError, match="bind.frame = .* is beyond the take"):
+        bind_stage(take, chain["markerset"], chain["mesh"], {},
+                   options=BindOptions(frame=take.n_frames))
+
+
+def test_too_many_pca_components(chain):
+    with pytest.raises(InputError, match="pca_components = 999 is more than"):
+        basis_stage(chain["retargeted"], _artist(chain), options=BasisOptions(pca_components=999))
+
+
+def _artist(chain):
+    from basis.artist import ArtistBasis
+
+    H = chain["bases"].bases["H"]
+    return ArtistBasis(H.names, chain["mesh"], H.displacements)

@@ -1,0 +1,185 @@
+"""``mocap2mesh run``: files, manifest, skip logic, failing takes, configuration errors."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import mocap
+from fit.cli import main
+from fit.commands.demo import demo_config_toml
+from fit.commands.run import run_takes
+from fit.demo import make_demo_session
+from fit.pipeline import BASES
+from fit.run_config import load_run_config
+from mocap.errors import FileFormatError, InputError
+
+PER_BASIS = ("basis-{}.npz", "weights-{}.csv", "mesh-{}.npz", "face-{}.glb")
+PER_TAKE = ("take.c3d", "head_motion.npz", "binding.json", "report/gaps.png",
+            "report/head_residuals.png", "report/{take}.html", "report/{take}-alpha.png",
+            "report/{take}-coverage.png")
+REPORT_PER_BASIS = ("heatmap", "markers", "views")
+
+
+def _config(root, captures, *, extra=""):
+    text = demo_config_toml().replace('captures = ["session/capture.c3d"]',
+                                      "captures = [" + ", ".join(f'"{c}"' for c in captures)
+                                      + "]")
+    text = text.replace("video_step = 2", "video_step = 12")
+    path = root / "run.toml"
+    path.write_text(text + extra, encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="module")
+def session_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("run")
+    make_demo_session(root / "session", seconds=2.0)
+    (root / "session" / "broken.c3d").write_bytes(b"\x02\x50" + bytes(range(256)) * 4)
+    return root
+
+
+@pytest.fixture(scope="module")
+def first_run(session_root):
+    path = _config(session_root, ["session/capture.c3d", "session/broken.c3d"])
+    code = main(["run", str(path)])
+    manifest = json.loads((session_root / "results" / "manifest.json").read_text())
+    return code, manifest
+
+
+def test_every_promised_file_is_written(session_root, first_run):
+    _, manifest = first_run
+    out = session_root / "results"
+    for take in ("capture",):
+        record = manifest["takes"][take]
+        assert record["status"] == "ok"
+        expected = [f.format(take=take) for f in PER_TAKE]
+        expected += [f.format(b) for b in BASES for f in PER_BASIS]
+        expected += [f"report/{take}-{kind}-{b}.png" for b in BASES for kind in REPORT_PER_BASIS]
+        expected += [f"report/{take}-video-{b}.mp4" for b in BASES]
+        for name in expected:
+            assert (out / take / name).is_file(), name
+            assert f"{take}/{name}" in record["files"]
+        assert set(record["metrics"]) == set(BASES)
+
+
+def test_outputs_read_back(session_root, first_run):
+    out = session_root / "results" / "capture"
+    take = mocap.read(out / "take.c3d")
+    weights = np.loadtxt(out / "weights-H.csv", delimiter=",", skiprows=1)
+    assert len(weights) == take.n_frames
+    assert np.all((weights[:, 2:] >= 0) & (weights[:, 2:] <= 1))
+    with np.load(out / "mesh-PCA.npz") as z:
+        assert z["weights"].shape[0] == take.n_frames
+        np.testing.assert_array_equal(z["weights"][:, 0], 1.0)
+
+
+def test_broken_take_is_reported_and_others_finish(first_run, capsys):
+    code, manifest = first_run
+    assert code == 1
+    broken = manifest["takes"]["broken"]
+    assert broken["status"] == "failed" and "broken.c3d" in broken["error"]
+    assert manifest["takes"]["capture"]["status"] == "ok"
+
+
+def test_manifest_hashes(session_root, first_run):
+    _, manifest = first_run
+    for take in ("capture", "broken"):
+        entry = manifest["takes"][take]["capture"]
+        with open(entry["path"], "rb") as fh:
+            assert entry["sha256"] == hashlib.sha256(fh.read()).hexdigest()
+    for role in ("markerset", "mesh", "landmarks"):
+        entry = manifest["inputs"][role]
+        with open(entry["path"], "rb") as fh:
+            assert entry["sha256"] == hashlib.sha256(fh.read()).hexdigest()
+    assert manifest["versions"]["numpy"] == np.__version__
+
+
+def test_rerun_of_the_same_config_skips_the_done_take(session_root, first_run):
+    path = _config(session_root, ["session/capture.c3d", "session/broken.c3d"])
+    outcome = run_takes(load_run_config(path), progress=False)
+    assert outcome.takes["capture"]["skipped"] and outcome.takes["capture"]["status"] == "ok"
+    assert not outcome.takes["broken"]["skipped"] and outcome.n_failed == 1
+
+
+def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
+    """Skip logic alone: the chain is replaced by a stub that records its calls."""
+    calls = []
+
+    def fake(capture, config):
+        calls.append(capture.name)
+        (config.output / capture.stem).mkdir(parents=True, exist_ok=True)
+        (config.output / capture.stem / "out.txt").write_text("x")
+        return {"status": "ok", "skipped": False, "error": None,
+                "files": [f"{capture.stem}/out.txt"]}
+
+    monkeypatch.setattr("fit.commands.run._guarded", fake)
+    for name in ("a.c3d", "b.c3d"):
+        shutil.copy(session_root / "session" / "capture.c3d", tmp_path / name)
+    for name in ("markerset.toml", "neutral.obj", "landmarks.toml"):
+        shutil.copy(session_root / "session" / name, tmp_path / name)
+    shutil.copytree(session_root / "session" / "shapes", tmp_path / "shapes")
+    path = tmp_path / "run.toml"
+    path.write_text(demo_config_toml(".", "out").replace("./capture.c3d", "a.c3d\", \"b.c3d"))
+    config = load_run_config(path)
+    assert config.captures[1].name == "b.c3d"
+    run_takes(config, workers=1, progress=False)
+    assert sorted(calls) == ["a.c3d", "b.c3d"]
+    outcome = run_takes(config, workers=1, progress=False)
+    assert sorted(calls) == ["a.c3d", "b.c3d"] and outcome.n_skipped == 2
+    (tmp_path / "b.c3d").write_bytes((tmp_path / "b.c3d").read_bytes() + b"\0")
+    outcome = run_takes(config, workers=1, progress=False)
+    assert calls[2:] == ["b.c3d"]
+    assert outcome.takes["a"]["skipped"] and not outcome.takes["b"]["skipped"]
+    assert outcome.takes["b"]["capture"]["sha256"] == \
+        hashlib.sha256((tmp_path / "b.c3d").read_bytes()).hexdigest()
+    (tmp_path / "out" / "a" / "out.txt").unlink()          # a missing output: redo
+    run_takes(config, workers=1, progress=False)
+    assert calls[3:] == ["a.c3d"]
+    path.write_text(path.read_text().replace("video_step = 2", "video_step = 3"))
+    run_takes(load_run_config(path), workers=1, progress=False)   # a parameter changed
+    assert sorted(calls[4:]) == ["a.c3d", "b.c3d"]
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda t: t.replace('space = "marker"', 'spcae = "marker"'), r"fit\.spcae: unknown key"),
+    (lambda t: t.replace('space = "marker"', 'space = "vertex"'), r"fit\.space: space must be"),
+    (lambda t: t.replace('mesh = "session/neutral.obj"\n', ""), r"inputs\.mesh: missing"),
+    (lambda t: t.replace("landmarks.toml", "nope.toml"), r"inputs\.landmarks: .* does not exist"),
+    (lambda t: t.replace("video_step = 12", "video_step = 0"),
+     r"report\.video_step: video_step must be at least 1"),
+    (lambda t: t.replace('frame = "auto"', "frame = -2"), r"bind\.frame: frame must be at least"),
+    (lambda t: t.replace("lowpass_hz = 15.0", 'lowpass_hz = "x"'), r"ingest\.lowpass_hz"),
+    (lambda t: t.replace('directory = "results"', 'directory = "results"\nworkers = 0'),
+     r"output\.workers: workers must be at least 1"),
+    (lambda t: t.replace("[inputs]", "[inputs]\nsession = \"session\""),
+     r"inputs\.captures: give either"),
+    (lambda t: t + "\n[extra]\n", r"extra: unknown key"),
+])
+def test_config_errors_name_the_key(session_root, edit, match):
+    path = session_root / "bad.toml"
+    good = _config(session_root, ["session/capture.c3d"]).read_text()
+    path.write_text(edit(good), encoding="utf-8")
+    with pytest.raises(InputError, match=match):
+        load_run_config(path)
+
+
+def test_config_not_toml(session_root):
+    path = session_root / "bad.toml"
+    path.write_text("[inputs\n", encoding="utf-8")
+    with pytest.raises(FileFormatError, match="not valid TOML"):
+        load_run_config(path)
+
+
+def test_session_directory_and_relative_paths(session_root):
+    path = session_root / "session.toml"
+    path.write_text(demo_config_toml().replace('captures = ["session/capture.c3d"]',
+                                               'session = "session"'), encoding="utf-8")
+    config = load_run_config(path)
+    assert [c.name for c in config.captures] == ["broken.c3d", "capture.c3d"]
+    assert config.mesh == (session_root / "session" / "neutral.obj").resolve()
+    assert config.workers == 2
