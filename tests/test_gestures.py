@@ -2,17 +2,25 @@
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
+
 import numpy as np
 import pytest
 import scipy.io.wavfile
 import scipy.stats
+from scipy.interpolate import BSpline
+from scipy.spatial.distance import cdist
 from scipy.spatial.transform import Rotation
 
 from fit.cli import main
 from fit.gestures import (ESTIMATORS, FEATURES, GestureClip, analyze_gestures,
-                          candidate_distances, clip_from_analysis, load_clip, parse_timeline,
-                          pick_candidate, save_clip, synthesize_gestures)
+                          candidate_distances, clip_from_analysis, load_clip, marker_basis,
+                          parse_timeline, pick_candidate, save_clip, synthesize_gestures)
+from fit.gestures.transfer import SUPPORT_SPACINGS, build_detail_transfer
+from mocap.bind import Binding
 from mocap.errors import FileFormatError, InputError, MarkerError
+from mocap.mesh import Mesh
 from mocap.stabilize import stabilize
 from mocap.take import Take
 
@@ -22,6 +30,7 @@ REGIONS = {"upper_lip": ["UL1", "UL2"], "lower_lip": ["LL1", "LL2"],
 FACE = [x for members in REGIONS.values() for x in members]
 HEAD = ["H1", "H2", "H3", "H4"]
 N_FRAMES, N_SHAPES, RATE = 120, 4, 30.0
+HERE = Path(__file__).resolve().parent
 
 
 def _smooth(rng, n, d, lo=0.0, hi=1.0):
@@ -94,7 +103,6 @@ def test_groups_are_disjoint_and_sum_to_the_stabilized_markers(capture):
 
 
 def _restabilized(stab, moved):
-    import dataclasses
     return dataclasses.replace(stab, take=stab.take.replace(positions=moved))
 
 
@@ -279,3 +287,198 @@ def test_cli_missing_speech_exits_1(cli_files, capsys):
     wav, clip, out = cli_files
     assert main(["gestures", str(out / "none.wav"), "--palette", str(clip), "-o", str(out)]) == 1
     assert "no such file" in capsys.readouterr().err
+
+
+# --- detail transfer: compact B-spline RBFs onto a mesh --------------------------------
+
+_CUBIC = BSpline.basis_element([-2.0, -1.0, 0.0, 1.0, 2.0], extrapolate=False)
+
+
+def _bell(r):
+    """Oracle kernel: scipy's cubic B-spline basis element at 2r, scaled to 1 at 0."""
+    return np.nan_to_num(1.5 * _CUBIC(2.0 * np.asarray(r)))
+
+
+def _grid_mesh(n=31, step=0.2):
+    """A flat n × n vertex grid in the z = 0 plane (cm), two triangles per cell."""
+    x, y = np.meshgrid(np.arange(n) * step, np.arange(n) * step, indexing="ij")
+    vertices = np.column_stack([x.ravel(), y.ravel(), np.zeros(n * n)])
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    faces = np.concatenate([np.column_stack([a, a + n, a + 1]),
+                            np.column_stack([a + 1, a + n, a + n + 1])])
+    return Mesh(vertices, faces)
+
+
+def _binding(mesh, face_ids, bary, scale=0.1, seed=0):
+    m = len(face_ids)
+    rot = Rotation.random(random_state=seed).as_matrix()
+    return Binding(labels=tuple(f"m{i}" for i in range(m)), scale=scale, rotation=rot,
+                   translation=np.zeros(3), face_ids=np.asarray(face_ids),
+                   vertex_ids=mesh.faces[face_ids], barycentric=np.asarray(bary, float),
+                   distances=np.zeros(m), rms=0.0, skin_offset=0.0, n_landmarks=0,
+                   n_iterations=0, converged=True, message="test")
+
+
+def _detail_setup(cluster_gap=False):
+    """Five markers (two groups) on a grid mesh; with `cluster_gap`, m0-m1 far from m2-m4."""
+    mesh = _grid_mesh()
+    rng = np.random.default_rng(4)
+    cells = [(3, 4), (6, 5), (22, 24), (25, 21), (24, 26)] if cluster_gap else \
+        [(10, 10), (13, 12), (11, 15), (16, 14), (14, 17)]
+    face_ids = [i * 30 + j for i, j in cells]
+    bary = rng.dirichlet(np.ones(3), len(face_ids))
+    groups = {"left_brow": ("m0", "m1"), "left_eye": ("m2", "m3", "m4")}
+    return mesh, _binding(mesh, face_ids, bary), groups
+
+
+def _mesh_motion(transfer, details):
+    """Vertex displacements (T, N, 3) of the details through the transfer's shapes."""
+    fields, _ = transfer.shapes()
+    return np.tensordot(transfer.weights(details), fields, axes=1)
+
+
+def test_detail_transfer_matches_a_dense_bspline_interpolant():
+    mesh, binding, groups = _detail_setup()
+    transfer = build_detail_transfer(binding, mesh, groups, support=1.2)
+    centers = binding.marker_points(mesh.vertices)
+    z = np.linalg.solve(_bell(cdist(centers, centers) / 1.2), np.eye(5))
+    w = _bell(cdist(mesh.vertices, centers) / 1.2) @ z           # (N, 5) per coordinate
+    details = {"left_brow": np.random.default_rng(1).normal(0, 2, (3, 2, 3)),
+               "left_eye": np.random.default_rng(2).normal(0, 2, (3, 3, 3))}
+    marker_mm = np.concatenate([details["left_brow"], details["left_eye"]], axis=1)
+    want = np.einsum("vm,tma->tva", w, binding.scale * marker_mm @ binding.rotation.T)
+    np.testing.assert_allclose(_mesh_motion(transfer, details), want, atol=1e-12)
+    _, names = transfer.shapes()
+    assert names[:4] == ("left_brow:m0:x", "left_brow:m0:y", "left_brow:m0:z", "left_brow:m1:x")
+
+
+def test_markers_at_vertices_are_interpolated_exactly():
+    mesh, _, groups = _detail_setup()
+    corner = np.array([[1.0, 0, 0]] * 5)
+    binding = _binding(mesh, [300, 345, 420, 480, 520], corner, scale=0.1, seed=3)
+    transfer = build_detail_transfer(binding, mesh, groups)
+    details = {g: np.random.default_rng(5).normal(0, 3, (2, len(m), 3)) for g, m in
+               groups.items()}
+    moved = _mesh_motion(transfer, details)[:, binding.vertex_ids[:, 0]]
+    marker_mm = np.concatenate([details[g] for g in groups], axis=1)
+    np.testing.assert_allclose(moved, 0.1 * marker_mm @ binding.rotation.T, atol=1e-9)
+
+
+def test_a_marker_moves_only_vertices_within_the_support_of_its_cluster():
+    mesh, binding, groups = _detail_setup(cluster_gap=True)
+    support = 1.5
+    transfer = build_detail_transfer(binding, mesh, groups, support=support)
+    centers = binding.marker_points(mesh.vertices)
+    details = {"left_brow": np.zeros((1, 2, 3)), "left_eye": np.zeros((1, 3, 3))}
+    details["left_brow"][0, 0] = [2.0, -1.0, 0.5]
+    moved = np.linalg.norm(_mesh_motion(transfer, details)[0], axis=1)
+    near = cdist(mesh.vertices, centers[:2]).min(axis=1)
+    assert cdist(centers[:2], centers[2:]).min() > 2 * support
+    assert np.all(moved[near >= support] == 0.0)
+    close = np.linalg.norm(mesh.vertices - centers[0], axis=1) < 0.3 * support
+    assert close.any() and np.all(moved[close] > 0.0)
+
+
+def test_transfer_is_linear_in_the_details():
+    mesh, binding, groups = _detail_setup()
+    transfer = build_detail_transfer(binding, mesh, groups)
+    rng = np.random.default_rng(6)
+    a, b = ({g: rng.normal(0, 2, (4, len(m), 3)) for g, m in groups.items()} for _ in "ab")
+    mix = {g: 2.0 * a[g] - 0.5 * b[g] for g in groups}
+    np.testing.assert_allclose(_mesh_motion(transfer, mix),
+                               2.0 * _mesh_motion(transfer, a) - 0.5 * _mesh_motion(transfer, b),
+                               atol=1e-12)
+
+
+def test_default_support_is_a_multiple_of_the_median_marker_spacing():
+    mesh, binding, groups = _detail_setup()
+    centers = binding.marker_points(mesh.vertices)
+    dist = cdist(centers, centers) + np.diag(np.full(5, np.inf))
+    transfer = build_detail_transfer(binding, mesh, groups)
+    assert transfer.support == pytest.approx(SUPPORT_SPACINGS * np.median(dist.min(axis=1)))
+
+
+@pytest.mark.parametrize("groups, support, error, match", [
+    ({"left_brow": ("m0", "nope")}, None, MarkerError, "'nope'.*not in the binding"),
+    ({"left_brow": ()}, None, InputError, "no detail markers"),
+    ({"left_brow": ("m0",)}, None, InputError, "give the support radius"),
+    ({"left_brow": ("m0", "m1")}, -1.0, InputError, "support"),
+])
+def test_detail_transfer_errors(groups, support, error, match):
+    mesh, binding, _ = _detail_setup()
+    with pytest.raises(error, match=match):
+        build_detail_transfer(binding, mesh, groups, support=support)
+
+
+def test_weights_need_every_group():
+    mesh, binding, groups = _detail_setup()
+    transfer = build_detail_transfer(binding, mesh, groups)
+    with pytest.raises(InputError, match=r"details lack the groups \['left_eye'\]"):
+        transfer.weights({"left_brow": np.zeros((1, 2, 3))})
+
+
+def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_path):
+    """``gestures --mesh --shapes --binding``: details as extra shapes of the real ICT face."""
+    from fit.exports import read_mesh_sequence
+    from mocap.layout import load_marker_layout
+    from mocap.mesh import load_mesh
+    from mocap.rbf import build_rbf_operator
+
+    wav, _, out = cli_files
+    ict = shared_data / "ict-face"
+    neutral = load_mesh(ict / "generic_neutral_mesh.obj", units="cm")
+    layout = load_marker_layout(HERE / "ict_marker_layout.toml", neutral)
+    binding = Binding(labels=layout.labels, scale=0.1, rotation=np.eye(3),
+                      translation=np.zeros(3), face_ids=layout.face_ids,
+                      vertex_ids=layout.vertex_ids, barycentric=layout.weights,
+                      distances=np.zeros(len(layout.labels)), rms=0.0, skin_offset=0.0,
+                      n_landmarks=0, n_iterations=0, converged=True, message="layout")
+    binding.save(tmp_path / "binding.json")
+    shapes = tmp_path / "shapes"
+    shapes.mkdir()
+    for name in ("eyeBlink_L", "jawOpen"):
+        (shapes / f"{name}.obj").symlink_to(ict / "expressions" / f"{name}.obj")
+    rng = np.random.default_rng(8)
+    groups = {"left_brow": ("brow-L1", "brow-L2", "brow-L3"), "left_eye": ("eye-L-upper",)}
+    clip = GestureClip("ict", RATE, np.cumsum(rng.normal(0, 1, 200)),
+                       _smooth(rng, 200, 2), ("jawOpen", "eyeBlink_L"),
+                       details={g: rng.normal(0, 1.5, (200, len(m), 3)) for g, m in
+                                groups.items()}, detail_labels=groups)
+    save_clip(tmp_path / "ict.npz", clip)
+    assert main(["gestures", str(wav), "--palette", str(tmp_path / "ict.npz"), "-o", str(out),
+                 "--mesh", str(ict / "generic_neutral_mesh.obj"), "--shapes", str(shapes),
+                 "--units", "cm", "--binding", str(tmp_path / "binding.json")]) == 0
+    seq = read_mesh_sequence(out / "mesh.npz")
+    assert seq.names[:2] == ("eyeBlink_L", "jawOpen") and len(seq.names) == 2 + 3 * 4
+    details = np.load(out / "details.npz")
+    labels = groups["left_brow"] + groups["left_eye"]
+    marker_mm = np.concatenate([details[f"details.{g}"] for g in groups], axis=1)
+    centers = layout.positions(neutral.vertices, offset=False)[[layout.index(x) for x in labels]]
+    spacing = np.sort(cdist(centers, centers), axis=1)[:, 1]
+    support = SUPPORT_SPACINGS * np.median(spacing)
+    op = build_rbf_operator(centers, neutral.vertices, kernel="bspline_bell",
+                            epsilon=1.0 / support)
+    matrix = op.matrix if isinstance(op.matrix, np.ndarray) else op.matrix.toarray()
+    want_details = np.einsum("vm,tma->tva", matrix, 0.1 * marker_mm)
+    blend = np.tensordot(seq.weights[:, :2], seq.displacements[:2], axes=1)
+    total = np.tensordot(seq.weights, seq.displacements, axes=1)
+    np.testing.assert_allclose(total - blend, want_details, atol=1e-5)
+    far = cdist(neutral.vertices, centers).min(axis=1) >= support
+    assert far.sum() > 0.5 * len(far) and np.all(total[:, far] == blend[:, far])
+    assert (out / "gestures.glb").stat().st_size > 0
+
+
+def test_marker_basis_is_the_shape_motion_of_the_bound_points_in_capture_mm():
+    mesh, binding, _ = _detail_setup()
+    binding = dataclasses.replace(binding, translation=np.array([1.0, -2.0, 0.5]))
+    shapes = np.random.default_rng(9).normal(0, 0.3, (2,) + mesh.vertices.shape)
+    labels = ("m3", "m0")
+    got = marker_basis(binding, shapes, labels)
+    rows = [binding.labels.index(x) for x in labels]
+    for i, shape in enumerate(shapes):           # through the affine map, shape by shape
+        moved = binding.to_capture(binding.marker_points(mesh.vertices + shape)[rows])
+        rest = binding.to_capture(binding.marker_points(mesh.vertices)[rows])
+        np.testing.assert_allclose(got[i], moved - rest, atol=1e-9)
+    with pytest.raises(MarkerError, match="'nope'.*is not in the binding"):
+        marker_basis(binding, shapes, ("nope",))

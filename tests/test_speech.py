@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import scipy.io.wavfile
 
-from fit.gestures.speech import (FLOOR_DB, analog_intensity, read_wav, speech_intensity,
-                                 wav_intensity)
-from mocap.errors import FileFormatError, InputError
+from fit.gestures.speech import (FLOOR_DB, analog_intensity, opening_intensity, read_wav,
+                                 speech_intensity, wav_intensity)
+from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.take import Analog, Take
 
 RATE, FPS, WINDOW = 16000, 30.0, 0.05
@@ -107,3 +107,39 @@ def test_take_without_analog_is_rejected():
 def test_empty_signal_is_rejected():
     with pytest.raises(InputError, match="n_samples > 0"):
         speech_intensity(np.zeros(0), RATE, frame_rate=FPS)
+
+
+def _mouth_take(open_mm=6.0, hidden=()):
+    """Lip markers 20 mm apart, opened by `open_mm` during frames 30-89 of 120 at 30 Hz."""
+    n = 120
+    pos = np.zeros((n, 3, 3))
+    pos[:, 0] = [0.0, 0.0, 20.0]
+    pos[30:90, 1, 2] = -open_mm
+    pos[:, 2] = [50.0, 0.0, 0.0]
+    pos[list(hidden), 1] = np.nan
+    return Take(("upper", "lower", "ear"), pos, rate=FPS)
+
+
+def test_mouth_opening_reads_as_the_loudness_of_a_constant_opening():
+    s = opening_intensity(_mouth_take(6.0), "upper", "lower", window=0.2)
+    half = int(np.round(0.1 * FPS))
+    np.testing.assert_allclose(s[30 + half:90 - half], 20 * np.log10(6.0), atol=1e-9)
+    np.testing.assert_array_equal(s[:30 - half], FLOOR_DB)
+    np.testing.assert_array_equal(s[90 + half:], FLOOR_DB)
+
+
+def test_missing_lip_frames_count_as_closed():
+    hidden = range(50, 70)
+    s = opening_intensity(_mouth_take(6.0, hidden), "upper", "lower", window=1.5 / FPS)
+    np.testing.assert_array_equal(s[51:70], FLOOR_DB)     # frames k-1 and k both hidden
+    np.testing.assert_allclose(s[[40, 80]], 20 * np.log10(6.0), atol=1e-9)
+
+
+def test_mouth_opening_names_a_missing_marker():
+    with pytest.raises(MarkerError, match="'chin'"):
+        opening_intensity(_mouth_take(), "upper", "chin")
+
+
+def test_lips_never_seen_together_are_rejected():
+    with pytest.raises(InputError, match="never visible together"):
+        opening_intensity(_mouth_take(hidden=range(120)), "upper", "lower")

@@ -8,14 +8,18 @@
 - :mod:`.transfer`: details moved to a target face by compact RBFs, mesh outputs.
 """
 
-from .analysis import DETAIL_GROUPS, ESTIMATORS, LIP_REGIONS, GestureAnalysis, analyze_gestures
+from .analysis import (DETAIL_GROUPS, ESTIMATORS, LIP_REGIONS, GestureAnalysis, analyze_gestures,
+                       marker_basis)
 from .clip import GestureClip, clip_from_analysis, clip_from_performance, load_clip, save_clip
 from .mrf import GestureSynthesis, candidate_distances, pick_candidate, synthesize_gestures
-from .speech import analog_intensity, read_wav, speech_intensity, wav_intensity
+from .speech import (analog_intensity, opening_intensity, read_wav, speech_intensity,
+                     wav_intensity)
 from .timeline import FEATURES, Segment, Timeline, load_timeline, parse_timeline
 
-__all__ = ["GestureAnalysis", "analyze_gestures", "DETAIL_GROUPS", "LIP_REGIONS", "ESTIMATORS",
+__all__ = ["GestureAnalysis", "analyze_gestures", "marker_basis", "DETAIL_GROUPS",
+           "LIP_REGIONS", "ESTIMATORS",
            "GestureClip", "clip_from_analysis", "clip_from_performance", "load_clip", "save_clip",
            "GestureSynthesis", "synthesize_gestures", "candidate_distances", "pick_candidate",
            "speech_intensity", "read_wav", "wav_intensity", "analog_intensity",
+           "opening_intensity",
            "FEATURES", "Segment", "Timeline", "load_timeline", "parse_timeline"]

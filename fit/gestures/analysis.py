@@ -15,6 +15,7 @@ from typing import Mapping
 import numpy as np
 
 from mocap._validation import as_choice, as_float_array, as_int
+from mocap.bind import Binding
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.stabilize import Stabilization
@@ -23,7 +24,8 @@ from ..sampling_estimator import estimate_weights_by_sampling
 from ..solve import solve_weights
 from ..temporal import moving_average
 
-__all__ = ["GestureAnalysis", "analyze_gestures", "DETAIL_GROUPS", "LIP_REGIONS", "ESTIMATORS"]
+__all__ = ["GestureAnalysis", "analyze_gestures", "marker_basis", "DETAIL_GROUPS",
+           "LIP_REGIONS", "ESTIMATORS"]
 
 #: Marker-set regions whose residuals are the independent features D_j.
 DETAIL_GROUPS = ("left_brow", "right_brow", "left_eye", "right_eye")
@@ -231,6 +233,43 @@ def analyze_gestures(stabilization: Stabilization, neutral, basis, regions, *, l
         groups=groups, labels=labels, neutral=_frozen(neutral), basis=_frozen(basis),
         names=names, rate=take.rate, cost=_frozen(cost), estimator=estimator,
         message=message)
+
+
+def marker_basis(binding: Binding, displacements, labels) -> np.ndarray:
+    """Mesh shapes sampled at bound marker points, in capture mm: the marker-space basis B_i.
+
+    Parameters
+    ----------
+    binding : Binding
+        The capture's markers bound to the mesh (in the head frame for takes
+        analysed after stabilization: ``bind_capture(..., stabilized=True)``).
+    displacements : array_like of shape (n_shapes, N, 3), mesh units
+        Shape displacements from the neutral mesh (``ArtistBasis.displacements``). No NaN.
+    labels : sequence of str
+        The M markers to sample, in the order of the analysis.
+
+    Returns
+    -------
+    ndarray of shape (n_shapes, M, 3), mm
+        Each shape's displacement at the bound points (barycentric on the
+        binding's faces) brought to the capture frame: ``d_mm = Rᵀ d_mesh / scale``.
+
+    Raises
+    ------
+    MarkerError
+        A label not in the binding.
+    """
+    if not isinstance(binding, Binding):
+        raise InputError(f"binding must be a Binding, got {type(binding).__name__}")
+    displacements = as_float_array(displacements, "displacements", shape=(None, None, 3),
+                                   allow_nan=False)
+    index = []
+    for label in labels:
+        if label not in binding.labels:
+            raise MarkerError(label, "is not in the binding")
+        index.append(binding.labels.index(label))
+    points = binding.marker_points(displacements)[:, index]
+    return points @ np.asarray(binding.rotation) / binding.scale
 
 
 def _blend_weights(basis, averaged, epsilon, estimator, n_samples, n_neighbors, seed):

@@ -21,7 +21,7 @@ from mocap.errors import FileFormatError, InputError
 from mocap.performance import Performance, performance_weights, resample_performance
 
 from .analysis import GestureAnalysis
-from .speech import speech_intensity
+from .speech import OPENING_WINDOW_S, speech_intensity
 from .timeline import FEATURES
 
 __all__ = ["GestureClip", "clip_from_analysis", "clip_from_performance", "save_clip",
@@ -31,7 +31,7 @@ __all__ = ["GestureClip", "clip_from_analysis", "clip_from_performance", "save_c
 #: recorded without audio: mouth opening tracks the energy of speech.
 ACTIVITY_COLUMNS = ("JawOpen",)
 #: RMS window of the activity proxy, s (a few frames at 30 Hz).
-ACTIVITY_WINDOW_S = 0.25
+ACTIVITY_WINDOW_S = OPENING_WINDOW_S
 
 _FORMAT = "mocap2mesh-gesture-clip-1"
 

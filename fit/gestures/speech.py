@@ -19,10 +19,12 @@ from mocap.errors import FileFormatError, InputError
 from mocap.take import Take
 
 __all__ = ["speech_intensity", "read_wav", "wav_intensity", "analog_intensity",
-           "DEFAULT_WINDOW_S", "FLOOR_DB"]
+           "opening_intensity", "DEFAULT_WINDOW_S", "OPENING_WINDOW_S", "FLOOR_DB"]
 
 #: RMS window, s (Praat's intensity uses ~3.2 / pitch floor, 32-64 ms).
 DEFAULT_WINDOW_S = 0.05
+#: RMS window of a mouth-opening proxy, s (a few frames at 30 Hz).
+OPENING_WINDOW_S = 0.25
 #: Intensity of silence, dB re full scale (the RMS is floored at 10^(FLOOR_DB/20)).
 FLOOR_DB = -100.0
 
@@ -168,3 +170,42 @@ def analog_intensity(take: Take, channel: str, *, window: float = DEFAULT_WINDOW
         raise InputError("the take has no analog channels to read speech from")
     return speech_intensity(take.analog.channel(channel), take.analog.rate,
                             frame_rate=take.rate, n_frames=take.n_frames, window=window)
+
+
+def opening_intensity(take: Take, upper: str, lower: str, *,
+                      window: float = OPENING_WINDOW_S) -> np.ndarray:
+    """A stand-in for S(t) in a take recorded without audio: loudness of the mouth opening.
+
+    Parameters
+    ----------
+    take : Take
+        Markers in mm (head-stabilized or not: only a distance is used).
+    upper, lower : str
+        Labels of an upper-lip and a lower-lip marker (e.g. the lip centres).
+    window : float, s, default 0.25
+
+    Returns
+    -------
+    ndarray of shape (take.n_frames,), dB re 1 mm
+        :func:`speech_intensity` at the take's frames of the opening
+        ``|upper − lower| − min |upper − lower|`` (mouth opening tracks the
+        energy of speech and song). Frames where a marker is missing count as
+        a closed mouth (silence).
+
+    Raises
+    ------
+    MarkerError
+        A label not in the take.
+    InputError
+        Both markers never seen together.
+    """
+    if not isinstance(take, Take):
+        raise InputError(f"take must be a mocap.Take, got {type(take).__name__}")
+    pair = take.positions[:, take.indices([upper, lower])]
+    gap = np.linalg.norm(pair[:, 0] - pair[:, 1], axis=1)
+    seen = np.isfinite(gap)
+    if not seen.any():
+        raise InputError(f"markers {upper!r} and {lower!r} are never visible together")
+    opening = np.where(seen, gap - np.min(gap[seen]), 0.0)
+    return speech_intensity(opening, take.rate, frame_rate=take.rate, n_frames=take.n_frames,
+                            window=window)
