@@ -1,6 +1,7 @@
 """The command line: exit codes, info, ingest, demo, and never losing an input."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -93,10 +94,12 @@ def test_ingest_stabilized_matches_truth(session_files, tmp_path):
     assert np.median(err) < 0.5                       # mm, with 0.2 mm noise and fills
 
 
-def test_demo_runs(tmp_path, capsys):
-    assert main(["demo", "-o", str(tmp_path / "demo")]) == 0
-    assert "demo session" in capsys.readouterr().out
-    assert (tmp_path / "demo" / "ingest" / "gaps.png").exists()
+def test_demo_runs_the_whole_chain(tmp_path, capsys):
+    assert main(["demo", "-o", str(tmp_path / "demo"), "--seconds", "3"]) == 0
+    report = capsys.readouterr().out.split("report:")[1].split()[0]
+    assert report.endswith(".html") and (tmp_path / "demo") in Path(report).parents
+    assert Path(report).stat().st_size > 100_000          # pictures embedded
+    assert list((tmp_path / "demo").rglob("manifest.json"))
 
 
 def test_ingest_fix_swaps_undoes_an_injected_label_swap(session_files, tmp_path):
