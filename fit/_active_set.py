@@ -369,6 +369,14 @@ def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
     weight free (one more iteration). Frames go through in blocks of ``_BLOCK``.
     """
     T = len(c)
+    if np.isinf(qp.lo).all() and np.isinf(qp.hi).all():
+        # no bound can ever be active: one product with G^-1 (G^+ when singular,
+        # the minimum-norm minimizer), no iteration
+        inverse = qp.inverse if qp.inverse is not None else np.linalg.pinv(
+            qp.G, rcond=RANK_RTOL, hermitian=True)
+        w = _dot(c, inverse)
+        kkt = residual(qp, w, c)
+        return w, np.ones(T, np.int64), kkt, kkt <= tol
     w, n_iter = np.empty_like(c), np.zeros(T, np.int64)
     for start in range(0, T, _BLOCK):
         part = slice(start, start + _BLOCK)
