@@ -302,3 +302,20 @@ def test_fill_gaps_errors(kwargs, error, match):
 def test_fill_gaps_rejects_arrays():
     with pytest.raises(InputError, match="take must be a Take, got ndarray"):
         fill_gaps(np.zeros((3, 1, 3)))
+
+
+def test_pca_fill_learns_from_frames_near_the_gap_only():
+    """Frames farther than WINDOW_FRAMES from a gap cannot change its fill."""
+    rng = np.random.default_rng(5)
+    n_frames, w = 3 * _pca_fill.WINDOW_FRAMES, _pca_fill.WINDOW_FRAMES
+    t = np.arange(n_frames) / 100.0
+    modes = np.stack([np.sin(2 * np.pi * f * t) for f in (0.3, 0.7, 1.1)], axis=1)
+    pos = (modes @ rng.normal(size=(3, 8 * 3))).reshape(n_frames, 8, 3) * 10
+    pos += rng.normal(0, 0.05, pos.shape)
+    start, stop = n_frames // 2, n_frames // 2 + 40
+    pos[start:stop, 0] = np.nan
+    far = pos.copy()
+    far[: start - w - 1] += rng.normal(0, 30, far[: start - w - 1].shape)   # wild, far away
+    fills = [fill_gaps(Take(tuple("abcdefgh"), p, rate=100), method="pca").take.positions
+             for p in (pos, far)]
+    np.testing.assert_array_equal(fills[0][start:stop, 0], fills[1][start:stop, 0])

@@ -21,6 +21,11 @@ VARIANCE = 0.999
 #: (relative, in normalised units) or after EM_MAX_ITER iterations.
 EM_TOL = 1e-10
 EM_MAX_ITER = 500
+#: Frames on each side of a gap that its PCA model is learnt from (the whole
+#: take when shorter): the cost of a fill stops growing with the take's length,
+#: and over a long session marker correlations drift anyway (new expressions,
+#: slipping markers), so nearby frames are the better teachers.
+WINDOW_FRAMES = 2000
 #: Looser stop while the number of components is still being chosen.
 EM_TOL_ROUGH = 1e-6
 EM_MAX_ITER_ROUGH = 20
@@ -152,7 +157,8 @@ def fill_pca(positions: np.ndarray, visible: np.ndarray, target: int, start: int
     is centred and divided by its standard deviation, then multiplied by the
     donor's weight exp(-d²/2σ²) (d: mean distance to the target, σ: median
     of d), which lets the nearby markers dominate the components, as in the
-    paper's distance weighting. The components V (k of them, explaining
+    paper's distance weighting. Only the WINDOW_FRAMES frames on each side of
+    the gap are used. The components V (k of them, explaining
     VARIANCE of the variance) come from the frames where every used marker is
     visible, if there are at least 3 n_used of them (the donors missing most
     often are dropped, down to MIN_DONORS, to get there); else from all
@@ -163,6 +169,8 @@ def fill_pca(positions: np.ndarray, visible: np.ndarray, target: int, start: int
     the gap (within one gap length) is blended linearly across the gap, so
     the fill meets the track without a jump.
     """
+    lo, hi = max(0, start - WINDOW_FRAMES), min(len(positions), stop + WINDOW_FRAMES)
+    positions, visible, start, stop = positions[lo:hi], visible[lo:hi], start - lo, stop - lo
     if not visible[:, target].any():
         return np.full((stop - start, 3), np.nan)
     cols = np.concatenate(([target], donors))
