@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import json
 import shutil
@@ -65,6 +66,10 @@ def test_every_promised_file_is_written(session_root, first_run):
             assert (out / take / name).is_file(), name
             assert f"{take}/{name}" in record["files"]
         assert set(record["metrics"]) == set(BASES)
+        html = (out / take / "report" / f"{take}.html").read_text()
+        for picture in ("gaps.png", "head_residuals.png"):       # ingestion QA embedded
+            encoded = base64.b64encode((out / take / "report" / picture).read_bytes())
+            assert encoded.decode() in html
 
 
 def test_outputs_read_back(session_root, first_run):

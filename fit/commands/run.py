@@ -154,6 +154,8 @@ def process_take(capture, config: RunConfig) -> dict:
     files += [qa / "gaps.png", qa / "head_residuals.png"]
     files += build_report(face, fitted.reconstructed, neutral, qa, markerset=markerset,
                           pca=bases.pca, ingest=ingested, video=config.report.video,
+                          pictures={"gaps: present, missing, filled by method": qa / "gaps.png",
+                                    "head-marker residuals": qa / "head_residuals.png"},
                           video_step=config.report.video_step, n_worst=config.report.n_worst,
                           exaggerate=config.report.exaggerate, name=capture.stem).values()
     stages["report"] = time.perf_counter() - tic

@@ -22,7 +22,7 @@ __all__ = ["build_report"]
 
 
 def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=None,
-                 origin=None, pca=None, ingest=None, video: bool = False,
+                 origin=None, pca=None, ingest=None, pictures=None, video: bool = False,
                  video_step: int = 1, n_worst: int = 5, exaggerate: float = 1.0,
                  name: str | None = None) -> dict:
     """Metrics, figures, (video) and the HTML report of one take.
@@ -48,6 +48,9 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         Adds the coverage curve.
     ingest : fit.ingest.IngestResult, optional
         Adds the ingestion table.
+    pictures : mapping of str to path, optional
+        PNGs made elsewhere (the gap chart, the head residuals), embedded first
+        under their captions.
     video : bool
         Also write an overlay video per basis.
     video_step : int
@@ -78,7 +81,7 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
     first = next(iter(results.values()))
     separation = max(1, take.n_frames // 50)
     worst = {b: r.worst_frames(n_worst, separation=separation) for b, r in results.items()}
-    files, images = {}, {}
+    files, images = {}, dict(pictures or {})
 
     def out(key: str, suffix: str = ".png") -> Path:
         files[key] = out_dir / f"{name}-{key}{suffix}"
