@@ -32,7 +32,7 @@ from basis.quasi_eigen import quasi_eigen
 from fit.commands.bind import bind_capture
 from fit.ingest import IngestOptions, ingest
 from fit.report.plots import plot_coverage
-from fit.retarget import retarget
+from fit.retarget import RetargetOptions, retarget
 from mocap.markerset import load_markerset
 from mocap.mesh_landmarks import load_mesh_landmarks
 from mocap.render import save_png
@@ -41,7 +41,7 @@ OUT = REPO / "bench" / "out"
 TELLING = ("jawOpen", "mouthSmile_L", "browInnerUp_L", "eyeBlink_L")
 
 
-def real_experiment(root: Path):
+def real_experiment(root: Path, options: RetargetOptions = RetargetOptions()):
     """Ingest, bind and retarget facial-sing onto the ICT face: (Retargeting, binding, frame)."""
     take = mocap.read(root / "captures" / "facial-sing.c3d")
     markerset = load_markerset(REPO / "tests" / "facial_sing_markerset.toml")
@@ -56,7 +56,7 @@ def real_experiment(root: Path):
     for w in caught:
         print(f"  bind warning: {str(w.message)[:150]}")
     retargeted = retarget(ingested.take, binding, artist.neutral, markerset,
-                          neutral_frame=frame)
+                          options=options, neutral_frame=frame)
     return retargeted, artist, binding, frame
 
 
@@ -74,11 +74,17 @@ def main():
                         help="frames of the dense-SVD baseline (Ξ held in memory)")
     parser.add_argument("--shapes", default=",".join(TELLING),
                         help="shapes drawn in the comparison pictures")
+    parser.add_argument("--kernel", default="thin_plate_spline", help="RBF kernel")
+    parser.add_argument("--distance", default="euclidean", help="euclidean or geodesic")
+    parser.add_argument("--epsilon", type=float, default=None, help="kernel shape, 1/cm")
     args = parser.parse_args()
+    options = RetargetOptions(kernel=args.kernel, distance=args.distance, epsilon=args.epsilon)
+    tag = "" if args.kernel == "thin_plate_spline" and args.distance == "euclidean" else (
+        f"_{args.kernel}-{args.distance}")
     OUT.mkdir(parents=True, exist_ok=True)
 
     start = time.perf_counter()
-    r, artist, binding, frame = real_experiment(shared_data())
+    r, artist, binding, frame = real_experiment(shared_data(), options)
     operator = np.asarray(r.operator.matrix)
     disp = r.displacements
     print(f"facial-sing -> ICT: {r.n_frames} frames, {len(r.labels)} face markers, "
@@ -116,14 +122,14 @@ def main():
         print("  " + " ".join(f"{c:.4f}" for c in cov[row:row + 10]))
     m99, m995 = model.n_for_coverage(0.99), model.n_for_coverage(0.995)
     print(f"m for 99 %: {m99}    m for 99.5 %: {m995}   (paper, 66 markers: 18 for 99.5 %)")
-    plot_coverage(model, OUT / "qe_coverage.png", thresholds=(0.99, 0.995),
+    plot_coverage(model, OUT / f"qe_coverage{tag}.png", thresholds=(0.99, 0.995),
                   title="facial-sing on the ICT face: PCA coverage")
 
     pca = model.truncate(m995)
     t_qe = best_time(lambda: quasi_eigen(pca, artist.displacements, names=artist.names))
     qe = quasi_eigen(pca, artist.displacements, names=artist.names)
     table = move_table(qe, pca)
-    save_move_table(table, OUT / "qe_moves.csv")
+    save_move_table(table, OUT / f"qe_moves{tag}.csv")
     print(f"\nquasi-eigen faces of the {artist.n_shapes} ICT shapes on m = {m995} axes "
           f"({t_qe * 1e3:.1f} ms); sorted by relative move:")
     norms = np.linalg.norm(artist.displacements, axis=2).max(axis=1)
@@ -153,9 +159,9 @@ def main():
     shapes = [s for s in args.shapes.split(",") if s]
     for name in shapes:
         save_png(comparison_sheet(artist.neutral, artist.displacements, qe, [name]),
-                 OUT / f"qe_{name}.png")
+                 OUT / f"qe_{name}{tag}.png")
     save_png(comparison_sheet(artist.neutral, artist.displacements, qe, shapes,
-                              size=(260, 300)), OUT / "qe_comparison.png")
+                              size=(260, 300)), OUT / f"qe_comparison{tag}.png")
     print(f"\nwrote {OUT}/qe_coverage.png, qe_moves.csv, qe_comparison.png and "
           f"qe_<shape>.png for {', '.join(shapes)}")
 
