@@ -268,3 +268,36 @@ def test_frames_are_solved_independently():
     for idx, part in zip(np.array_split(order, 7), parts):
         weights[idx] = part.weights
     np.testing.assert_allclose(weights, whole.weights, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("bounds", BOUNDS, ids=str)
+def test_kkt_residual_matches_elementwise_loop(bounds):
+    """The vectorized KKT residual against the case-by-case definition, element by
+    element, with weights inside, on, within 1e-12 of and outside each bound."""
+    from fit._active_set import kkt_residual
+
+    rng = np.random.default_rng([14, list(BOUNDS).index(bounds)])
+    lo, hi = (np.broadcast_to(np.asarray(b, float), (N_SHAPES,)) for b in BOUNDS[bounds])
+    pick = rng.integers(0, 6, (40, N_SHAPES))
+    inside = rng.uniform(-0.5, 1.5, pick.shape)
+    lo_f, hi_f = np.where(np.isfinite(lo), lo, 0.0), np.where(np.isfinite(hi), hi, 0.0)
+    w = np.choose(pick, [inside, lo_f + 0 * inside, hi_f + 0 * inside,
+                         lo_f + 1e-13 + 0 * inside, lo_f - 0.25 + 0 * inside,
+                         hi_f + 0.25 + 0 * inside])
+    g = rng.standard_normal(w.shape) * (rng.random(w.shape) < 0.8)
+    scale = np.abs(g) + rng.uniform(0.1, 2.0, w.shape)
+    expected = np.zeros(len(w))
+    for t, j in np.ndindex(*w.shape):
+        at_lo = np.isfinite(lo[j]) and w[t, j] <= lo[j] + 1e-12 * max(1.0, abs(lo[j]))
+        at_hi = np.isfinite(hi[j]) and w[t, j] >= hi[j] - 1e-12 * max(1.0, abs(hi[j]))
+        if at_lo and at_hi:
+            viol = 0.0
+        elif at_lo:
+            viol = max(-g[t, j], 0.0)
+        elif at_hi:
+            viol = max(g[t, j], 0.0)
+        else:
+            viol = abs(g[t, j])
+        feas = max(lo[j] - w[t, j], w[t, j] - hi[j], 0.0) / max(1.0, abs(w[t, j]))
+        expected[t] = max(expected[t], viol / scale[t, j], feas)
+    np.testing.assert_allclose(kkt_residual(w, g, scale, lo, hi), expected, rtol=1e-15, atol=0)
