@@ -26,5 +26,5 @@ def shared_data() -> Path:
                   "data at ../shared/data")
         if os.environ.get("CI"):
             pytest.fail(reason + " (CI is set, so this is an error)")
-        pytest.skip(reason)
+        pytest.skip(reason)  # only when the shared data is absent (never under CI)
     return path

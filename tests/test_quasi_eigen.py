@@ -125,7 +125,7 @@ def test_training_frames_are_unchanged_with_real_pca():
 
 def test_ict_expressions_in_capture_span_are_unchanged(shared_data):
     """Real shapes: a capture blending 4 ICT expressions; those stay, a 5th one moves."""
-    trimesh = pytest.importorskip("trimesh")
+    import trimesh
     root = shared_data / "ict-face"
     neutral = trimesh.load(root / "generic_neutral_mesh.obj", process=False).vertices
     shapes = np.stack([trimesh.load(root / "expressions" / f"{name}.obj",

@@ -197,7 +197,7 @@ def test_bad_input_raises(change, message):
 @pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
 def test_real_basis_against_bvls(shared_data):
     """The 53 ICT shapes at 30 vertices (mm), sparse weights in [0, 1]."""
-    trimesh = pytest.importorskip("trimesh")
+    import trimesh
     face = shared_data / "ict-face"
     paths = sorted((face / "expressions").glob("*.obj"))
     neutral = trimesh.load(face / "generic_neutral_mesh.obj", process=False).vertices
