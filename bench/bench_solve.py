@@ -16,6 +16,14 @@ followed by lsq_linear on the slice's share of an evenly spaced subset
 frames ("bvls s(T)"). The ratio is of the totals; "ratio range" gives the
 slices' lowest and highest ratio. Environment: BENCH_T and BENCH_BVLS
 override the two sizes for a quick run.
+
+Both solvers run on one BLAS thread (``OPENBLAS_NUM_THREADS=1`` unless set):
+per-frame work is products of 53-wide matrices, and on a shared 2-core
+machine a threaded BLAS made lsq_linear up to 25x slower (105 ms a frame
+instead of 4 ms), which inflated the ratio to 1200x.
+
+The last lines count the distinct active sets (which weights end at which
+bound) over the frames: frames that share one could share one factorization.
 """
 
 from __future__ import annotations
@@ -25,10 +33,13 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
-import trimesh
-from scipy.optimize import lsq_linear
+# one BLAS thread for both sides, set before NumPy loads its BLAS (see above)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+import trimesh  # noqa: E402
+from scipy.optimize import lsq_linear  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import peak_memory_mb, shared_data  # noqa: E402
@@ -86,7 +97,7 @@ def bvls(basis, frames):
 def run(label, basis, truth, rng):
     data = truth @ basis.T + NOISE_MM * rng.standard_normal((len(truth), basis.shape[0]))
     subset = np.linspace(0, len(data) - 1, N_BVLS).astype(int)
-    ours, theirs, rel, conv, iters = [], [], [], [], []
+    ours, theirs, rel, conv, iters, solved = [], [], [], [], [], []
     for frames in np.array_split(np.arange(len(data)), N_SLICES):
         start = time.perf_counter()
         sol = solve_weights(basis, data[frames], lower=0.0, upper=1.0)
@@ -99,6 +110,7 @@ def run(label, basis, truth, rng):
         rel.append(np.abs(sol.cost[picked - frames[0]] - ref_cost) / ref_cost)
         conv.append(sol.converged)
         iters.append(sol.n_iter)
+        solved.append(sol.weights)
     per_frame = sum(ours) / len(data)
     bvls_frame = sum(theirs) / len(subset)
     slices = [(t / max(1, n)) / (o / len(f)) for t, o, n, f in zip(
@@ -108,7 +120,19 @@ def run(label, basis, truth, rng):
           f"{bvls_frame / per_frame:>7.0f}x {min(slices):>6.0f}-{max(slices):<6.0f} "
           f"{np.concatenate(rel).max():>9.2e} {np.concatenate(conv).mean() * 100:>6.1f}% "
           f"{np.concatenate(iters).mean():>5.2f}")
-    return data
+    return data, np.concatenate(solved)
+
+
+def active_set_stats(label, weights):
+    """Distinct active sets over the frames, and how often neighbours share theirs."""
+    at_lo, at_hi = weights <= 0.0, weights >= 1.0
+    packed = np.concatenate([np.packbits(at_lo, axis=1), np.packbits(at_hi, axis=1)], axis=1)
+    distinct = len(np.unique(packed, axis=0))
+    bound = at_lo | at_hi
+    same = np.mean((packed[1:] == packed[:-1]).all(axis=1)) * 100
+    print(f"{label:<24} {distinct:>6} distinct active sets in {len(weights)} frames; "
+          f"neighbours share theirs in {same:.1f}% of frames; "
+          f"{np.count_nonzero(bound, axis=1).mean():.1f} weights at a bound a frame")
 
 
 def main():
@@ -122,8 +146,12 @@ def main():
     print(f"{'frames':<24} {'T':>6} {'ours us/f':>9} {'ours s(T)':>8} {'bvls us/f':>9} "
           f"{'bvls s(T)':>9} {'ratio':>8} {'ratio range':>13} {'max rel':>9} {'conv':>7} "
           f"{'iters':>5}")
-    data = run("ARKit performances", basis, performance_weights(root, names), rng)
-    run("i.i.d. uniform weights", basis, rng.uniform(0.0, 1.0, (N_FRAMES, basis.shape[1])), rng)
+    data, arkit = run("ARKit performances", basis, performance_weights(root, names), rng)
+    uniform = run("i.i.d. uniform weights", basis,
+                  rng.uniform(0.0, 1.0, (N_FRAMES, basis.shape[1])), rng)[1]
+    print(f"BLAS threads: OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}")
+    active_set_stats("ARKit performances", arkit)
+    active_set_stats("i.i.d. uniform weights", uniform)
     part = data[:5000]
     mem = peak_memory_mb(lambda: solve_weights(basis, part, lower=0.0, upper=1.0))
     print(f"peak memory of a 5,000-frame solve: {mem:.0f} MB (tracemalloc): a few (T, n) "
