@@ -21,7 +21,7 @@ from basis.artist import ArtistBasis
 from basis.pca import PCAModel, pca_from_operator
 from basis.quasi_eigen import MISSING_POLICIES, QuasiEigenBasis, quasi_eigen
 from mocap._validation import as_choice, as_int, as_positive_float
-from mocap.bind import Binding, bind_markers, pick_neutral_frame
+from mocap.bind import Binding, bind_markers, resolve_neutral_frame
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.mesh import Mesh
@@ -48,8 +48,10 @@ class BindOptions:
 
     Attributes
     ----------
-    frame : int or "auto"
-        Neutral frame index (0-based) or ``"auto"`` (:func:`mocap.bind.pick_neutral_frame`).
+    frame : int, "auto" or "hold"
+        Neutral frame index (0-based), ``"auto"`` (the frame nearest the median
+        pose) or ``"hold"`` (the take starts with a neutral hold): see
+        :func:`mocap.bind.pick_neutral_frame`.
     icp : bool
     skin_offset : float, mm
     max_distance_warn : float, mm
@@ -61,7 +63,11 @@ class BindOptions:
     max_distance_warn: float = 3.0
 
     def __post_init__(self):
-        if self.frame != "auto":
+        if isinstance(self.frame, str):
+            if self.frame not in ("auto", "hold"):
+                raise InputError(f"frame must be a frame index, 'auto' or 'hold', "
+                                 f"got {self.frame!r}")
+        else:
             as_int(self.frame, "frame", minimum=0)
         if not isinstance(self.icp, bool):
             raise InputError(f"icp must be true or false, got {self.icp!r}")
@@ -254,10 +260,9 @@ def bind_stage(take: Take, markerset: MarkerSet, mesh: Mesh, mesh_landmarks, *,
     InputError
         The neutral frame is beyond the take or has a face marker missing.
     """
-    frame = options.frame
-    if frame == "auto":
-        frame = pick_neutral_frame(take.select(markerset.face_markers).positions)
-    elif frame >= take.n_frames:
+    frame = resolve_neutral_frame(take.select(markerset.face_markers).positions,
+                                  options.frame, rate=take.rate)
+    if frame >= take.n_frames:
         raise InputError(f"bind.frame = {frame} is beyond the take's {take.n_frames} frames")
     bound = take.select(markerset.markers)
     binding = bind_markers(bound.positions[frame], bound.labels, markerset.landmarks, mesh,

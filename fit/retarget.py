@@ -23,7 +23,7 @@ import numpy as np
 
 from mocap._atomic import atomic_path, refuse_overwrite
 from mocap._validation import as_choice, as_float_array, as_int, as_positive_float
-from mocap.bind import Binding, pick_neutral_frame
+from mocap.bind import Binding, resolve_neutral_frame
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.mesh import Mesh, face_normals, save_obj
@@ -345,8 +345,8 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
         Neutral mesh the binding was made on.
     markerset : MarkerSet
     options : RetargetOptions
-    neutral_frame : int or "auto"
-        0-based rest frame; "auto": :func:`mocap.bind.pick_neutral_frame`.
+    neutral_frame : int, "auto" or "hold"
+        0-based rest frame, or picked: :func:`mocap.bind.resolve_neutral_frame`.
     align : bool, default True
         Fit the head-to-binding rotation (:func:`align_head_frame`); False
         trusts that the binding was made from the stabilized take.
@@ -373,8 +373,8 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
         raise MarkerError(labels[m], f"is missing (NaN) in frame {take.first_frame + t} "
                                      f"(index {t}; {int(missing.sum())} missing marker-frames "
                                      "in all): fill gaps before retargeting")
-    frame = (pick_neutral_frame(face.positions) if neutral_frame == "auto"
-             else _check_frame(face, neutral_frame))
+    frame = (resolve_neutral_frame(face.positions, neutral_frame, rate=face.rate)
+             if neutral_frame in ("auto", "hold") else _check_frame(face, neutral_frame))
     rotation = align_head_frame(face, binding, mesh, neutral_frame=frame) if align \
         else np.eye(3)
     displacements = marker_displacements(face, binding, neutral_frame=frame, rotation=rotation)

@@ -28,6 +28,7 @@ from .mesh_landmarks import check_mesh_landmarks
 from .rigid import fit_rigid
 
 __all__ = ["Binding", "bind_markers", "load_binding", "closest_surface_points",
+           "resolve_neutral_frame",
            "pick_neutral_frame"]
 
 _FORMAT = "mocap2mesh-binding-1"
@@ -393,7 +394,13 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
                    converged=converged, message=message)
 
 
-def pick_neutral_frame(positions) -> int:
+#: How :func:`pick_neutral_frame` finds the rest frame.
+NEUTRAL_METHODS = ("median", "hold")
+#: Window of the stillness of a frame, and shortest neutral hold, s.
+HOLD_S = 0.5
+
+
+def pick_neutral_frame(positions, *, method: str = "median", rate: float | None = None) -> int:
     """The frame of a take closest to its rest pose.
 
     Parameters
@@ -401,18 +408,27 @@ def pick_neutral_frame(positions) -> int:
     positions : array_like of shape (n_frames, n_markers, 3), mm
         Head-stabilized marker positions (stabilize first: head motion would
         otherwise dominate), NaN where missing.
+    method : {"median", "hold"}, default "median"
+        "median": for takes that spend most of their time near rest (see
+        Notes). "hold": for sessions that start with a neutral hold of at
+        least ``HOLD_S`` seconds.
+    rate : float, Hz
+        Frame rate; needed by "hold".
 
     Returns
     -------
     int
-        Among the frames where every marker is visible, the one of smallest
-        root-mean-square distance to the rest pose: the per-marker median over
-        every frame in which that marker is visible.
+        Among the frames where every marker is visible: "median", the one of
+        smallest root-mean-square distance to the rest pose, the per-marker
+        median over every frame in which that marker is visible; "hold", the
+        middle frame of the take's first still window (below).
 
     Raises
     ------
     InputError
-        No frame has every marker visible.
+        No frame has every marker visible; an unknown method; "hold" without
+        a rate, on a take shorter than a hold, or with no hold-long run of
+        complete frames.
 
     Notes
     -----
@@ -421,13 +437,67 @@ def pick_neutral_frame(positions) -> int:
     the take. The median is taken over all visible samples of each marker, not
     only over complete frames: gaps come more often with expressions (lips
     hidden by a smile, eyelids in a blink), so complete frames lean away from rest.
+
+    A performer who never rests (a range-of-motion take) defeats the median;
+    capture sessions start with a neutral hold for that. The stillness of a
+    frame is the RMS distance of the marker samples in the ``HOLD_S`` window
+    centred on it to their means over the window; windows up to twice the
+    take's smallest stillness (the noise floor) are still. Only the start of
+    the first run of still windows is sure to be the hold: a slow, small blend
+    out of it can keep the windows still on into the performance.
     """
     positions = as_float_array(positions, "positions", shape=(None, None, 3))
+    if method not in NEUTRAL_METHODS:
+        raise InputError(f"method must be one of {NEUTRAL_METHODS}, got {method!r}")
     complete = np.flatnonzero(~np.isnan(positions).any(axis=(1, 2)))
     if len(complete) == 0:
         raise InputError("no frame has every marker visible; fill gaps first or select "
                          "markers")
+    if method == "hold":
+        return _first_hold(positions, rate)
     rest = np.nanmedian(positions, axis=0)
     frames = positions[complete]
     rms = np.sqrt(np.mean(np.sum((frames - rest) ** 2, axis=-1), axis=-1))
     return int(complete[np.argmin(rms)])
+
+
+def resolve_neutral_frame(positions, frame, *, rate: float | None = None) -> int:
+    """A neutral-frame option as a frame index.
+
+    ``frame``: an index (returned), ``"auto"`` (:func:`pick_neutral_frame`,
+    method "median") or ``"hold"`` (method "hold", at `rate`); `positions`
+    as in :func:`pick_neutral_frame`, the frames the index counts.
+    """
+    if frame == "auto":
+        return pick_neutral_frame(positions, rate=rate)
+    if frame == "hold":
+        return pick_neutral_frame(positions, method="hold", rate=rate)
+    return as_int(frame, "frame", minimum=0)
+
+
+def _first_hold(positions, rate) -> int:
+    """The middle frame of the first still window (see :func:`pick_neutral_frame`)."""
+    if rate is None:
+        raise InputError("method 'hold' needs the take's frame rate")
+    window = max(3, int(round(HOLD_S * as_positive_float(rate, "rate"))) | 1)
+    if len(positions) < window:
+        raise InputError(f"a neutral hold is {HOLD_S} s ({window} frames); the take has "
+                         f"only {len(positions)}")
+    # spread of every coordinate over the window centred on each frame, by
+    # cumulative sums (about the median pose, for accuracy); windows with an
+    # incomplete frame in them do not count
+    flat = (positions - np.nanmedian(positions, axis=0)).reshape(len(positions), -1)
+    flat = np.nan_to_num(flat)
+    first = np.cumsum(np.r_[np.zeros((1, flat.shape[1])), flat], axis=0)
+    second = np.cumsum(np.r_[np.zeros((1, flat.shape[1])), flat ** 2], axis=0)
+    mean = (first[window:] - first[:-window]) / window
+    var = (second[window:] - second[:-window]) / window - mean ** 2
+    stillness = np.sqrt(np.maximum(var, 0.0).reshape(len(var), -1, 3).sum(axis=-1).mean(axis=-1))
+    gaps = np.cumsum(np.r_[0, np.isnan(positions).any(axis=(1, 2))])
+    stillness[gaps[window:] > gaps[:-window]] = np.nan
+    centre = np.arange(window // 2, len(positions) - window // 2)
+    if np.isnan(stillness).all():
+        raise InputError(f"no {window} consecutive frames have every marker visible: "
+                         "fill gaps before looking for a neutral hold")
+    still = stillness <= 2.0 * np.nanmin(stillness)
+    return int(centre[np.argmax(still)])

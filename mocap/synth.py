@@ -245,6 +245,18 @@ def _gap_mask(rng, n_frames, n_markers, n_gaps, max_frames, head_idx) -> np.ndar
     return np.cumsum(edges[:-1], axis=0) > 0
 
 
+def _with_neutral_lead(weights, n_lead, rate):
+    """``weights`` (T, n) after ``n_lead`` frames of a neutral hold blending into its first frame."""
+    if n_lead == 0:
+        return weights
+    n_blend = min(int(round(0.5 * rate)), n_lead // 2)
+    ramp = np.zeros(n_lead)
+    if n_blend:
+        ramp[n_lead - n_blend:] = 0.5 - 0.5 * np.cos(np.pi * np.arange(1, n_blend + 1)
+                                                      / (n_blend + 1))
+    return np.concatenate([ramp[:, None] * weights[:1], weights])
+
+
 def _check_basis(basis, layout):
     for attr in ("names", "neutral", "displacements"):
         if not hasattr(basis, attr):
@@ -270,7 +282,7 @@ def simulate_capture(basis, performance: Performance, layout: MarkerLayout, head
                      noise_mm: float = 0.2, n_gaps: int = 0, max_gap_s: float = 1.0,
                      head_rotation_deg: float = 15.0, head_translation_mm: float = 30.0,
                      head_cutoff_hz: float = 0.5, mm_per_unit: float | None = None,
-                     seed: int = 0) -> SimulatedCapture:
+                     neutral_lead_s: float = 0.0, seed: int = 0) -> SimulatedCapture:
     """Simulate an optical capture of a face driven by a weight performance.
 
     Parameters
@@ -306,6 +318,12 @@ def simulate_capture(basis, performance: Performance, layout: MarkerLayout, head
         Band limit of the head motion.
     mm_per_unit : float, optional
         Millimetres per mesh unit; default from ``layout.units`` (:mod:`mocap.units`).
+    neutral_lead_s : float, default 0, s
+        Start the capture with this long a neutral hold, as a capture session
+        does: every weight 0, then, over the hold's last ``min(0.5 s, half)``,
+        a raised-cosine blend into the performance's first frame (head motion,
+        noise and gaps go on throughout). The performance follows, so the
+        take is this much longer; ``truth.weights`` covers the lead-in too.
     seed : int, default 0
         Head motion, noise and gaps use independent streams of this seed.
 
@@ -344,6 +362,10 @@ def simulate_capture(basis, performance: Performance, layout: MarkerLayout, head
     n_gaps = as_int(n_gaps, "n_gaps", minimum=0)
     max_gap = max(1, int(round(as_positive_float(max_gap_s, "max_gap_s") * rate)))
     head_cutoff_hz = as_positive_float(head_cutoff_hz, "head_cutoff_hz")
+    neutral_lead_s = float(as_float_array(neutral_lead_s, "neutral_lead_s", ndim=0,
+                                          allow_nan=False))
+    if neutral_lead_s < 0:
+        raise InputError(f"neutral_lead_s must be >= 0, got {neutral_lead_s}")
     seed = as_int(seed, "seed", minimum=0)
     if mm_per_unit is None:
         if layout.units is None:
@@ -353,7 +375,8 @@ def simulate_capture(basis, performance: Performance, layout: MarkerLayout, head
     scale = as_positive_float(mm_per_unit, "mm_per_unit")
 
     grid = resample_performance(performance, rate, start=start, duration=duration)
-    weights = performance_weights(grid, basis.names)
+    weights = _with_neutral_lead(performance_weights(grid, basis.names),
+                                 int(round(neutral_lead_s * rate)), rate)
     n_frames, n_markers = len(weights), layout.n_markers
 
     needed, sub = _subset_layout(layout)
@@ -379,6 +402,7 @@ def simulate_capture(basis, performance: Performance, layout: MarkerLayout, head
     take = Take(layout.labels, observed, rate, source=SourceInfo(
         format="memory", producer="mocap2mesh synth",
         extra={"seed": seed, "layout": layout.name, "mesh": mesh_name,
+               "neutral_lead_s": neutral_lead_s,
                "performance": performance.path or ""}))
     truth = CaptureTruth(labels=layout.labels, head_markers=head_markers,
                          shape_names=basis.names, weights=weights, rotation=rotation,

@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocap.bind import (Binding, bind_markers, closest_surface_points, load_binding,
-                        pick_neutral_frame)
+                        pick_neutral_frame, resolve_neutral_frame)
 from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.layout import MarkerLayout, load_marker_layout, make_layout, save_marker_layout
 from mocap.markerset import REQUIRED_REGIONS, load_markerset
@@ -376,3 +376,52 @@ def test_neutral_frame_not_biased_by_gaps_during_expressions():
     positions[hidden, 0] = np.nan
     frame = pick_neutral_frame(positions)
     assert not active[frame]
+
+
+def _never_resting_take(rng, rate, n_hold):
+    """A take (T, 10, 3) mm that never rests after `n_hold` frames at the true rest pose.
+
+    After the hold the markers sweep smoothly between expressions (never back to
+    rest), with still moments mid-expression; 0.2 mm noise throughout.
+    """
+    rest = rng.normal(0, 30, (10, 3))
+    n = 20 * int(rate)
+    t = np.arange(n - n_hold) / rate
+    poses = rng.normal(0, 4, (3, 10, 3))
+    blend = np.stack([1.2 + np.sin(0.7 * t), 1.2 + np.cos(0.45 * t), np.clip(np.sin(0.3 * t), 0, 1)])
+    moving = rest + np.einsum("kt,kmc->tmc", blend, poses)
+    moving[n // 2 - n_hold:n // 2] = moving[n // 2 - n_hold]        # a still moment mid-expression
+    positions = np.concatenate([np.repeat(rest[None], n_hold, axis=0), moving])
+    return rest, positions + rng.normal(0, 0.2, positions.shape)
+
+
+@pytest.mark.parametrize("rate", [30.0, 120.0])
+def test_hold_method_finds_the_neutral_hold_the_median_misses(rate):
+    rng = np.random.default_rng(11)
+    n_hold = int(2 * rate)
+    rest, positions = _never_resting_take(rng, rate, n_hold)
+    positions[5, 2] = np.nan                                   # a gap in the hold
+    median = pick_neutral_frame(positions)
+    hold = pick_neutral_frame(positions, method="hold", rate=rate)
+    assert median >= n_hold                                    # the median pose is no rest pose
+    assert 0 <= hold < n_hold and not np.isnan(positions[hold]).any()
+    assert resolve_neutral_frame(positions, "hold", rate=rate) == hold
+    assert resolve_neutral_frame(positions, "auto") == median
+    assert resolve_neutral_frame(positions, 7) == 7
+
+
+def test_hold_method_errors():
+    positions = np.zeros((20, 3, 3))
+    with pytest.raises(InputError, match=r"method must be one of \('median', 'hold'\)"):
+        pick_neutral_frame(positions, method="still")
+    with pytest.raises(InputError, match="method 'hold' needs the take's frame rate"):
+        pick_neutral_frame(positions, method="hold")
+    with pytest.raises(InputError, match=r"a neutral hold is 0.5 s \(51 frames\); the take "
+                                         r"has only 20"):
+        pick_neutral_frame(positions, method="hold", rate=100.0)
+    gappy = np.zeros((200, 3, 3))
+    gappy[::40, 1] = np.nan
+    with pytest.raises(InputError, match="no 51 consecutive frames have every marker visible"):
+        pick_neutral_frame(gappy, method="hold", rate=100.0)
+    with pytest.raises(InputError, match="frame must be at least 0"):
+        resolve_neutral_frame(positions, -1)

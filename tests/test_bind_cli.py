@@ -111,6 +111,21 @@ def test_bind_recovers_the_layout_of_a_simulated_capture(simulated, ict, tmp_pat
     assert len(doc["distances_mm"]) == len(doc["labels"]) == 66
 
 
+def test_synth_neutral_lead_and_bind_hold(ict, tmp_path, capsys):
+    """A capture that starts with a neutral hold: `bind --frame hold` binds a frame in it."""
+    capture, truth_path = tmp_path / "led.c3d", tmp_path / "led.npz"
+    performance = _performance_csv(tmp_path / "performance.csv")
+    with pytest.warns(UserWarning, match=r"48 shapes of .*expressions have no weight column"):
+        assert main(_synth_args(ict, performance, capture, "--truth", str(truth_path),
+                                "--neutral-lead", "0.6", "--noise", "0.2")) == 0
+    truth = load_capture_truth(truth_path)
+    assert truth.n_frames == 401 + 60 and not truth.weights[:30].any()
+    assert main(_bind_args(ict, capture, tmp_path / "b.json", "--frame", "hold",
+                           "--skin-offset", "2", "-v")) == 0
+    frame = int(re.search(r"^frame\s+(\d+)", capsys.readouterr().out, re.M).group(1))
+    assert frame < 30 and not truth.weights[frame].any()
+
+
 def test_bind_facial_sing(shared_data, ict, tmp_path, capsys):
     capture = shared_data / "captures" / "facial-sing.c3d"
     output = tmp_path / "sing.json"

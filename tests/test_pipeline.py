@@ -143,6 +143,7 @@ def test_complete_span_rejects_a_take_without_a_complete_frame():
     (BasisOptions, {"pca_components": 0}, "pca_components must be at least 1"),
     (BasisOptions, {"qe_missing": "drop"}, "qe_missing must be one of"),
     (BindOptions, {"frame": -1}, "frame must be at least 0"),
+    (BindOptions, {"frame": "still"}, "frame must be a frame index, 'auto' or 'hold'"),
     (BindOptions, {"icp": 1}, "icp must be true or false"),
     (BindOptions, {"skin_offset": -1.0}, "skin_offset must be a finite number >= 0"),
     (BindOptions, {"max_distance_warn": 0.0}, "max_distance_warn must be positive"),

@@ -194,6 +194,30 @@ def test_written_capture_reads_back_with_the_same_gaps(basis, performance, layou
         assert tuple(ez["parameters"]["POINT"]["LABELS"]["value"]) == take.labels
 
 
+def test_neutral_lead_in_holds_the_neutral_then_blends_into_the_performance(
+        basis, performance, layout, head):
+    plain = _simulate(basis, performance, layout, head).truth
+    led = _simulate(basis, performance, layout, head, neutral_lead_s=0.8).truth
+    n_lead, n_blend = 80, 40                       # 0.8 s at 100 Hz; the last 0.5 s, at most half
+    assert led.n_frames == plain.n_frames + n_lead
+    np.testing.assert_array_equal(led.weights[n_lead:], plain.weights)
+    assert not led.weights[:n_lead - n_blend].any()
+    fraction = led.weights[n_lead - n_blend:n_lead] / plain.weights[0]
+    driven = plain.weights[0] > 0
+    np.testing.assert_allclose(fraction[:, driven], fraction[:, driven][:, :1]
+                               * np.ones(driven.sum()))   # every weight blends alike
+    ramp = fraction[:, np.argmax(driven)]
+    assert 0 < ramp[0] < 0.01 and 0.99 < ramp[-1] < 1 and (np.diff(ramp) > 0).all()
+    # the hold is the neutral face: the layout on the neutral mesh
+    np.testing.assert_allclose(led.markers_head[:n_lead - n_blend],
+                               np.broadcast_to(MM_PER_CM * layout.positions(
+                                   basis.neutral.vertices), (n_lead - n_blend,
+                                                              layout.n_markers, 3)),
+                               rtol=0, atol=SYNTH_VS_DENSE_MM)
+    with pytest.raises(InputError, match=r"neutral_lead_s must be >= 0, got -1.0"):
+        _simulate(basis, performance, layout, head, neutral_lead_s=-1.0)
+
+
 def test_simulation_errors(basis, performance, layout, head):
     other = Mesh(basis.neutral.vertices, basis.neutral.faces)          # units unknown
     tiny = make_layout(_triangle(), {"a": {"vertex": 0}, "b": {"vertex": 1},

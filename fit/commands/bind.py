@@ -7,7 +7,7 @@ from pathlib import Path
 
 import mocap
 from mocap._atomic import refuse_overwrite
-from mocap.bind import bind_markers, pick_neutral_frame
+from mocap.bind import bind_markers, resolve_neutral_frame
 from mocap.errors import InputError
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
@@ -18,13 +18,13 @@ __all__ = ["add_parser", "run", "bind_capture", "parse_frame"]
 
 
 def parse_frame(text: str):
-    """``"auto"`` or a frame index >= 0 (argparse type)."""
-    if text == "auto":
+    """``"auto"``, ``"hold"`` or a frame index >= 0 (argparse type)."""
+    if text in ("auto", "hold"):
         return text
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a frame index or 'auto', got {text!r}") \
+        raise argparse.ArgumentTypeError(f"expected a frame index, 'auto' or 'hold', got {text!r}") \
             from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"a frame index is >= 0, got {value}")
@@ -45,9 +45,10 @@ def add_parser(sub) -> None:
     p.add_argument("--landmarks", required=True, type=Path,
                    help="mesh-landmark TOML (anatomical point = vertex id)")
     p.add_argument("-o", "--output", required=True, type=Path, help="binding .json")
-    p.add_argument("--frame", type=parse_frame, default="auto", metavar="N|auto",
-                   help="0-based index of the neutral frame, or 'auto' (default): the frame "
-                        "closest to the median pose after head stabilization")
+    p.add_argument("--frame", type=parse_frame, default="auto", metavar="N|auto|hold",
+                   help="0-based index of the neutral frame, 'auto' (default): the frame "
+                        "closest to the median pose after head stabilization, or 'hold': "
+                        "the stillest frame of the neutral hold the take starts with")
     p.add_argument("--no-icp", action="store_true",
                    help="keep the landmark similarity (no ICP refinement)")
     p.add_argument("--skin-offset", type=float, default=0.0, metavar="MM",
@@ -74,9 +75,9 @@ def bind_capture(take: mocap.Take, markerset, mesh, mesh_landmarks, *, frame="au
     markerset : MarkerSet
     mesh : Mesh
     mesh_landmarks : mapping of str to int
-    frame : int or "auto"
-        0-based index of the neutral frame, or "auto": :func:`mocap.bind.pick_neutral_frame`
-        on the head-stabilized markers.
+    frame : int, "auto" or "hold"
+        0-based index of the neutral frame, or picked on the head-stabilized
+        markers: :func:`mocap.bind.resolve_neutral_frame`.
     icp, skin_offset, max_distance_warn
         As in :func:`mocap.bind.bind_markers` (skin_offset in mm).
     stabilized : bool
@@ -97,13 +98,14 @@ def bind_capture(take: mocap.Take, markerset, mesh, mesh_landmarks, *, frame="au
     """
     markerset.check_labels(take.labels, source=take.source.path or "the take")
     take = take.select(markerset.markers)
-    if frame != "auto" and frame >= take.n_frames:
+    picked = frame in ("auto", "hold")
+    if not picked and frame >= take.n_frames:
         raise InputError(f"{take.source.path}: frame index {frame} is beyond the take's "
                          f"{take.n_frames} frames")
-    if frame == "auto" or stabilized:
+    if picked or stabilized:
         head_take = stabilize(take, markerset.head).take
-    if frame == "auto":
-        frame = pick_neutral_frame(head_take.positions)
+    if picked:
+        frame = resolve_neutral_frame(head_take.positions, frame, rate=take.rate)
     positions = (head_take if stabilized else take).positions[frame]
     binding = bind_markers(positions, take.labels, markerset.landmarks, mesh, mesh_landmarks,
                            icp=icp, skin_offset=skin_offset, max_distance_warn=max_distance_warn)

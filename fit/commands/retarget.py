@@ -51,9 +51,11 @@ def add_parser(sub) -> None:
     p.add_argument("--region-width", type=float, metavar="UNITS",
                    help="blend width of the region weights, mesh units (default: the "
                         "median marker spacing)")
-    p.add_argument("--neutral-frame", type=parse_frame, default="auto", metavar="N|auto",
-                   help="0-based index of the rest frame, or 'auto' (default): the frame "
-                        "closest to the median pose")
+    p.add_argument("--neutral-frame", type=parse_frame, default="auto",
+                   metavar="N|auto|hold",
+                   help="0-based index of the rest frame, 'auto' (default): the frame "
+                        "closest to the median pose, or 'hold': the stillest frame of the "
+                        "neutral hold the take starts with")
     p.add_argument("--fill", choices=FILL_CHOICES, default="auto",
                    help="gap filling before retargeting (default auto; 'none' fails on gaps)")
     p.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")

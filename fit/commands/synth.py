@@ -61,6 +61,9 @@ def add_parser(sub) -> None:
                    help="marker noise, standard deviation per coordinate (default 0.2 mm)")
     p.add_argument("--gaps", type=int, default=0, metavar="N",
                    help="occlusion gaps to cut (default 0); most short, a few up to 1 s")
+    p.add_argument("--neutral-lead", type=float, default=0.0, metavar="S",
+                   help="start with a neutral hold this long, blending into the performance, "
+                        "as a capture session does (default 0; bind it with --frame hold)")
     p.add_argument("--seed", type=int, default=0, help="seed of head motion, noise, gaps")
     p.add_argument("--head-motion", type=parse_head_motion, default=(15.0, 30.0),
                    metavar="DEG,MM", help="peak head rotation per axis (deg) and translation "
@@ -110,7 +113,7 @@ def run(args) -> int:
     result = simulate_capture(basis, performance, layout, markerset.head, rate=args.rate,
                               start=args.start, duration=args.duration, noise_mm=args.noise,
                               n_gaps=args.gaps, head_rotation_deg=deg, head_translation_mm=mm,
-                              seed=args.seed)
+                              neutral_lead_s=args.neutral_lead, seed=args.seed)
     mocap.write(result.take, args.output, inputs=inputs)
     if args.truth is not None:
         result.truth.save(args.truth, inputs=inputs + [args.output])
