@@ -21,14 +21,14 @@ from basis.artist import ArtistBasis
 from basis.pca import PCAModel, pca_from_operator
 from basis.quasi_eigen import MISSING_POLICIES, QuasiEigenBasis, quasi_eigen
 from mocap._validation import as_choice, as_int, as_positive_float
-from mocap.bind import Binding, bind_markers, resolve_neutral_frame
+from mocap.bind import Binding, bind_markers, hold_window, resolve_neutral_frame
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.mesh import Mesh
 from mocap.take import Take
 
 from .ingest import IngestOptions, IngestResult, ingest
-from .retarget import RetargetOptions, Retargeting, retarget
+from .retarget import RetargetOptions, Retargeting, neutral_pose, retarget
 from .solve import WeightSolution, solve_weights
 
 __all__ = ["BASES", "SPACES", "BindOptions", "BasisOptions", "FitOptions", "BindResult", "complete_span",
@@ -51,7 +51,8 @@ class BindOptions:
     frame : int, "auto" or "hold"
         Neutral frame index (0-based), ``"auto"`` (the frame nearest the median
         pose) or ``"hold"`` (the take starts with a neutral hold): see
-        :func:`mocap.bind.pick_neutral_frame`.
+        :func:`mocap.bind.pick_neutral_frame`. With "hold" the rest pose is
+        the mean of the hold's window around that frame.
     icp : bool
     skin_offset : float, mm
     max_distance_warn : float, mm
@@ -134,10 +135,20 @@ class FitOptions:
 
 @dataclass(frozen=True, eq=False)
 class BindResult:
-    """The binding of the take's face markers and the neutral frame it used."""
+    """The binding of the take's face markers and the neutral frame it used.
+
+    ``window`` frames centred on ``frame`` (1, or a neutral hold's
+    :func:`mocap.bind.hold_window` for ``frame = "hold"``) average into the
+    rest pose that was bound and that displacements are measured from.
+    """
 
     binding: Binding
     frame: int
+    window: int = 1
+
+    def neutral_pose(self, positions) -> np.ndarray:
+        """The rest pose (M, 3) of `positions` (T, M, 3) (:func:`fit.retarget.neutral_pose`)."""
+        return neutral_pose(positions, self.frame, self.window)
 
 
 @dataclass(frozen=True, eq=False)
@@ -264,11 +275,13 @@ def bind_stage(take: Take, markerset: MarkerSet, mesh: Mesh, mesh_landmarks, *,
                                   options.frame, rate=take.rate)
     if frame >= take.n_frames:
         raise InputError(f"bind.frame = {frame} is beyond the take's {take.n_frames} frames")
+    window = hold_window(take.rate) if options.frame == "hold" else 1
     bound = take.select(markerset.markers)
-    binding = bind_markers(bound.positions[frame], bound.labels, markerset.landmarks, mesh,
-                           mesh_landmarks, icp=options.icp, skin_offset=options.skin_offset,
+    binding = bind_markers(neutral_pose(bound.positions, frame, window), bound.labels,
+                           markerset.landmarks, mesh, mesh_landmarks, icp=options.icp,
+                           skin_offset=options.skin_offset,
                            max_distance_warn=options.max_distance_warn)
-    return BindResult(binding=binding, frame=int(frame))
+    return BindResult(binding=binding, frame=int(frame), window=window)
 
 
 def retarget_stage(take: Take, bound: BindResult, mesh: Mesh, markerset: MarkerSet,
@@ -287,10 +300,10 @@ def retarget_stage(take: Take, bound: BindResult, mesh: Mesh, markerset: MarkerS
     Returns
     -------
     Retargeting
-        ``displacements`` (T, M, 3) from the bound neutral frame, ``operator.matrix`` (N, M).
+        ``displacements`` (T, M, 3) from the bound rest pose, ``operator.matrix`` (N, M).
     """
     return retarget(take, bound.binding, mesh, markerset, options=options,
-                    neutral_frame=bound.frame, align=False)
+                    neutral_frame=bound.frame, neutral_window=bound.window, align=False)
 
 
 def basis_stage(retargeted: Retargeting, artist: ArtistBasis, *,
@@ -415,12 +428,12 @@ def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: Bas
     -----
     Marker space: B = basis sampled at the bound points (binding face ids and
     barycentric coordinates), d_t = marker displacements; mesh space: see
-    :func:`solve_mesh_space`. Reconstructed markers are the neutral frame's
-    captured positions plus B w_t taken back to capture millimetres.
+    :func:`solve_mesh_space`. Reconstructed markers are the bound rest pose
+    (:meth:`BindResult.neutral_pose`) plus B w_t taken back to capture millimetres.
     """
     binding, labels = bound.binding, retargeted.labels
     D = retargeted.displacements
-    neutral = take.select(labels).positions[bound.frame]
+    neutral = bound.neutral_pose(take.select(labels).positions)
     solutions, weights, reconstructed = {}, {}, {}
     for name, basis in bases.bases.items():
         k = basis.n_fixed

@@ -31,7 +31,7 @@ from mocap.rbf import DISTANCES, KERNELS, RBFOperator, build_rbf_operator
 from mocap.rigid import fit_rigid
 from mocap.take import Take
 
-__all__ = ["RetargetOptions", "Retargeting", "marker_displacements", "align_head_frame",
+__all__ = ["RetargetOptions", "Retargeting", "marker_displacements", "neutral_pose", "align_head_frame",
            "build_retarget_operator", "retarget", "save_npz", "save_obj_sequence",
            "KERNELS", "DISTANCES", "CONTENTS"]
 
@@ -134,8 +134,19 @@ def _binding_rows(binding: Binding, labels) -> np.ndarray:
     return np.array([lookup[label] for label in labels], dtype=np.int64)
 
 
+def neutral_pose(positions, frame: int, window: int = 1) -> np.ndarray:
+    """The rest pose (M, 3): the mean of `positions` (T, M, 3) over `window` frames centred on `frame`.
+
+    The window is cut at the ends of the take. Averaging a neutral hold takes
+    the noise of a single frame out of the reference every displacement is
+    measured from (it would otherwise be a bias of every frame).
+    """
+    window = as_int(window, "neutral_window", minimum=1)
+    return positions[max(0, frame - window // 2):frame + window // 2 + 1].mean(axis=0)
+
+
 def marker_displacements(take: Take, binding: Binding, *, neutral_frame: int,
-                         rotation=None) -> np.ndarray:
+                         rotation=None, neutral_window: int = 1) -> np.ndarray:
     """Marker displacements from the neutral frame, in mesh units and mesh axes.
 
     Parameters
@@ -149,19 +160,23 @@ def marker_displacements(take: Take, binding: Binding, *, neutral_frame: int,
         Head frame to the capture frame the binding was fitted in
         (:func:`align_head_frame`); default identity (the binding was made
         from the stabilized take, ``mocap2mesh bind --stabilize``).
+    neutral_window : int, default 1
+        Frames around `neutral_frame` whose mean is the rest pose p₀
+        (:func:`neutral_pose`); every marker must be visible in them.
 
     Returns
     -------
     ndarray of shape (T, M, 3), mesh units
-        ``scale * R_b @ rotation @ (p(t) - p(neutral_frame))`` per marker, in
-        the take's marker order. NaN where the take is NaN.
+        ``scale * R_b @ rotation @ (p(t) - p₀)`` per marker, in the take's
+        marker order. NaN where the take is NaN.
 
     Raises
     ------
     MarkerError
-        A marker absent from the binding, or missing in the neutral frame.
+        A marker absent from the binding, or missing in the neutral frame
+        (or its window).
     InputError
-        A frame index beyond the take, a bad rotation.
+        A frame index beyond the take, a bad rotation, a window below 1.
     """
     take = _check_take(take)
     _binding_rows(binding, take.labels)
@@ -171,7 +186,14 @@ def marker_displacements(take: Take, binding: Binding, *, neutral_frame: int,
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-9) \
             or np.linalg.det(rotation) <= 0:
         raise InputError("rotation must be a proper rotation matrix (orthonormal, det +1)")
-    delta = take.positions - take.positions[frame]
+    rest = neutral_pose(take.positions, frame, neutral_window)
+    missing = np.flatnonzero(np.isnan(rest).any(axis=1))
+    if len(missing):
+        raise MarkerError(take.labels[missing[0]],
+                          f"is missing (NaN) in the {neutral_window} frames around the neutral "
+                          f"frame {take.first_frame + frame} (index {frame}): the rest pose is "
+                          "their mean")
+    delta = take.positions - rest
     return binding.scale * delta @ (binding.rotation @ rotation).T
 
 
@@ -331,7 +353,7 @@ class Retargeting:
 
 def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
              options: RetargetOptions = RetargetOptions(), neutral_frame="auto",
-             align: bool = True) -> Retargeting:
+             neutral_window: int = 1, align: bool = True) -> Retargeting:
     """Retarget a head-stabilized take onto a face mesh.
 
     Parameters
@@ -347,6 +369,9 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
     options : RetargetOptions
     neutral_frame : int, "auto" or "hold"
         0-based rest frame, or picked: :func:`mocap.bind.resolve_neutral_frame`.
+    neutral_window : int, default 1
+        Frames around the rest frame averaged into the rest pose
+        (:func:`marker_displacements`).
     align : bool, default True
         Fit the head-to-binding rotation (:func:`align_head_frame`); False
         trusts that the binding was made from the stabilized take.
@@ -377,7 +402,8 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
              if neutral_frame in ("auto", "hold") else _check_frame(face, neutral_frame))
     rotation = align_head_frame(face, binding, mesh, neutral_frame=frame) if align \
         else np.eye(3)
-    displacements = marker_displacements(face, binding, neutral_frame=frame, rotation=rotation)
+    displacements = marker_displacements(face, binding, neutral_frame=frame, rotation=rotation,
+                                         neutral_window=neutral_window)
     operator = build_retarget_operator(binding, mesh, markerset, labels, options)
     return Retargeting(operator, displacements, labels, mesh, frame, rotation, take.rate,
                        take.first_frame, options.chunk_frames)

@@ -28,7 +28,7 @@ from .mesh_landmarks import check_mesh_landmarks
 from .rigid import fit_rigid
 
 __all__ = ["Binding", "bind_markers", "load_binding", "closest_surface_points",
-           "resolve_neutral_frame",
+           "resolve_neutral_frame", "hold_window",
            "pick_neutral_frame"]
 
 _FORMAT = "mocap2mesh-binding-1"
@@ -475,11 +475,16 @@ def resolve_neutral_frame(positions, frame, *, rate: float | None = None) -> int
     return as_int(frame, "frame", minimum=0)
 
 
+def hold_window(rate: float) -> int:
+    """Frames of a ``HOLD_S`` window at `rate` Hz: odd, at least 3."""
+    return max(3, int(round(HOLD_S * as_positive_float(rate, "rate"))) | 1)
+
+
 def _first_hold(positions, rate) -> int:
     """The middle frame of the first still window (see :func:`pick_neutral_frame`)."""
     if rate is None:
         raise InputError("method 'hold' needs the take's frame rate")
-    window = max(3, int(round(HOLD_S * as_positive_float(rate, "rate"))) | 1)
+    window = hold_window(rate)
     if len(positions) < window:
         raise InputError(f"a neutral hold is {HOLD_S} s ({window} frames); the take has "
                          f"only {len(positions)}")

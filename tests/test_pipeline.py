@@ -17,6 +17,7 @@ from fit.pipeline import (SPACES, BasisOptions, BindOptions, FitOptions, basis_s
                           retarget_stage, solve_mesh_space)
 from fit.solve import solve_weights
 from mocap.errors import InputError
+from mocap.bind import hold_window
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
 from mocap.mesh_landmarks import load_mesh_landmarks
@@ -37,7 +38,7 @@ def chain(tmp_path_factory):
     retargeted = retarget_stage(take, bound, mesh, markerset)
     bases = basis_stage(retargeted, load_basis(paths["shapes"]))
     return dict(take=take, bound=bound, retargeted=retargeted, bases=bases, mesh=mesh,
-                markerset=markerset)
+                markerset=markerset, landmarks_path=paths["landmarks"])
 
 
 @pytest.fixture(scope="module")
@@ -151,6 +152,23 @@ def test_complete_span_rejects_a_take_without_a_complete_frame():
 def test_option_errors(cls, kwargs, match):
     with pytest.raises(InputError, match=match):
         cls(**kwargs)
+
+
+def test_bind_hold_averages_the_hold_into_the_rest_pose(chain):
+    take, markerset = chain["take"], chain["markerset"]
+    landmarks = load_mesh_landmarks(chain["landmarks_path"], chain["mesh"])
+    bound = bind_stage(take, markerset, chain["mesh"], landmarks,
+                       options=BindOptions(frame="hold", skin_offset=2.0))
+    window = hold_window(take.rate)
+    assert bound.window == window > 1
+    face = take.select(markerset.face_markers).positions
+    lo = max(0, bound.frame - window // 2)
+    np.testing.assert_allclose(bound.neutral_pose(face), face[lo:bound.frame + window // 2 + 1]
+                               .mean(axis=0), rtol=0, atol=1e-12)
+    retargeted = retarget_stage(take, bound, chain["mesh"], markerset)
+    # displacements from that mean: they average to zero over the window
+    np.testing.assert_allclose(retargeted.displacements[lo:bound.frame + window // 2 + 1]
+                               .mean(axis=0), 0.0, atol=1e-12)
 
 
 def test_bind_frame_beyond_take(chain):

@@ -103,6 +103,22 @@ def test_marker_displacements_match_a_hand_computation():
     np.testing.assert_array_equal(take.positions, positions)        # input untouched
 
 
+def test_marker_displacements_from_the_mean_of_a_neutral_window():
+    rng = np.random.default_rng(1)
+    positions = rng.normal(scale=50.0, size=(8, 3, 3))
+    take = Take(BINDING.labels[:3], positions, rate=100.0)
+    for frame, window, frames in ((3, 5, [1, 2, 3, 4, 5]), (0, 5, [0, 1, 2]), (7, 3, [6, 7])):
+        got = marker_displacements(take, BINDING, neutral_frame=frame, neutral_window=window)
+        rest = positions[frames].mean(axis=0)                       # cut at the ends
+        np.testing.assert_allclose(got, SCALE * (positions - rest) @ ROTATION.T, atol=1e-12)
+    positions[5, 1] = np.nan
+    with pytest.raises(MarkerError, match=r"'m1'.*in the 5 frames around the neutral frame \d+ \(index 3\)"):
+        marker_displacements(Take(BINDING.labels[:3], positions, rate=100.0), BINDING,
+                             neutral_frame=3, neutral_window=5)
+    with pytest.raises(InputError, match="neutral_window must be at least 1"):
+        marker_displacements(take, BINDING, neutral_frame=3, neutral_window=0)
+
+
 def test_marker_displacements_rejects_a_missing_neutral_marker():
     positions = np.zeros((3, 2, 3))
     positions[2, 1] = np.nan

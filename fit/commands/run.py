@@ -148,7 +148,7 @@ def process_take(capture, config: RunConfig) -> dict:
 
     tic = time.perf_counter()
     face = take.select(retargeted.labels)
-    neutral = face.positions[bound.frame]
+    neutral = bound.neutral_pose(face.positions)
     plot_gaps(ingested.cleaned, qa / "gaps.png")
     plot_head_residuals(ingested.stabilization, qa / "head_residuals.png")
     files += [qa / "gaps.png", qa / "head_residuals.png"]
