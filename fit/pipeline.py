@@ -29,7 +29,9 @@ from mocap.take import Take
 
 from .ingest import IngestOptions, IngestResult, ingest
 from .retarget import RetargetOptions, Retargeting, neutral_pose, retarget
+from .sampling_estimator import estimate_weights_by_sampling
 from .solve import WeightSolution, solve_weights
+from .temporal import moving_average
 
 __all__ = ["BASES", "SPACES", "BindOptions", "BasisOptions", "FitOptions", "BindResult", "complete_span",
            "NamedBasis", "BasisResult", "FitResult", "ingest_stage",
@@ -40,6 +42,8 @@ __all__ = ["BASES", "SPACES", "BindOptions", "BasisOptions", "FitOptions", "Bind
 BASES = ("H", "QE", "PCA")
 #: Where the weights are fitted: at the bound marker points, or on every vertex through W.
 SPACES = ("marker", "mesh")
+#: How the H weights are found: exactly, or by the gestures paper's sampling estimator.
+H_SOLVERS = ("exact", "sampling")
 
 
 @dataclass(frozen=True)
@@ -119,18 +123,42 @@ class FitOptions:
         unbounded (QE weights may be negative, as in the paper).
     smoothness : float
         λ of :func:`fit.solve.solve_weights` (0: frames independent).
+    moving_average : int
+        Odd window (frames) of the centred moving average of the marker
+        displacements before solving (:func:`fit.temporal.moving_average`;
+        the gestures paper's 41); 0 or 1: none.
+    h_solver : str
+        One of :data:`H_SOLVERS`: "exact" (:func:`fit.solve.solve_weights`) or
+        "sampling", the gestures paper's estimator
+        (:func:`fit.sampling_estimator.estimate_weights_by_sampling`), for
+        the H weights in marker space, to compare with the exact solver.
+    n_samples, n_neighbors : int
+        Samples and nearest neighbours of "sampling" (paper: 1000 and 60).
     """
 
     space: str = "marker"
     h_epsilon: float = 0.0
     smoothness: float = 0.0
+    moving_average: int = 0
+    h_solver: str = "exact"
+    n_samples: int = 1000
+    n_neighbors: int = 60
 
     def __post_init__(self):
         as_choice(self.space, "space", SPACES)
+        as_choice(self.h_solver, "h_solver", H_SOLVERS)
         for name in ("h_epsilon", "smoothness"):
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0:
                 raise InputError(f"{name} must be a finite number >= 0, got {value!r}")
+        window = as_int(self.moving_average, "moving_average", minimum=0)
+        if window > 1 and window % 2 == 0:
+            raise InputError(f"moving_average must be an odd number of frames, got {window}")
+        as_int(self.n_samples, "n_samples", minimum=1)
+        as_int(self.n_neighbors, "n_neighbors", minimum=1)
+        if self.h_solver == "sampling" and (self.space != "marker" or self.smoothness):
+            raise InputError("h_solver = 'sampling' estimates frames one by one in marker "
+                             "space: it needs space = 'marker' and smoothness = 0")
 
 
 @dataclass(frozen=True, eq=False)
@@ -202,8 +230,9 @@ class FitResult:
 
     Attributes
     ----------
-    solutions : dict of str to WeightSolution
-        Solved weights per basis, (T, n_solved).
+    solutions : dict of str to WeightSolution or SamplingEstimate
+        Solved weights per basis, (T, n_solved) (a SamplingEstimate for H
+        with ``h_solver = "sampling"``).
     weights : dict of str to ndarray, shape (T, n)
         Full weights, fixed shapes included (what the exports evaluate).
     reconstructed : dict of str to ndarray, shape (T, M, 3), mm
@@ -428,11 +457,16 @@ def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: Bas
     -----
     Marker space: B = basis sampled at the bound points (binding face ids and
     barycentric coordinates), d_t = marker displacements; mesh space: see
-    :func:`solve_mesh_space`. Reconstructed markers are the bound rest pose
-    (:meth:`BindResult.neutral_pose`) plus B w_t taken back to capture millimetres.
+    :func:`solve_mesh_space`. With ``moving_average`` the displacements are
+    averaged over time first (the reconstruction is then compared with the
+    captured, unaveraged markers). Reconstructed markers are the bound rest
+    pose (:meth:`BindResult.neutral_pose`) plus B w_t taken back to capture
+    millimetres.
     """
     binding, labels = bound.binding, retargeted.labels
     D = retargeted.displacements
+    if options.moving_average > 1:
+        D = moving_average(D, window=options.moving_average)
     neutral = bound.neutral_pose(take.select(labels).positions)
     solutions, weights, reconstructed = {}, {}, {}
     for name, basis in bases.bases.items():
@@ -445,7 +479,11 @@ def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: Bas
         with warnings.catch_warnings():
             if name == "QE":        # rank ≤ m + 1 < n by construction when m < n - 1
                 warnings.filterwarnings("ignore", "the basis has rank", RuntimeWarning)
-            if options.space == "mesh":
+            if name == "H" and options.h_solver == "sampling":
+                sol = estimate_weights_by_sampling(at_markers[k:], data, lower=lower,
+                                                   upper=upper, n_samples=options.n_samples,
+                                                   n_neighbors=options.n_neighbors)
+            elif options.space == "mesh":
                 sol = solve_mesh_space(basis.displacements[k:], retargeted.operator.matrix, D,
                                        offset=basis.displacements[:k].sum(axis=0),
                                        lower=lower, upper=upper,

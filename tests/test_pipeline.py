@@ -15,9 +15,10 @@ from fit.ingest import IngestOptions
 from fit.pipeline import (SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
                           bind_stage, complete_span, fit_stage, ingest_stage, marker_basis,
                           retarget_stage, solve_mesh_space)
+from fit.sampling_estimator import estimate_weights_by_sampling
 from fit.solve import solve_weights
-from mocap.errors import InputError
 from mocap.bind import hold_window
+from mocap.errors import InputError
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
 from mocap.mesh_landmarks import load_mesh_landmarks
@@ -62,6 +63,42 @@ def test_h_weights_solve_marker_problem_like_lsq_linear(chain, fitted):
         ours = 0.5 * np.sum((B @ sol.weights[t] - D[t]) ** 2)
         assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + 1e-15
         assert sol.cost[t] == pytest.approx(ours, rel=1e-12)
+
+
+def test_moving_average_fit_solves_the_averaged_displacements(chain):
+    window = 5
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        fit = fit_stage(chain["take"], chain["bound"], chain["retargeted"], chain["bases"],
+                        options=FitOptions(moving_average=window))
+    basis = chain["bases"].bases["H"]
+    B = marker_basis(chain["bound"].binding, basis.displacements,
+                     chain["retargeted"].labels).reshape(len(basis.names), -1).T
+    D = chain["retargeted"].displacements
+    D = D.reshape(len(D), -1)
+    for t in (0, 1, len(D) // 2, len(D) - 1):                    # by hand, cut at the ends
+        d = D[max(0, t - 2):t + 3].mean(axis=0)
+        ref = lsq_linear(B, d, bounds=(0, 1), method="bvls", max_iter=10_000)
+        ours = 0.5 * np.sum((B @ fit.weights["H"][t] - d) ** 2)
+        assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + 1e-15
+
+
+def test_sampling_h_solver_is_the_estimator_and_never_beats_the_exact_fit(chain, fitted):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        fit = fit_stage(chain["take"], chain["bound"], chain["retargeted"], chain["bases"],
+                        options=FitOptions(h_solver="sampling", n_samples=300,
+                                           n_neighbors=20))
+    basis = chain["bases"].bases["H"]
+    at = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels)
+    direct = estimate_weights_by_sampling(at, chain["retargeted"].displacements,
+                                          n_samples=300, n_neighbors=20)
+    np.testing.assert_array_equal(fit.weights["H"], direct.weights)
+    exact = fitted["marker"].solutions["H"].cost
+    assert (fit.solutions["H"].cost >= exact * (1 - SOLVE_OBJECTIVE_REL)).all()
+    assert fit.solutions["H"].cost.mean() > exact.mean()
+    # the other bases are solved exactly as before
+    np.testing.assert_array_equal(fit.weights["QE"], fitted["marker"].weights["QE"])
 
 
 def test_pca_marker_fit_is_least_squares_with_mean_fixed(chain, fitted):
@@ -148,6 +185,12 @@ def test_complete_span_rejects_a_take_without_a_complete_frame():
     (BindOptions, {"icp": 1}, "icp must be true or false"),
     (BindOptions, {"skin_offset": -1.0}, "skin_offset must be a finite number >= 0"),
     (BindOptions, {"max_distance_warn": 0.0}, "max_distance_warn must be positive"),
+    (FitOptions, {"h_solver": "bvls"}, "h_solver must be one of"),
+    (FitOptions, {"moving_average": 40}, "moving_average must be an odd number of frames"),
+    (FitOptions, {"moving_average": -1}, "moving_average must be at least 0"),
+    (FitOptions, {"n_samples": 0}, "n_samples must be at least 1"),
+    (FitOptions, {"h_solver": "sampling", "space": "mesh"}, "needs space = 'marker'"),
+    (FitOptions, {"h_solver": "sampling", "smoothness": 1.0}, "and smoothness = 0"),
 ])
 def test_option_errors(cls, kwargs, match):
     with pytest.raises(InputError, match=match):
