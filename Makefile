@@ -11,7 +11,15 @@ DEMO_DIR ?= demo-output
 # Benchmarks keep the default and say what they use.
 export OPENBLAS_NUM_THREADS ?= 1
 
-.PHONY: test demo bench env clean
+# Blender as a Python module (bpy 4.2 LTS, built for Python 3.11), in a venv of
+# its own: `make blender-check` opens the exported .glb files in Blender's glTF
+# importer. Not part of `make test` (a ~350 MB download).
+BLENDER_VENV ?= .venv-blender
+BLENDER_STAMP := $(BLENDER_VENV)/.installed-stamp
+BPY_VERSION ?= 4.2.23
+GLB ?= $(DEMO_DIR)
+
+.PHONY: test demo bench env clean blender-check
 
 env: $(STAMP)
 
@@ -31,5 +39,16 @@ bench: $(STAMP)
 	@set -e; for script in bench/bench_*.py; do echo "== $$script"; \
 	    env -u OPENBLAS_NUM_THREADS $(PY) $$script; done
 
+$(BLENDER_STAMP):
+	$(PYTHON) -m venv $(BLENDER_VENV)
+	$(BLENDER_VENV)/bin/python -m pip install --quiet 'bpy==$(BPY_VERSION)'
+	touch $(BLENDER_STAMP)
+
+# Checks every .glb under GLB (default: the demo's outputs, made if absent).
+blender-check: $(STAMP) $(BLENDER_STAMP)
+	@if [ -z "$$(find $(GLB) -name '*.glb' 2>/dev/null | head -n 1)" ]; then \
+	    $(VENV)/bin/mocap2mesh demo -o $(DEMO_DIR); fi
+	$(BLENDER_VENV)/bin/python bench/blender_check.py $(GLB)
+
 clean:
-	rm -rf $(VENV) $(DEMO_DIR) bench/out .pytest_cache
+	rm -rf $(VENV) $(BLENDER_VENV) $(DEMO_DIR) bench/out .pytest_cache
