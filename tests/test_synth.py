@@ -202,11 +202,11 @@ def test_neutral_lead_in_holds_the_neutral_then_blends_into_the_performance(
     assert led.n_frames == plain.n_frames + n_lead
     np.testing.assert_array_equal(led.weights[n_lead:], plain.weights)
     assert not led.weights[:n_lead - n_blend].any()
-    fraction = led.weights[n_lead - n_blend:n_lead] / plain.weights[0]
     driven = plain.weights[0] > 0
-    np.testing.assert_allclose(fraction[:, driven], fraction[:, driven][:, :1]
-                               * np.ones(driven.sum()))   # every weight blends alike
-    ramp = fraction[:, np.argmax(driven)]
+    assert driven.any() and not led.weights[n_lead - n_blend:n_lead, ~driven].any()
+    fraction = led.weights[n_lead - n_blend:n_lead, driven] / plain.weights[0, driven]
+    np.testing.assert_allclose(fraction, fraction[:, :1] * np.ones(driven.sum()))  # alike
+    ramp = fraction[:, 0]
     assert 0 < ramp[0] < 0.01 and 0.99 < ramp[-1] < 1 and (np.diff(ramp) > 0).all()
     # the hold is the neutral face: the layout on the neutral mesh
     np.testing.assert_allclose(led.markers_head[:n_lead - n_blend],
