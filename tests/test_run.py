@@ -66,6 +66,7 @@ def test_every_promised_file_is_written(session_root, first_run):
             assert (out / take / name).is_file(), name
             assert f"{take}/{name}" in record["files"]
         assert set(record["metrics"]) == set(BASES)
+        assert record["frames"]["neutral_window"] == 1         # bind.frame "auto": one frame
         html = (out / take / "report" / f"{take}.html").read_text()
         for picture in ("gaps.png", "head_residuals.png"):       # ingestion QA embedded
             encoded = base64.b64encode((out / take / "report" / picture).read_bytes())

@@ -167,7 +167,8 @@ def process_take(capture, config: RunConfig) -> dict:
             "stage_seconds": {k: round(v, 3) for k, v in stages.items()},
             "frames": {"first": take.first_frame, "count": take.n_frames,
                        "trimmed": ingested.take.n_frames - take.n_frames,
-                       "neutral": take.first_frame + bound.frame, "rate": take.rate},
+                       "neutral": take.first_frame + bound.frame,
+                       "neutral_window": bound.window, "rate": take.rate},
             "binding_rms_mm": bound.binding.rms, "pca_components": bases.n_components,
             "qe_missing_axes": bases.qe.missing_axes.tolist(),
             "fit": {name: {"status": s.status, "message": s.message}
