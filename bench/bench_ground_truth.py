@@ -7,8 +7,8 @@ an RMSE between solved and true weights of at most 0.02; this script measures
 what each factor contributes to the error instead of tuning anything on it.
 
 Table 1, the markers alone (no chain): the true head-frame markers, the
-linear marker-space basis (each shape's marker displacements on the mesh),
-bounds [0, 1]. Columns: the condition number of that basis and its smallest
+linear marker-space basis (the tangent of each shape's marker motion at the
+neutral, as :func:`fit.pipeline.marker_basis` takes it), bounds [0, 1]. Columns: the condition number of that basis and its smallest
 singular value (mm per unit weight); the unbounded least-squares RMSE that
 0.2 mm of noise alone predicts, σ·sqrt(tr((BᵀB)⁻¹)/n); then measured RMSEs:
 markers on the skin without noise (the linear model is exact there: 0 up to
@@ -131,8 +131,12 @@ def markers_alone(label, basis, performance, layout, markerset):
             layout.labels, layout.vertex_ids, layout.weights, layout.face_ids,
             np.zeros(layout.n_markers), layout.faces, layout.n_vertices, units=layout.units)
         rest = lay.positions(mesh.vertices)
-        B = MM_PER_CM * np.stack([(lay.positions(mesh.vertices + e) - rest)[face]
-                                  for e in basis.displacements])
+        # the tangent at the neutral (central differences; exact for skin points)
+        steps = 1e-4 * np.ptp(mesh.vertices, axis=0).max() / np.abs(basis.displacements).max(
+            axis=(1, 2))
+        B = MM_PER_CM * np.stack([(lay.positions(mesh.vertices + h * e)
+                                   - lay.positions(mesh.vertices - h * e))[face] / (2 * h)
+                                  for h, e in zip(steps, basis.displacements)])
         truth = simulate(basis, performance, lay, markerset.head, noise=0.0, motion=False).truth
         W, X = truth.weights, truth.markers_head[:, face]
         neutral = MM_PER_CM * rest[face]

@@ -23,6 +23,7 @@ from basis.quasi_eigen import MISSING_POLICIES, QuasiEigenBasis, quasi_eigen
 from mocap._validation import as_choice, as_int, as_positive_float
 from mocap.bind import Binding, bind_markers, hold_window, resolve_neutral_frame
 from mocap.errors import InputError
+from mocap.layout import MarkerLayout
 from mocap.markerset import MarkerSet
 from mocap.mesh import Mesh
 from mocap.take import Take
@@ -42,6 +43,8 @@ __all__ = ["BASES", "SPACES", "BindOptions", "BasisOptions", "FitOptions", "Bind
 BASES = ("H", "QE", "PCA")
 #: Where the weights are fitted: at the bound marker points, or on every vertex through W.
 SPACES = ("marker", "mesh")
+#: Largest vertex move of the central differences of :func:`marker_basis`, over the mesh size.
+_NORMAL_STEP = 1e-4
 #: How the H weights are found: exactly, or by the gestures paper's sampling estimator.
 H_SOLVERS = ("exact", "sampling")
 
@@ -369,9 +372,31 @@ def basis_stage(retargeted: Retargeting, artist: ArtistBasis, *,
     return BasisResult(bases=bases, pca=pca, n_components=m, qe=qe)
 
 
-def marker_basis(binding: Binding, displacements, labels=None) -> np.ndarray:
-    """A mesh basis (n, N, 3) sampled at the bound points of `labels` (default all): (n, M, 3)."""
-    points = binding.marker_points(displacements)
+def marker_basis(binding: Binding, displacements, labels=None, *,
+                 mesh: Mesh | None = None) -> np.ndarray:
+    """A mesh basis (n, N, 3) sampled at the bound markers of `labels` (default all): (n, M, 3).
+
+    Without `mesh` (or with a binding of no skin offset), the motion of the
+    bound surface points. With the neutral `mesh` and a binding made with
+    ``skin_offset`` > 0, the motion of the marker centres that far off the
+    skin along the normal, to first order: markers sit on the skin and their
+    centres turn with it. The normal is the one of
+    :meth:`mocap.layout.MarkerLayout.positions` (area-weighted vertex normals,
+    interpolated); its change along each shape is a central difference.
+    """
+    if mesh is None or binding.skin_offset == 0:
+        points = binding.marker_points(displacements)
+    else:
+        layout = MarkerLayout(binding.labels, binding.vertex_ids, binding.barycentric,
+                              binding.face_ids,
+                              np.full(len(binding.labels), binding.skin_offset * binding.scale),
+                              mesh.faces, mesh.n_vertices)
+        displacements = np.asarray(displacements, dtype=np.float64)
+        size = np.ptp(mesh.vertices, axis=0).max()
+        largest = np.abs(displacements).reshape(len(displacements), -1).max(axis=1)
+        h = (_NORMAL_STEP * size / np.maximum(largest, np.finfo(float).tiny))[:, None, None]
+        points = (layout.positions(mesh.vertices + h * displacements)
+                  - layout.positions(mesh.vertices - h * displacements)) / (2 * h)
     if labels is None:
         return points
     return points[:, [binding.labels.index(label) for label in labels]]
@@ -455,8 +480,9 @@ def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: Bas
 
     Notes
     -----
-    Marker space: B = basis sampled at the bound points (binding face ids and
-    barycentric coordinates), d_t = marker displacements; mesh space: see
+    Marker space: B = basis sampled at the bound markers (:func:`marker_basis`:
+    binding face ids and barycentric coordinates, lifted by the binding's skin
+    offset), d_t = marker displacements; mesh space: see
     :func:`solve_mesh_space`. With ``moving_average`` the displacements are
     averaged over time first (the reconstruction is then compared with the
     captured, unaveraged markers). Reconstructed markers are the bound rest
@@ -471,7 +497,7 @@ def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: Bas
     solutions, weights, reconstructed = {}, {}, {}
     for name, basis in bases.bases.items():
         k = basis.n_fixed
-        at_markers = marker_basis(binding, basis.displacements, labels)
+        at_markers = marker_basis(binding, basis.displacements, labels, mesh=retargeted.mesh)
         data = D - at_markers[:k].sum(axis=0)
         lower, upper = basis.lower, basis.upper
         if name == "H":

@@ -19,6 +19,7 @@ from fit.sampling_estimator import estimate_weights_by_sampling
 from fit.solve import solve_weights
 from mocap.bind import hold_window
 from mocap.errors import InputError
+from mocap.layout import MarkerLayout
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
 from mocap.mesh_landmarks import load_mesh_landmarks
@@ -54,7 +55,7 @@ def fitted(chain):
 def test_h_weights_solve_marker_problem_like_lsq_linear(chain, fitted):
     basis = chain["bases"].bases["H"]
     B = marker_basis(chain["bound"].binding, basis.displacements,
-                     chain["retargeted"].labels).reshape(len(basis.names), -1).T
+                     chain["retargeted"].labels, mesh=chain["mesh"]).reshape(len(basis.names), -1).T
     D = chain["retargeted"].displacements.reshape(len(fitted["marker"].weights["H"]), -1)
     sol = fitted["marker"].solutions["H"]
     assert np.all((sol.weights >= 0) & (sol.weights <= 1))
@@ -73,7 +74,7 @@ def test_moving_average_fit_solves_the_averaged_displacements(chain):
                         options=FitOptions(moving_average=window))
     basis = chain["bases"].bases["H"]
     B = marker_basis(chain["bound"].binding, basis.displacements,
-                     chain["retargeted"].labels).reshape(len(basis.names), -1).T
+                     chain["retargeted"].labels, mesh=chain["mesh"]).reshape(len(basis.names), -1).T
     D = chain["retargeted"].displacements
     D = D.reshape(len(D), -1)
     for t in (0, 1, len(D) // 2, len(D) - 1):                    # by hand, cut at the ends
@@ -90,7 +91,8 @@ def test_sampling_h_solver_is_the_estimator_and_never_beats_the_exact_fit(chain,
                         options=FitOptions(h_solver="sampling", n_samples=300,
                                            n_neighbors=20))
     basis = chain["bases"].bases["H"]
-    at = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels)
+    at = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels,
+                      mesh=chain["mesh"])
     direct = estimate_weights_by_sampling(at, chain["retargeted"].displacements,
                                           n_samples=300, n_neighbors=20)
     np.testing.assert_array_equal(fit.weights["H"], direct.weights)
@@ -101,9 +103,33 @@ def test_sampling_h_solver_is_the_estimator_and_never_beats_the_exact_fit(chain,
     np.testing.assert_array_equal(fit.weights["QE"], fitted["marker"].weights["QE"])
 
 
+def test_marker_basis_moves_the_offset_marker_centres_with_the_skin(chain):
+    """A translation moves every marker alike; a rotation turns the centres off the skin too."""
+    binding, mesh = chain["bound"].binding, chain["mesh"]
+    assert binding.skin_offset == 2.0
+    omega = np.array([0.02, -0.05, 0.03])                    # an infinitesimal rotation
+    centre = mesh.vertices.mean(axis=0)
+    fields = np.stack([np.broadcast_to([0.3, -0.2, 0.1], mesh.vertices.shape),
+                       np.cross(omega, mesh.vertices - centre)])
+    got = marker_basis(binding, fields, mesh=mesh)
+    skin = marker_basis(binding, fields)                       # no mesh: the surface points
+    np.testing.assert_allclose(got[0], np.broadcast_to([0.3, -0.2, 0.1], got[0].shape),
+                               atol=1e-9)
+    np.testing.assert_allclose(skin[1], np.cross(omega, binding.marker_points(mesh.vertices)
+                                                 - centre), atol=1e-12)
+    # the centres: the surface points lifted along their normals, which turn with the mesh
+    lifted = MarkerLayout(binding.labels, binding.vertex_ids, binding.barycentric,
+                          binding.face_ids, np.full(len(binding.labels),
+                                                    binding.skin_offset * binding.scale),
+                          mesh.faces, mesh.n_vertices).positions(mesh.vertices)
+    np.testing.assert_allclose(got[1], np.cross(omega, lifted - centre), atol=1e-7)
+    assert np.abs(got[1] - skin[1]).max() > 1e-3 * np.abs(skin[1]).max()
+
+
 def test_pca_marker_fit_is_least_squares_with_mean_fixed(chain, fitted):
     basis = chain["bases"].bases["PCA"]
-    at = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels)
+    at = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels,
+                      mesh=chain["mesh"])
     B = at[1:].reshape(len(at) - 1, -1).T
     D = chain["retargeted"].displacements
     D = D.reshape(len(D), -1) - at[0].ravel()
@@ -119,7 +145,8 @@ def test_reconstruction_is_neutral_plus_basis_in_mm(chain, fitted, space):
     binding = bound.binding
     labels = chain["retargeted"].labels
     neutral = chain["take"].select(labels).positions[bound.frame]
-    at = marker_basis(binding, chain["bases"].bases["QE"].displacements, labels)
+    at = marker_basis(binding, chain["bases"].bases["QE"].displacements, labels,
+                      mesh=chain["mesh"])
     disp_mesh = np.einsum("tn,nmc->tmc", fit.weights["QE"], at)
     # back to capture mm through the binding's inverse similarity (independent path)
     expected = binding.to_capture(binding.to_mesh(neutral) + disp_mesh)
