@@ -37,7 +37,7 @@ from .temporal import moving_average
 __all__ = ["BASES", "SPACES", "BindOptions", "BasisOptions", "FitOptions", "BindResult", "complete_span",
            "NamedBasis", "BasisResult", "FitResult", "ingest_stage",
            "bind_stage", "retarget_stage", "basis_stage", "fit_stage", "marker_basis",
-           "solve_mesh_space"]
+           "solve_mesh_space", "H_SOLVERS"]
 
 #: The bases every take is fitted with: hand-made (artist), quasi-eigen, PCA.
 BASES = ("H", "QE", "PCA")
@@ -481,8 +481,8 @@ def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: Bas
     Notes
     -----
     Marker space: B = basis sampled at the bound markers (:func:`marker_basis`:
-    binding face ids and barycentric coordinates, lifted by the binding's skin
-    offset), d_t = marker displacements; mesh space: see
+    binding face ids and barycentric coordinates; for H, lifted by the
+    binding's skin offset), d_t = marker displacements; mesh space: see
     :func:`solve_mesh_space`. With ``moving_average`` the displacements are
     averaged over time first (the reconstruction is then compared with the
     captured, unaveraged markers). Reconstructed markers are the bound rest
@@ -497,7 +497,11 @@ def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: Bas
     solutions, weights, reconstructed = {}, {}, {}
     for name, basis in bases.bases.items():
         k = basis.n_fixed
-        at_markers = marker_basis(binding, basis.displacements, labels, mesh=retargeted.mesh)
+        # the artist's shapes move the skin: lift them to the marker centres; the
+        # PCA and QE bases come from W·D, which already holds the centres' motion
+        # at the bound points
+        at_markers = marker_basis(binding, basis.displacements, labels,
+                                  mesh=retargeted.mesh if name == "H" else None)
         data = D - at_markers[:k].sum(axis=0)
         lower, upper = basis.lower, basis.upper
         if name == "H":

@@ -31,7 +31,8 @@ from mocap.rbf import DISTANCES, KERNELS, RBFOperator, build_rbf_operator
 from mocap.rigid import fit_rigid
 from mocap.take import Take
 
-__all__ = ["RetargetOptions", "Retargeting", "marker_displacements", "neutral_pose", "align_head_frame",
+__all__ = ["RetargetOptions", "Retargeting", "marker_displacements", "neutral_pose",
+           "align_head_frame",
            "build_retarget_operator", "retarget", "save_npz", "save_obj_sequence",
            "KERNELS", "DISTANCES", "CONTENTS"]
 
@@ -135,9 +136,9 @@ def _binding_rows(binding: Binding, labels) -> np.ndarray:
 
 
 def neutral_pose(positions, frame: int, window: int = 1) -> np.ndarray:
-    """The rest pose (M, 3): the mean of `positions` (T, M, 3) over `window` frames centred on `frame`.
+    """The rest pose (M, 3): the mean of `positions` (T, M, 3) over `window` frames around `frame`.
 
-    The window is cut at the ends of the take. Averaging a neutral hold takes
+    The window is centred on `frame` and cut at the ends of the take. Averaging a neutral hold takes
     the noise of a single frame out of the reference every displacement is
     measured from (it would otherwise be a bias of every frame).
     """

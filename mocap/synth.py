@@ -246,7 +246,7 @@ def _gap_mask(rng, n_frames, n_markers, n_gaps, max_frames, head_idx) -> np.ndar
 
 
 def _with_neutral_lead(weights, n_lead, rate):
-    """``weights`` (T, n) after ``n_lead`` frames of a neutral hold blending into its first frame."""
+    """``weights`` (T, n) after ``n_lead`` frames of a neutral hold that blends into frame 0."""
     if n_lead == 0:
         return weights
     n_blend = min(int(round(0.5 * rate)), n_lead // 2)

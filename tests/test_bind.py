@@ -388,7 +388,8 @@ def _never_resting_take(rng, rate, n_hold):
     n = 20 * int(rate)
     t = np.arange(n - n_hold) / rate
     poses = rng.normal(0, 4, (3, 10, 3))
-    blend = np.stack([1.2 + np.sin(0.7 * t), 1.2 + np.cos(0.45 * t), np.clip(np.sin(0.3 * t), 0, 1)])
+    blend = np.stack([1.2 + np.sin(0.7 * t), 1.2 + np.cos(0.45 * t),
+                      np.clip(np.sin(0.3 * t), 0, 1)])
     moving = rest + np.einsum("kt,kmc->tmc", blend, poses)
     moving[n // 2 - n_hold:n // 2] = moving[n // 2 - n_hold]        # a still moment mid-expression
     positions = np.concatenate([np.repeat(rest[None], n_hold, axis=0), moving])

@@ -54,8 +54,8 @@ def fitted(chain):
 
 def test_h_weights_solve_marker_problem_like_lsq_linear(chain, fitted):
     basis = chain["bases"].bases["H"]
-    B = marker_basis(chain["bound"].binding, basis.displacements,
-                     chain["retargeted"].labels, mesh=chain["mesh"]).reshape(len(basis.names), -1).T
+    B = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels,
+                     mesh=chain["mesh"]).reshape(len(basis.names), -1).T
     D = chain["retargeted"].displacements.reshape(len(fitted["marker"].weights["H"]), -1)
     sol = fitted["marker"].solutions["H"]
     assert np.all((sol.weights >= 0) & (sol.weights <= 1))
@@ -73,8 +73,8 @@ def test_moving_average_fit_solves_the_averaged_displacements(chain):
         fit = fit_stage(chain["take"], chain["bound"], chain["retargeted"], chain["bases"],
                         options=FitOptions(moving_average=window))
     basis = chain["bases"].bases["H"]
-    B = marker_basis(chain["bound"].binding, basis.displacements,
-                     chain["retargeted"].labels, mesh=chain["mesh"]).reshape(len(basis.names), -1).T
+    B = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels,
+                     mesh=chain["mesh"]).reshape(len(basis.names), -1).T
     D = chain["retargeted"].displacements
     D = D.reshape(len(D), -1)
     for t in (0, 1, len(D) // 2, len(D) - 1):                    # by hand, cut at the ends
@@ -128,8 +128,7 @@ def test_marker_basis_moves_the_offset_marker_centres_with_the_skin(chain):
 
 def test_pca_marker_fit_is_least_squares_with_mean_fixed(chain, fitted):
     basis = chain["bases"].bases["PCA"]
-    at = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels,
-                      mesh=chain["mesh"])
+    at = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels)
     B = at[1:].reshape(len(at) - 1, -1).T
     D = chain["retargeted"].displacements
     D = D.reshape(len(D), -1) - at[0].ravel()
@@ -145,8 +144,7 @@ def test_reconstruction_is_neutral_plus_basis_in_mm(chain, fitted, space):
     binding = bound.binding
     labels = chain["retargeted"].labels
     neutral = chain["take"].select(labels).positions[bound.frame]
-    at = marker_basis(binding, chain["bases"].bases["QE"].displacements, labels,
-                      mesh=chain["mesh"])
+    at = marker_basis(binding, chain["bases"].bases["QE"].displacements, labels)
     disp_mesh = np.einsum("tn,nmc->tmc", fit.weights["QE"], at)
     # back to capture mm through the binding's inverse similarity (independent path)
     expected = binding.to_capture(binding.to_mesh(neutral) + disp_mesh)

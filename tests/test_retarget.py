@@ -112,7 +112,8 @@ def test_marker_displacements_from_the_mean_of_a_neutral_window():
         rest = positions[frames].mean(axis=0)                       # cut at the ends
         np.testing.assert_allclose(got, SCALE * (positions - rest) @ ROTATION.T, atol=1e-12)
     positions[5, 1] = np.nan
-    with pytest.raises(MarkerError, match=r"'m1'.*in the 5 frames around the neutral frame \d+ \(index 3\)"):
+    with pytest.raises(MarkerError,
+                       match=r"'m1'.*in the 5 frames around the neutral frame \d+ \(index 3\)"):
         marker_displacements(Take(BINDING.labels[:3], positions, rate=100.0), BINDING,
                              neutral_frame=3, neutral_window=5)
     with pytest.raises(InputError, match="neutral_window must be at least 1"):
