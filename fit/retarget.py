@@ -138,9 +138,10 @@ def _binding_rows(binding: Binding, labels) -> np.ndarray:
 def neutral_pose(positions, frame: int, window: int = 1) -> np.ndarray:
     """The rest pose (M, 3): the mean of `positions` (T, M, 3) over `window` frames around `frame`.
 
-    The window is centred on `frame` and cut at the ends of the take. Averaging a neutral hold takes
-    the noise of a single frame out of the reference every displacement is
-    measured from (it would otherwise be a bias of every frame).
+    The window is centred on `frame` and cut at the ends of the take.
+    Averaging a neutral hold takes the noise of a single frame out of the
+    reference every displacement is measured from (it would otherwise be a
+    bias of every frame).
     """
     window = as_int(window, "neutral_window", minimum=1)
     return positions[max(0, frame - window // 2):frame + window // 2 + 1].mean(axis=0)
