@@ -55,7 +55,7 @@ def main() -> None:
     neutral = load_mesh(ict / "generic_neutral_mesh.obj")
     marks = load_mesh_landmarks(REPO / "tests" / "ict_landmarks.toml", neutral)
     names = sorted({s for shapes in GOLD_SHAPES.values() for s in shapes})
-    gold = gold_weights(load_artist_basis(neutral, ict / "expressions", names=names), BONES)
+    gold = gold_weights(load_artist_basis(neutral, ict / "expressions", names=names), marks, BONES)
     mask = load_default_mask()
     fit0 = fit_mask(mask, neutral, marks)
     mask = paint_mask(mask, fit0, neutral, gold, BONES)
