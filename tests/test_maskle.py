@@ -140,6 +140,26 @@ def test_ray_hits_match_trimesh():
     np.testing.assert_allclose(np.abs(t), best, atol=MESH_EXACT)
 
 
+def test_facing_ray_hits_take_the_surface_facing_the_ray():
+    """From inside a sphere, only the exit point faces the ray (outward normals)."""
+    rng = np.random.default_rng(9)
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    origins = rng.uniform(-0.5, 0.5, size=(200, 3))           # inside the unit sphere
+    dirs = rng.normal(size=(200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    index = TriangleIndex(sphere.vertices[sphere.faces])
+    face, t = nearest_ray_hits(origins, dirs, index, 10.0, min_cosine=0.0)
+    inter = trimesh.ray.ray_triangle.RayMeshIntersector(sphere)
+    loc, ray, tri = inter.intersects_location(origins, dirs, multiple_hits=False)
+    assert np.all(face >= 0) and np.all(t > 0)
+    np.testing.assert_allclose(t[ray], np.linalg.norm(loc - origins[ray], axis=1),
+                               atol=MESH_EXACT)
+    np.testing.assert_array_equal(face[ray], tri)
+    assert len(ray) == len(origins)
+    either = nearest_ray_hits(origins, dirs, index, 10.0)[1]     # the nearer of both exits
+    assert 50 < (either < 0).sum() < 150
+
+
 def test_shepard_reproduces_corners_and_constants():
     rng = np.random.default_rng(5)
     corners = rng.random((50, 4, 3))
