@@ -8,8 +8,8 @@ import trimesh
 from scipy.optimize import linprog
 
 from basis.maskle import (CHANNEL_KINDS, FIT_STATUSES, Mask, fit_mask, landmark_points,
-                          load_default_mask, load_mask, maskle_weights, save_mask,
-                          shepard_coefficients, smoothing_operator)
+                          load_default_mask, load_mask, maskle_weights, paint_mask, save_mask,
+                          shepard_coefficients, smoothing_operator, transfer_operator)
 from basis.maskle._geometry import TriangleIndex, nearest_ray_hits, triangles_intersect
 from basis.maskle.build_default import build_default_mask
 from fit.cli import main
@@ -88,6 +88,35 @@ def test_mask_validation(mask, change, match):
         kw["polygons"] = mask.polygons + mask.n_vertices
     with pytest.raises(InputError, match=match):
         Mask(**kw)
+
+
+def test_lip_bands_are_the_two_sides_of_the_lip_line(mask):
+    upper, lower = mask.lip_bands
+    x, y, _ = mask.vertices.T
+    mouth = y < 3.0                                  # template cm: below the eye patches
+    line = -0.15 * (x / 2.5) ** 2                    # the builder's lip line
+    np.testing.assert_array_equal(upper, mouth & (y > line))
+    np.testing.assert_array_equal(lower, mouth & (y < line))
+    assert upper[mask.tongue_tip].sum() == lower[mask.tongue_tip].sum() > 0
+
+
+def test_paint_reproduces_weights_the_mask_can_carry(ict, mask):
+    """Face weights made by transferring a band-limited mask channel are painted back."""
+    mesh, marks = ict
+    fit = fit_mask(mask, mesh, marks)
+    upper, lower = mask.lip_bands
+    k = mask.channel_names.index("upper_lip_left")
+    want = transfer_operator(mask, fit, mesh).apply(mask.weights[:, [k]])
+    truth = mask.with_weights(np.where(np.arange(len(mask.channel_names)) == k, 0.0,
+                                       mask.weights))
+    painted = paint_mask(truth, fit, mesh, want, ["upper_lip_left"], support=~lower[:, None],
+                         regularization=1e-6)
+    got = transfer_operator(painted, fit, mesh).apply(painted.weights[:, [k]])
+    hit = ~np.isnan(want[:, 0])
+    assert np.abs(got[hit] - want[hit]).max() < 0.02
+    assert np.all(painted.weights[lower, k] == 0) and painted.weights[upper, k].max() > 0.9
+    with pytest.raises(InputError, match="support must have shape"):
+        paint_mask(truth, fit, mesh, want, ["upper_lip_left"], support=upper)
 
 
 def test_load_mask_rejects_other_files(tmp_path):
