@@ -241,6 +241,18 @@ def test_fit_freezes_every_vertex(ict, mask):
     assert np.all((fit.vertices - fit.placed) @ fit.forward <= 1e-12)
 
 
+def test_tongue_enters_the_closed_mouth(ict, mask):
+    """ICT's lips touch; the tongue slides between them, the lip row reaches the lips."""
+    mesh, marks = ict
+    fit = fit_mask(mask, mesh, marks)
+    contact = (mesh.vertices[marks["upper_lip_bottom"]]
+               + mesh.vertices[marks["lower_lip_top"]]) / 2
+    depth = (fit.vertices - contact) @ fit.forward / fit.scale         # template cm, + = in front
+    assert depth[mask.tongue_tip].max() < -1.0
+    assert depth[[mask.landmarks["upper_lip_bottom"], mask.landmarks["lower_lip_top"]]].max() \
+        < 0.8
+
+
 def test_transfer_is_invariant_to_similarity(ict, mask):
     mesh, marks = ict
     rng = np.random.default_rng(8)
