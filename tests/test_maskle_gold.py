@@ -7,8 +7,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from basis.artist import load_artist_basis
-from basis.maskle.gold import GOLD_SHAPES, gold_weights, mouth_sides
+from basis.maskle.gold import DEMO_GOLD_SHAPES, GOLD_SHAPES, gold_weights, mouth_sides
 from fit.demo.face import MOUTH, make_face, mouth_line
+from fit.demo.muscles import muscle_basis
 from mocap.errors import InputError
 from mocap.mesh import boundary_loops, load_mesh
 from mocap.mesh_landmarks import load_mesh_landmarks
@@ -24,8 +25,13 @@ def ict(shared_data):
     return basis, load_mesh_landmarks(LANDMARKS, mesh)
 
 
-def test_demo_face_sides_follow_its_lip_line():
-    face = make_face()
+@pytest.fixture(scope="module")
+def demo():
+    return make_face()
+
+
+def test_demo_face_sides_follow_its_lip_line(demo):
+    face = demo
     side = mouth_sides(face.mesh, face.landmarks)
     x, y = face.mesh.vertices[:, 0], face.mesh.vertices[:, 1]
     above = y - mouth_line(x)                    # the generator's own lip contact line, mm
@@ -35,6 +41,21 @@ def test_demo_face_sides_follow_its_lip_line():
     clear = near & (np.abs(above) > 5.0)
     assert np.all((side[clear] >= 0.9) | (side[clear] <= 0.1))
     assert side[face.upper_lip].min() >= 0.9 and side[face.lower_lip].max() <= 0.1
+
+
+def test_demo_gold_from_its_own_muscles(demo):
+    face = demo
+    bones = tuple(DEMO_GOLD_SHAPES)
+    gold = gold_weights(muscle_basis(face), face.landmarks, bones, shapes=DEMO_GOLD_SHAPES)
+    y = face.mesh.vertices[:, 1]
+    assert gold.shape == (face.mesh.n_vertices, len(bones))
+    np.testing.assert_allclose(gold.max(axis=0), 1.0)
+    assert np.all(gold[y > 8.0, bones.index("jaw")] == 0)        # the jaw's reach ends there
+    brows = [bones.index("brow_left"), bones.index("brow_right")]
+    assert np.all(gold[y < 30.0][:, brows] == 0)                 # frontalis: above the eyes
+    with pytest.raises(InputError, match="no gold shapes for bone lower_lip_left"):
+        gold_weights(muscle_basis(face), face.landmarks, ("lower_lip_left",),
+                     shapes=DEMO_GOLD_SHAPES)
 
 
 def test_ict_sides_agree_with_the_jaw(ict):

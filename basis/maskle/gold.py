@@ -31,7 +31,7 @@ from mocap.errors import InputError
 from mocap.mesh import Mesh, boundary_loops
 from mocap.mesh_landmarks import check_mesh_landmarks
 
-__all__ = ["GOLD_SHAPES", "LIP_SIDES", "SIDE_RAMP", "gold_weights", "mouth_sides"]
+__all__ = ["GOLD_SHAPES", "DEMO_GOLD_SHAPES", "LIP_SIDES", "SIDE_RAMP", "gold_weights", "mouth_sides"]
 
 #: The ICT-FaceKit (ARKit-named) expression shapes that define each bone of
 #: the default rig (:data:`basis.maskle.build_default.BONES`).
@@ -43,6 +43,17 @@ GOLD_SHAPES = {
     "lower_lip_right": ("mouthLowerDown_R",),
     "brow_left": ("browOuterUp_L", "browInnerUp_L"),
     "brow_right": ("browOuterUp_R", "browInnerUp_R"),
+}
+#: The demo face's muscles (:mod:`fit.demo.muscles`) that match bones of the
+#: default rig. It has no muscle of one side of the lower lip (its lip
+#: depressor is one central muscle, its corner depressors act below the
+#: corners), so the lower-lip bones have no gold there.
+DEMO_GOLD_SHAPES = {
+    "jaw": ("jaw_open",),
+    "upper_lip_left": ("levator_labii_superioris_L",),
+    "upper_lip_right": ("levator_labii_superioris_R",),
+    "brow_left": ("frontalis_inner_L", "frontalis_outer_L"),
+    "brow_right": ("frontalis_inner_R", "frontalis_outer_R"),
 }
 #: The side of the mouth opening each lip bone is restricted to.
 LIP_SIDES = {"upper_lip_left": "upper", "upper_lip_right": "upper",
@@ -117,17 +128,20 @@ def _step(x):
 
 
 def gold_weights(basis: ArtistBasis, landmarks, bones=tuple(GOLD_SHAPES), *,
-                 lip_sides: bool = True) -> np.ndarray:
+                 shapes=GOLD_SHAPES, lip_sides: bool = True) -> np.ndarray:
     """Per-vertex gold weights (N, B) in [0, 1] of the named bones.
 
     Parameters
     ----------
     basis : ArtistBasis
-        Holding every shape of ``GOLD_SHAPES[bone]`` for the requested bones.
+        Holding every shape of ``shapes[bone]`` for the requested bones.
     landmarks : mapping of str to int
         Mouth landmarks of ``basis.neutral`` (see :func:`mouth_sides`).
     bones : sequence of str
-        Keys of :data:`GOLD_SHAPES`.
+        Keys of `shapes`.
+    shapes : mapping of str to tuple of str
+        The expression shapes of each bone: :data:`GOLD_SHAPES` (ICT-FaceKit)
+        or :data:`DEMO_GOLD_SHAPES` (the demo face's muscles).
     lip_sides : bool
         Restrict the lip bones to their side of the mouth (:data:`LIP_SIDES`);
         False gives the raw displacement magnitudes (to show how they cross).
@@ -136,16 +150,16 @@ def gold_weights(basis: ArtistBasis, landmarks, bones=tuple(GOLD_SHAPES), *,
     -------
     ndarray of shape (N, B)
     """
-    unknown = [b for b in bones if b not in GOLD_SHAPES]
+    unknown = [b for b in bones if b not in shapes]
     if unknown:
         raise InputError(f"no gold shapes for bone {', '.join(unknown)}; known: "
-                         f"{', '.join(GOLD_SHAPES)}")
+                         f"{', '.join(shapes)}")
     upper = mouth_sides(basis.neutral, landmarks) \
         if lip_sides and any(b in LIP_SIDES for b in bones) else None
     out = []
     for bone in bones:
         mags = [np.linalg.norm(basis.displacements[basis.index(s)], axis=1)
-                for s in GOLD_SHAPES[bone]]
+                for s in shapes[bone]]
         w = np.max([m / m.max() for m in mags], axis=0)
         if upper is not None and bone in LIP_SIDES:
             w = w * (upper if LIP_SIDES[bone] == "upper" else 1 - upper)
