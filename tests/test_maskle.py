@@ -289,6 +289,9 @@ def test_bad_option_is_an_error(ict, mask):
     mesh, marks = ict
     with pytest.raises(InputError, match="b must be positive"):
         fit_mask(mask, mesh, marks, b=0.0)
+    fit = fit_mask(mask, mesh, marks, max_iterations=1)
+    with pytest.raises(InputError, match=r"min_facing must lie in \[-1, 1\), got 1.0"):
+        transfer_operator(mask, fit, mesh, min_facing=1.0)
 
 
 def test_region_masks_need_regions(mask):

@@ -31,7 +31,8 @@ from mocap.errors import InputError
 from mocap.mesh import Mesh, boundary_loops
 from mocap.mesh_landmarks import check_mesh_landmarks
 
-__all__ = ["GOLD_SHAPES", "DEMO_GOLD_SHAPES", "LIP_SIDES", "SIDE_RAMP", "gold_weights", "mouth_sides"]
+__all__ = ["GOLD_SHAPES", "DEMO_GOLD_SHAPES", "LIP_SIDES", "SIDE_RAMP", "gold_weights",
+           "mouth_sides"]
 
 #: The ICT-FaceKit (ARKit-named) expression shapes that define each bone of
 #: the default rig (:data:`basis.maskle.build_default.BONES`).
