@@ -167,7 +167,11 @@ def main() -> None:
     args = parser.parse_args()
     faces, marks, gold, sides = _ict_faces(args.faces)
     shipped, mask, fit0 = _painted_mask(faces[0][1], marks, gold)
-    envelope = calibrate_envelope(faces[0][1].vertices, gold, fit0)
+    # The envelope is fitted where it is judged (the generic face's hit vertices),
+    # its best case: over the whole face the zero weights pull the brows to nothing.
+    seen = transfer_operator(mask, fit0, faces[0][1]).hit
+    envelope = calibrate_envelope(faces[0][1].vertices, np.where(seen[:, None], gold, np.nan),
+                                  fit0)
     print(f"mask: {mask.n_vertices} vertices, {len(mask.polygons)} polygons; "
           f"target faces: {args.faces} identity mixes (coefficients ~ N(0, {SIGMA:g})) "
           "+ generic, then the demo face")
