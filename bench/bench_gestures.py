@@ -21,9 +21,12 @@ the same spectrum produces), clipped to the reference range.
 Figures, each the mean ± standard deviation over ``SEEDS`` seeds: jumps (frames
 whose |Δc| exceeds the reference's 99th percentile; 1 % in the reference by
 definition), blink rate (left-eye blink weight rising through 0.5, per minute),
-brow activity (mean |Δ| of the brow weights per second), correlation of the
+blink length (frames a blink stays above 0.5: its shape), brow activity (mean |Δ| of the brow weights per second), correlation of the
 synthesized jaw-opening intensity with the driving intensity, and the time to
-synthesize a minute at 30 fps. The ``(ratio)`` columns divide by the reference.
+synthesize a minute at 30 fps. The ratio columns divide by the reference. Rows:
+blinks and brows on their own chains (the default, :mod:`fit.gestures.features`)
+under three settings of run/blend, then all weights in one chain
+(``weight_groups={}``), as before the split.
 """
 
 from __future__ import annotations
@@ -43,7 +46,8 @@ from mocap.performance import read_performance
 RATE = 30.0
 MINUTE = int(60 * RATE)
 SEEDS = 8
-CONFIGS = ({"run": 1, "blend": 0}, {"run": 1, "blend": 4}, {"run": 3, "blend": 4})
+CONFIGS = ({"run": 1, "blend": 0}, {"run": 1, "blend": 4}, {"run": 3, "blend": 4},
+           {"run": 1, "blend": 4, "weight_groups": {}})
 TESTS = Path(__file__).resolve().parent.parent / "tests"
 #: Column names of each reference: left blink, jaw opening, brows.
 NAMES = {
@@ -61,6 +65,14 @@ def jumps(weights, threshold):
 def blink_rate(weights, names, blink):
     eye = weights[:, names.index(blink)] > 0.5
     return float(np.count_nonzero(eye[1:] & ~eye[:-1]) / (len(weights) / RATE / 60))
+
+
+def blink_length(weights, names, blink):
+    """Mean number of frames a blink stays above 0.5 (NaN without blinks)."""
+    eye = np.concatenate([[0], (weights[:, names.index(blink)] > 0.5).astype(int), [0]])
+    edges = np.diff(eye)
+    lengths = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
+    return float(lengths.mean()) if lengths.size else float("nan")
 
 
 def brow_activity(weights, names, brows):
@@ -138,14 +150,16 @@ def table(ref, drive, kind):
     p99 = np.percentile(np.linalg.norm(np.diff(ref.weights, axis=0), axis=1), 99)
     blink0, brow0 = blink_rate(ref.weights, names, blink), brow_activity(ref.weights, names,
                                                                          brows)
+    length0 = blink_length(ref.weights, names, blink)
     sync0 = sync(ref.weights, names, jaw, ref.intensity)
     print(f"\n[{kind}] {ref.n_frames} frames at {RATE:g} Hz, features "
-          f"{list(ref.features())}; |dc| p99 = {p99:.4f}; reference: {blink0:.1f} blinks/min, "
-          f"brow activity {brow0:.3f}/s, corr(own jaw, own S) {sync0:.3f}")
-    print(f"{'method':<22}{'jumps>p99 %':>13}{'blink ratio':>13}{'brow ratio':>13}"
-          f"{'corr(S)':>13}{'time s':>12}")
-    runs = [(f"MRF run={c['run']} blend={c['blend']}", c) for c in CONFIGS] + [
-        ("spectrum noise", None)]
+          f"{list(ref.features())}; |dc| p99 = {p99:.4f}; reference: {blink0:.1f} blinks/min of "
+          f"{length0:.1f} frames, brow activity {brow0:.3f}/s, corr(own jaw, own S) {sync0:.3f}")
+    print(f"{'method':<30}{'jumps>p99 %':>13}{'blink ratio':>13}{'blink len':>13}"
+          f"{'brow ratio':>13}{'corr(S)':>13}{'time s':>12}")
+    runs = [(f"MRF run={c['run']} blend={c['blend']}" + (" 1 chain" if "weight_groups" in c
+                                                         else ""), c) for c in CONFIGS]
+    runs.append(("spectrum noise", None))
     times = {}
     for label, config in runs:
         rows = []
@@ -157,12 +171,13 @@ def table(ref, drive, kind):
                 w = synthesize_gestures(drive, [ref], rate=RATE, seed=seed, **config).weights
             seconds = time.perf_counter() - start
             rows.append((100 * jumps(w, p99), blink_rate(w, names, blink) / blink0,
+                         blink_length(w, names, blink) / length0,
                          brow_activity(w, names, brows) / brow0,
                          sync(w, names, jaw, drive[:len(w)]), seconds))
         cols = list(zip(*rows))
-        times[label] = np.mean(cols[4])
-        print(f"{label:<22}{mean_sd(cols[0]):>13}{mean_sd(cols[1]):>13}{mean_sd(cols[2]):>13}"
-              f"{mean_sd(cols[3], '{:.3f}'):>13}{mean_sd(cols[4], '{:.3f}'):>12}")
+        times[label] = np.mean(cols[5])
+        print(f"{label:<30}" + "".join(f"{mean_sd(c):>13}" for c in cols[:4])
+              + f"{mean_sd(cols[4], '{:.3f}'):>13}{mean_sd(cols[5], '{:.3f}'):>12}")
     mrf, noise = times[runs[0][0]], times["spectrum noise"]
     print(f"speed: one minute at 30 fps in {mrf:.2f} s (run=1; aim < 5 s); noise baseline "
           f"{noise:.4f} s, ratio {mrf / noise:.0f}x")

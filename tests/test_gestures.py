@@ -16,7 +16,8 @@ from scipy.spatial.transform import Rotation
 from fit.cli import main
 from fit.gestures import (ESTIMATORS, FEATURES, GestureClip, analyze_gestures,
                           candidate_distances, clip_from_analysis, load_clip, marker_basis,
-                          parse_timeline, pick_candidate, save_clip, synthesize_gestures)
+                          parse_timeline, pick_candidate, save_clip, synthesize_gestures,
+                          weight_columns)
 from fit.gestures.transfer import SUPPORT_SPACINGS, build_detail_transfer
 from mocap.bind import Binding
 from mocap.errors import FileFormatError, InputError, MarkerError
@@ -239,8 +240,60 @@ def test_palette_at_another_rate_is_rejected():
         synthesize_gestures(np.zeros(50), [_clip("a")], rate=60.0)
 
 
-def test_features_are_the_timeline_features():
-    assert FEATURES[:2] == ("weights", "head")
+ARKIT = ("BrowDownLeft", "EyeBlinkLeft", "JawOpen", "BrowInnerUp", "EyeBlinkRight")
+ICT = ("browDown_L", "eyeBlink_L", "jawOpen", "eyeBlink_R", "browInnerUp_R")
+
+
+@pytest.mark.parametrize("names", [ARKIT, ICT])
+def test_blink_and_brow_shapes_are_their_own_features_by_name(names):
+    cols = weight_columns(names)
+    assert {f: [names[i] for i in c] for f, c in cols.items()} == {
+        "weights": [n for n in names if n.lower().startswith("jaw")],
+        "blinks": [n for n in names if "blink" in n.lower()],
+        "brows": [n for n in names if n.lower().startswith("brow")]}
+    assert list(weight_columns(names, {})) == ["weights"]
+    assert set(FEATURES) >= set(cols) and FEATURES.index("head") > FEATURES.index("brows")
+
+
+@pytest.mark.parametrize("groups, match", [
+    ({"nose": ["JawOpen"]}, "unknown weight feature 'nose'"),
+    ({"blinks": ["EyeWide"]}, "no shape 'EyeWide'"),
+    ({"blinks": ["JawOpen"], "brows": ["JawOpen"]}, "'JawOpen' is in both 'blinks' and 'brows'"),
+])
+def test_weight_group_errors(groups, match):
+    with pytest.raises(InputError, match=match):
+        weight_columns(ARKIT, groups)
+
+
+def _face_clip(name="face", n=400, seed=0):
+    """A clip with expression, blink and brow columns of distinct curves."""
+    rng = np.random.default_rng(seed)
+    weights = _smooth(rng, n, len(ARKIT)) + rng.normal(0, 0.02, (n, len(ARKIT)))
+    return GestureClip(name, RATE, np.cumsum(rng.normal(0, 1, n)), weights, ARKIT)
+
+
+def test_blinks_and_brows_follow_their_own_chains():
+    clip = _face_clip()
+    drive = np.random.default_rng(4).normal(size=300).cumsum()
+    syn = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=3)
+    assert set(syn.sources) == {"weights", "blinks", "brows"}
+    assert not np.array_equal(syn.sources["blinks"], syn.sources["weights"])
+    for feature, cols in weight_columns(ARKIT).items():   # each column copies its own source
+        np.testing.assert_array_equal(syn.weights[:, cols],
+                                      clip.weights[syn.sources[feature][:, 1]][:, cols])
+    one = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=3, weight_groups={})
+    assert set(one.sources) == {"weights"}
+    np.testing.assert_array_equal(one.weights, clip.weights[one.sources["weights"][:, 1]])
+
+
+def test_timeline_paints_blinks_apart_from_the_weights():
+    clips = [_face_clip("calm", seed=1), _face_clip("lively", seed=2)]
+    timeline = parse_timeline({"default": "calm", "segment": [
+        {"start": 0.0, "end": 5.0, "blinks": "lively"}]})
+    syn = synthesize_gestures(np.random.default_rng(3).normal(size=150), clips, rate=RATE,
+                              timeline=timeline, run=3)
+    assert np.all(syn.sources["blinks"][:, 0] == 1)
+    assert np.all(syn.sources["weights"][:, 0] == 0) and np.all(syn.sources["brows"][:, 0] == 0)
 
 
 # --- the command line -----------------------------------------------------------------

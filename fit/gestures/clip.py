@@ -22,7 +22,7 @@ from mocap.performance import Performance, performance_weights, resample_perform
 
 from .analysis import GestureAnalysis
 from .speech import OPENING_WINDOW_S, speech_intensity
-from .timeline import FEATURES
+from .features import DETAIL_FEATURES, weight_columns
 
 __all__ = ["GestureClip", "clip_from_analysis", "clip_from_performance", "save_clip",
            "load_clip", "ACTIVITY_COLUMNS"]
@@ -91,9 +91,9 @@ class GestureClip:
                                                                     shape=(n, 6))))
         details, labels = {}, {}
         for group, values in self.details.items():
-            if group not in FEATURES[2:]:
+            if group not in DETAIL_FEATURES:
                 raise InputError(f"unknown detail group {group!r}; expected one of "
-                                 f"{list(FEATURES[2:])}")
+                                 f"{list(DETAIL_FEATURES)}")
             values = as_float_array(values, f"details[{group!r}]", shape=(n, None, 3))
             members = tuple(self.detail_labels.get(group, ()))
             if len(members) != values.shape[1]:
@@ -108,9 +108,14 @@ class GestureClip:
         """Number of frames T."""
         return len(self.intensity)
 
-    def features(self) -> dict:
-        """Feature name (:data:`fit.gestures.timeline.FEATURES`) to values (n_frames, d)."""
-        out = {"weights": self.weights}
+    def features(self, weight_groups: Mapping | None = None) -> dict:
+        """Feature name (:data:`fit.gestures.features.FEATURES`) to values (n_frames, d).
+
+        The blend weights are split into ``weights``, ``blinks`` and ``brows``
+        by :func:`fit.gestures.features.weight_columns` (`weight_groups`).
+        """
+        out = {f: self.weights[:, cols]
+               for f, cols in weight_columns(self.names, weight_groups).items()}
         if self.head is not None:
             out["head"] = self.head
         out.update({g: v.reshape(self.n_frames, -1) for g, v in self.details.items()})
