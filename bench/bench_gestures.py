@@ -4,14 +4,15 @@ References (the palette, one clip each):
 
 - ``arkit``: ``arkit-performances/alex_rom_3.csv`` (52 ARKit weights resampled to
   30 Hz). No audio: S(t) is the RMS energy in dB of the JawOpen curve over 0.25 s.
-- ``sing``: ``captures/facial-sing.c3d`` ingested (gap fill, 30 Hz, head
-  stabilization, ``tests/facial_sing_markerset.toml``), bound to the ICT face
-  (``tests/ict_landmarks.toml``, head frame), the 53 ICT shapes sampled at the
-  bound markers in capture mm (:func:`fit.gestures.marker_basis`), then
-  :func:`fit.gestures.analyze_gestures`: weights, head motion and the four
-  detail groups. The C3D has no analog channel (``take.analog is None``), so
-  S(t) is the loudness of the lip opening (distance section10-2 to section13-2
-  minus its minimum, RMS dB over 0.25 s: :func:`fit.gestures.opening_intensity`).
+- ``sing``: ``captures/facial-sing.c3d`` bound to the ICT face in the head frame
+  (``tests/facial_sing_markerset.toml``, ``tests/ict_landmarks.toml``), then
+  what ``mocap2mesh gestures analyze`` runs
+  (:func:`fit.gestures.reference.clip_from_capture`): gap fill, 30 Hz, head
+  stabilization, the 53 ICT shapes sampled at the bound markers in capture mm,
+  the decomposition into weights, head motion and the four detail groups. The
+  C3D has no analog channel (``take.analog is None``), so S(t) is the stand-in:
+  the loudness of the lip opening (section10-2 to section13-2, the marker set's
+  lip landmarks, minus its minimum, RMS dB over 0.25 s).
 
 Driving "speech" for both: the JawOpen proxy intensity of the other performance,
 alex_rom_4 (first minute). Baseline: spectrum-matched noise (the reference
@@ -38,8 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from _common import shared_data
-from fit.gestures import (analyze_gestures, clip_from_analysis, clip_from_performance,
-                          marker_basis, opening_intensity, speech_intensity, synthesize_gestures)
+from fit.gestures import clip_from_performance, speech_intensity, synthesize_gestures
 from fit.temporal import moving_average
 from mocap.performance import read_performance
 
@@ -114,7 +114,7 @@ def sing_clip(data):
     import mocap
     from basis.artist import load_artist_basis
     from fit.commands.bind import bind_capture
-    from fit.ingest import IngestOptions, ingest
+    from fit.gestures.reference import clip_from_capture
     from mocap.markerset import load_markerset
     from mocap.mesh import load_mesh
     from mocap.mesh_landmarks import load_mesh_landmarks
@@ -124,20 +124,12 @@ def sing_clip(data):
     markerset = load_markerset(TESTS / "facial_sing_markerset.toml")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ingested = ingest(take, markerset=markerset,
-                          options=IngestOptions(fill="auto", resample_hz=RATE, stabilize=True))
         mesh = load_mesh(data / "ict-face" / "generic_neutral_mesh.obj", units="cm")
         landmarks = load_mesh_landmarks(TESTS / "ict_landmarks.toml", mesh)
-        binding, frame = bind_capture(ingested.cleaned, markerset, mesh, landmarks,
-                                      stabilized=True)
-    basis = load_artist_basis(mesh, data / "ict-face" / "expressions")
-    stab = ingested.stabilization
-    labels = tuple(x for members in markerset.regions.values() for x in members)
-    neutral = stab.take.positions[frame, stab.take.indices(labels)]
-    analysis = analyze_gestures(stab, neutral, marker_basis(binding, basis.displacements, labels),
-                                markerset, labels=labels, names=basis.names)
-    intensity = opening_intensity(stab.take, "section10-2", "section13-2")
-    return clip_from_analysis(analysis, intensity, name="sing"), analysis.message, binding
+        binding, _ = bind_capture(take, markerset, mesh, landmarks, stabilized=True)
+        basis = load_artist_basis(mesh, data / "ict-face" / "expressions")
+        made = clip_from_capture(take, markerset, binding, basis, name="sing", rate=RATE)
+    return made.clip, made.message, binding
 
 
 def mean_sd(values, fmt="{:.2f}"):
@@ -191,9 +183,9 @@ def main() -> None:
     table(ref, drive, "arkit")
     start = time.perf_counter()
     sing, message, binding = sing_clip(data)
-    print(f"\nfacial-sing: ingest + bind + ICT basis + analysis in "
+    print(f"\nfacial-sing: bind + ICT basis + ingest + analysis in "
           f"{time.perf_counter() - start:.1f} s; bind: {binding.message}, rms "
-          f"{binding.rms:.2f} mm; analysis: {message}; S(t): lip-opening loudness (no audio)")
+          f"{binding.rms:.2f} mm; {message}")
     table(sing, drive, "sing")
 
 

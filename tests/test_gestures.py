@@ -208,8 +208,13 @@ def test_clip_roundtrip(tmp_path, capture):
     assert back.name == "take1" and back.detail_labels == clip.detail_labels
     for key, value in clip.features().items():
         np.testing.assert_array_equal(back.features()[key], value)
-    np.testing.assert_allclose(np.linalg.norm(clip.head[:, :3], axis=1).max(),
-                               Rotation.from_matrix(stab.rotation).magnitude().max(), rtol=0.5)
+    # head-frame motion about the mean pose: R_mean (exp(r) x + tau) + T_mean = R x + T
+    mean_rot = Rotation.from_matrix(stab.rotation).mean().as_matrix()
+    turn = Rotation.from_rotvec(np.array(clip.head[:, :3])).as_matrix()
+    moved = np.einsum("tij,mj->tmi", turn, neutral) + clip.head[:, None, 3:]
+    world = np.einsum("ij,tmj->tmi", mean_rot, moved) + stab.translation.mean(axis=0)
+    want = np.einsum("tij,mj->tmi", stab.rotation, neutral) + stab.translation[:, None]
+    np.testing.assert_allclose(world, want, atol=1e-9)
 
 
 @pytest.mark.parametrize("doc, match", [
@@ -314,7 +319,8 @@ def cli_files(tmp_path):
 
 def test_cli_writes_weights_and_head_motion(cli_files):
     wav, clip, out = cli_files
-    assert main(["gestures", str(wav), "--palette", str(clip), "-o", str(out)]) == 0
+    assert main(["gestures", "synthesize", str(wav), "--palette", str(clip), "-o",
+                 str(out)]) == 0
     import pandas as pd
     table = pd.read_csv(out / "weights.csv")
     assert len(table) == 120 and list(table.columns[2:]) == ["s0", "s1", "s2"]
@@ -332,13 +338,14 @@ def test_cli_writes_weights_and_head_motion(cli_files):
 def test_cli_error_paths_exit_1(cli_files, capsys, args, match):
     wav, clip, out = cli_files
     args = [a.format(clip=clip, out=out, wav=wav) for a in args]
-    assert main(["gestures", str(wav), *args]) == 1
+    assert main(["gestures", "synthesize", str(wav), *args]) == 1
     assert match in capsys.readouterr().err
 
 
 def test_cli_missing_speech_exits_1(cli_files, capsys):
     wav, clip, out = cli_files
-    assert main(["gestures", str(out / "none.wav"), "--palette", str(clip), "-o", str(out)]) == 1
+    assert main(["gestures", "synthesize", str(out / "none.wav"), "--palette", str(clip),
+                 "-o", str(out)]) == 1
     assert "no such file" in capsys.readouterr().err
 
 
@@ -499,7 +506,8 @@ def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_pat
                        details={g: rng.normal(0, 1.5, (200, len(m), 3)) for g, m in
                                 groups.items()}, detail_labels=groups)
     save_clip(tmp_path / "ict.npz", clip)
-    assert main(["gestures", str(wav), "--palette", str(tmp_path / "ict.npz"), "-o", str(out),
+    assert main(["gestures", "synthesize", str(wav), "--palette", str(tmp_path / "ict.npz"),
+                 "-o", str(out),
                  "--mesh", str(ict / "generic_neutral_mesh.obj"), "--shapes", str(shapes),
                  "--units", "cm", "--binding", str(tmp_path / "binding.json")]) == 0
     seq = read_mesh_sequence(out / "mesh.npz")

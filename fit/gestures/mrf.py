@@ -38,9 +38,10 @@ class GestureSynthesis:
         c̃(t), within the palette's range of each shape.
     names : tuple of str
     head_rotation : ndarray of shape (n_frames, 3, 3) or None
-        R̃(t) relative to a mean head pose (None: no clip had head motion).
+        R̃(t) relative to the mean head pose, in the head frame (None: no clip
+        had head motion): a head-frame point x moves to ``R̃(t) x + T̃(t)``.
     head_translation : ndarray of shape (n_frames, 3) or None, mm
-        T̃(t) relative to the mean head position.
+        T̃(t).
     details : mapping of str to ndarray of shape (n_frames, n_group_markers, 3), mm
         D̃_j(t), head frame of the reference subject.
     detail_labels : mapping of str to tuple of str
