@@ -4,6 +4,7 @@
 - :mod:`.speech`: speech intensity S(t) from a WAV file or an analog channel;
 - :mod:`.features`: the features, each synthesized by its own chain;
 - :mod:`.clip`: reference clips (the palette of styles);
+- :mod:`.reference`: reference clips from captures (``mocap2mesh gestures analyze``);
 - :mod:`.timeline`: styles painted on time segments, per feature;
 - :mod:`.mrf`: the Markov random field synthesis;
 - :mod:`.transfer`: details moved to a target face by compact RBFs, mesh outputs.
@@ -13,6 +14,7 @@ from .analysis import (DETAIL_GROUPS, ESTIMATORS, LIP_REGIONS, GestureAnalysis, 
                        marker_basis)
 from .clip import GestureClip, clip_from_analysis, clip_from_performance, load_clip, save_clip
 from .mrf import GestureSynthesis, candidate_distances, pick_candidate, synthesize_gestures
+from .reference import CaptureClip, clip_from_capture
 from .speech import (analog_intensity, opening_intensity, read_wav, speech_intensity,
                      wav_intensity)
 from .features import (DETAIL_FEATURES, FEATURES, WEIGHT_FEATURES, WEIGHT_PATTERNS,
@@ -22,6 +24,7 @@ from .timeline import Segment, Timeline, load_timeline, parse_timeline
 __all__ = ["GestureAnalysis", "analyze_gestures", "marker_basis", "DETAIL_GROUPS",
            "LIP_REGIONS", "ESTIMATORS",
            "GestureClip", "clip_from_analysis", "clip_from_performance", "load_clip", "save_clip",
+           "CaptureClip", "clip_from_capture",
            "GestureSynthesis", "synthesize_gestures", "candidate_distances", "pick_candidate",
            "speech_intensity", "read_wav", "wav_intensity", "analog_intensity",
            "opening_intensity",
