@@ -280,13 +280,14 @@ def _face_clip(name="face", n=400, seed=0):
 def test_blinks_and_brows_follow_their_own_chains():
     clip = _face_clip()
     drive = np.random.default_rng(4).normal(size=300).cumsum()
-    syn = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=3)
+    syn = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, blend=0, seed=3)
     assert set(syn.sources) == {"weights", "blinks", "brows"}
     assert not np.array_equal(syn.sources["blinks"], syn.sources["weights"])
     for feature, cols in weight_columns(ARKIT).items():   # each column copies its own source
         np.testing.assert_array_equal(syn.weights[:, cols],
                                       clip.weights[syn.sources[feature][:, 1]][:, cols])
-    one = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=3, weight_groups={})
+    one = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, blend=0, seed=3,
+                              weight_groups={})
     assert set(one.sources) == {"weights"}
     np.testing.assert_array_equal(one.weights, clip.weights[one.sources["weights"][:, 1]])
 

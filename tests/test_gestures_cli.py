@@ -112,7 +112,7 @@ def _synthesize_and_check_the_glb(clip, simulated, out, wav):
     out.mkdir()
     assert main(["gestures", "synthesize", str(wav), "--palette", str(clip), "-o", str(out),
                  "--mesh", str(simulated["mesh"]), "--shapes", str(simulated["shapes"]),
-                 "--units", "cm", "--binding", str(simulated["binding"]), "--blend", "4"]) == 0
+                 "--units", "cm", "--binding", str(simulated["binding"])]) == 0
     head = np.load(out / "head.npz")
     gltf = pygltflib.GLTF2().load(str(out / "gestures.glb"))
     (anim,) = gltf.animations

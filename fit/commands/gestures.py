@@ -122,7 +122,7 @@ def _add_synthesize(actions) -> None:
     p.add_argument("--candidates", type=int, default=3, help="best candidates drawn from")
     p.add_argument("--run", type=int, default=1, dest="run_frames",
                    help="frames copied per pick (default 1)")
-    p.add_argument("--blend", type=int, default=0, help="frames fading out a jump (default 0)")
+    p.add_argument("--blend", type=int, default=4, help="frames fading out a jump (default 4)")
     p.add_argument("--one-chain", action="store_true",
                    help="blinks and brows in the chain of the other weights (default: their own)")
     p.add_argument("--seed", type=int, default=0)
