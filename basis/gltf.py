@@ -176,7 +176,7 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
 
 
 def _animation(weights, rotation, translation, rate, n: int):
-    """Times (T,) s, weights (T, n), and (quaternions (T, 4), translation (T, 3)); None if absent."""
+    """Times (T,) s, weights (T, n), (quaternions (T, 4), translation (T, 3)); None if absent."""
     if (rotation is None) != (translation is None):
         raise InputError("rotation and translation go together (the face's rigid motion)")
     if weights is None and rotation is None:

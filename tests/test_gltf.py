@@ -189,7 +189,7 @@ def _quat_apply(q, v):
 
 
 def test_rigid_motion_animates_the_node_in_metres(tmp_path):
-    """Vertex v of frame t lands on R_t v + T_t (mesh units) as glTF plays rotation then translation."""
+    """Vertex v of frame t lands on R_t v + T_t (mesh units): glTF rotates, then translates."""
     neutral = _grid("cm", n=3)
     n = 40
     angle = np.linspace(0.0, 1.8 * np.pi, n)                # crosses pi: quaternion signs flip

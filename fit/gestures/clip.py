@@ -210,7 +210,7 @@ def clip_from_performance(performance: Performance, *, name: str, rate: float, s
 
 
 def save_clip(path, clip: GestureClip, *, inputs=()) -> None:
-    """Write a clip as ``.npz`` (atomically, never over one of `inputs`); read with :func:`load_clip`."""
+    """Write a clip as ``.npz``, atomically and never over one of `inputs` (:func:`load_clip`)."""
     if not isinstance(clip, GestureClip):
         raise InputError(f"clip must be a GestureClip, got {type(clip).__name__}")
     arrays = dict(format=np.array(_FORMAT), name=np.array(clip.name),

@@ -1,8 +1,9 @@
 """Speech-driven synthesis of facial gestures by a Markov random field (Ju & Lee 2008, sec. 5.1).
 
 Each feature (:mod:`fit.gestures.features`: the blend weights c, the blink and
-the brow weights, head motion, each detail group D_j) is its own Markov chain over the frames of the reference clips of the palette: the next
-output frame copies reference frame t̂, chosen among the best few candidates
+the brow weights, head motion, each detail group D_j) is its own Markov chain
+over the frames of the reference clips of the palette: the next output frame
+copies reference frame t̂, chosen among the best few candidates
 of ``dist(t, t̂) = α Σ_j |S̃(t − j) − S(t̂ − j)|² + Σ_j |c̃(t − j) − c(t̂ − j)|²``
 with probability ∝ exp(−dist/σ). A timeline assigns styles (clips) to time
 segments, per feature.
