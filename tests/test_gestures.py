@@ -292,6 +292,37 @@ def test_blinks_and_brows_follow_their_own_chains():
     np.testing.assert_array_equal(one.weights, clip.weights[one.sources["weights"][:, 1]])
 
 
+def test_each_feature_draws_from_its_own_stream():
+    clip = _face_clip()
+    drive = np.random.default_rng(6).normal(size=200).cumsum()
+    every = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=9)
+    alone = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=9,
+                                features=["blinks"])
+    np.testing.assert_array_equal(alone.sources["blinks"], every.sources["blinks"])
+    cols = weight_columns(ARKIT)
+    assert np.all(alone.weights[:, cols["weights"]] == 0)
+
+
+@pytest.mark.parametrize("blend", [1, 4])
+def test_a_jump_fades_from_the_old_continuation_over_blend_frames(blend):
+    clip = _face_clip()
+    drive = np.random.default_rng(7).normal(size=200).cumsum()
+    raw = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=2, blend=0)
+    syn = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=2, blend=blend)
+    src = syn.sources["weights"][:, 1]
+    np.testing.assert_array_equal(src, raw.sources["weights"][:, 1])
+    cols = weight_columns(ARKIT)["weights"]
+    want = raw.weights[:, cols].copy()
+    ref = clip.weights[:, cols]
+    for t in np.flatnonzero(src[1:] != src[:-1] + 1) + 1:      # loop oracle, jump by jump
+        offset = ref[min(src[t - 1] + 1, len(ref) - 1)] - ref[src[t]]
+        for j in range(blend):
+            if t + j < len(want):
+                want[t + j] += (1 - j / blend) * offset
+    want = np.clip(want, ref.min(axis=0), ref.max(axis=0))
+    np.testing.assert_allclose(syn.weights[:, cols], want, atol=1e-12)
+
+
 def test_timeline_paints_blinks_apart_from_the_weights():
     clips = [_face_clip("calm", seed=1), _face_clip("lively", seed=2)]
     timeline = parse_timeline({"default": "calm", "segment": [

@@ -162,7 +162,9 @@ def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: floa
         (:func:`fit.gestures.features.weight_columns`); default: by name;
         ``{}``: every weight in the one ``weights`` chain.
     seed : int or numpy.random.Generator
-        The result is deterministic for a given seed.
+        The result is deterministic for a given seed. Each feature draws from
+        its own stream (spawned in :data:`FEATURES` order), so the choices of
+        one chain do not depend on which other features are synthesized.
 
     Returns
     -------
@@ -215,7 +217,7 @@ def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: floa
         if unknown:
             raise InputError(f"timeline styles {unknown} are not clips of the palette "
                              f"({', '.join(clip_index)})")
-    rng = np.random.default_rng(seed)
+    streams = dict(zip(FEATURES, np.random.default_rng(seed).spawn(len(FEATURES))))
     target = _mrf.standardize_intensity(intensity)
     speech = [_mrf.standardize_intensity(c.intensity) for c in clips]
     values, sources, transitions = {}, {}, {}
@@ -225,7 +227,7 @@ def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: floa
         scale = _mrf.part_scales(raw, parts)
         spans = _spans(timeline, feature, len(target), rate, clip_index)
         src = _mrf.chain(target, speech, [f / scale for f in raw], spans, h=h, run=run,
-                         alpha=alpha, k=k, sigma=sigma, rng=rng)
+                         alpha=alpha, k=k, sigma=sigma, rng=streams[feature])
         values[feature], transitions[feature] = _assemble(raw, src, blend)
         sources[feature] = src
     return _result(values, sources, transitions, clips, intensity, rate, weight_groups)
