@@ -89,13 +89,37 @@ def test_analyze_recovers_the_simulated_weights_head_and_speech(simulated):
     true = Rotation.from_matrix(truth.rotation[::2])
     np.testing.assert_allclose(np.degrees((turn[0].inv() * turn).magnitude()),
                                np.degrees((true[0].inv() * true).magnitude()), atol=0.5)
-    # speech: full-scale RMS of a sine in the bursts, silence between (0.05 s windows)
-    times = np.arange(clip.n_frames) / RATE
-    phase = (times * BURST_HZ) % 1.0
+    _bursts_are_read(clip)
+
+
+def _bursts_are_read(clip):
+    """S(t) of the tone bursts: a sine's RMS inside the bursts, silence between (0.05 s)."""
+    phase = (np.arange(clip.n_frames) / RATE * BURST_HZ) % 1.0
     inside, silent = (phase > 0.05) & (phase < 0.45), (phase > 0.55) & (phase < 0.95)
     np.testing.assert_allclose(clip.intensity[inside], 20 * np.log10(AMPLITUDE / np.sqrt(2)),
                                atol=0.01)
     assert np.all(clip.intensity[silent] == -100.0)
+
+
+def test_analyze_reads_speech_from_the_c3d_analog_channel(simulated, tmp_path):
+    """A microphone recorded as a C3D analog channel at 100 samples per frame."""
+    import mocap
+    from mocap.take import Analog
+
+    take = mocap.read(simulated["capture"])
+    rate = 100 * take.rate
+    t = np.arange(take.n_frames * 100) / rate
+    mic = AMPLITUDE * np.sin(2 * np.pi * 500 * t) * ((t * BURST_HZ) % 1.0 < 0.5)
+    noise = np.random.default_rng(0).normal(0, 1, len(t))
+    capture = tmp_path / "with-mic.c3d"
+    mocap.write(take.replace(analog=Analog(np.column_stack([noise, mic]), rate,
+                                           ("FORCE", "MIC"), ("N", "V"))), capture)
+    out = tmp_path / "mic.npz"
+    assert main(["gestures", "analyze", str(capture), *simulated["common"], "--analog", "MIC",
+                 "-o", str(out)]) == 0
+    clip = load_clip(out)
+    assert "analog channel 'MIC'" in clip.intensity_source
+    _bursts_are_read(clip)
 
 
 def _accessor(gltf, index):
