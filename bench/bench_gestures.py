@@ -51,7 +51,7 @@ from mocap.performance import read_performance
 
 RATE = 30.0
 MINUTE = int(60 * RATE)
-SEEDS = 8
+SEEDS = 16
 CONFIGS = ({"run": 1, "blend": 0}, {"run": 1, "blend": 4}, {"run": 3, "blend": 4},
            {"run": 1, "blend": 4, "weight_groups": {}}, {"run": 1, "blend": 4, "drive": "own"})
 #: Row of the defaults of ``synthesize_gestures``, whose time is the speed figure.
