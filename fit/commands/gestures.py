@@ -23,6 +23,7 @@ import numpy as np
 from mocap.errors import InputError
 from mocap.performance import read_performance
 
+from ..gestures.analysis import ESTIMATORS
 from ..ingest import FILL_CHOICES
 from .bind import parse_frame
 
@@ -86,7 +87,7 @@ def _add_analyze(actions) -> None:
     p.add_argument("--window", type=int, default=41, metavar="FRAMES",
                    help="moving-average window of the weight fit (default 41, the paper's)")
     p.add_argument("--epsilon", type=float, default=0.1, help="weight bounds (default 0.1)")
-    p.add_argument("--estimator", choices=("exact", "sampling"), default="exact",
+    p.add_argument("--estimator", choices=ESTIMATORS, default="exact",
                    help="bounded least squares (default), or the paper's sampling estimator")
     p.add_argument("--neutral-frame", type=parse_frame, default="auto", metavar="N|auto",
                    help="0-based frame index at RATE of the neutral, or 'auto' (default): "
