@@ -9,8 +9,9 @@ simulating the style of subject B"). Here the features are:
 - ``blinks`` and ``brows``: the blend weights of the eyelid and brow shapes,
   taken out of c(t) so that each follows its own chain. Blinks are short,
   fast events of one or two shapes among ~50: matched together with the
-  whole expression, a chain cuts them and their rate drops (to ~0.7 of the
-  reference on an ARKit performance, against ~1.0 on their own chain);
+  whole expression, a chain cuts and merges them (on an ARKit performance,
+  ``bench/bench_gestures.py``: 0.69 of the reference's blink rate in one
+  chain, 0.93 on their own; brow activity 0.79 against 0.93);
 - ``head``: the rigid head motion R(t), T(t);
 - the detail groups D_j(t) (:data:`fit.gestures.analysis.DETAIL_GROUPS`).
 """
