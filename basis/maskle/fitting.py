@@ -16,7 +16,7 @@ both vertices of a seam pair (:attr:`~basis.maskle.mask.Mask.tongue_seam`)
 move, each takes the mean of the pair's neighbours, as if uncut; once either
 is stopped, the other follows its own band onto its lip. (Cut from the start,
 each band's lip row is pulled into its own band, away from the other one:
-the rows parted by 1.2-2 mm on the demo face, and a lower-lip vertex by the
+the rows parted by 1.3 mm on the demo face, and a lower-lip vertex by the
 mouth corner, seeing neither band through the parting, read the upper
 tongue strip behind it. Welded to the end, a band's row is held where the
 other lip stopped it: on ICT's corners, upper-lip vertices facing down then
