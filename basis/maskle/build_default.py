@@ -87,9 +87,10 @@ def _mouth():
         roots.append(root)
         tips.append(tip)
     centre = len(_MOUTH_COLS) // 2
+    n_upper = len(_UPPER_ROWS) * n_cols
     marks = {"mouth_corner_left": centre + 3, "mouth_corner_right": centre - 3,
              "upper_lip_bottom": centre, "upper_lip_top": n_cols + centre,
-             "lower_lip_top": 4 * n_cols + centre, "lower_lip_bottom": 5 * n_cols + centre}
+             "lower_lip_top": n_upper + centre, "lower_lip_bottom": n_upper + n_cols + centre}
     return (np.concatenate(verts), np.concatenate(quads), marks,
             np.concatenate(roots), np.concatenate(tips))
 
