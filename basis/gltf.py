@@ -4,7 +4,8 @@ One scene, one node, one mesh with one triangle primitive: the neutral's
 POSITION and NORMAL, uint32 indices, and one morph target per shape (POSITION
 displacements). The shape names go to ``mesh.extras.targetNames``, which
 Blender, three.js and :func:`basis.artist.load_artist_basis` read. Weights of
-a take become an animation of the node's ``weights``.
+a take become an animation of the node's ``weights``; a rigid motion of the
+face (e.g. head motion) an animation of its ``rotation`` and ``translation``.
 
 Units and axes: glTF is in metres, +Y up, the front of an asset facing +Z.
 Positions are scaled from the mesh's ``units`` to metres (cm × 0.01,
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pygltflib
+from scipy.spatial.transform import Rotation
 
 from mocap._validation import as_float_array, as_positive_float
 from mocap.errors import InputError
@@ -67,8 +69,9 @@ class _Buffer:
         return b"".join(self.chunks)
 
 
-def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None,
-               rate: float | None = None, name: str = "face", inputs=()) -> None:
+def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotation=None,
+               translation=None, rate: float | None = None, name: str = "face",
+               inputs=()) -> None:
     """Write a neutral mesh and its basis as glTF morph targets.
 
     Parameters
@@ -86,8 +89,15 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None,
         Weights of each frame: an animation with one LINEAR sampler (input:
         times ``t / rate`` s, output: the T × n weights frame after frame)
         targeting the node's ``weights``. No NaN.
+    rotation : array_like of shape (T, 3, 3), optional
+        Rigid motion of the face in each frame, about the mesh's origin:
+        vertex v of frame t is at ``rotation[t] @ v + translation[t]``. Written
+        as LINEAR samplers of the node's ``rotation`` (unit quaternions x, y, z,
+        w, signs made continuous so that the slerp takes the short way) and
+        ``translation`` (metres). Goes with `translation`.
+    translation : array_like of shape (T, 3), mesh units, optional
     rate : float, optional
-        Frame rate, Hz; required with `weights`, only with them.
+        Frame rate, Hz; required with `weights` or a motion, only with them.
     name : str
         Name of the node, mesh and animation.
     inputs : iterable of path, optional
@@ -97,8 +107,9 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None,
     ------
     InputError
         Unknown extension, shapes or names inconsistent with the neutral, NaN
-        or infinite values, `rate` missing or given without `weights`, the file
-        cannot be written (named).
+        or infinite values, `rate` missing or given without an animation,
+        `rotation` without `translation` (or the reverse), not rotations,
+        frame counts that differ, the file cannot be written (named).
 
     Warns
     -----
@@ -124,7 +135,7 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None,
     displacements = as_float_array(displacements, "displacements", shape=(None, n_vertices, 3),
                                    allow_nan=False)
     names = as_shape_names(names, len(displacements))
-    times, weights = _animation(weights, rate, len(names))
+    times, weights, motion = _animation(weights, rotation, translation, rate, len(names))
     scale = _to_metres(neutral)
 
     normals = vertex_normals(neutral.vertices, neutral.faces)
@@ -142,14 +153,20 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None,
     mesh = pygltflib.Mesh(name=name, primitives=[primitive], weights=[0.0] * len(names),
                           extras={"targetNames": list(names)})
     animations = []
-    if weights is not None:
-        sampler = pygltflib.AnimationSampler(
-            input=buf.add(times, pygltflib.SCALAR), output=buf.add(weights.reshape(-1),
-                                                                   pygltflib.SCALAR),
-            interpolation=pygltflib.ANIM_LINEAR)
-        channel = pygltflib.AnimationChannel(
-            sampler=0, target=pygltflib.AnimationChannelTarget(node=0, path="weights"))
-        animations = [pygltflib.Animation(name=name, samplers=[sampler], channels=[channel])]
+    if times is not None:
+        time = buf.add(times, pygltflib.SCALAR)
+        outputs = [] if weights is None else [
+            ("weights", buf.add(weights.reshape(-1), pygltflib.SCALAR))]
+        if motion is not None:
+            outputs += [("rotation", buf.add(motion[0], pygltflib.VEC4)),
+                        ("translation", buf.add(motion[1] * scale, pygltflib.VEC3))]
+        samplers = [pygltflib.AnimationSampler(input=time, output=out,
+                                               interpolation=pygltflib.ANIM_LINEAR)
+                    for _, out in outputs]
+        channels = [pygltflib.AnimationChannel(
+            sampler=i, target=pygltflib.AnimationChannelTarget(node=0, path=target))
+            for i, (target, _) in enumerate(outputs)]
+        animations = [pygltflib.Animation(name=name, samplers=samplers, channels=channels)]
     gltf = pygltflib.GLTF2(
         asset=pygltflib.Asset(version="2.0", generator="mocap2mesh"), scene=0,
         scenes=[pygltflib.Scene(nodes=[0])], nodes=[pygltflib.Node(name=name, mesh=0)],
@@ -158,19 +175,40 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None,
     _save(gltf, buf.blob(), path, [*inputs, neutral.path])
 
 
-def _animation(weights, rate, n: int):
-    """Times (T,) s and weights (T, n), or (None, None) without weights."""
-    if weights is None:
+def _animation(weights, rotation, translation, rate, n: int):
+    """Times (T,) s, weights (T, n), (quaternions (T, 4), translation (T, 3)); None if absent."""
+    if (rotation is None) != (translation is None):
+        raise InputError("rotation and translation go together (the face's rigid motion)")
+    if weights is None and rotation is None:
         if rate is not None:
-            raise InputError("rate is only used with weights (the animation's frame rate)")
-        return None, None
+            raise InputError("rate is only used with an animation (weights or a motion)")
+        return None, None, None
     if rate is None:
-        raise InputError("weights need the take's rate (Hz) to time the animation")
+        raise InputError("an animation needs the take's rate (Hz) to time it")
     rate = as_positive_float(rate, "rate")
-    weights = as_float_array(weights, "weights", shape=(None, n), allow_nan=False)
-    if len(weights) == 0:
-        raise InputError("weights has no frames")
-    return np.arange(len(weights)) / rate, weights
+    counts = []
+    if weights is not None:
+        weights = as_float_array(weights, "weights", shape=(None, n), allow_nan=False)
+        counts.append(len(weights))
+    motion = None
+    if rotation is not None:
+        rotation = as_float_array(rotation, "rotation", shape=(None, 3, 3), allow_nan=False)
+        translation = as_float_array(translation, "translation", shape=(len(rotation), 3),
+                                     allow_nan=False)
+        orthogonal = np.einsum("tij,tkj->tik", rotation, rotation)
+        if not (np.allclose(orthogonal, np.eye(3), atol=1e-6)
+                and np.all(np.linalg.det(rotation) > 0)):
+            raise InputError("rotation must hold rotation matrices (orthonormal, det +1)")
+        quat = Rotation.from_matrix(rotation).as_quat()          # x, y, z, w: glTF's order
+        turn = np.einsum("ij,ij->i", quat[1:], quat[:-1]) < 0
+        quat[1:] *= np.where(np.cumsum(turn) % 2 == 1, -1.0, 1.0)[:, None]
+        motion = (quat, translation)
+        counts.append(len(rotation))
+    if counts[0] == 0:
+        raise InputError("the animation has no frames")
+    if len(set(counts)) > 1:
+        raise InputError(f"weights have {counts[0]} frames but the motion {counts[1]}")
+    return np.arange(counts[0]) / rate, weights, motion
 
 
 def _to_metres(neutral: Mesh) -> float:

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
+from mocap._arrays import read_only
 from mocap._validation import as_choice, as_float_array, as_int
 from mocap.errors import InputError
 
@@ -37,11 +38,6 @@ PCA_METHODS = ("randomized", "incremental")
 
 #: Extra trial vectors (randomized) or kept singular pairs (incremental).
 _OVERSAMPLE = 10
-
-
-def _read_only(arr: np.ndarray) -> np.ndarray:
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,7 +81,7 @@ class PCAModel:
         evals = as_float_array(self.eigenvalues, "eigenvalues", shape=(len(comps),),
                                allow_nan=False)
         for name, value in (("mean", mean), ("components", comps), ("eigenvalues", evals)):
-            object.__setattr__(self, name, _read_only(value))
+            object.__setattr__(self, name, read_only(value))
         object.__setattr__(self, "total_variance", float(self.total_variance))
 
     @property

@@ -10,8 +10,9 @@ from dataclasses import dataclass
 
 from mocap._validation import as_choice, as_int, as_positive_float
 from mocap.clean import FILL_OPTIONS as FILL_CHOICES
-from mocap.clean import (FillResult, LabelSwap, fill_gaps, find_label_swaps, fix_label_swaps,
-                         lowpass, resample)
+from mocap.clean import (FillResult, ImplausibleSamples, LabelSwap, fill_gaps,
+                         find_implausible_samples, find_label_swaps, fix_label_swaps, lowpass,
+                         remove_implausible_samples, resample)
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.stabilize import Stabilization, stabilize
@@ -39,9 +40,15 @@ class IngestOptions:
     fix_swaps : bool
         Find runs of frames where two markers exchanged labels and exchange them
         back, before gap filling (:func:`mocap.clean.find_label_swaps`).
+    reject_implausible : bool
+        Remove samples that cannot be a real marker (teleports, one marker with
+        two labels, interpolated ghost slides; :func:`mocap.clean.find_implausible_samples`,
+        in the head frame when the marker set names head markers), after swap
+        repair and before gap filling, which fills them again.
     """
 
     fix_swaps: bool = False
+    reject_implausible: bool = False
     fill: str = "auto"
     max_gap: int | None = None
     lowpass_hz: float | None = None
@@ -68,6 +75,8 @@ class IngestResult:
         The take as read.
     swaps : tuple of LabelSwap
         Label swaps found and repaired (empty unless asked).
+    implausible : ImplausibleSamples or None
+        Samples found implausible and removed before filling (None unless asked).
     fill : FillResult or None
         What gap filling did, gap by gap (None when filling was off).
     cleaned : Take
@@ -78,6 +87,7 @@ class IngestResult:
 
     raw: Take
     swaps: tuple[LabelSwap, ...]
+    implausible: ImplausibleSamples | None
     fill: FillResult | None
     cleaned: Take
     stabilization: Stabilization | None
@@ -92,7 +102,8 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
            options: IngestOptions = IngestOptions()) -> IngestResult:
     """Clean and stabilize a take.
 
-    Stages, in order: label-swap repair (if asked), gap filling (rigid clusters
+    Stages, in order: label-swap repair (if asked), removal of implausible
+    samples (if asked), gap filling (rigid clusters
     from the marker set), low-pass, resampling, head stabilization.
 
     Parameters
@@ -120,10 +131,14 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     if options.stabilize and markerset is None:
         raise InputError("stabilization needs a marker set naming the head markers")
     clusters = dict(markerset.clusters) if markerset is not None else None
-    cleaned, fill, swaps = take, None, ()
+    cleaned, fill, swaps, implausible = take, None, (), None
     if options.fix_swaps:
         swaps = find_label_swaps(cleaned)
         cleaned = fix_label_swaps(cleaned, swaps)
+    if options.reject_implausible:
+        implausible = find_implausible_samples(
+            cleaned, head=markerset.head if markerset is not None else None)
+        cleaned = remove_implausible_samples(cleaned, implausible)
     if options.fill != "none":
         fill = fill_gaps(cleaned, method=options.fill, max_gap=options.max_gap,
                          clusters=clusters)
@@ -133,8 +148,8 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     if options.resample_hz is not None:
         cleaned = resample(cleaned, options.resample_hz)
     stab = stabilize(cleaned, markerset.head) if options.stabilize else None
-    return IngestResult(raw=take, swaps=swaps, fill=fill, cleaned=cleaned,
-                        stabilization=stab)
+    return IngestResult(raw=take, swaps=swaps, implausible=implausible, fill=fill,
+                        cleaned=cleaned, stabilization=stab)
 
 
 def save_head_motion(stabilization: Stabilization, path, *, inputs=()) -> None:

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from scipy.signal import find_peaks
 
+from mocap._arrays import read_only
 from mocap._validation import as_choice, as_float_array, as_int, as_positions
 from mocap.errors import InputError, MarkerError
 
@@ -26,11 +27,6 @@ __all__ = ["ReconstructionErrors", "reconstruction_errors", "summary_frame",
 
 #: Per-frame series by which frames can be ranked (:meth:`ReconstructionErrors.worst_frames`).
 FRAME_METRICS = ("alpha", "displacement_error", "rms", "max_error")
-
-
-def _read_only(arr: np.ndarray) -> np.ndarray:
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -277,13 +273,13 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
         "n_missing": int(valid.size - n_samples),
     }
     return ReconstructionErrors(
-        name=str(name), labels=labels, errors=_read_only(errors),
-        alpha=_read_only(alpha), displacement_error=_read_only(disp),
-        rms=_read_only(rms), max_error=_read_only(max_error),
-        n_valid=_read_only(n_valid), marker_mean=_read_only(marker_mean * marker_has),
-        marker_p95=_read_only(marker_p95), marker_rms=_read_only(marker_rms * marker_has),
-        marker_max=_read_only(np.where(n_frames_valid > 0, marker_max, np.nan)),
-        n_missing=_read_only(n_frames - n_frames_valid), origin=_read_only(origin),
+        name=str(name), labels=labels, errors=read_only(errors),
+        alpha=read_only(alpha), displacement_error=read_only(disp),
+        rms=read_only(rms), max_error=read_only(max_error),
+        n_valid=read_only(n_valid), marker_mean=read_only(marker_mean * marker_has),
+        marker_p95=read_only(marker_p95), marker_rms=read_only(marker_rms * marker_has),
+        marker_max=read_only(np.where(n_frames_valid > 0, marker_max, np.nan)),
+        n_missing=read_only(n_frames - n_frames_valid), origin=read_only(origin),
         totals=totals)
 
 

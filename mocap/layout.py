@@ -25,6 +25,7 @@ from typing import Mapping
 import numpy as np
 import scipy.sparse as sp
 
+from ._arrays import read_only
 from ._atomic import atomic_path
 from ._toml import read_toml
 from .errors import FileFormatError, InputError, MarkerError
@@ -36,11 +37,6 @@ __all__ = ["MarkerLayout", "make_layout", "load_marker_layout", "save_marker_lay
 _KEYS = {"name", "description", "n_vertices", "units", "offset", "markers"}
 _MARKER_KEYS = {"vertex", "face", "bary", "offset"}
 _BARY_TOL = 1e-6
-
-
-def _read_only(arr):
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,7 +84,7 @@ class MarkerLayout:
             dup = next(x for x in self.labels if self.labels.count(x) > 1)
             raise MarkerError(dup, "appears twice in the layout")
         for attr in ("vertex_ids", "weights", "face_ids", "offsets", "faces"):
-            object.__setattr__(self, attr, _read_only(np.array(getattr(self, attr))))
+            object.__setattr__(self, attr, read_only(np.array(getattr(self, attr))))
         object.__setattr__(self, "labels", tuple(self.labels))
         object.__setattr__(self, "_normal_op", self._build_normal_operator())
 

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from ._arrays import read_only
 from ._atomic import atomic_path
 from ._validation import as_float_array
 from .errors import FileFormatError, InputError
@@ -29,11 +30,6 @@ MESH_FORMATS = (".obj", ".ply", ".gltf", ".glb")
 #: A triangle is degenerate when its doubled area is below this fraction of the
 #: squared bounding-box diagonal.
 _DEGENERATE_REL_AREA = 1e-12
-
-
-def _read_only(arr: np.ndarray) -> np.ndarray:
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -96,7 +92,7 @@ class Mesh:
             mm_per_unit(self.units, where=f"{where}: units")
         for name, arr in (("vertices", vertices), ("faces", faces),
                           ("face_polygon", face_polygon), ("polygon_sizes", sizes)):
-            object.__setattr__(self, name, _read_only(arr))
+            object.__setattr__(self, name, read_only(arr))
 
     @property
     def n_vertices(self) -> int:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from ._arrays import read_only
 from ._validation import as_choice, as_float_array, as_int, as_positive_float
 from .errors import InputError, MarkerError
 from .gaps import find_gaps
@@ -296,18 +297,13 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
                f"{n_bad} of {n_frames} frames without a fit; {len(slips)} slips; "
                f"noise {sigma:.3g} mm")
     return Stabilization(
-        rotation=_read_only(rotation), translation=_read_only(translation),
-        reference_shape=_read_only(shape), head_markers=labels,
-        head_residuals=_read_only(residuals), valid=_read_only(valid),
-        interpolated=_read_only(interpolated), weights=_read_only(used), slips=slips,
+        rotation=read_only(rotation, copy=True), translation=read_only(translation, copy=True),
+        reference_shape=read_only(shape, copy=True), head_markers=labels,
+        head_residuals=read_only(residuals, copy=True), valid=read_only(valid, copy=True),
+        interpolated=read_only(interpolated, copy=True), weights=read_only(used, copy=True),
+        slips=slips,
         take=head_take, reference_frame=ref_index, noise=sigma, n_iter=n_iter,
         converged=converged, message=message)
-
-
-def _read_only(arr: np.ndarray) -> np.ndarray:
-    arr = np.array(arr)
-    arr.flags.writeable = False
-    return arr
 
 
 def _head_labels(take: Take, head_markers) -> tuple:

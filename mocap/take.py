@@ -8,6 +8,7 @@ from typing import Mapping
 
 import numpy as np
 
+from ._arrays import read_only
 from ._validation import as_float_array, as_int, as_positions, as_positive_float
 from .errors import InputError, MarkerError
 
@@ -24,11 +25,6 @@ def fill_code(method: str) -> int:
     if method not in FILL_METHODS:
         raise InputError(f"fill method must be one of {FILL_METHODS}, got {method!r}")
     return FILL_METHODS.index(method) + 1
-
-
-def _read_only(arr: np.ndarray) -> np.ndarray:
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True)
@@ -85,7 +81,7 @@ class Analog:
 
     def __post_init__(self):
         values = as_float_array(self.values, "analog values", ndim=2)
-        object.__setattr__(self, "values", _read_only(values))
+        object.__setattr__(self, "values", read_only(values))
         object.__setattr__(self, "rate", as_positive_float(self.rate, "analog rate"))
         labels = tuple(str(s) for s in self.labels)
         units = tuple(str(s) for s in self.units)
@@ -176,8 +172,8 @@ class Take:
             if filled.max(initial=0) > len(FILL_METHODS):
                 raise InputError("filled holds an unknown fill-method code")
         object.__setattr__(self, "labels", labels)
-        object.__setattr__(self, "positions", _read_only(positions))
-        object.__setattr__(self, "filled", _read_only(filled))
+        object.__setattr__(self, "positions", read_only(positions))
+        object.__setattr__(self, "filled", read_only(filled))
         object.__setattr__(self, "rate", as_positive_float(self.rate, "rate"))
         object.__setattr__(self, "first_frame", as_int(self.first_frame, "first_frame"))
         if not isinstance(self.source, SourceInfo):

@@ -118,3 +118,23 @@ def test_ingest_fix_swaps_undoes_an_injected_label_swap(session_files, tmp_path)
     assert main(["ingest", str(tmp_path / "swapped.npz"), "-o", str(out), "--fix-swaps",
                  "--fill", "none"]) == 0
     np.testing.assert_array_equal(mocap.read(out).positions, take.positions)
+
+
+def test_ingest_reject_implausible_refills_the_facial_sing_mislabel(shared_data, tmp_path):
+    """The section3-1 label leaves its marker for ~70 mm in frames 819-863; with
+    --reject-implausible the written take moves smoothly there, and no captured
+    sample elsewhere changes (gap fills may: they learn from the repaired markers)."""
+    src = shared_data / "captures" / "facial-sing.c3d"
+    markerset = Path(__file__).resolve().parent / "facial_sing_markerset.toml"
+    plain, clean = tmp_path / "plain.npz", tmp_path / "clean.npz"
+    common = ["--markerset", str(markerset), "--fill", "auto"]
+    assert main(["ingest", str(src), "-o", str(plain), *common]) == 0
+    assert main(["ingest", str(src), "-o", str(clean), "--reject-implausible", *common]) == 0
+    before, after = mocap.read(plain), mocap.read(clean)
+    i = after.index("section3-1")
+    def largest_step(take):
+        return np.nanmax(np.linalg.norm(np.diff(take.positions[815:870, i], axis=0), axis=1))
+    assert largest_step(before) > 60 and largest_step(after) < 5.0
+    captured = ~mocap.read(src).missing
+    captured[819:864] = False
+    np.testing.assert_array_equal(after.positions[captured], before.positions[captured])

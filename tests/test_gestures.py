@@ -16,7 +16,8 @@ from scipy.spatial.transform import Rotation
 from fit.cli import main
 from fit.gestures import (ESTIMATORS, FEATURES, GestureClip, analyze_gestures,
                           candidate_distances, clip_from_analysis, load_clip, marker_basis,
-                          parse_timeline, pick_candidate, save_clip, synthesize_gestures)
+                          parse_timeline, pick_candidate, save_clip, synthesize_gestures,
+                          weight_columns)
 from fit.gestures.transfer import SUPPORT_SPACINGS, build_detail_transfer
 from mocap.bind import Binding
 from mocap.errors import FileFormatError, InputError, MarkerError
@@ -207,8 +208,13 @@ def test_clip_roundtrip(tmp_path, capture):
     assert back.name == "take1" and back.detail_labels == clip.detail_labels
     for key, value in clip.features().items():
         np.testing.assert_array_equal(back.features()[key], value)
-    np.testing.assert_allclose(np.linalg.norm(clip.head[:, :3], axis=1).max(),
-                               Rotation.from_matrix(stab.rotation).magnitude().max(), rtol=0.5)
+    # head-frame motion about the mean pose: R_mean (exp(r) x + tau) + T_mean = R x + T
+    mean_rot = Rotation.from_matrix(stab.rotation).mean().as_matrix()
+    turn = Rotation.from_rotvec(np.array(clip.head[:, :3])).as_matrix()
+    moved = np.einsum("tij,mj->tmi", turn, neutral) + clip.head[:, None, 3:]
+    world = np.einsum("ij,tmj->tmi", mean_rot, moved) + stab.translation.mean(axis=0)
+    want = np.einsum("tij,mj->tmi", stab.rotation, neutral) + stab.translation[:, None]
+    np.testing.assert_allclose(world, want, atol=1e-9)
 
 
 @pytest.mark.parametrize("doc, match", [
@@ -239,8 +245,92 @@ def test_palette_at_another_rate_is_rejected():
         synthesize_gestures(np.zeros(50), [_clip("a")], rate=60.0)
 
 
-def test_features_are_the_timeline_features():
-    assert FEATURES[:2] == ("weights", "head")
+ARKIT = ("BrowDownLeft", "EyeBlinkLeft", "JawOpen", "BrowInnerUp", "EyeBlinkRight")
+ICT = ("browDown_L", "eyeBlink_L", "jawOpen", "eyeBlink_R", "browInnerUp_R")
+
+
+@pytest.mark.parametrize("names", [ARKIT, ICT])
+def test_blink_and_brow_shapes_are_their_own_features_by_name(names):
+    cols = weight_columns(names)
+    assert {f: [names[i] for i in c] for f, c in cols.items()} == {
+        "weights": [n for n in names if n.lower().startswith("jaw")],
+        "blinks": [n for n in names if "blink" in n.lower()],
+        "brows": [n for n in names if n.lower().startswith("brow")]}
+    assert list(weight_columns(names, {})) == ["weights"]
+    assert set(FEATURES) >= set(cols) and FEATURES.index("head") > FEATURES.index("brows")
+
+
+@pytest.mark.parametrize("groups, match", [
+    ({"nose": ["JawOpen"]}, "unknown weight feature 'nose'"),
+    ({"blinks": ["EyeWide"]}, "no shape 'EyeWide'"),
+    ({"blinks": ["JawOpen"], "brows": ["JawOpen"]}, "'JawOpen' is in both 'blinks' and 'brows'"),
+])
+def test_weight_group_errors(groups, match):
+    with pytest.raises(InputError, match=match):
+        weight_columns(ARKIT, groups)
+
+
+def _face_clip(name="face", n=400, seed=0):
+    """A clip with expression, blink and brow columns of distinct curves."""
+    rng = np.random.default_rng(seed)
+    weights = _smooth(rng, n, len(ARKIT)) + rng.normal(0, 0.02, (n, len(ARKIT)))
+    return GestureClip(name, RATE, np.cumsum(rng.normal(0, 1, n)), weights, ARKIT)
+
+
+def test_blinks_and_brows_follow_their_own_chains():
+    clip = _face_clip()
+    drive = np.random.default_rng(4).normal(size=300).cumsum()
+    syn = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, blend=0, seed=3)
+    assert set(syn.sources) == {"weights", "blinks", "brows"}
+    assert not np.array_equal(syn.sources["blinks"], syn.sources["weights"])
+    for feature, cols in weight_columns(ARKIT).items():   # each column copies its own source
+        np.testing.assert_array_equal(syn.weights[:, cols],
+                                      clip.weights[syn.sources[feature][:, 1]][:, cols])
+    one = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, blend=0, seed=3,
+                              weight_groups={})
+    assert set(one.sources) == {"weights"}
+    np.testing.assert_array_equal(one.weights, clip.weights[one.sources["weights"][:, 1]])
+
+
+def test_each_feature_draws_from_its_own_stream():
+    clip = _face_clip()
+    drive = np.random.default_rng(6).normal(size=200).cumsum()
+    every = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=9)
+    alone = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=9,
+                                features=["blinks"])
+    np.testing.assert_array_equal(alone.sources["blinks"], every.sources["blinks"])
+    cols = weight_columns(ARKIT)
+    assert np.all(alone.weights[:, cols["weights"]] == 0)
+
+
+@pytest.mark.parametrize("blend", [1, 4])
+def test_a_jump_fades_from_the_old_continuation_over_blend_frames(blend):
+    clip = _face_clip()
+    drive = np.random.default_rng(7).normal(size=200).cumsum()
+    raw = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=2, blend=0)
+    syn = synthesize_gestures(drive, [clip], rate=RATE, sigma=1.0, seed=2, blend=blend)
+    src = syn.sources["weights"][:, 1]
+    np.testing.assert_array_equal(src, raw.sources["weights"][:, 1])
+    cols = weight_columns(ARKIT)["weights"]
+    want = raw.weights[:, cols].copy()
+    ref = clip.weights[:, cols]
+    for t in np.flatnonzero(src[1:] != src[:-1] + 1) + 1:      # loop oracle, jump by jump
+        offset = ref[min(src[t - 1] + 1, len(ref) - 1)] - ref[src[t]]
+        for j in range(blend):
+            if t + j < len(want):
+                want[t + j] += (1 - j / blend) * offset
+    want = np.clip(want, ref.min(axis=0), ref.max(axis=0))
+    np.testing.assert_allclose(syn.weights[:, cols], want, atol=1e-12)
+
+
+def test_timeline_paints_blinks_apart_from_the_weights():
+    clips = [_face_clip("calm", seed=1), _face_clip("lively", seed=2)]
+    timeline = parse_timeline({"default": "calm", "segment": [
+        {"start": 0.0, "end": 5.0, "blinks": "lively"}]})
+    syn = synthesize_gestures(np.random.default_rng(3).normal(size=150), clips, rate=RATE,
+                              timeline=timeline, run=3)
+    assert np.all(syn.sources["blinks"][:, 0] == 1)
+    assert np.all(syn.sources["weights"][:, 0] == 0) and np.all(syn.sources["brows"][:, 0] == 0)
 
 
 # --- the command line -----------------------------------------------------------------
@@ -261,7 +351,8 @@ def cli_files(tmp_path):
 
 def test_cli_writes_weights_and_head_motion(cli_files):
     wav, clip, out = cli_files
-    assert main(["gestures", str(wav), "--palette", str(clip), "-o", str(out)]) == 0
+    assert main(["gestures", "synthesize", str(wav), "--palette", str(clip), "-o",
+                 str(out)]) == 0
     import pandas as pd
     table = pd.read_csv(out / "weights.csv")
     assert len(table) == 120 and list(table.columns[2:]) == ["s0", "s1", "s2"]
@@ -279,13 +370,14 @@ def test_cli_writes_weights_and_head_motion(cli_files):
 def test_cli_error_paths_exit_1(cli_files, capsys, args, match):
     wav, clip, out = cli_files
     args = [a.format(clip=clip, out=out, wav=wav) for a in args]
-    assert main(["gestures", str(wav), *args]) == 1
+    assert main(["gestures", "synthesize", str(wav), *args]) == 1
     assert match in capsys.readouterr().err
 
 
 def test_cli_missing_speech_exits_1(cli_files, capsys):
     wav, clip, out = cli_files
-    assert main(["gestures", str(out / "none.wav"), "--palette", str(clip), "-o", str(out)]) == 1
+    assert main(["gestures", "synthesize", str(out / "none.wav"), "--palette", str(clip),
+                 "-o", str(out)]) == 1
     assert "no such file" in capsys.readouterr().err
 
 
@@ -446,7 +538,8 @@ def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_pat
                        details={g: rng.normal(0, 1.5, (200, len(m), 3)) for g, m in
                                 groups.items()}, detail_labels=groups)
     save_clip(tmp_path / "ict.npz", clip)
-    assert main(["gestures", str(wav), "--palette", str(tmp_path / "ict.npz"), "-o", str(out),
+    assert main(["gestures", "synthesize", str(wav), "--palette", str(tmp_path / "ict.npz"),
+                 "-o", str(out),
                  "--mesh", str(ict / "generic_neutral_mesh.obj"), "--shapes", str(shapes),
                  "--units", "cm", "--binding", str(tmp_path / "binding.json")]) == 0
     seq = read_mesh_sequence(out / "mesh.npz")

@@ -21,7 +21,7 @@ from tolerances import EXPORT_FLOAT32_REL, GLTF_FLOAT32_CM
 _METRES = {"mm": 0.001, "cm": 0.01, "m": 1.0}
 _DTYPES = {pygltflib.FLOAT: "<f4", pygltflib.UNSIGNED_INT: "<u4",
            pygltflib.UNSIGNED_SHORT: "<u2"}
-_WIDTH = {"SCALAR": 1, "VEC3": 3}
+_WIDTH = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}
 
 
 def _buffer(gltf: pygltflib.GLTF2) -> bytes:
@@ -181,6 +181,43 @@ def test_one_frame_animation_and_unitless_mesh(tmp_path):
                                neutral.vertices, atol=1e-6)
 
 
+def _quat_apply(q, v):
+    """v rotated by unit quaternions q (T, 4) stored x, y, z, w (hand-written oracle)."""
+    u, w = q[:, None, :3], q[:, None, 3:]
+    cross = np.cross(u, v)
+    return v + 2 * w * cross + 2 * np.cross(u, cross)
+
+
+def test_rigid_motion_animates_the_node_in_metres(tmp_path):
+    """Vertex v of frame t lands on R_t v + T_t (mesh units): glTF rotates, then translates."""
+    neutral = _grid("cm", n=3)
+    n = 40
+    angle = np.linspace(0.0, 1.8 * np.pi, n)                # crosses pi: quaternion signs flip
+    axis = np.array([0.3, 1.0, -0.2]) / np.linalg.norm([0.3, 1.0, -0.2])
+    rotation = np.array([np.cos(a) * np.eye(3) + np.sin(a) * np.cross(np.eye(3), axis)
+                         + (1 - np.cos(a)) * np.outer(axis, axis) for a in angle])  # Rodrigues
+    translation = np.random.default_rng(1).normal(0, 5.0, (n, 3))
+    path = tmp_path / "moving.glb"
+    write_gltf(path, neutral, np.zeros((2, 9, 3)), ["a", "b"], weights=np.zeros((n, 2)),
+               rotation=rotation, translation=translation, rate=30)
+    gltf = pygltflib.GLTF2().load(str(path))
+    _check_accessors(gltf)
+    (anim,) = gltf.animations
+    paths = {c.target.path: anim.samplers[c.sampler] for c in anim.channels}
+    assert set(paths) == {"weights", "rotation", "translation"}
+    assert all(c.target.node == 0 and gltf.nodes[0].mesh == 0 for c in anim.channels)
+    quat = _read(gltf, paths["rotation"].output)
+    move = _read(gltf, paths["translation"].output)
+    np.testing.assert_allclose(_read(gltf, paths["rotation"].input)[:, 0], np.arange(n) / 30,
+                               rtol=EXPORT_FLOAT32_REL)
+    np.testing.assert_allclose(np.linalg.norm(quat, axis=1), 1.0, atol=1e-6)
+    assert np.all(np.einsum("ij,ij->i", quat[1:], quat[:-1]) > 0)   # the slerp's short way
+    metres = _read(gltf, gltf.meshes[0].primitives[0].attributes.POSITION)
+    played = _quat_apply(quat.astype(float), metres[None].astype(float)) + move[:, None]
+    want = np.einsum("tij,vj->tvi", rotation, neutral.vertices) + translation[:, None]
+    np.testing.assert_allclose(played / _METRES["cm"], want, atol=GLTF_FLOAT32_CM * 10)
+
+
 def test_output_never_replaces_the_neutral(tmp_path):
     neutral = _grid("cm", n=3)
     src = tmp_path / "neutral.glb"
@@ -200,10 +237,15 @@ def test_output_never_replaces_the_neutral(tmp_path):
     (dict(displacements=np.full((2, 9, 3), np.nan)), "displacements contains NaN"),
     (dict(weights=np.array([[0.0, np.nan]]), rate=30), r"weights contains NaN"),
     (dict(weights=np.zeros((4, 3)), rate=30), r"weights must have shape \(any, 2\)"),
-    (dict(weights=np.zeros((0, 2)), rate=30), "weights has no frames"),
-    (dict(weights=np.zeros((4, 2))), "weights need the take's rate"),
-    (dict(rate=30), "rate is only used with weights"),
+    (dict(weights=np.zeros((0, 2)), rate=30), "the animation has no frames"),
+    (dict(weights=np.zeros((4, 2))), "an animation needs the take's rate"),
+    (dict(rate=30), "rate is only used with an animation"),
     (dict(weights=np.zeros((4, 2)), rate=-1), "rate must be positive"),
+    (dict(rotation=np.tile(np.eye(3), (4, 1, 1)), rate=30), "rotation and translation go"),
+    (dict(rotation=np.tile(2 * np.eye(3), (4, 1, 1)), translation=np.zeros((4, 3)), rate=30),
+     "rotation must hold rotation matrices"),
+    (dict(rotation=np.tile(np.eye(3), (4, 1, 1)), translation=np.zeros((4, 3)), rate=30,
+          weights=np.zeros((5, 2))), "weights have 5 frames but the motion 4"),
     (dict(path="face.fbx"), "unknown glTF extension '.fbx'"),
     (dict(neutral=np.zeros((9, 3))), "neutral must be a Mesh"),
 ])

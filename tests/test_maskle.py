@@ -8,11 +8,13 @@ import trimesh
 from scipy.optimize import linprog
 
 from basis.maskle import (CHANNEL_KINDS, FIT_STATUSES, Mask, fit_mask, landmark_points,
-                          load_default_mask, load_mask, maskle_weights, save_mask,
-                          shepard_coefficients, smoothing_operator)
+                          load_default_mask, load_mask, maskle_weights, paint_mask, save_mask,
+                          shepard_coefficients, smoothing_operator, transfer_operator)
 from basis.maskle._geometry import TriangleIndex, nearest_ray_hits, triangles_intersect
-from basis.maskle.build_default import build_default_mask
+from basis.maskle.build_default import BONES, build_default_mask
+from basis.maskle.gold import LIP_SIDES, mouth_sides
 from fit.cli import main
+from fit.demo.face import make_face
 from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
 from mocap.markerset import REQUIRED_REGIONS
@@ -90,6 +92,47 @@ def test_mask_validation(mask, change, match):
         Mask(**kw)
 
 
+def test_lip_bands_are_the_two_sides_of_the_lip_line(mask):
+    upper, lower = mask.lip_bands
+    x, y, _ = mask.vertices.T
+    mouth = y < 3.0                                  # template cm: below the eye patches
+    line = -0.15 * (x / 2.5) ** 2                    # the builder's lip line
+    np.testing.assert_array_equal(upper, mouth & (y > line))
+    np.testing.assert_array_equal(lower, mouth & (y < line))
+    assert upper[mask.tongue_tip].sum() == lower[mask.tongue_tip].sum() > 0
+
+
+def test_tongue_seam_pairs_the_strips_column_by_column(mask):
+    """The builder's strips: same columns, upper 0.02 cm above and lower 0.02 cm below the lip line."""
+    seam = mask.tongue_seam
+    upper, lower = mask.lip_bands
+    assert len(seam) == len(mask.tongue_root)              # each root and each tip paired once
+    assert upper[seam[:, 0]].all() and lower[seam[:, 1]].all()
+    gap = mask.vertices[seam[:, 0]] - mask.vertices[seam[:, 1]]
+    np.testing.assert_allclose(gap, np.tile([0.0, 0.04, 0.0], (len(seam), 1)), atol=1e-12)
+    tongue = np.union1d(mask.tongue_root, mask.tongue_tip)
+    np.testing.assert_array_equal(np.sort(seam.ravel()), tongue)
+
+
+def test_paint_reproduces_weights_the_mask_can_carry(ict, mask):
+    """Face weights made by transferring a band-limited mask channel are painted back."""
+    mesh, marks = ict
+    fit = fit_mask(mask, mesh, marks)
+    upper, lower = mask.lip_bands
+    k = mask.channel_names.index("upper_lip_left")
+    want = transfer_operator(mask, fit, mesh).apply(mask.weights[:, [k]])
+    truth = mask.with_weights(np.where(np.arange(len(mask.channel_names)) == k, 0.0,
+                                       mask.weights))
+    painted = paint_mask(truth, fit, mesh, want, ["upper_lip_left"], support=~lower[:, None],
+                         regularization=1e-6)
+    got = transfer_operator(painted, fit, mesh).apply(painted.weights[:, [k]])
+    hit = ~np.isnan(want[:, 0])
+    assert np.abs(got[hit] - want[hit]).max() < 0.02
+    assert np.all(painted.weights[lower, k] == 0) and painted.weights[upper, k].max() > 0.9
+    with pytest.raises(InputError, match="support must have shape"):
+        paint_mask(truth, fit, mesh, want, ["upper_lip_left"], support=upper)
+
+
 def test_load_mask_rejects_other_files(tmp_path):
     path = tmp_path / "x.npz"
     np.savez(path, a=np.zeros(3))
@@ -138,6 +181,36 @@ def test_ray_hits_match_trimesh():
             best = np.minimum(best, dist)
     assert np.all(face >= 0)
     np.testing.assert_allclose(np.abs(t), best, atol=MESH_EXACT)
+
+
+def test_facing_ray_hits_take_the_surface_facing_the_ray():
+    """From inside a sphere, only the exit point faces the ray (outward normals)."""
+    rng = np.random.default_rng(9)
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    origins = rng.uniform(-0.5, 0.5, size=(200, 3))           # inside the unit sphere
+    dirs = rng.normal(size=(200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    index = TriangleIndex(sphere.vertices[sphere.faces])
+    face, t = nearest_ray_hits(origins, dirs, index, 10.0, min_cosine=0.0)
+    inter = trimesh.ray.ray_triangle.RayMeshIntersector(sphere)
+    loc, ray, tri = inter.intersects_location(origins, dirs, multiple_hits=False)
+    assert np.all(face >= 0) and np.all(t > 0)
+    np.testing.assert_allclose(t[ray], np.linalg.norm(loc - origins[ray], axis=1),
+                               atol=MESH_EXACT)
+    np.testing.assert_array_equal(face[ray], tri)
+    assert len(ray) == len(origins)
+    either = nearest_ray_hits(origins, dirs, index, 10.0)[1]     # the nearer of both exits
+    assert 50 < (either < 0).sum() < 150
+
+
+def test_rays_that_meet_nothing_are_misses():
+    """Lines beside a sphere, inside its index box: no hit (and no error)."""
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    origins = np.array([[1.5, 0.0, 0.0], [0.0, -1.2, 0.3]])
+    dirs = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    face, t = nearest_ray_hits(origins, dirs, TriangleIndex(sphere.vertices[sphere.faces]), 10.0)
+    np.testing.assert_array_equal(face, -1)
+    assert np.isnan(t).all()
 
 
 def test_shepard_reproduces_corners_and_constants():
@@ -192,6 +265,45 @@ def test_fit_freezes_every_vertex(ict, mask):
     assert np.all((fit.vertices - fit.placed) @ fit.forward <= 1e-12)
 
 
+def test_tongue_enters_the_closed_mouth(ict, mask):
+    """ICT's lips touch; the tongue slides between them, the lip row reaches the lips."""
+    mesh, marks = ict
+    fit = fit_mask(mask, mesh, marks)
+    contact = (mesh.vertices[marks["upper_lip_bottom"]]
+               + mesh.vertices[marks["lower_lip_top"]]) / 2
+    depth = (fit.vertices - contact) @ fit.forward / fit.scale         # template cm, + = in front
+    assert depth[mask.tongue_tip].max() < -1.0
+    assert depth[[mask.landmarks["upper_lip_bottom"], mask.landmarks["lower_lip_top"]]].max() \
+        < 0.8
+
+
+def test_demo_face_lips_keep_their_bones(mask):
+    """The demo face's mouth is a slit with touching corners (its own topology, mm).
+
+    Reference sides from its mouth loop (:func:`basis.maskle.gold.mouth_sides`,
+    which the Maskle never uses): no vertex clearly on one side may get more than
+    0.1 of a bone of the other lip. When the two tongue strips parted while the
+    mask shrank (1.3 mm here), lower-lip vertices by the corners saw neither
+    band through the parting and read the upper strip: 9 crossings with this
+    analytic paint, 3 with the bench's painted mask.
+    """
+    demo = make_face()
+    fit = fit_mask(mask, demo.mesh, demo.landmarks)
+    seam = mask.tongue_seam
+    to_template = (fit.vertices - fit.translation) @ fit.rotation / fit.scale
+    parting = to_template[seam[:, 0], :2] - to_template[seam[:, 1], :2]
+    assert np.linalg.norm(parting, axis=1).max() < 0.05          # template cm; placed 0.04
+    w = transfer_operator(mask, fit, demo.mesh).apply(mask.weights)
+    side = mouth_sides(demo.mesh, demo.landmarks)
+    lip = {s: [mask.channel_names.index(b) for b in BONES if LIP_SIDES.get(b) == s]
+           for s in ("upper", "lower")}
+    hit = ~np.isnan(w[:, 0])
+    upper, lower = hit & (side > 0.9), hit & (side < 0.1)
+    assert upper.sum() > 100 and lower.sum() > 100
+    assert w[upper][:, lip["lower"]].max() <= 0.1
+    assert w[lower][:, lip["upper"]].max() <= 0.1
+
+
 def test_transfer_is_invariant_to_similarity(ict, mask):
     mesh, marks = ict
     rng = np.random.default_rng(8)
@@ -228,6 +340,9 @@ def test_bad_option_is_an_error(ict, mask):
     mesh, marks = ict
     with pytest.raises(InputError, match="b must be positive"):
         fit_mask(mask, mesh, marks, b=0.0)
+    fit = fit_mask(mask, mesh, marks, max_iterations=1)
+    with pytest.raises(InputError, match=r"min_facing must lie in \[-1, 1\), got 1.0"):
+        transfer_operator(mask, fit, mesh, min_facing=1.0)
 
 
 def test_region_masks_need_regions(mask):

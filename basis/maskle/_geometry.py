@@ -94,7 +94,15 @@ def triangles_intersect(tri_a, tri_b) -> np.ndarray:
     return hit
 
 
-def nearest_ray_hits(origins, directions, index: "TriangleIndex", max_distance: float):
+def triangle_normals(tri: np.ndarray) -> np.ndarray:
+    """Unit normals (T, 3) of triangles (T, 3, 3), right-handed corner order (0 if degenerate)."""
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def nearest_ray_hits(origins, directions, index: "TriangleIndex", max_distance: float, *,
+                     min_cosine: float | None = None):
     """Nearest hit of bidirectional rays (lines) against an indexed triangle set.
 
     Parameters
@@ -106,6 +114,9 @@ def nearest_ray_hits(origins, directions, index: "TriangleIndex", max_distance: 
     max_distance : float
         Hits farther than this from the origin are ignored (and never tested:
         only triangles whose box meets the origin's ``max_distance`` box are).
+    min_cosine : float, optional
+        Only triangles whose normal makes a cosine above this with the ray's
+        direction count (a surface facing the same way); None: any triangle.
 
     Returns
     -------
@@ -120,10 +131,12 @@ def nearest_ray_hits(origins, directions, index: "TriangleIndex", max_distance: 
     t, u, v = segment_params(origins[r], directions[r], index.tri[f])
     with np.errstate(invalid="ignore"):
         ok = _inside(u, v) & (np.abs(t) <= max_distance)
+    if min_cosine is not None:
+        ok &= np.einsum("ij,ij->i", directions[r], triangle_normals(index.tri)[f]) > min_cosine
     r, f, t = r[ok], f[ok], t[ok]
     order = np.lexsort((np.abs(t), r))
     r, f, t = r[order], f[order], t[order]
-    first = np.r_[True, r[1:] != r[:-1]]
+    first = np.r_[True, r[1:] != r[:-1]][:len(r)]        # (no hit at all: empty)
     face[r[first]] = f[first]
     best[r[first]] = t[first]
     return face, best

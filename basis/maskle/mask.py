@@ -23,6 +23,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from mocap._atomic import atomic_path
 from mocap._validation import as_float_array
@@ -148,6 +150,55 @@ class Mask:
         """Unit initial tongue direction (3,) in the template frame (the paper's β)."""
         d = (self.vertices[self.tongue_tip] - self.vertices[self.tongue_root]).mean(axis=0)
         return d / np.linalg.norm(d)
+
+    @property
+    def lip_bands(self) -> tuple[np.ndarray, np.ndarray]:
+        """The upper and lower lip bands, bool arrays (V,) each.
+
+        The mouth patch is split along the lip-contact line: the band of each
+        lip (with its tongue strip) is the connected piece of the mask holding
+        ``upper_lip_bottom``, respectively ``lower_lip_top``.
+
+        Raises
+        ------
+        InputError
+            Both landmarks lie on one connected piece (an unsplit mouth).
+        """
+        poly = self.polygons
+        ring = np.where(poly < 0, poly[:, :1], poly)
+        a, b = ring.ravel(), np.roll(ring, -1, axis=1).ravel()
+        graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(self.n_vertices,) * 2)
+        piece = connected_components(graph, directed=False)[1]
+        upper, lower = (piece[self.landmarks[p]] for p in ("upper_lip_bottom", "lower_lip_top"))
+        if upper == lower:
+            raise InputError("the mask's mouth is not split along the lip line: "
+                             "upper_lip_bottom and lower_lip_top lie on one piece")
+        return piece == upper, piece == lower
+
+    @property
+    def tongue_seam(self) -> np.ndarray:
+        """Pairs (S, 2) of (upper, lower) tongue vertices that sit together across the lip line.
+
+        The two tongue strips are one fold into the mouth, cut along its middle
+        so that each lip keeps its own band: a seam pair is a tongue vertex
+        (root or tip) of the upper band and one of the lower band that are each
+        other's nearest tongue vertex of the other band, closer than a quarter
+        of the mask's median edge length.
+        """
+        upper, lower = self.lip_bands
+        tongue = np.zeros(self.n_vertices, bool)
+        tongue[self.tongue_root] = tongue[self.tongue_tip] = True
+        up, low = np.flatnonzero(upper & tongue), np.flatnonzero(lower & tongue)
+        if len(up) == 0 or len(low) == 0:
+            return np.zeros((0, 2), np.int64)
+        d = np.linalg.norm(self.vertices[up, None] - self.vertices[None, low], axis=2)
+        to_low, to_up = d.argmin(axis=1), d.argmin(axis=0)
+        ring = np.where(self.polygons < 0, self.polygons[:, :1], self.polygons)
+        edge = np.linalg.norm(self.vertices[ring] - self.vertices[np.roll(ring, -1, axis=1)],
+                              axis=2)
+        keep = (to_up[to_low] == np.arange(len(up))) \
+            & (d[np.arange(len(up)), to_low] < 0.25 * np.median(edge[edge > 0]))
+        return np.stack([up[keep], low[to_low[keep]]], axis=1)
 
     def channels(self, kind: str) -> list:
         """Names of the channels of one kind (``"bone"`` or ``"region"``)."""

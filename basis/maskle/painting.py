@@ -27,7 +27,7 @@ from .transfer import transfer_operator
 __all__ = ["paint_mask"]
 
 
-def paint_mask(mask: Mask, fit: MaskFit, mesh: Mesh, weights, channels, *,
+def paint_mask(mask: Mask, fit: MaskFit, mesh: Mesh, weights, channels, *, support=None,
                regularization: float = 0.05, **transfer_options) -> Mask:
     """A copy of `mask` whose channels `channels` reproduce `weights` on `mesh`.
 
@@ -41,6 +41,10 @@ def paint_mask(mask: Mask, fit: MaskFit, mesh: Mesh, weights, channels, *,
         Reference weights in [0, 1] of `mesh`'s vertices (NaN rows ignored).
     channels : sequence of str
         The C mask channels to repaint (others are kept).
+    support : array_like of bool, shape (V, C), optional
+        Mask vertices each channel may weight (0 elsewhere), e.g. a lip bone
+        only on its own band (:attr:`~basis.maskle.mask.Mask.lip_bands`), as an
+        artist paints it; default everywhere.
     regularization : float
         λ relative to the mean squared column norm of T.
     **transfer_options
@@ -56,6 +60,11 @@ def paint_mask(mask: Mask, fit: MaskFit, mesh: Mesh, weights, channels, *,
     unknown = [c for c in channels if c not in mask.channel_names]
     if unknown:
         raise InputError(f"mask has no channel {', '.join(unknown)}")
+    support = np.ones((mask.n_vertices, len(channels)), bool) if support is None \
+        else np.asarray(support, bool)
+    if support.shape != (mask.n_vertices, len(channels)):
+        raise InputError(f"support must have shape {(mask.n_vertices, len(channels))}, got "
+                         f"{support.shape}")
     op = transfer_operator(mask, fit, mesh, **transfer_options)
     rows = op.hit & ~np.isnan(weights).any(axis=1)
     t = op.matrix[rows]
@@ -65,6 +74,9 @@ def paint_mask(mask: Mask, fit: MaskFit, mesh: Mesh, weights, channels, *,
     out = mask.weights.copy()
     for k, name in enumerate(channels):
         rhs = np.concatenate([weights[rows, k], np.zeros(mask.n_vertices)])
-        out[:, mask.channel_names.index(name)] = lsq_linear(system, rhs, bounds=(0.0, 1.0),
-                                                            method="bvls").x
+        col = np.zeros(mask.n_vertices)
+        if support[:, k].any():
+            col[support[:, k]] = lsq_linear(system[:, support[:, k]], rhs, bounds=(0.0, 1.0),
+                                            method="bvls").x
+        out[:, mask.channel_names.index(name)] = col
     return mask.with_weights(np.clip(out, 0.0, 1.0))

@@ -1,8 +1,11 @@
 """Weight transfer from a fitted mask to a face: normal rays, Shepard, smoothing.
 
 For each face vertex inside the fitted mask's bounding sphere, the line along
-its normal (both directions) is intersected with the mask's triangles; the
-nearest hit within ``max_distance`` names a mask polygon, whose corner
+its normal (both directions) is intersected with the mask's triangles that
+face the same way as the vertex (outward normals at an acute angle: the inner
+surface of the upper lip reads the upper tongue strip above the lower one, a
+brow never reads a patch from behind); the nearest hit within
+``max_distance`` names a mask polygon, whose corner
 weights are averaged with inverse-distance (Shepard, power 2) weights of the
 hit point. The result is smoothed over the face's edge graph among hit
 vertices. Both steps are linear, so the transfer is one sparse (N, V) operator
@@ -31,6 +34,8 @@ __all__ = ["TransferOperator", "MaskleWeights", "transfer_operator", "shepard_co
 
 #: Shepard power: corner weights 1 / d**_SHEPARD_POWER.
 _SHEPARD_POWER = 2.0
+#: Default least cosine between a vertex normal and the normal of the mask triangle it reads.
+_MIN_FACING = 0.0
 
 
 def shepard_coefficients(points, corners, valid=None) -> np.ndarray:
@@ -126,7 +131,7 @@ class TransferOperator:
 
 
 def transfer_operator(mask: Mask, fit: MaskFit, mesh: Mesh, *, max_distance: float = 1.0,
-                      smoothing: int = 3) -> TransferOperator:
+                      smoothing: int = 3, min_facing: float = _MIN_FACING) -> TransferOperator:
     """Build the transfer operator of a fitted mask onto a face.
 
     Parameters
@@ -139,12 +144,20 @@ def transfer_operator(mask: Mask, fit: MaskFit, mesh: Mesh, *, max_distance: flo
         Farthest hit along a vertex normal, template cm (times ``fit.scale``).
     smoothing : int
         Laplacian smoothing iterations (0: none).
+    min_facing : float in [-1, 1)
+        A vertex takes weights only from mask triangles whose (outward) normal
+        makes a cosine above this with its own normal: the inner surface of one
+        lip faces the other lip's band but not its outward normal, so it reads
+        its own lip's tongue strip instead. -1 accepts every triangle.
 
     Returns
     -------
     TransferOperator
     """
     max_distance = as_positive_float(max_distance, "max_distance")
+    min_facing = float(min_facing)
+    if not -1.0 <= min_facing < 1.0:
+        raise InputError(f"min_facing must lie in [-1, 1), got {min_facing}")
     x = fit.vertices
     centre = x.mean(axis=0)
     radius = np.linalg.norm(x - centre, axis=1).max()
@@ -153,7 +166,8 @@ def transfer_operator(mask: Mask, fit: MaskFit, mesh: Mesh, *, max_distance: flo
     usable = np.linalg.norm(normals, axis=1) > 0
     tri = mask.triangles
     face, t = nearest_ray_hits(mesh.vertices[inside[usable]], normals[usable],
-                               TriangleIndex(x[tri]), max_distance * fit.scale)
+                               TriangleIndex(x[tri]), max_distance * fit.scale,
+                               min_cosine=None if min_facing == -1.0 else min_facing)
     ok = face >= 0
     rows = inside[usable][ok]
     points = mesh.vertices[rows] + t[ok, None] * normals[usable][ok]

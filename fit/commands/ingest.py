@@ -26,6 +26,9 @@ def add_parser(sub) -> None:
     p.add_argument("--markerset", type=Path, help="marker-set TOML (head markers, regions)")
     p.add_argument("--fix-swaps", action="store_true",
                    help="find and undo label swaps between neighbouring markers first")
+    p.add_argument("--reject-implausible", action="store_true",
+                   help="remove teleports, doubly labelled markers and ghost slides before "
+                        "filling (in the head frame with --markerset)")
     p.add_argument("--fill", choices=FILL_CHOICES, default="auto", help="gap-filling method")
     p.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")
     p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
@@ -61,7 +64,8 @@ def ingest_file(path, output, *, markerset_path=None, options=IngestOptions(), q
 
 
 def run(args) -> int:
-    options = IngestOptions(fix_swaps=args.fix_swaps, fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass,
+    options = IngestOptions(fix_swaps=args.fix_swaps, reject_implausible=args.reject_implausible,
+                            fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass,
                             resample_hz=args.resample, stabilize=args.stabilize)
     ingest_file(args.file, args.output, markerset_path=args.markerset, options=options,
                 qa_dir=args.qa)

@@ -2,7 +2,9 @@
 
 - :mod:`.analysis`: F = R N + Σ c_i B_i + P + Σ D_j + T from a stabilized take;
 - :mod:`.speech`: speech intensity S(t) from a WAV file or an analog channel;
+- :mod:`.features`: the features, each synthesized by its own chain;
 - :mod:`.clip`: reference clips (the palette of styles);
+- :mod:`.reference`: reference clips from captures (``mocap2mesh gestures analyze``);
 - :mod:`.timeline`: styles painted on time segments, per feature;
 - :mod:`.mrf`: the Markov random field synthesis;
 - :mod:`.transfer`: details moved to a target face by compact RBFs, mesh outputs.
@@ -12,14 +14,19 @@ from .analysis import (DETAIL_GROUPS, ESTIMATORS, LIP_REGIONS, GestureAnalysis, 
                        marker_basis)
 from .clip import GestureClip, clip_from_analysis, clip_from_performance, load_clip, save_clip
 from .mrf import GestureSynthesis, candidate_distances, pick_candidate, synthesize_gestures
+from .reference import CaptureClip, clip_from_capture
 from .speech import (analog_intensity, opening_intensity, read_wav, speech_intensity,
                      wav_intensity)
-from .timeline import FEATURES, Segment, Timeline, load_timeline, parse_timeline
+from .features import (DETAIL_FEATURES, FEATURES, WEIGHT_FEATURES, WEIGHT_PATTERNS,
+                       weight_columns)
+from .timeline import Segment, Timeline, load_timeline, parse_timeline
 
 __all__ = ["GestureAnalysis", "analyze_gestures", "marker_basis", "DETAIL_GROUPS",
            "LIP_REGIONS", "ESTIMATORS",
            "GestureClip", "clip_from_analysis", "clip_from_performance", "load_clip", "save_clip",
+           "CaptureClip", "clip_from_capture",
            "GestureSynthesis", "synthesize_gestures", "candidate_distances", "pick_candidate",
            "speech_intensity", "read_wav", "wav_intensity", "analog_intensity",
            "opening_intensity",
-           "FEATURES", "Segment", "Timeline", "load_timeline", "parse_timeline"]
+           "FEATURES", "WEIGHT_FEATURES", "DETAIL_FEATURES", "WEIGHT_PATTERNS", "weight_columns",
+           "Segment", "Timeline", "load_timeline", "parse_timeline"]

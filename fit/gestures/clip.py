@@ -22,7 +22,7 @@ from mocap.performance import Performance, performance_weights, resample_perform
 
 from .analysis import GestureAnalysis
 from .speech import OPENING_WINDOW_S, speech_intensity
-from .timeline import FEATURES
+from .features import DETAIL_FEATURES, weight_columns
 
 __all__ = ["GestureClip", "clip_from_analysis", "clip_from_performance", "save_clip",
            "load_clip", "ACTIVITY_COLUMNS"]
@@ -58,12 +58,16 @@ class GestureClip:
     names : tuple of str
         Shape names.
     head : ndarray of shape (n_frames, 6) or None
-        Rotation vector (rad) and translation (mm) of the head relative to the
-        clip's mean pose: ``R(t) = R_mean · exp(r(t))``, ``T(t) = T_mean + τ(t)``.
+        Rotation vector r (rad) and translation τ (mm) of the head relative to
+        the clip's mean pose, in the head frame: a head-frame point x is at
+        ``exp(r(t)) x + τ(t)`` in the frame of the mean pose, i.e.
+        ``R(t) = R_mean exp(r(t))`` and ``T(t) = T_mean + R_mean τ(t)``.
     details : mapping of str to ndarray of shape (n_frames, n_group_markers, 3), mm
         D_j(t) per detail group (head frame).
     detail_labels : mapping of str to tuple of str
         Marker labels of each detail group.
+    intensity_source : str
+        What S(t) was made of (speech, an analog channel, a stand-in), for the record.
     """
 
     name: str
@@ -74,6 +78,7 @@ class GestureClip:
     head: np.ndarray | None = None
     details: Mapping[str, np.ndarray] = field(default_factory=dict)
     detail_labels: Mapping[str, tuple] = field(default_factory=dict)
+    intensity_source: str = ""
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -91,9 +96,9 @@ class GestureClip:
                                                                     shape=(n, 6))))
         details, labels = {}, {}
         for group, values in self.details.items():
-            if group not in FEATURES[2:]:
+            if group not in DETAIL_FEATURES:
                 raise InputError(f"unknown detail group {group!r}; expected one of "
-                                 f"{list(FEATURES[2:])}")
+                                 f"{list(DETAIL_FEATURES)}")
             values = as_float_array(values, f"details[{group!r}]", shape=(n, None, 3))
             members = tuple(self.detail_labels.get(group, ()))
             if len(members) != values.shape[1]:
@@ -108,16 +113,22 @@ class GestureClip:
         """Number of frames T."""
         return len(self.intensity)
 
-    def features(self) -> dict:
-        """Feature name (:data:`fit.gestures.timeline.FEATURES`) to values (n_frames, d)."""
-        out = {"weights": self.weights}
+    def features(self, weight_groups: Mapping | None = None) -> dict:
+        """Feature name (:data:`fit.gestures.features.FEATURES`) to values (n_frames, d).
+
+        The blend weights are split into ``weights``, ``blinks`` and ``brows``
+        by :func:`fit.gestures.features.weight_columns` (`weight_groups`).
+        """
+        out = {f: self.weights[:, cols]
+               for f, cols in weight_columns(self.names, weight_groups).items()}
         if self.head is not None:
             out["head"] = self.head
         out.update({g: v.reshape(self.n_frames, -1) for g, v in self.details.items()})
         return out
 
 
-def clip_from_analysis(analysis: GestureAnalysis, intensity, *, name: str) -> GestureClip:
+def clip_from_analysis(analysis: GestureAnalysis, intensity, *, name: str,
+                       intensity_source: str = "") -> GestureClip:
     """A palette clip from an analysed take and its speech intensity.
 
     Parameters
@@ -126,12 +137,15 @@ def clip_from_analysis(analysis: GestureAnalysis, intensity, *, name: str) -> Ge
     intensity : array_like of shape (analysis.n_frames,), dB
         S(t) at the take's frames (:mod:`fit.gestures.speech`).
     name : str
+    intensity_source : str, optional
+        What `intensity` was made of (kept in the clip).
 
     Returns
     -------
     GestureClip
-        Head motion relative to the mean rotation (chordal L2 mean) and mean
-        translation of the frames with a transform; NaN where there is none.
+        Head motion relative to the mean rotation R_mean (chordal L2 mean) and
+        mean translation T_mean of the frames with a transform, in the head
+        frame (see :class:`GestureClip`); NaN where there is none.
     """
     if not isinstance(analysis, GestureAnalysis):
         raise InputError(f"analysis must be a GestureAnalysis, got {type(analysis).__name__}")
@@ -140,12 +154,14 @@ def clip_from_analysis(analysis: GestureAnalysis, intensity, *, name: str) -> Ge
     head = np.full((analysis.n_frames, 6), np.nan)
     if valid.any():
         rot = Rotation.from_matrix(analysis.rotation[valid])
-        head[valid, :3] = (rot.mean().inv() * rot).as_rotvec()
+        mean = rot.mean()
+        head[valid, :3] = (mean.inv() * rot).as_rotvec()
         trans = analysis.translation[valid]
-        head[valid, 3:] = trans - trans.mean(axis=0)
+        head[valid, 3:] = mean.inv().apply(trans - trans.mean(axis=0))
     return GestureClip(name, analysis.rate, intensity, analysis.weights, analysis.names,
                        head=head, details=dict(analysis.details),
-                       detail_labels={g: analysis.groups[g] for g in analysis.details})
+                       detail_labels={g: analysis.groups[g] for g in analysis.details},
+                       intensity_source=str(intensity_source))
 
 
 def clip_from_performance(performance: Performance, *, name: str, rate: float, shapes=None,
@@ -193,19 +209,20 @@ def clip_from_performance(performance: Performance, *, name: str, rate: float, s
     return GestureClip(name, rate, intensity, performance_weights(grid, shapes), shapes)
 
 
-def save_clip(path, clip: GestureClip) -> None:
-    """Write a clip as ``.npz`` (atomically). Read back with :func:`load_clip`."""
+def save_clip(path, clip: GestureClip, *, inputs=()) -> None:
+    """Write a clip as ``.npz``, atomically and never over one of `inputs` (:func:`load_clip`)."""
     if not isinstance(clip, GestureClip):
         raise InputError(f"clip must be a GestureClip, got {type(clip).__name__}")
     arrays = dict(format=np.array(_FORMAT), name=np.array(clip.name),
                   rate=np.float64(clip.rate), intensity=clip.intensity, weights=clip.weights,
-                  names=np.array(clip.names, dtype=str))
+                  names=np.array(clip.names, dtype=str),
+                  intensity_source=np.array(clip.intensity_source))
     if clip.head is not None:
         arrays["head"] = clip.head
     for group, values in clip.details.items():
         arrays[f"details.{group}"] = values
         arrays[f"labels.{group}"] = np.array(clip.detail_labels[group], dtype=str)
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+    with atomic_path(path, inputs=inputs) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
 
 
@@ -233,6 +250,7 @@ def load_clip(path) -> GestureClip:
             str(data["name"]), float(data["rate"]), data["intensity"], data["weights"],
             tuple(data["names"].tolist()), head=data.get("head"),
             details={g: data[f"details.{g}"] for g in groups},
-            detail_labels={g: tuple(data[f"labels.{g}"].tolist()) for g in groups})
+            detail_labels={g: tuple(data[f"labels.{g}"].tolist()) for g in groups},
+            intensity_source=str(data.get("intensity_source", "")))
     except (KeyError, InputError) as exc:
         raise FileFormatError(path, f"inconsistent gesture clip: {exc}") from None

@@ -1,8 +1,9 @@
 """Speech-driven synthesis of facial gestures by a Markov random field (Ju & Lee 2008, sec. 5.1).
 
-Each feature (blend weights c, head motion, each detail group D_j) is its own
-Markov chain over the frames of the reference clips of the palette: the next
-output frame copies reference frame t̂, chosen among the best few candidates
+Each feature (:mod:`fit.gestures.features`: the blend weights c, the blink and
+the brow weights, head motion, each detail group D_j) is its own Markov chain
+over the frames of the reference clips of the palette: the next output frame
+copies reference frame t̂, chosen among the best few candidates
 of ``dist(t, t̂) = α Σ_j |S̃(t − j) − S(t̂ − j)|² + Σ_j |c̃(t − j) − c(t̂ − j)|²``
 with probability ∝ exp(−dist/σ). A timeline assigns styles (clips) to time
 segments, per feature.
@@ -21,7 +22,8 @@ from mocap.errors import InputError
 
 from . import _mrf
 from .clip import GestureClip
-from .timeline import FEATURES, Timeline
+from .features import DETAIL_FEATURES, FEATURES, weight_columns
+from .timeline import Timeline
 
 __all__ = ["GestureSynthesis", "synthesize_gestures", "candidate_distances",
            "pick_candidate"]
@@ -37,9 +39,10 @@ class GestureSynthesis:
         c̃(t), within the palette's range of each shape.
     names : tuple of str
     head_rotation : ndarray of shape (n_frames, 3, 3) or None
-        R̃(t) relative to a mean head pose (None: no clip had head motion).
+        R̃(t) relative to the mean head pose, in the head frame (None: no clip
+        had head motion): a head-frame point x moves to ``R̃(t) x + T̃(t)``.
     head_translation : ndarray of shape (n_frames, 3) or None, mm
-        T̃(t) relative to the mean head position.
+        T̃(t).
     details : mapping of str to ndarray of shape (n_frames, n_group_markers, 3), mm
         D̃_j(t), head frame of the reference subject.
     detail_labels : mapping of str to tuple of str
@@ -91,8 +94,8 @@ def _palette(palette, rate) -> tuple:
     return clips
 
 
-def _features(clips, features) -> tuple:
-    have = [set(c.features()) for c in clips]
+def _features(clips, features, weight_groups) -> tuple:
+    have = [set(c.features(weight_groups)) for c in clips]
     common = set.intersection(*have)
     if features is None:
         return tuple(f for f in FEATURES if f in common)
@@ -103,7 +106,7 @@ def _features(clips, features) -> tuple:
         lacking = [c.name for c, h in zip(clips, have) if feature not in h]
         if lacking:
             raise InputError(f"feature {feature!r} is missing from clips {lacking}")
-    for group in set(features) & set(FEATURES[2:]):
+    for group in set(features) & set(DETAIL_FEATURES):
         if len({c.detail_labels[group] for c in clips}) > 1:
             raise InputError(f"detail group {group!r} has other markers in different clips")
     return features
@@ -120,7 +123,8 @@ def _spans(timeline, feature, n_frames, rate, clip_index) -> list:
 def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: float,
                         timeline: Timeline | None = None, features=None, history: int = 10,
                         alpha: float = 1.0, sigma: float = 0.05, n_candidates: int = 3,
-                        run: int = 1, blend: int = 0, seed=0) -> GestureSynthesis:
+                        run: int = 1, blend: int = 4, weight_groups=None,
+                        seed=0) -> GestureSynthesis:
     """Generate c̃(t), R̃(t), T̃(t) and D̃_j(t) driven by a speech intensity.
 
     Parameters
@@ -134,8 +138,9 @@ def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: floa
     timeline : Timeline, optional
         Styles per feature and time; default: every clip everywhere.
     features : sequence of str, optional
-        Features to synthesize (:data:`fit.gestures.timeline.FEATURES`);
-        default: those every clip has.
+        Features to synthesize (:data:`fit.gestures.features.FEATURES`), each by
+        its own chain; default: those every clip has. Weight columns of a
+        feature not synthesized are 0.
     history : int, default 10
         h, frames matched (paper: 10).
     alpha : float, default 1
@@ -147,10 +152,19 @@ def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: floa
     run : int, default 1
         Frames copied per pick (1: the paper's per-frame chain; more: motion-graph
         style blocks, faster, fewer decisions).
-    blend : int, default 0
-        Frames over which the offset of a jump is faded out (0: none).
+    blend : int, default 4
+        Frames over which the offset of a jump is faded out (0: none, every
+        output frame a reference frame). On a real performance 4 frames leave
+        fewer large frame-to-frame jumps than the reference has, 0 about 1.5
+        times as many (``bench/bench_gestures.py``).
+    weight_groups : mapping of str to sequence of str, optional
+        Shapes of the ``blinks`` and ``brows`` features
+        (:func:`fit.gestures.features.weight_columns`); default: by name;
+        ``{}``: every weight in the one ``weights`` chain.
     seed : int or numpy.random.Generator
-        The result is deterministic for a given seed.
+        The result is deterministic for a given seed. Each feature draws from
+        its own stream (spawned in :data:`FEATURES` order), so the choices of
+        one chain do not depend on which other features are synthesized.
 
     Returns
     -------
@@ -184,7 +198,7 @@ def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: floa
     intensity = as_float_array(intensity, "intensity", ndim=1, allow_nan=False)
     rate = as_positive_float(rate, "rate")
     clips = _palette(palette, rate)
-    features = _features(clips, features)
+    features = _features(clips, features, weight_groups)
     h = as_int(history, "history", minimum=1)
     run = as_int(run, "run", minimum=1)
     k = as_int(n_candidates, "n_candidates", minimum=1)
@@ -203,20 +217,20 @@ def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: floa
         if unknown:
             raise InputError(f"timeline styles {unknown} are not clips of the palette "
                              f"({', '.join(clip_index)})")
-    rng = np.random.default_rng(seed)
+    streams = dict(zip(FEATURES, np.random.default_rng(seed).spawn(len(FEATURES))))
     target = _mrf.standardize_intensity(intensity)
     speech = [_mrf.standardize_intensity(c.intensity) for c in clips]
     values, sources, transitions = {}, {}, {}
     for feature in features:
-        raw = [c.features()[feature] for c in clips]
+        raw = [c.features(weight_groups)[feature] for c in clips]
         parts = [slice(0, 3), slice(3, 6)] if feature == "head" else [slice(None)]
         scale = _mrf.part_scales(raw, parts)
         spans = _spans(timeline, feature, len(target), rate, clip_index)
         src = _mrf.chain(target, speech, [f / scale for f in raw], spans, h=h, run=run,
-                         alpha=alpha, k=k, sigma=sigma, rng=rng)
+                         alpha=alpha, k=k, sigma=sigma, rng=streams[feature])
         values[feature], transitions[feature] = _assemble(raw, src, blend)
         sources[feature] = src
-    return _result(values, sources, transitions, clips, intensity, rate)
+    return _result(values, sources, transitions, clips, intensity, rate, weight_groups)
 
 
 def _assemble(raw: list, src: np.ndarray, blend: int) -> tuple:
@@ -237,18 +251,23 @@ def _assemble(raw: list, src: np.ndarray, blend: int) -> tuple:
     return np.clip(blended, low, high), int(jump.sum())
 
 
-def _result(values, sources, transitions, clips, intensity, rate) -> GestureSynthesis:
+def _result(values, sources, transitions, clips, intensity, rate,
+            weight_groups) -> GestureSynthesis:
     head_rotation = head_translation = None
     if "head" in values:
         head_rotation = Rotation.from_rotvec(values["head"][:, :3]).as_matrix()
         head_translation = values["head"][:, 3:]
     n = len(intensity)
-    details = {g: v.reshape(n, -1, 3) for g, v in values.items() if g in FEATURES[2:]}
+    weights = np.zeros((n, len(clips[0].names)))
+    for feature, cols in weight_columns(clips[0].names, weight_groups).items():
+        if feature in values:
+            weights[:, cols] = values[feature]
+    details = {g: v.reshape(n, -1, 3) for g, v in values.items() if g in DETAIL_FEATURES}
     labels = {g: clips[0].detail_labels[g] for g in details}
     message = (f"{n} frames at {rate:g} Hz from {len(clips)} clips; transitions: "
                + ", ".join(f"{f} {c}" for f, c in transitions.items()))
     return GestureSynthesis(
-        weights=values.get("weights", np.zeros((n, len(clips[0].names)))),
+        weights=weights,
         names=clips[0].names, head_rotation=head_rotation, head_translation=head_translation,
         details=details, detail_labels=labels, intensity=intensity, rate=rate,
         sources=sources, transitions=transitions, clip_names=tuple(c.name for c in clips),

@@ -12,6 +12,7 @@ style of subject B")::
     end = 4.5                   # s, exclusive
     style = "lively"            # every feature not named below
     head = "nodding"            # per-feature styles: see FEATURES
+    blinks = "calm"
 
 Where neither a segment nor ``default`` names a style, every clip of the
 palette is a candidate.
@@ -28,12 +29,9 @@ from mocap._toml import read_toml
 from mocap.errors import FileFormatError, InputError
 from mocap._validation import as_positive_float, as_int
 
+from .features import FEATURES
 
 __all__ = ["Segment", "Timeline", "load_timeline", "parse_timeline", "FEATURES"]
-
-#: Features the synthesis generates, each from its own Markov chain: the blend
-#: weights c(t), the head motion R(t), T(t), and the detail groups D_j(t).
-FEATURES = ("weights", "head", "left_brow", "right_brow", "left_eye", "right_eye")
 
 _SEGMENT_KEYS = {"start", "end", "style", *FEATURES}
 

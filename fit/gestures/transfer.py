@@ -5,7 +5,8 @@ movements D_j on the synthetic face, with bell-shaped cubic B-spline kernels
 and no polynomial term, so that each marker's influence stays local. The
 operator is linear, so the details become extra "shapes" of the face: one
 displacement field per marker coordinate, whose weight is the marker's
-displacement in mm.
+displacement in mm. The head motion moves to the face the same way, through
+the binding's similarity (:func:`head_motion_on_mesh`).
 """
 
 from __future__ import annotations
@@ -17,13 +18,13 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from mocap._validation import as_positive_float
+from mocap._validation import as_float_array, as_positive_float
 from mocap.bind import Binding
 from mocap.errors import InputError, MarkerError
 from mocap.mesh import Mesh
 from mocap.rbf import build_rbf_operator
 
-__all__ = ["DetailTransfer", "build_detail_transfer"]
+__all__ = ["DetailTransfer", "build_detail_transfer", "head_motion_on_mesh"]
 
 #: Default support radius of the kernels, in median nearest-marker distances.
 SUPPORT_SPACINGS = 3.0
@@ -125,3 +126,34 @@ def build_detail_transfer(binding: Binding, mesh: Mesh, groups: Mapping[str, tup
     axes = binding.scale * np.asarray(binding.rotation)
     return DetailTransfer(groups=groups, labels=labels, matrix=op.matrix, axes=axes,
                           support=support)
+
+
+def head_motion_on_mesh(binding: Binding, rotation, translation) -> tuple:
+    """Head motion of the capture's head frame as a rigid motion of the bound mesh.
+
+    Parameters
+    ----------
+    binding : Binding
+        Made in the head frame (``p_mesh = s Q p_mm + b``).
+    rotation : array_like of shape (n_frames, 3, 3)
+        R̃(t): a head-frame point x (mm) moves to ``R̃ x + T̃``
+        (:attr:`fit.gestures.GestureSynthesis.head_rotation`). No NaN.
+    translation : array_like of shape (n_frames, 3), mm
+        T̃(t).
+
+    Returns
+    -------
+    rotation : ndarray of shape (n_frames, 3, 3)
+        ``Q R̃ Qᵀ``.
+    translation : ndarray of shape (n_frames, 3), mesh units
+        ``b − Q R̃ Qᵀ b + s Q T̃``: a mesh point y moves to ``rotation y + translation``,
+        the image of the moved head-frame point.
+    """
+    if not isinstance(binding, Binding):
+        raise InputError(f"binding must be a Binding, got {type(binding).__name__}")
+    rotation = as_float_array(rotation, "rotation", shape=(None, 3, 3), allow_nan=False)
+    translation = as_float_array(translation, "translation", shape=(len(rotation), 3),
+                                 allow_nan=False)
+    q, b = np.asarray(binding.rotation, float), np.asarray(binding.translation, float)
+    turned = q @ rotation @ q.T
+    return turned, b - turned @ b + binding.scale * translation @ q.T

@@ -1,0 +1,219 @@
+"""``mocap2mesh gestures analyze`` and ``synthesize`` end to end: capture -> clip -> glb."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+import pytest
+import scipy.io.wavfile
+from scipy.spatial.transform import Rotation
+
+from fit.cli import main
+from fit.gestures import load_clip
+from mocap.bind import load_binding
+from mocap.mesh import load_mesh
+from mocap.synth import load_capture_truth
+
+HERE = Path(__file__).resolve().parent
+SHAPES = ("browInnerUp_L", "browInnerUp_R", "eyeBlink_L", "eyeBlink_R", "jawOpen",
+          "mouthSmile_L")
+RATE, AMPLITUDE, BURST_HZ = 30.0, 0.3, 0.5
+#: Neutral frame (index at 30 Hz) of the simulated take: its smallest total weight.
+NEUTRAL = 56
+
+
+def _speech(path, seconds):
+    """Tone bursts: 200 Hz of amplitude 0.3 during the first half of every 2 s."""
+    t = np.arange(int(16000 * seconds)) / 16000
+    on = (t * BURST_HZ) % 1.0 < 0.5
+    scipy.io.wavfile.write(path, 16000, (AMPLITUDE * np.sin(2 * np.pi * 200 * t) * on)
+                           .astype(np.float32))
+    return path
+
+
+@pytest.fixture(scope="module")
+def simulated(shared_data, tmp_path_factory):
+    """A 6 s capture of the ICT face simulated with head motion, noise and gaps, bound."""
+    folder = tmp_path_factory.mktemp("gestures-cli")
+    ict = shared_data / "ict-face"
+    shapes = folder / "shapes"
+    shapes.mkdir()
+    for name in SHAPES:
+        (shapes / f"{name}.obj").symlink_to(ict / "expressions" / f"{name}.obj")
+    mesh = ict / "generic_neutral_mesh.obj"
+    capture, truth, binding = folder / "cap.c3d", folder / "truth.npz", folder / "binding.json"
+    with pytest.warns(UserWarning, match="match no shape"):
+        assert main(["synth", "--mesh", str(mesh), "--shapes", str(shapes), "--performance",
+                     str(shared_data / "arkit-performances" / "alex_rom_3.csv"), "--layout",
+                     str(HERE / "ict_marker_layout.toml"), "--markerset",
+                     str(HERE / "ict_markerset.toml"), "-o", str(capture), "--truth",
+                     str(truth), "--rate", "60", "--start", "20", "--duration", "6", "--gaps",
+                     "3", "--noise", "0.1", "--head-motion", "10,20"]) == 0
+    assert main(["bind", str(capture), "--markerset", str(HERE / "ict_markerset.toml"),
+                 "--mesh", str(mesh), "--landmarks", str(HERE / "ict_landmarks.toml"),
+                 "--stabilize", "-o", str(binding)]) == 0
+    wav = _speech(folder / "speech.wav", 6.0)
+    common = ["--markerset", str(HERE / "ict_markerset.toml"), "--binding", str(binding),
+              "--mesh", str(mesh), "--shapes", str(shapes), "--units", "cm"]
+    return dict(folder=folder, capture=capture, truth=truth, binding=binding, wav=wav,
+                mesh=mesh, shapes=shapes, common=common)
+
+
+def _moving_average(x, window):
+    k = window // 2
+    return np.array([x[max(0, t - k):t + k + 1].mean(axis=0) for t in range(len(x))])
+
+
+def test_analyze_recovers_the_simulated_weights_head_and_speech(simulated):
+    out = simulated["folder"] / "take.npz"
+    assert main(["gestures", "analyze", str(simulated["capture"]), *simulated["common"],
+                 "--speech", str(simulated["wav"]), "--neutral-frame", str(NEUTRAL),
+                 "-o", str(out)]) == 0
+    clip, truth = load_clip(out), load_capture_truth(simulated["truth"])
+    assert (clip.name, clip.rate, clip.names, clip.n_frames) == ("take", RATE, SHAPES, 181)
+    assert set(clip.features()) == {"weights", "blinks", "brows", "head", "left_brow",
+                                    "right_brow", "left_eye", "right_eye"}
+    assert str(simulated["wav"]) in clip.intensity_source
+    # weights: the 41-frame average of the truth (at 30 Hz) minus the neutral frame's
+    at30 = truth.weights[::2][:, [truth.shape_names.index(n) for n in SHAPES]]
+    want = np.clip(_moving_average(at30, 41) - at30[NEUTRAL], -0.1, 1.1)
+    lids = [SHAPES.index("eyeBlink_L"), SHAPES.index("eyeBlink_R")]
+    rest = [i for i in range(len(SHAPES)) if i not in lids]
+    np.testing.assert_allclose(clip.weights[:, rest], want[:, rest], atol=0.03)
+    for i in lids:            # lid markers sit where a 0.3 mm binding error changes the motion
+        assert np.corrcoef(clip.weights[:, i], want[:, i])[0, 1] > 0.98
+    # head: rotation angle between frames is frame-independent, so compare with the truth's
+    turn = Rotation.from_rotvec(np.array(clip.head[:, :3]))
+    true = Rotation.from_matrix(truth.rotation[::2])
+    np.testing.assert_allclose(np.degrees((turn[0].inv() * turn).magnitude()),
+                               np.degrees((true[0].inv() * true).magnitude()), atol=0.5)
+    _bursts_are_read(clip)
+
+
+def _bursts_are_read(clip):
+    """S(t) of the tone bursts: a sine's RMS inside the bursts, silence between (0.05 s)."""
+    phase = (np.arange(clip.n_frames) / RATE * BURST_HZ) % 1.0
+    inside, silent = (phase > 0.05) & (phase < 0.45), (phase > 0.55) & (phase < 0.95)
+    np.testing.assert_allclose(clip.intensity[inside], 20 * np.log10(AMPLITUDE / np.sqrt(2)),
+                               atol=0.01)
+    assert np.all(clip.intensity[silent] == -100.0)
+
+
+def test_analyze_reads_speech_from_the_c3d_analog_channel(simulated, tmp_path):
+    """A microphone recorded as a C3D analog channel at 100 samples per frame."""
+    import mocap
+    from mocap.take import Analog
+
+    take = mocap.read(simulated["capture"])
+    rate = 100 * take.rate
+    t = np.arange(take.n_frames * 100) / rate
+    mic = AMPLITUDE * np.sin(2 * np.pi * 500 * t) * ((t * BURST_HZ) % 1.0 < 0.5)
+    noise = np.random.default_rng(0).normal(0, 1, len(t))
+    capture = tmp_path / "with-mic.c3d"
+    mocap.write(take.replace(analog=Analog(np.column_stack([noise, mic]), rate,
+                                           ("FORCE", "MIC"), ("N", "V"))), capture)
+    out = tmp_path / "mic.npz"
+    assert main(["gestures", "analyze", str(capture), *simulated["common"], "--analog", "MIC",
+                 "-o", str(out)]) == 0
+    clip = load_clip(out)
+    assert "analog channel 'MIC'" in clip.intensity_source
+    _bursts_are_read(clip)
+
+
+def _accessor(gltf, index):
+    acc = gltf.accessors[index]
+    view = gltf.bufferViews[acc.bufferView]
+    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[acc.type]
+    return np.frombuffer(gltf.binary_blob(), "<f4", count=width * acc.count,
+                         offset=view.byteOffset + (acc.byteOffset or 0)).reshape(acc.count,
+                                                                                 width)
+
+
+def _synthesize_and_check_the_glb(clip, simulated, out, wav):
+    """Synthesize onto the ICT face; the glb's node motion is R~, T~ carried by the binding."""
+    out.mkdir()
+    assert main(["gestures", "synthesize", str(wav), "--palette", str(clip), "-o", str(out),
+                 "--mesh", str(simulated["mesh"]), "--shapes", str(simulated["shapes"]),
+                 "--units", "cm", "--binding", str(simulated["binding"])]) == 0
+    head = np.load(out / "head.npz")
+    gltf = pygltflib.GLTF2().load(str(out / "gestures.glb"))
+    (anim,) = gltf.animations
+    samplers = {c.target.path: anim.samplers[c.sampler] for c in anim.channels}
+    assert all(c.target.node == 0 for c in anim.channels) and gltf.nodes[0].mesh == 0
+    quat = _accessor(gltf, samplers["rotation"].output).astype(float)
+    move = _accessor(gltf, samplers["translation"].output).astype(float) / 0.01   # m -> cm
+    times = _accessor(gltf, samplers["rotation"].input)[:, 0]
+    np.testing.assert_allclose(times, np.arange(len(head["rotation"])) / RATE, rtol=1e-6)
+    binding = load_binding(simulated["binding"])
+    points = binding.marker_points(load_mesh(simulated["mesh"], units="cm").vertices)
+    played = Rotation.from_quat(quat[:, None]).apply(points[None]) + move[:, None]
+    in_head = binding.to_capture(points)               # mm, head frame
+    moved = np.einsum("tij,mj->tmi", head["rotation"], in_head) + head["translation"][:, None]
+    want = binding.to_mesh(moved.reshape(-1, 3)).reshape(moved.shape)
+    np.testing.assert_allclose(played, want, atol=1e-3)          # cm, float32 in the file
+    assert np.abs(want - points).max() > 0.5                      # the head does move
+
+
+def test_synthesized_head_motion_plays_in_the_glb(simulated):
+    clip = simulated["folder"] / "for-synthesis.npz"
+    assert main(["gestures", "analyze", str(simulated["capture"]), *simulated["common"],
+                 "--speech", str(simulated["wav"]), "-o", str(clip)]) == 0
+    _synthesize_and_check_the_glb(clip, simulated, simulated["folder"] / "out",
+                                  _speech(simulated["folder"] / "drive.wav", 8.0))
+
+
+def test_facial_sing_analyze_states_its_stand_in_and_synthesizes(shared_data, simulated,
+                                                                 tmp_path):
+    markerset = HERE / "facial_sing_markerset.toml"
+    capture = shared_data / "captures" / "facial-sing.c3d"
+    mesh = simulated["mesh"]
+    binding = tmp_path / "sing-binding.json"
+    with pytest.warns(UserWarning, match="off the expected"):    # head markers off the face
+        assert main(["bind", str(capture), "--markerset", str(markerset), "--mesh", str(mesh),
+                     "--landmarks", str(HERE / "ict_landmarks.toml"), "--stabilize",
+                     "-o", str(binding)]) == 0
+    clip = tmp_path / "sing.npz"
+    with pytest.warns(UserWarning, match="stand-in .*lip opening section10-2-section13-2"):
+        assert main(["gestures", "analyze", str(capture), "--markerset", str(markerset),
+                     "--binding", str(binding), "--mesh", str(mesh), "--shapes",
+                     str(simulated["shapes"]), "--units", "cm", "-o", str(clip)]) == 0
+    back = load_clip(clip)
+    assert back.n_frames == 900 and back.intensity_source.startswith("stand-in")
+    assert np.nanmin(back.weights) >= -0.1 - 1e-9 and np.nanmax(back.weights) <= 1.1 + 1e-9
+    assert set(back.details) == {"left_brow", "right_brow", "left_eye", "right_eye"}
+    sing = dict(simulated, binding=binding)
+    _synthesize_and_check_the_glb(clip, sing, tmp_path / "out", simulated["wav"])
+
+
+@pytest.mark.parametrize("extra, code, match", [
+    (["--speech", "s.wav", "--analog", "MIC"], 2, "not allowed with argument"),
+    (["--opening", "only-one"], 2, "invalid _pair value"),
+    (["-o", "{folder}/clip.csv"], 1, "a clip is written as .npz"),
+    (["-o", "{capture}"], 1, "a clip is written as .npz"),
+    (["--analog", "MIC"], 1, "the take has no analog channels"),
+    (["--opening", "nose-tip,nope"], 1, "'nope'"),
+    (["--neutral-frame", "5000"], 1, "neutral frame index 5000 is beyond the 181 frames"),
+])
+def test_analyze_errors(simulated, capsys, extra, code, match):
+    extra = [x.format(**simulated) for x in extra]
+    out = [] if "-o" in extra else ["-o", str(simulated["folder"] / "bad.npz")]
+    assert main(["gestures", "analyze", str(simulated["capture"]), *simulated["common"],
+                 *extra, *out]) == code
+    assert match in capsys.readouterr().err
+    assert not (simulated["folder"] / "bad.npz").exists()
+
+
+def test_analyze_never_overwrites_an_input(simulated, capsys):
+    take = simulated["folder"] / "take-input.npz"
+    assert main(["ingest", str(simulated["capture"]), "-o", str(take)]) == 0
+    before = take.read_bytes()
+    assert main(["gestures", "analyze", str(take), *simulated["common"], "-o", str(take)]) == 1
+    assert "refusing to overwrite an input file" in capsys.readouterr().err
+    assert take.read_bytes() == before
+
+
+def test_gestures_needs_an_action(capsys):
+    assert main(["gestures"]) == 2
+    assert "required: ACTION" in capsys.readouterr().err
