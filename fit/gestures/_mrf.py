@@ -127,7 +127,7 @@ def local_minima(dist: np.ndarray, first: np.ndarray) -> np.ndarray:
     return (dist <= prev) & (dist <= nxt) & np.isfinite(dist)
 
 
-def eligible(bank: Bank, dist: np.ndarray, previous, h: int) -> np.ndarray:
+def without_time_warps(bank: Bank, dist: np.ndarray, previous, h: int) -> np.ndarray:
     """Candidates of a step without time warps (bool): the continuation, local minima past h.
 
     previous: (clip, frame) the output copied last, or None (then: the local
@@ -148,7 +148,7 @@ def eligible(bank: Bank, dist: np.ndarray, previous, h: int) -> np.ndarray:
 
 
 def time_warps(src: np.ndarray, h: int) -> int:
-    """Output frames (of src (T, 2): clip, frame) copying a frame less than h from the continuation."""
+    """Output frames copying a frame less than h from the continuation (src (T, 2): clip, frame)."""
     step = src[1:, 1] - src[:-1, 1] - 1
     return int(np.count_nonzero((src[1:, 0] == src[:-1, 0]) & (step != 0) & (np.abs(step) < h)))
 
@@ -212,7 +212,7 @@ def chain(target: np.ndarray, intensities: list, features: list, spans: list, *,
     then every step matches the last h output frames, picks a candidate t̂ and
     copies frames t̂ .. t̂ + L − 1, L = min(run, frames left in the span, frames
     left in the clip before its end or a NaN frame). ``warps=False``: the
-    candidates of each step are :func:`eligible`.
+    candidates of each step are :func:`without_time_warps`.
     """
     n_out, d = len(target), features[0].shape[1]
     out = np.empty((n_out, d))
@@ -224,7 +224,7 @@ def chain(target: np.ndarray, intensities: list, features: list, spans: list, *,
         if warps or t == 0:
             candidates = local_minima(dist, bank.first)
         else:
-            candidates = eligible(bank, dist, tuple(src[t - 1]), h)
+            candidates = without_time_warps(bank, dist, tuple(src[t - 1]), h)
         i = pick(dist, candidates, k, sigma, rng)
         c, f = int(bank.clip[i]), int(bank.frame[i])
         block = features[c][f:f + length]
