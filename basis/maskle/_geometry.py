@@ -136,7 +136,7 @@ def nearest_ray_hits(origins, directions, index: "TriangleIndex", max_distance: 
     r, f, t = r[ok], f[ok], t[ok]
     order = np.lexsort((np.abs(t), r))
     r, f, t = r[order], f[order], t[order]
-    first = np.r_[True, r[1:] != r[:-1]]
+    first = np.r_[True, r[1:] != r[:-1]][:len(r)]        # (no hit at all: empty)
     face[r[first]] = f[first]
     best[r[first]] = t[first]
     return face, best

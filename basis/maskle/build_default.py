@@ -5,7 +5,8 @@ procedurally in the template frame (x to the subject's left, y up, z forward,
 cm of an average adult face, origin at the lip contact on the midline):
 
 * a mouth patch of 9 columns (the mouth corners on columns ±3) split along the
-  lip-contact line into an upper band and a lower band of 4 rows each; each
+  lip-contact line into an upper band of 4 rows and a lower band of 6 (down
+  to the chin, 4.2 cm below the lip line: the jaw's reach); each
   band's lip-line row grows a "tongue" strip 2 cm deep into the mouth from
   corner to corner (7 columns), the upper and lower strips 0.04 cm apart (deep
   enough to reach past the inner lip surfaces of a closed mouth: ICT's roll
@@ -35,7 +36,7 @@ BONES = ("jaw", "upper_lip_left", "upper_lip_right", "lower_lip_left", "lower_li
 _MOUTH_HALF = 2.5                          # mouth corner x, cm
 _MOUTH_COLS = np.arange(-4, 5) * (_MOUTH_HALF / 3)
 _UPPER_ROWS = (0.02, 0.85, 1.7, 2.2)       # offsets from the lip line; rows 0, 1 = landmarks
-_LOWER_ROWS = (-0.02, -1.0, -1.8, -2.6)
+_LOWER_ROWS = (-0.02, -1.0, -1.8, -2.6, -3.4, -4.2)
 _TONGUE_COLS = slice(1, 8)                 # the 7 columns from corner to corner
 _TONGUE_DEPTH = 2.0
 _EYE_INNER, _EYE_OUTER = np.array([1.8, 6.6]), np.array([4.4, 6.8])
@@ -74,7 +75,7 @@ def _mouth():
         quads.append(_grid_quads(first, len(rows), len(_MOUTH_COLS), flip))
     n_cols = len(_MOUTH_COLS)
     upper_root = np.arange(n_cols)[_TONGUE_COLS]
-    lower_root = 4 * n_cols + np.arange(n_cols)[_TONGUE_COLS]
+    lower_root = len(_UPPER_ROWS) * n_cols + np.arange(n_cols)[_TONGUE_COLS]
     roots, tips = [], []
     for root, flip in ((upper_root, True), (lower_root, False)):
         first = sum(len(v) for v in verts)
@@ -86,9 +87,10 @@ def _mouth():
         roots.append(root)
         tips.append(tip)
     centre = len(_MOUTH_COLS) // 2
+    n_upper = len(_UPPER_ROWS) * n_cols
     marks = {"mouth_corner_left": centre + 3, "mouth_corner_right": centre - 3,
              "upper_lip_bottom": centre, "upper_lip_top": n_cols + centre,
-             "lower_lip_top": 4 * n_cols + centre, "lower_lip_bottom": 5 * n_cols + centre}
+             "lower_lip_top": n_upper + centre, "lower_lip_bottom": n_upper + n_cols + centre}
     return (np.concatenate(verts), np.concatenate(quads), marks,
             np.concatenate(roots), np.concatenate(tips))
 

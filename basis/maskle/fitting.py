@@ -11,6 +11,16 @@ until it touches nothing. Shrinking, per iteration t (paper eq. 1-3)::
 
 with c_i the mean of v_i's edge neighbours, β the unit initial tongue
 direction and s the placement scale (b is in template cm per iteration).
+The tongue is one fold cut along its middle (a strip per lip band): while
+both vertices of a seam pair (:attr:`~basis.maskle.mask.Mask.tongue_seam`)
+move, each takes the mean of the pair's neighbours, as if uncut; once either
+is stopped, the other follows its own band onto its lip. (Cut from the start,
+each band's lip row is pulled into its own band, away from the other one:
+the rows parted by 1.3 mm on the demo face, and a lower-lip vertex by the
+mouth corner, seeing neither band through the parting, read the upper
+tongue strip behind it. Welded to the end, a band's row is held where the
+other lip stopped it: on ICT's corners, upper-lip vertices facing down then
+read the lower band.)
 Vertices of every mask triangle that intersects the face mesh freeze, except
 the tongue's: it slides between the lips, even closed ones, and its tips
 freeze with their roots on the lip line. (Were the tongue stopped by the lips,
@@ -117,8 +127,13 @@ def landmark_points(mesh: Mesh, landmarks: Mapping) -> np.ndarray:
     return mesh.vertices[[marks[p] for p in MASKLE_POINTS]]
 
 
-def _neighbour_mean(mask: Mask) -> sp.csr_matrix:
-    """Row-stochastic (V, V) matrix averaging each vertex's edge neighbours."""
+def _neighbour_mean(mask: Mask, *, welded: bool = False) -> sp.csr_matrix:
+    """Row-stochastic (V, V) matrix averaging each vertex's edge neighbours.
+
+    ``welded``: both vertices of a :attr:`~basis.maskle.mask.Mask.tongue_seam`
+    pair average the neighbours of the pair, as if the mask were not cut
+    along the lip line.
+    """
     poly = mask.polygons
     corners = np.where(poly[:, 3:] < 0, poly[:, :1], poly[:, 3:])
     ring = np.concatenate([poly[:, :3], corners], axis=1)
@@ -127,6 +142,11 @@ def _neighbour_mean(mask: Mask) -> sp.csr_matrix:
     adj = sp.coo_matrix((np.ones(keep.sum()), (a[keep], b[keep])),
                         shape=(mask.n_vertices,) * 2).tocsr()
     adj = ((adj + adj.T) > 0).astype(float)
+    if welded:
+        seam = mask.tongue_seam
+        pair = sp.coo_matrix((np.ones(2 * len(seam)), (seam.ravel(), seam[:, ::-1].ravel())),
+                             shape=adj.shape)
+        adj = (sp.identity(mask.n_vertices) + pair) @ adj
     deg = np.asarray(adj.sum(axis=1)).ravel()
     return sp.diags(1.0 / np.maximum(deg, 1)) @ adj
 
@@ -235,11 +255,16 @@ def fit_mask(mask: Mask, mesh: Mesh, landmarks: Mapping, *, a: float = 0.005,
     beta = rot @ (warped[mask.tongue_tip] - warped[mask.tongue_root]).mean(axis=0)
     push = b * s * beta / np.linalg.norm(beta)
     average = _neighbour_mean(mask)
+    seam = mask.tongue_seam
+    seam_rows = seam.ravel()
+    seam_average = _neighbour_mean(mask, welded=True)[seam_rows]
     frozen = np.zeros(mask.n_vertices, dtype=bool)
     status, it, n_far = FIT_STATUSES[1], 0, 0
     for it in range(1, max_iterations + 1):
         moving = ~frozen
         pull = average @ x - x
+        joint = np.repeat(~frozen[seam].any(axis=1), 2)
+        pull[seam_rows[joint]] = seam_average[joint] @ x - x[seam_rows[joint]]
         x[moving] += a * pull[moving] + push
         active = np.flatnonzero(~frozen[tri].all(axis=1) & solid)
         frozen[tri[face.colliding(x, tri, active)].ravel()] = True

@@ -175,6 +175,31 @@ class Mask:
                              "upper_lip_bottom and lower_lip_top lie on one piece")
         return piece == upper, piece == lower
 
+    @property
+    def tongue_seam(self) -> np.ndarray:
+        """Pairs (S, 2) of (upper, lower) tongue vertices that sit together across the lip line.
+
+        The two tongue strips are one fold into the mouth, cut along its middle
+        so that each lip keeps its own band: a seam pair is a tongue vertex
+        (root or tip) of the upper band and one of the lower band that are each
+        other's nearest tongue vertex of the other band, closer than a quarter
+        of the mask's median edge length.
+        """
+        upper, lower = self.lip_bands
+        tongue = np.zeros(self.n_vertices, bool)
+        tongue[self.tongue_root] = tongue[self.tongue_tip] = True
+        up, low = np.flatnonzero(upper & tongue), np.flatnonzero(lower & tongue)
+        if len(up) == 0 or len(low) == 0:
+            return np.zeros((0, 2), np.int64)
+        d = np.linalg.norm(self.vertices[up, None] - self.vertices[None, low], axis=2)
+        to_low, to_up = d.argmin(axis=1), d.argmin(axis=0)
+        ring = np.where(self.polygons < 0, self.polygons[:, :1], self.polygons)
+        edge = np.linalg.norm(self.vertices[ring] - self.vertices[np.roll(ring, -1, axis=1)],
+                              axis=2)
+        keep = (to_up[to_low] == np.arange(len(up))) \
+            & (d[np.arange(len(up)), to_low] < 0.25 * np.median(edge[edge > 0]))
+        return np.stack([up[keep], low[to_low[keep]]], axis=1)
+
     def channels(self, kind: str) -> list:
         """Names of the channels of one kind (``"bone"`` or ``"region"``)."""
         if kind not in CHANNEL_KINDS:
