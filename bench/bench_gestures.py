@@ -24,16 +24,24 @@ whose |Δc| exceeds the reference's 99th percentile; 1 % in the reference by
 definition), blink rate (left-eye blink weight rising through 0.5, per minute),
 blink length (frames a blink stays above 0.5: its shape), brow activity (mean
 |Δ| of the brow weights per second), correlation of the synthesized
-jaw-opening intensity with the driving intensity, and the time to synthesize a
-minute at 30 fps. The ratio columns divide by the reference. Rows:
+jaw-opening intensity with the driving intensity, time warps (output frames of
+the weight chains copying a frame less than h from the continuation: stalls,
+short replays, skips; ``GestureSynthesis.warps``) and the time to synthesize a
+minute at 30 fps. The ratio columns divide by the reference. Rows (``CONFIGS``):
 blinks and brows on their own chains (the default, :mod:`fit.gestures.features`)
-under three settings of run/blend (run=1 blend=4 are the defaults), then all
-weights in one chain (``weight_groups={}``), as before the split, then the
-defaults driven by the reference's own S(t) (its first minute; 30 s for
-facial-sing): what the chain does when the speech matches, apart from how
-the driving speech differs. facial-sing's blink figures rest on 2 reference
-"blinks" (the 41-frame average of its eye weights crossing 0.5), not real
-blinks: its eye markers sit on the orbit, not on the lids.
+under three settings of run/blend (run=1 blend=4 are the defaults), all
+weights in one chain (``weight_groups={}``), as before the split, the chain
+without time warps, the driving intensity mapped onto the reference's S by
+quantiles (a test of whether the two intensities' scales are the cause), then
+the reference's own S(t) (its first minute; 30 s for facial-sing), with and
+without time warps and played backwards: the last has the reference's scale
+and distribution exactly but not its order, so it separates what a foreign
+speech does from what a foreign scale does. The header also prints the
+median over frames of the smallest step a transition at least h frames away
+can make (feature term only), against the jump threshold: how many smooth
+transitions the reference offers at all. facial-sing's blink figures rest on 2
+reference "blinks" (the 41-frame average of its eye weights crossing 0.5), not
+real blinks: its eye markers sit on the orbit, not on the lids.
 """
 
 from __future__ import annotations
@@ -52,10 +60,22 @@ from mocap.performance import read_performance
 RATE = 30.0
 MINUTE = int(60 * RATE)
 SEEDS = 16
-CONFIGS = ({"run": 1, "blend": 0}, {"run": 1, "blend": 4}, {"run": 3, "blend": 4},
-           {"run": 1, "blend": 4, "weight_groups": {}}, {"run": 1, "blend": 4, "drive": "own"})
+#: Rows: label, options of ``synthesize_gestures``, driving intensity ("other": alex_rom_4's;
+#: "quantile": that, mapped onto the reference's S by quantiles; "own": the reference's S;
+#: "reversed": the reference's S backwards, on exactly its scale and distribution).
+CONFIGS = (("MRF run=1 blend=0", {"blend": 0}, "other"),
+           ("MRF run=1 blend=4", {}, "other"),
+           ("MRF run=3 blend=4", {"run": 3}, "other"),
+           ("MRF 1 chain", {"weight_groups": {}}, "other"),
+           ("MRF no time warps", {"time_warps": False}, "other"),
+           ("MRF S quantile-mapped", {}, "quantile"),
+           ("MRF own S", {}, "own"),
+           ("MRF own S no time warps", {"time_warps": False}, "own"),
+           ("MRF own S reversed", {}, "reversed"))
 #: Row of the defaults of ``synthesize_gestures``, whose time is the speed figure.
 DEFAULT_ROW = "MRF run=1 blend=4"
+#: History h of the defaults.
+HISTORY = 10
 TESTS = Path(__file__).resolve().parent.parent / "tests"
 #: Column names of each reference: left blink, jaw opening, brows.
 NAMES = {
@@ -94,6 +114,34 @@ def sync(weights, names, jaw, drive):
     a, b = (moving_average(np.maximum(x, np.percentile(x, 95) - 60), window=15)
             for x in (own, drive))
     return float(np.corrcoef(a, b)[0, 1])
+
+
+def quantile_map(x, onto):
+    """x (n,) mapped monotonically onto the distribution of `onto`: its frame of rank r
+    takes the (r + 0.5)/n quantile of `onto`."""
+    ranks = np.argsort(np.argsort(x, kind="stable"), kind="stable")
+    return np.quantile(onto, (ranks + 0.5) / len(x))
+
+
+def best_transitions(weights, threshold, h=HISTORY):
+    """Median over frames of the smallest step a transition can make, in units of `threshold`.
+
+    For each frame f, the window c(f−h+1 .. f) is matched against every window of the
+    clip at least h frames from it (feature term only, as the chain without time warps
+    may jump); the step is |c(t̂ + 1) − c(f + 1)| of the best match t̂.
+    """
+    win = np.lib.stride_tricks.sliding_window_view(weights, (h, weights.shape[1]))[:, 0]
+    win = win.reshape(len(win), -1)[:-1]                 # windows followed by a frame
+    sq = np.einsum("ij,ij->i", win, win)
+    idx = np.arange(len(win))
+    steps = []
+    for lo in range(0, len(win), 512):                  # rows in chunks (memory)
+        rows = idx[lo:lo + 512]
+        d = sq[rows, None] + sq[None] - 2.0 * win[rows] @ win.T
+        d[np.abs(rows[:, None] - idx[None]) < h] = np.inf
+        best = np.argmin(d, axis=1)
+        steps.append(np.linalg.norm(weights[best + h] - weights[rows + h], axis=1))
+    return float(np.median(np.concatenate(steps)) / threshold)
 
 
 def phase_noise(reference, n, rng):
@@ -141,7 +189,13 @@ def sing_clip(data):
 
 
 def mean_sd(values, fmt="{:.2f}"):
-    return f"{fmt.format(np.mean(values))}±{fmt.format(np.std(values))}"
+    """Mean ± standard deviation over the seeds that have a value (blink length: NaN
+    for a seed without blinks)."""
+    values = np.asarray(values, float)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return "-"
+    return f"{fmt.format(values.mean())}±{fmt.format(values.std())}"
 
 
 def table(ref, drive, kind):
@@ -155,32 +209,34 @@ def table(ref, drive, kind):
     print(f"\n[{kind}] {ref.n_frames} frames at {RATE:g} Hz, features "
           f"{list(ref.features())}; |dc| p99 = {p99:.4f}; reference: {blink0:.1f} blinks/min of "
           f"{length0:.1f} frames, brow activity {brow0:.3f}/s, corr(own jaw, own S) {sync0:.3f}")
-    print(f"{'method':<30}{'jumps>p99 %':>13}{'blink ratio':>13}{'blink len':>13}"
-          f"{'brow ratio':>13}{'corr(S)':>13}{'time s':>12}")
-    runs = [(f"MRF run={c['run']} blend={c['blend']}" + (" 1 chain" if "weight_groups" in c
-                                                         else "")
-             + (" own S" if "drive" in c else ""), c) for c in CONFIGS]
-    runs.append(("spectrum noise", None))
+    print(f"the best transition at least h = {HISTORY} frames away steps "
+          f"{best_transitions(ref.weights, p99):.2f} x p99 (median over frames)")
+    drives = {"other": drive, "quantile": quantile_map(drive, ref.intensity),
+              "own": ref.intensity[:MINUTE], "reversed": ref.intensity[:MINUTE][::-1].copy()}
+    print(f"{'method':<26}{'jumps>p99 %':>12}{'blink ratio':>12}{'blink len':>12}"
+          f"{'brow ratio':>12}{'corr(S)':>13}{'warps %':>10}{'time s':>12}")
     times = {}
-    for label, config in runs:
-        rows = []
+    for label, options, speech in (*CONFIGS, ("spectrum noise", None, "other")):
+        speech, rows = drives[speech], []
         for seed in range(SEEDS):
             start = time.perf_counter()
-            options = dict(config or {})
-            speech = ref.intensity[:MINUTE] if options.pop("drive", None) else drive
-            if config is None:
-                w = phase_noise(ref.weights, MINUTE, np.random.default_rng(seed))
+            if options is None:
+                w, warped = phase_noise(ref.weights, MINUTE, np.random.default_rng(seed)), 0.0
             else:
-                w = synthesize_gestures(speech, [ref], rate=RATE, seed=seed, **options).weights
+                syn = synthesize_gestures(speech, [ref], rate=RATE, seed=seed, **options)
+                w = syn.weights
+                chains = [f for f in ("weights", "blinks", "brows") if f in syn.warps]
+                warped = 100 * np.mean([syn.warps[f] for f in chains]) / len(w)
             seconds = time.perf_counter() - start
             rows.append((100 * jumps(w, p99), blink_rate(w, names, blink) / blink0,
                          blink_length(w, names, blink) / length0,
                          brow_activity(w, names, brows) / brow0,
-                         sync(w, names, jaw, speech[:len(w)]), seconds))
+                         sync(w, names, jaw, speech[:len(w)]), warped, seconds))
         cols = list(zip(*rows))
-        times[label] = np.mean(cols[5])
-        print(f"{label:<30}" + "".join(f"{mean_sd(c):>13}" for c in cols[:4])
-              + f"{mean_sd(cols[4], '{:.3f}'):>13}{mean_sd(cols[5], '{:.3f}'):>12}")
+        times[label] = np.mean(cols[6])
+        print(f"{label:<26}" + "".join(f"{mean_sd(c):>12}" for c in cols[:4])
+              + f"{mean_sd(cols[4], '{:.3f}'):>13}{mean_sd(cols[5], '{:.0f}'):>10}"
+              + f"{mean_sd(cols[6], '{:.3f}'):>12}")
     mrf, noise = times[DEFAULT_ROW], times["spectrum noise"]
     print(f"speed: one minute at 30 fps in {mrf:.2f} s (defaults; aim < 5 s); noise baseline "
           f"{noise:.4f} s, ratio {mrf / noise:.0f}x")

@@ -17,7 +17,7 @@ from fit.cli import main
 from fit.gestures import (ESTIMATORS, FEATURES, GestureClip, analyze_gestures,
                           candidate_distances, clip_from_analysis, load_clip, marker_basis,
                           parse_timeline, pick_candidate, save_clip, synthesize_gestures,
-                          weight_columns)
+                          wav_intensity, weight_columns)
 from fit.gestures.transfer import SUPPORT_SPACINGS, build_detail_transfer
 from mocap.bind import Binding
 from mocap.errors import FileFormatError, InputError, MarkerError
@@ -156,6 +156,63 @@ def test_own_intensity_with_sigma_zero_reproduces_the_reference(run):
     np.testing.assert_array_equal(syn.sources["weights"][:, 1], np.arange(clip.n_frames))
     np.testing.assert_array_equal(syn.weights, clip.weights)
     assert syn.transitions["weights"] == 0
+
+
+def _chain_oracle(drive, clip, h, time_warps):
+    """Sources of the nearest-candidate chain (sigma = 0, run 1), one frame at a time by loops."""
+    def z(x):
+        return (x - x.mean()) / x.std()
+    s_out, s_ref = z(drive), z(clip.intensity)
+    c = clip.weights / np.sqrt(clip.weights.var(axis=0).sum())
+    n = len(s_ref)
+    start = [sum((s_out[j] - s_ref[u + j]) ** 2 for j in range(h)) for u in range(n - h + 1)]
+    src = list(range(int(np.argmin(start)), int(np.argmin(start)) + h))
+    for t in range(h, len(drive)):
+        dist = np.full(n + 1, np.inf)
+        for u in range(h, n):
+            dist[u] = (sum((s_out[t - j] - s_ref[u - j]) ** 2 for j in range(h))
+                       + sum(np.sum((c[src[t - j]] - c[u - j]) ** 2) for j in range(1, h + 1)))
+        pool = [u for u in range(h, n) if dist[u] <= dist[u - 1] and dist[u] <= dist[u + 1]]
+        nxt = src[-1] + 1
+        if not time_warps:
+            pool = [u for u in pool if abs(u - nxt) >= h] + ([nxt] if nxt < n else [])
+        src.append(min(pool, key=lambda u: dist[u]))
+    return np.array(src)
+
+
+@pytest.mark.parametrize("time_warps", [True, False])
+def test_nearest_candidate_chain_matches_a_loop_oracle(time_warps):
+    clip = _clip("ref", n=90, seed=4)
+    drive = np.random.default_rng(8).normal(size=70).cumsum()
+    syn = synthesize_gestures(drive, [clip], rate=RATE, history=5, sigma=0.0, blend=0,
+                              time_warps=time_warps)
+    want = _chain_oracle(drive, clip, 5, time_warps)
+    np.testing.assert_array_equal(syn.sources["weights"][:, 1], want)
+    np.testing.assert_array_equal(syn.weights, clip.weights[want])
+    step = np.diff(want) - 1
+    assert syn.warps["weights"] == np.count_nonzero((step != 0) & (np.abs(step) < 5))
+    assert syn.transitions["weights"] == np.count_nonzero(step)
+
+
+def test_a_held_drive_stalls_a_smooth_reference_unless_time_warps_are_off():
+    rng = np.random.default_rng(3)
+    n = 400
+    clip = GestureClip("smooth", RATE, np.cumsum(rng.normal(0, 1, n)), _smooth(rng, n, 3),
+                       ("s0", "s1", "s2"))
+    drive = np.repeat(rng.normal(size=12), 25)          # loudness held for 25 frames at a time
+    warped = synthesize_gestures(drive, [clip], rate=RATE, seed=1)
+    kept = synthesize_gestures(drive, [clip], rate=RATE, seed=1, time_warps=False)
+    src = warped.sources["weights"][:, 1]
+    stalls = np.count_nonzero(src[1:] == src[:-1])
+    assert stalls > len(drive) // 3 and warped.warps["weights"] >= stalls
+    step = np.diff(kept.sources["weights"][:, 1]) - 1
+    assert kept.warps["weights"] == 0 and np.all((step == 0) | (np.abs(step) >= 10))
+
+
+def test_time_warps_must_be_a_bool():
+    clip = _clip("ref")
+    with pytest.raises(InputError, match="time_warps must be True or False"):
+        synthesize_gestures(clip.intensity, [clip], rate=RATE, time_warps="no")
 
 
 def test_synthesis_is_deterministic_for_a_seed():
@@ -349,13 +406,17 @@ def cli_files(tmp_path):
     return wav, clip, out
 
 
-def test_cli_writes_weights_and_head_motion(cli_files):
+@pytest.mark.parametrize("flags", [[], ["--no-time-warps"]])
+def test_cli_writes_weights_and_head_motion(cli_files, flags):
     wav, clip, out = cli_files
     assert main(["gestures", "synthesize", str(wav), "--palette", str(clip), "-o",
-                 str(out)]) == 0
+                 str(out), *flags]) == 0
     import pandas as pd
     table = pd.read_csv(out / "weights.csv")
     assert len(table) == 120 and list(table.columns[2:]) == ["s0", "s1", "s2"]
+    want = synthesize_gestures(wav_intensity(wav, frame_rate=RATE), [load_clip(clip)],
+                               rate=RATE, time_warps=not flags)
+    np.testing.assert_allclose(table.to_numpy()[:, 2:], want.weights, atol=1e-6)
     head = np.load(out / "head.npz")
     assert head["rotation"].shape == (120, 3, 3)
 

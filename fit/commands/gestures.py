@@ -124,6 +124,9 @@ def _add_synthesize(actions) -> None:
     p.add_argument("--run", type=int, default=1, dest="run_frames",
                    help="frames copied per pick (default 1)")
     p.add_argument("--blend", type=int, default=4, help="frames fading out a jump (default 4)")
+    p.add_argument("--no-time-warps", action="store_true",
+                   help="candidates are the continuation and frames at least --history from "
+                        "it: no stalls, short replays or skips")
     p.add_argument("--one-chain", action="store_true",
                    help="blinks and brows in the chain of the other weights (default: their own)")
     p.add_argument("--seed", type=int, default=0)
@@ -220,6 +223,7 @@ def run_synthesize(args) -> int:
     syn = synthesize_gestures(intensity, clips, rate=rate, timeline=timeline,
                               history=args.history, alpha=args.alpha, sigma=args.sigma,
                               n_candidates=args.candidates, run=args.run_frames, blend=args.blend,
+                              time_warps=not args.no_time_warps,
                               weight_groups={} if args.one_chain else None, seed=args.seed)
     inputs = [args.speech, *args.palette, args.timeline, args.mesh, args.binding]
     inputs = [x for x in inputs if x is not None]

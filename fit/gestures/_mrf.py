@@ -127,6 +127,32 @@ def local_minima(dist: np.ndarray, first: np.ndarray) -> np.ndarray:
     return (dist <= prev) & (dist <= nxt) & np.isfinite(dist)
 
 
+def without_time_warps(bank: Bank, dist: np.ndarray, previous, h: int) -> np.ndarray:
+    """Candidates of a step without time warps (bool): the continuation, local minima past h.
+
+    previous: (clip, frame) the output copied last, or None (then: the local
+    minima). The continuation (the next frame of that clip) is a candidate
+    whenever its window is valid; the other frames less than h from it are
+    not: copying one stalls, replays or skips the stretch being copied. Local
+    minima are taken before that zone is cut out, so a valley inside it does
+    not leave a candidate at its edge.
+    """
+    out = local_minima(dist, bank.first)
+    if previous is None:
+        return out
+    clip, nxt = previous[0], previous[1] + 1
+    near = (bank.clip == clip) & (np.abs(bank.frame - nxt) < h)
+    out &= ~near
+    out |= near & (bank.frame == nxt) & np.isfinite(dist)
+    return out
+
+
+def time_warps(src: np.ndarray, h: int) -> int:
+    """Output frames copying a frame less than h from the continuation (src (T, 2): clip, frame)."""
+    step = src[1:, 1] - src[:-1, 1] - 1
+    return int(np.count_nonzero((src[1:, 0] == src[:-1, 0]) & (step != 0) & (np.abs(step) < h)))
+
+
 def pick(dist: np.ndarray, eligible: np.ndarray, k: int, sigma: float, rng) -> int:
     """Index of one of the k nearest eligible candidates, P ∝ exp(−dist/σ) (σ = 0: the nearest)."""
     idx = np.flatnonzero(eligible)
@@ -176,7 +202,8 @@ def transition_blend(values: np.ndarray, jumps: np.ndarray, frames: int) -> np.n
 
 
 def chain(target: np.ndarray, intensities: list, features: list, spans: list, *, h: int,
-          run: int, alpha: float, k: int, sigma: float, rng) -> np.ndarray:
+          run: int, alpha: float, k: int, sigma: float, warps: bool = True,
+          rng) -> np.ndarray:
     """Run the Markov chain of one feature; returns the source (clip, frame) of each output frame.
 
     `target` (T,) and `intensities` are standardized, `features` scaled; `spans`
@@ -184,7 +211,8 @@ def chain(target: np.ndarray, intensities: list, features: list, spans: list, *,
     are copied from the window that best matches the first h frames of speech;
     then every step matches the last h output frames, picks a candidate t̂ and
     copies frames t̂ .. t̂ + L − 1, L = min(run, frames left in the span, frames
-    left in the clip before its end or a NaN frame).
+    left in the clip before its end or a NaN frame). ``warps=False``: the
+    candidates of each step are :func:`without_time_warps`.
     """
     n_out, d = len(target), features[0].shape[1]
     out = np.empty((n_out, d))
@@ -193,7 +221,11 @@ def chain(target: np.ndarray, intensities: list, features: list, spans: list, *,
     root = np.sqrt(alpha)
 
     def copy(bank, dist, t, length):
-        i = pick(dist, local_minima(dist, bank.first), k, sigma, rng)
+        if warps or t == 0:
+            candidates = local_minima(dist, bank.first)
+        else:
+            candidates = without_time_warps(bank, dist, tuple(src[t - 1]), h)
+        i = pick(dist, candidates, k, sigma, rng)
         c, f = int(bank.clip[i]), int(bank.frame[i])
         block = features[c][f:f + length]
         missing = np.isnan(block).any(axis=1)
