@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._arrays import read_only
 from ._validation import as_float_array, as_positive_float
 from .errors import FileFormatError, InputError
 
@@ -43,11 +44,6 @@ NON_WEIGHT_COLUMNS = ("blendshapecount", "headyaw", "headpitch", "headroll", "le
 
 _TIMECODE = re.compile(r"^(\d+):(\d{2}):(\d{2})[:;](\d+(?:\.\d*)?)$")
 _SIDE = re.compile(r"(?:_([LlRr])|_?([Ll]eft|[Rr]ight))$")
-
-
-def _read_only(arr: np.ndarray) -> np.ndarray:
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,8 +85,8 @@ class Performance:
         if np.any(np.diff(times) <= 0):
             raise InputError("performance times must be strictly increasing")
         object.__setattr__(self, "names", names)
-        object.__setattr__(self, "times", _read_only(times))
-        object.__setattr__(self, "weights", _read_only(weights))
+        object.__setattr__(self, "times", read_only(times))
+        object.__setattr__(self, "weights", read_only(weights))
         object.__setattr__(self, "rate", as_positive_float(self.rate, "rate"))
         object.__setattr__(self, "ignored", tuple(self.ignored))
 

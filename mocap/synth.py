@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ._arrays import read_only
 from ._atomic import atomic_path
 from ._validation import as_float_array, as_int, as_positive_float
 from .errors import FileFormatError, InputError
@@ -36,12 +37,6 @@ _HEAD_HOME_MM = np.array([0.0, 0.0, 1600.0])
 _HEAD_GAP_ODDS = 0.1
 #: Frames evaluated per block (the layout's normals take ~170 kB of temporaries per frame).
 _CHUNK = 512
-
-
-def _read_only(arr) -> np.ndarray:
-    arr = np.array(arr)
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,7 +101,7 @@ class CaptureTruth:
             if np.shape(getattr(self, name)) != shape:
                 raise InputError(f"truth {name} must have shape {shape}, "
                                  f"got {np.shape(getattr(self, name))}")
-            object.__setattr__(self, name, _read_only(getattr(self, name)))
+            object.__setattr__(self, name, read_only(getattr(self, name), copy=True))
 
     @property
     def n_frames(self) -> int:

@@ -27,6 +27,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from mocap._atomic import atomic_path
+from mocap._arrays import read_only
 from mocap._validation import as_float_array
 from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
@@ -42,11 +43,6 @@ _FORMAT_VERSION = 1
 _ARRAYS = ("vertices", "polygons", "channel_names", "channel_kinds", "weights", "origins",
            "landmark_names", "landmark_vertices", "tongue_root", "tongue_tip",
            "format_version")
-
-
-def _frozen(arr):
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,7 +117,7 @@ class Mask:
                              "non-empty vertex id lists")
         for name, arr in (("vertices", v), ("polygons", poly), ("weights", w),
                           ("origins", origins), ("tongue_root", root), ("tongue_tip", tip)):
-            object.__setattr__(self, name, _frozen(arr))
+            object.__setattr__(self, name, read_only(arr))
         object.__setattr__(self, "channel_names", names)
         object.__setattr__(self, "channel_kinds", kinds)
         object.__setattr__(self, "landmarks", marks)

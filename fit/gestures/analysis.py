@@ -14,6 +14,7 @@ from typing import Mapping
 
 import numpy as np
 
+from mocap._arrays import read_only
 from mocap._validation import as_choice, as_float_array, as_int
 from mocap.bind import Binding
 from mocap.errors import InputError, MarkerError
@@ -35,12 +36,6 @@ LIP_REGIONS = ("upper_lip", "lower_lip")
 #: (:func:`fit.solve.solve_weights`) or the paper's sampling estimator
 #: (:func:`fit.sampling_estimator.estimate_weights_by_sampling`).
 ESTIMATORS = ("exact", "sampling")
-
-
-def _frozen(arr) -> np.ndarray:
-    arr = np.array(arr, dtype=np.float64)
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,18 +216,19 @@ def analyze_gestures(stabilization: Stabilization, neutral, basis, regions, *, l
     weights, cost = _blend_weights(basis, averaged, epsilon, estimator, n_samples,
                                    n_neighbors, seed)
     residual = markers - neutral - np.tensordot(weights, basis, axes=1)
-    parts = {g: _frozen(residual[:, [labels.index(x) for x in members]])
+    parts = {g: read_only(residual[:, [labels.index(x) for x in members]])
              for g, members in groups.items()}
     lips, rest = parts.pop("lips"), parts.pop("rest")
     rms = np.sqrt(np.nanmean(residual ** 2)) if np.isfinite(residual).any() else np.nan
     message = (f"{len(weights)} frames, {len(names)} shapes ({estimator}, window {window}, "
                f"epsilon {epsilon:g}); residual RMS {rms:.3g} mm per coordinate")
     return GestureAnalysis(
-        weights=_frozen(weights), rotation=_frozen(stabilization.rotation),
-        translation=_frozen(stabilization.translation), lips=lips, details=parts, rest=rest,
-        groups=groups, labels=labels, neutral=_frozen(neutral), basis=_frozen(basis),
-        names=names, rate=take.rate, cost=_frozen(cost), estimator=estimator,
-        message=message)
+        weights=read_only(weights, copy=True),
+        rotation=read_only(stabilization.rotation, copy=True),
+        translation=read_only(stabilization.translation, copy=True), lips=lips,
+        details=parts, rest=rest, groups=groups, labels=labels, neutral=read_only(neutral),
+        basis=read_only(basis), names=names, rate=take.rate,
+        cost=read_only(cost, copy=True), estimator=estimator, message=message)
 
 
 def marker_basis(binding: Binding, displacements, labels) -> np.ndarray:

@@ -14,6 +14,7 @@ from typing import Mapping
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from mocap._arrays import read_only
 from mocap._atomic import atomic_path
 from mocap._validation import as_float_array, as_positive_float
 from mocap.errors import FileFormatError, InputError
@@ -34,12 +35,6 @@ ACTIVITY_COLUMNS = ("JawOpen",)
 ACTIVITY_WINDOW_S = OPENING_WINDOW_S
 
 _FORMAT = "mocap2mesh-gesture-clip-1"
-
-
-def _frozen(arr) -> np.ndarray:
-    arr = np.array(arr, dtype=np.float64)
-    arr.flags.writeable = False
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,12 +83,12 @@ class GestureClip:
         n = len(intensity)
         names = tuple(str(x) for x in self.names)
         weights = as_float_array(self.weights, "weights", shape=(n, len(names)))
-        object.__setattr__(self, "intensity", _frozen(intensity))
-        object.__setattr__(self, "weights", _frozen(weights))
+        object.__setattr__(self, "intensity", read_only(intensity))
+        object.__setattr__(self, "weights", read_only(weights))
         object.__setattr__(self, "names", names)
         if self.head is not None:
-            object.__setattr__(self, "head", _frozen(as_float_array(self.head, "head",
-                                                                    shape=(n, 6))))
+            head = as_float_array(self.head, "head", shape=(n, 6))
+            object.__setattr__(self, "head", read_only(head))
         details, labels = {}, {}
         for group, values in self.details.items():
             if group not in DETAIL_FEATURES:
@@ -104,7 +99,7 @@ class GestureClip:
             if len(members) != values.shape[1]:
                 raise InputError(f"detail group {group!r} has {values.shape[1]} markers but "
                                  f"{len(members)} labels")
-            details[group], labels[group] = _frozen(values), members
+            details[group], labels[group] = read_only(values), members
         object.__setattr__(self, "details", details)
         object.__setattr__(self, "detail_labels", labels)
 
