@@ -22,7 +22,8 @@ from ..errors import InputError
 from ..gaps import find_gaps
 from ..stabilize import stabilize
 from ..take import Take
-from .swaps import _last_visible, _nanmedian_or_nan, _typical_step
+from .swaps import (_last_visible, _long_gap_starts, _median_pose, _nanmedian_or_nan,
+                    _typical_step)
 
 __all__ = ["REASONS", "ImplausibleRun", "ImplausibleSamples",
            "find_implausible_samples", "remove_implausible_samples"]
@@ -91,11 +92,11 @@ def _runs_of(mask: np.ndarray):
     return runs.marker, runs.start, runs.stop
 
 
-def _window_any(flags: np.ndarray, start, stop) -> np.ndarray:
-    """Whether `flags[start:stop, m]` holds a True, for arrays of runs."""
+def _window_any(flags: np.ndarray, marker, start, stop) -> np.ndarray:
+    """Whether ``flags[start[i]:stop[i], marker[i]]`` holds a True, for arrays of runs (i)."""
     csum = np.concatenate([np.zeros((1, flags.shape[1]), np.int64),
                            np.cumsum(flags, axis=0)])
-    return lambda m: csum[stop, m] - csum[start, m] > 0
+    return csum[stop, marker] - csum[start, marker] > 0
 
 
 def _duplicates(pos, rest, z, *, near_mm, apart_mm):
@@ -136,13 +137,11 @@ def _teleports(pos, misplaced, typical, *, factor, max_gap):
     visible = ~np.isnan(pos[:, :, 0])
     out_t, out_m = np.nonzero(jump & misplaced)
     back = jump & visible & ~misplaced
-    gaps = find_gaps(~visible)
-    long = gaps.length > max_gap
+    long_gaps = _long_gap_starts(~visible, max_gap)
     flags = np.zeros((n_frames, n_markers), dtype=bool)
     for t0, m in zip(out_t, out_m):       # one iteration per event, not per frame
         ends = np.concatenate([np.flatnonzero(back[t0 + 1:, m]) + t0 + 1,
-                               gaps.start[long & (gaps.marker == m) & (gaps.start > t0)],
-                               [n_frames]])
+                               long_gaps[m][long_gaps[m] > t0], [n_frames]])
         flags[t0:ends.min(), m] = True
     return flags & visible
 
@@ -162,8 +161,8 @@ def _ghost_slides(pos, typical, anchored, *, speed, linear, min_frames):
     line = np.vstack([np.zeros((1, n_markers), bool), line,
                       np.zeros((1, n_markers), bool)])
     m, start, stop = _runs_of(line)
-    near = _window_any(anchored, np.maximum(start - 1, 0), np.minimum(stop + 1, n_frames))
-    keep = (stop - start >= min_frames) & near(m)
+    near = _window_any(anchored, m, np.maximum(start - 1, 0), np.minimum(stop + 1, n_frames))
+    keep = (stop - start >= min_frames) & near
     flags = np.zeros((n_frames, n_markers), dtype=bool)
     for mm, a, b in zip(m[keep], start[keep], stop[keep]):   # one per run
         flags[a:b, mm] = True
@@ -279,7 +278,7 @@ def find_implausible_samples(take: Take, *, head=None, off_rest: float = 25.0,
     n_frames, n_markers = pos.shape[:2]
     codes = np.zeros((n_frames, n_markers), dtype=np.int8)
     if n_frames >= 3:
-        rest = np.stack([_nanmedian_or_nan(pos[:, :, c]) for c in range(3)], axis=1)
+        rest = _median_pose(pos)
         dist = np.linalg.norm(pos - rest, axis=2)
         spread = np.fmax(np.nan_to_num(_nanmedian_or_nan(dist), nan=0.0), _MIN_SPREAD_MM)
         z = dist / spread

@@ -87,11 +87,16 @@ def _nanmedian_or_nan(values: np.ndarray) -> np.ndarray:
     return out
 
 
+def _median_pose(positions: np.ndarray) -> np.ndarray:
+    """Per-marker median of each coordinate over the visible frames, (M, 3); NaN if never seen."""
+    return np.stack([_nanmedian_or_nan(positions[:, :, c]) for c in range(3)], axis=1)
+
+
 def _candidate_pairs(positions: np.ndarray, neighbours: int) -> np.ndarray:
     """Pairs (i < j) where one marker is among the other's `neighbours` nearest
     in the median pose; shape (n_pairs, 2)."""
     n_markers = positions.shape[1]
-    median = np.stack([_nanmedian_or_nan(positions[:, :, c]) for c in range(3)], axis=1)
+    median = _median_pose(positions)
     dist = np.linalg.norm(median[:, None] - median[None], axis=2)
     dist[np.isnan(dist)] = np.inf
     np.fill_diagonal(dist, np.inf)
