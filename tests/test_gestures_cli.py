@@ -217,3 +217,39 @@ def test_analyze_never_overwrites_an_input(simulated, capsys):
 def test_gestures_needs_an_action(capsys):
     assert main(["gestures"]) == 2
     assert "required: ACTION" in capsys.readouterr().err
+
+
+def test_analyze_takes_the_neutral_from_a_hold(simulated, capsys):
+    """``--neutral-frame hold`` (the parser takes it, as bind's does) picks a frame, not an error."""
+    out = simulated["folder"] / "hold.npz"
+    assert main(["gestures", "analyze", str(simulated["capture"]), *simulated["common"],
+                 "--speech", str(simulated["wav"]), "--neutral-frame", "hold",
+                 "-o", str(out)]) == 0, capsys.readouterr().err
+    assert load_clip(out).n_frames == 181
+
+
+def test_clip_from_capture_keeps_every_ingest_option(simulated, monkeypatch):
+    """The caller's IngestOptions reach ingest whole; only the rate and stabilization are set."""
+    import mocap
+    from basis.artist import load_artist_basis
+    from fit.gestures import reference
+    from fit.ingest import IngestOptions
+    from mocap.markerset import load_markerset
+
+    seen = []
+
+    def recording(take, *, markerset, options):
+        seen.append(options)
+        return ingest(take, markerset=markerset, options=options)
+
+    ingest = reference.ingest
+    monkeypatch.setattr(reference, "ingest", recording)
+    given = IngestOptions(fix_swaps=True, reject_implausible=True, fill="spline", max_gap=40,
+                          lowpass_hz=8.0)
+    reference.clip_from_capture(
+        mocap.read(simulated["capture"]), load_markerset(HERE / "ict_markerset.toml"),
+        load_binding(simulated["binding"]),
+        load_artist_basis(simulated["mesh"], simulated["shapes"], units="cm"), name="x",
+        wav=simulated["wav"], options=given, neutral_frame=NEUTRAL)
+    assert seen == [IngestOptions(fix_swaps=True, reject_implausible=True, fill="spline",
+                                  max_gap=40, lowpass_hz=8.0, resample_hz=RATE, stabilize=True)]

@@ -10,14 +10,14 @@ from a stand-in: the loudness of the lip opening.
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from basis.artist import ArtistBasis
-from mocap._validation import as_int
-from mocap.bind import Binding, pick_neutral_frame
+from mocap.bind import Binding, resolve_neutral_frame
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.take import Take
@@ -119,11 +119,13 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
     intensity_window : float, s, optional
         RMS window (default 0.05 s for speech, 0.25 s for the stand-in).
     options : IngestOptions, optional
-        Gap filling and low-pass; resampling to `rate` and stabilization are
-        always on (default: ``fill="auto"``).
-    neutral_frame : int or "auto"
-        Frame index at `rate` of the neutral N, or the frame closest to the
-        median stabilized pose (:func:`mocap.bind.pick_neutral_frame`).
+        Swap repair, removal of implausible samples, gap filling and low-pass;
+        resampling to `rate` and stabilization are always on (default:
+        ``fill="auto"``).
+    neutral_frame : int, "auto" or "hold"
+        Frame index at `rate` of the neutral N, or picked on the stabilized
+        region markers: the frame closest to their median pose, or the neutral
+        hold the take starts with (:func:`mocap.bind.resolve_neutral_frame`).
     epsilon, window, estimator, seed
         Of :func:`analyze_gestures`.
 
@@ -151,20 +153,16 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
                                (basis, ArtistBasis, "basis"), (take, Take, "take")):
         if not isinstance(value, kind):
             raise InputError(f"{label} must be a {kind.__name__}, got {type(value).__name__}")
-    base = options or IngestOptions()
-    options = IngestOptions(fix_swaps=base.fix_swaps, fill=base.fill, max_gap=base.max_gap,
-                            lowpass_hz=base.lowpass_hz, resample_hz=rate, stabilize=True)
+    options = dataclasses.replace(options or IngestOptions(), resample_hz=rate, stabilize=True)
     ingested = ingest(take, markerset=markerset, options=options)
     stab = ingested.stabilization
     labels = tuple(x for members in markerset.regions.values() for x in members)
     positions = stab.take.positions[:, stab.take.indices(labels)]
-    if neutral_frame == "auto":
-        neutral_frame = pick_neutral_frame(positions)
-    elif as_int(neutral_frame, "neutral_frame", minimum=0) >= stab.take.n_frames:
+    neutral_frame = resolve_neutral_frame(positions, neutral_frame, rate=stab.take.rate)
+    if neutral_frame >= stab.take.n_frames:
         raise InputError(f"{take.source.path or 'the take'}: neutral frame index "
                          f"{neutral_frame} is beyond the {stab.take.n_frames} frames at "
                          f"{rate:g} Hz")
-    neutral_frame = int(neutral_frame)
     neutral = positions[neutral_frame]
     if np.isnan(neutral).any():
         missing = labels[int(np.argwhere(np.isnan(neutral[:, 0]))[0, 0])]
