@@ -22,7 +22,7 @@ from basis.pca import PCAModel, pca_from_operator
 from basis.quasi_eigen import MISSING_POLICIES, QuasiEigenBasis, quasi_eigen
 from mocap._validation import as_choice, as_int, as_positive_float
 from mocap.bind import Binding, bind_markers, hold_window, resolve_neutral_frame
-from mocap.errors import InputError
+from mocap.errors import InputError, MarkerError
 from mocap.layout import MarkerLayout
 from mocap.markerset import MarkerSet
 from mocap.mesh import Mesh
@@ -374,8 +374,32 @@ def basis_stage(retargeted: Retargeting, artist: ArtistBasis, *,
 
 def marker_basis(binding: Binding, displacements, labels=None, *,
                  mesh: Mesh | None = None) -> np.ndarray:
-    """A mesh basis (n, N, 3) sampled at the bound markers of `labels` (default all): (n, M, 3).
+    """A mesh basis sampled at the bound markers, in mesh units and mesh axes.
 
+    Parameters
+    ----------
+    binding : Binding
+        The markers bound to the mesh.
+    displacements : array_like of shape (n, N, 3), mesh units
+        Shape displacements from the neutral mesh. No NaN.
+    labels : sequence of str, optional
+        The M markers to sample, in this order; default every bound marker.
+    mesh : Mesh, optional
+        The neutral mesh of the binding; with a binding made with
+        ``skin_offset`` > 0, the marker centres are sampled instead of the
+        surface points (Notes).
+
+    Returns
+    -------
+    ndarray of shape (n, M, 3), mesh units
+
+    Raises
+    ------
+    MarkerError
+        A label not in the binding.
+
+    Notes
+    -----
     Without `mesh` (or with a binding of no skin offset), the motion of the
     bound surface points. With the neutral `mesh` and a binding made with
     ``skin_offset`` > 0, the motion of the marker centres that far off the
@@ -384,6 +408,9 @@ def marker_basis(binding: Binding, displacements, labels=None, *,
     :meth:`mocap.layout.MarkerLayout.positions` (area-weighted vertex normals,
     interpolated); its change along each shape is a central difference.
     """
+    absent = [x for x in (labels or ()) if x not in binding.labels]
+    if absent:
+        raise MarkerError(absent[0], "is not in the binding")
     if mesh is None or binding.skin_offset == 0:
         points = binding.marker_points(displacements)
     else:

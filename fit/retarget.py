@@ -136,13 +136,39 @@ def _binding_rows(binding: Binding, labels) -> np.ndarray:
 
 
 def neutral_pose(positions, frame: int, window: int = 1) -> np.ndarray:
-    """The rest pose (M, 3): the mean of `positions` (T, M, 3) over `window` frames around `frame`.
+    """The rest pose: the mean of the marker positions over a window around a frame.
 
-    The window is centred on `frame` and cut at the ends of the take.
     Averaging a neutral hold takes the noise of a single frame out of the
     reference every displacement is measured from (it would otherwise be a
     bias of every frame).
+
+    Parameters
+    ----------
+    positions : array_like of shape (n_frames, n_markers, 3), mm
+        Marker positions; NaN propagates (a marker missing in one frame of
+        the window is NaN in the rest pose).
+    frame : int
+        0-based index of the window's centre.
+    window : int, default 1
+        Frames averaged, centred on `frame` and cut at the ends of the take
+        (1: the frame itself).
+
+    Returns
+    -------
+    ndarray of shape (n_markers, 3), mm
+
+    Raises
+    ------
+    InputError
+        `positions` not of that shape, `frame` beyond the take, `window` below 1.
     """
+    positions = np.asarray(positions, dtype=np.float64)      # no copy of a whole take
+    if positions.ndim != 3 or positions.shape[2] != 3:
+        raise InputError(f"positions must have shape (n_frames, n_markers, 3), got "
+                         f"{positions.shape}")
+    frame = as_int(frame, "neutral frame", minimum=0)
+    if frame >= len(positions):
+        raise InputError(f"neutral frame {frame} is beyond the take's {len(positions)} frames")
     window = as_int(window, "neutral_window", minimum=1)
     return positions[max(0, frame - window // 2):frame + window // 2 + 1].mean(axis=0)
 

@@ -462,11 +462,29 @@ def pick_neutral_frame(positions, *, method: str = "median", rate: float | None 
 
 
 def resolve_neutral_frame(positions, frame, *, rate: float | None = None) -> int:
-    """A neutral-frame option as a frame index.
+    """A neutral-frame option (``--frame``, ``bind.frame``) as a frame index.
 
-    ``frame``: an index (returned), ``"auto"`` (:func:`pick_neutral_frame`,
-    method "median") or ``"hold"`` (method "hold", at `rate`); `positions`
-    as in :func:`pick_neutral_frame`, the frames the index counts.
+    Parameters
+    ----------
+    positions : array_like of shape (n_frames, n_markers, 3), mm
+        As in :func:`pick_neutral_frame`: the frames the index counts. Only
+        read for ``"auto"`` and ``"hold"``.
+    frame : int, "auto" or "hold"
+        An index (returned as it is, without a check against `positions`),
+        ``"auto"`` (:func:`pick_neutral_frame`, method "median") or
+        ``"hold"`` (method "hold").
+    rate : float, Hz, optional
+        Frame rate of `positions`; needed by "hold".
+
+    Returns
+    -------
+    int
+        0-based frame index.
+
+    Raises
+    ------
+    InputError
+        An index below 0 or not an integer; the errors of :func:`pick_neutral_frame`.
     """
     if frame == "auto":
         return pick_neutral_frame(positions, rate=rate)
@@ -476,7 +494,23 @@ def resolve_neutral_frame(positions, frame, *, rate: float | None = None) -> int
 
 
 def hold_window(rate: float) -> int:
-    """Frames of a ``HOLD_S`` window at `rate` Hz: odd, at least 3."""
+    """Frames of a neutral hold's window: ``HOLD_S`` seconds at `rate`, odd, at least 3.
+
+    Parameters
+    ----------
+    rate : float, Hz
+        Frame rate of the take.
+
+    Returns
+    -------
+    int
+        The window length in frames, centred on a frame.
+
+    Raises
+    ------
+    InputError
+        `rate` not a positive finite number.
+    """
     return max(3, int(round(HOLD_S * as_positive_float(rate, "rate"))) | 1)
 
 

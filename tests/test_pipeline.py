@@ -18,7 +18,7 @@ from fit.pipeline import (SPACES, BasisOptions, BindOptions, FitOptions, basis_s
 from fit.sampling_estimator import estimate_weights_by_sampling
 from fit.solve import solve_weights
 from mocap.bind import hold_window
-from mocap.errors import InputError
+from mocap.errors import InputError, MarkerError
 from mocap.layout import MarkerLayout
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
@@ -125,6 +125,13 @@ def test_marker_basis_moves_the_offset_marker_centres_with_the_skin(chain):
     np.testing.assert_allclose(got[1], np.cross(omega, lifted - centre), atol=1e-7)
     assert np.abs(got[1] - skin[1]).max() > 1e-3 * np.abs(skin[1]).max()
 
+
+
+def test_marker_basis_names_a_marker_the_binding_lacks(chain):
+    binding, mesh = chain["bound"].binding, chain["mesh"]
+    fields = np.zeros((1, mesh.n_vertices, 3))
+    with pytest.raises(MarkerError, match="marker 'nope'.*is not in the binding"):
+        marker_basis(binding, fields, [binding.labels[0], "nope"], mesh=mesh)
 
 def test_pca_marker_fit_is_least_squares_with_mean_fixed(chain, fitted):
     basis = chain["bases"].bases["PCA"]

@@ -15,8 +15,8 @@ from basis.artist import load_artist_basis
 from fit.cli import main
 from fit.commands.bind import bind_capture
 from fit.retarget import (CONTENTS, RetargetOptions, align_head_frame,
-                          build_retarget_operator, marker_displacements, retarget, save_npz,
-                          save_obj_sequence)
+                          build_retarget_operator, marker_displacements, neutral_pose, retarget,
+                          save_npz, save_obj_sequence)
 from mocap.bind import Binding
 from mocap.errors import InputError, MarkerError
 from mocap.layout import load_marker_layout
@@ -341,3 +341,18 @@ def test_cli_fails_on_a_missing_binding_file(ict_capture, tmp_path, capsys):
     missing = tmp_path / "nope.json"
     assert main(_retarget_args(ict_capture, tmp_path / "x.npz", binding=missing)) == 1
     assert f"{missing}: cannot read binding" in capsys.readouterr().err
+
+
+def test_neutral_pose_is_the_window_mean_and_checks_its_arguments():
+    rng = np.random.default_rng(3)
+    positions = rng.normal(size=(20, 4, 3))
+    np.testing.assert_allclose(neutral_pose(positions, 10, 5), positions[8:13].mean(axis=0))
+    np.testing.assert_allclose(neutral_pose(positions, 1, 5), positions[0:4].mean(axis=0))
+    np.testing.assert_array_equal(neutral_pose(positions, 19), positions[19])
+    with pytest.raises(InputError, match=r"neutral frame 20 is beyond the take's 20 frames"):
+        neutral_pose(positions, 20)
+    with pytest.raises(InputError, match=r"neutral_window must be at least 1, got 0"):
+        neutral_pose(positions, 3, 0)
+    with pytest.raises(InputError, match=r"positions must have shape \(n_frames, n_markers, "
+                                         r"3\), got \(20, 12\)"):
+        neutral_pose(positions.reshape(20, 12), 3)
