@@ -219,3 +219,27 @@ def test_bind_frame_beyond_the_take(simulated, ict, tmp_path, capsys):
 def test_bind_refuses_to_overwrite_its_input(simulated, ict, capsys):
     _fails(_bind_args(ict, simulated[0], simulated[0]), capsys,
            r"refusing to overwrite an input file")
+
+
+def test_synth_negative_neutral_lead(ict, tmp_path, capsys):
+    with pytest.warns(UserWarning, match="no weight column"):
+        _fails(_synth_args(ict, _performance_csv(tmp_path / "p.csv"), tmp_path / "x.c3d",
+                           "--neutral-lead", "-1"), capsys,
+               r"neutral_lead_s must be >= 0, got -1\.0")
+    assert not (tmp_path / "x.c3d").exists()
+
+
+def test_bind_hold_of_a_take_shorter_than_a_hold(ict, tmp_path, capsys):
+    """A 0.4 s take cannot hold the 0.5 s window a neutral hold is found with."""
+    capture = tmp_path / "short.c3d"
+    with pytest.warns(UserWarning, match="no weight column"):
+        assert main(_synth_args(ict, _performance_csv(tmp_path / "p.csv"), capture,
+                                "--duration", "0.4")) == 0
+    _fails(_bind_args(ict, capture, tmp_path / "b.json", "--frame", "hold"), capsys,
+           r"a neutral hold is 0\.5 s \(51 frames\); the take has only 41")
+    assert not (tmp_path / "b.json").exists()
+
+
+def test_bind_frame_that_is_no_option_is_a_usage_error(simulated, ict, tmp_path, capsys):
+    assert main(_bind_args(ict, simulated[0], tmp_path / "b.json", "--frame", "still")) == 2
+    assert "expected a frame index, 'auto' or 'hold', got 'still'" in capsys.readouterr().err

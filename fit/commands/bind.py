@@ -7,7 +7,7 @@ from pathlib import Path
 
 import mocap
 from mocap._atomic import refuse_overwrite
-from mocap.bind import bind_markers, resolve_neutral_frame
+from mocap.bind import HOLD_S, bind_markers, resolve_neutral_frame
 from mocap.errors import InputError
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
@@ -48,7 +48,8 @@ def add_parser(sub) -> None:
     p.add_argument("--frame", type=parse_frame, default="auto", metavar="N|auto|hold",
                    help="0-based index of the neutral frame, 'auto' (default): the frame "
                         "closest to the median pose after head stabilization, or 'hold': "
-                        "the stillest frame of the neutral hold the take starts with")
+                        f"the centre of the first still {HOLD_S:g} s of the neutral hold the take "
+                        "starts with")
     p.add_argument("--no-icp", action="store_true",
                    help="keep the landmark similarity (no ICP refinement)")
     p.add_argument("--skin-offset", type=float, default=0.0, metavar="MM",

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import mocap
-from mocap.bind import load_binding
+from mocap.bind import HOLD_S, load_binding
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
 
@@ -54,8 +54,8 @@ def add_parser(sub) -> None:
     p.add_argument("--neutral-frame", type=parse_frame, default="auto",
                    metavar="N|auto|hold",
                    help="0-based index of the rest frame, 'auto' (default): the frame "
-                        "closest to the median pose, or 'hold': the stillest frame of the "
-                        "neutral hold the take starts with")
+                        "closest to the median pose, or 'hold': the centre of the first "
+                        f"still {HOLD_S:g} s of the neutral hold the take starts with")
     p.add_argument("--fill", choices=FILL_CHOICES, default="auto",
                    help="gap filling before retargeting (default auto; 'none' fails on gaps)")
     p.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")
