@@ -134,13 +134,8 @@ def _neighbour_mean(mask: Mask, *, welded: bool = False) -> sp.csr_matrix:
     pair average the neighbours of the pair, as if the mask were not cut
     along the lip line.
     """
-    poly = mask.polygons
-    corners = np.where(poly[:, 3:] < 0, poly[:, :1], poly[:, 3:])
-    ring = np.concatenate([poly[:, :3], corners], axis=1)
-    a, b = ring.ravel(), np.roll(ring, -1, axis=1).ravel()
-    keep = a != b
-    adj = sp.coo_matrix((np.ones(keep.sum()), (a[keep], b[keep])),
-                        shape=(mask.n_vertices,) * 2).tocsr()
+    a, b = mask.sides.T
+    adj = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(mask.n_vertices,) * 2).tocsr()
     adj = ((adj + adj.T) > 0).astype(float)
     if welded:
         seam = mask.tongue_seam

@@ -148,6 +148,18 @@ class Mask:
         return d / np.linalg.norm(d)
 
     @property
+    def sides(self) -> np.ndarray:
+        """Polygon sides (S, 2): (a, b) per side of each polygon in corner order.
+
+        A side two polygons share appears once per polygon (once in each
+        direction when they are oriented alike).
+        """
+        poly = self.polygons
+        ring = np.where(poly < 0, poly[:, :1], poly)      # a triangle closes on corner 0
+        sides = np.stack([ring.ravel(), np.roll(ring, -1, axis=1).ravel()], axis=1)
+        return sides[sides[:, 0] != sides[:, 1]]
+
+    @property
     def lip_bands(self) -> tuple[np.ndarray, np.ndarray]:
         """The upper and lower lip bands, bool arrays (V,) each.
 
@@ -160,9 +172,7 @@ class Mask:
         InputError
             Both landmarks lie on one connected piece (an unsplit mouth).
         """
-        poly = self.polygons
-        ring = np.where(poly < 0, poly[:, :1], poly)
-        a, b = ring.ravel(), np.roll(ring, -1, axis=1).ravel()
+        a, b = self.sides.T
         graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(self.n_vertices,) * 2)
         piece = connected_components(graph, directed=False)[1]
         upper, lower = (piece[self.landmarks[p]] for p in ("upper_lip_bottom", "lower_lip_top"))
@@ -189,9 +199,8 @@ class Mask:
             return np.zeros((0, 2), np.int64)
         d = np.linalg.norm(self.vertices[up, None] - self.vertices[None, low], axis=2)
         to_low, to_up = d.argmin(axis=1), d.argmin(axis=0)
-        ring = np.where(self.polygons < 0, self.polygons[:, :1], self.polygons)
-        edge = np.linalg.norm(self.vertices[ring] - self.vertices[np.roll(ring, -1, axis=1)],
-                              axis=2)
+        a, b = self.sides.T
+        edge = np.linalg.norm(self.vertices[a] - self.vertices[b], axis=1)
         keep = (to_up[to_low] == np.arange(len(up))) \
             & (d[np.arange(len(up)), to_low] < 0.25 * np.median(edge[edge > 0]))
         return np.stack([up[keep], low[to_low[keep]]], axis=1)
