@@ -99,8 +99,9 @@ def _palette(palette, rate) -> tuple:
     return clips
 
 
-def _features(clips, features, weight_groups) -> tuple:
-    have = [set(c.features(weight_groups)) for c in clips]
+def _features(clips, values, features) -> tuple:
+    """The features to synthesize; `values`: each clip's :meth:`GestureClip.features`."""
+    have = [set(v) for v in values]
     common = set.intersection(*have)
     if features is None:
         return tuple(f for f in FEATURES if f in common)
@@ -219,7 +220,8 @@ def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: floa
     intensity = as_float_array(intensity, "intensity", ndim=1, allow_nan=False)
     rate = as_positive_float(rate, "rate")
     clips = _palette(palette, rate)
-    features = _features(clips, features, weight_groups)
+    per_clip = [c.features(weight_groups) for c in clips]
+    features = _features(clips, per_clip, features)
     h = as_int(history, "history", minimum=1)
     run = as_int(run, "run", minimum=1)
     k = as_int(n_candidates, "n_candidates", minimum=1)
@@ -245,7 +247,7 @@ def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: floa
     speech = [_mrf.standardize_intensity(c.intensity) for c in clips]
     values, sources, transitions, warps = {}, {}, {}, {}
     for feature in features:
-        raw = [c.features(weight_groups)[feature] for c in clips]
+        raw = [v[feature] for v in per_clip]
         parts = [slice(0, 3), slice(3, 6)] if feature == "head" else [slice(None)]
         scale = _mrf.part_scales(raw, parts)
         spans = _spans(timeline, feature, len(target), rate, clip_index)
@@ -296,8 +298,8 @@ def _result(values, sources, transitions, warps, clips, intensity, rate,
         weights=weights,
         names=clips[0].names, head_rotation=head_rotation, head_translation=head_translation,
         details=details, detail_labels=labels, intensity=intensity, rate=rate,
-        sources=sources, transitions=transitions, warps=warps, clip_names=tuple(c.name for c in clips),
-        message=message)
+        sources=sources, transitions=transitions, warps=warps,
+        clip_names=tuple(c.name for c in clips), message=message)
 
 
 def candidate_distances(intensity_history, feature_history, ref_intensity, ref_features, *,
