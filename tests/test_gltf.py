@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import importlib.util
 import struct
 from pathlib import Path
 
@@ -217,6 +218,24 @@ def test_rigid_motion_animates_the_node_in_metres(tmp_path):
     want = np.einsum("tij,vj->tvi", rotation, neutral.vertices) + translation[:, None]
     np.testing.assert_allclose(played / _METRES["cm"], want, atol=GLTF_FLOAT32_CM * 10)
 
+
+
+def test_blender_check_reads_the_weights_beside_a_head_motion(tmp_path):
+    """``make blender-check`` finds the weights' channel among the node's three (no Blender needed
+    for the file's side), as gestures.glb with a head motion has them."""
+    spec = importlib.util.spec_from_file_location(
+        "blender_check", Path(__file__).resolve().parents[1] / "bench" / "blender_check.py")
+    blender_check = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(blender_check)
+    n = 6
+    weights = np.random.default_rng(2).uniform(0.0, 1.0, (n, 2))
+    path = tmp_path / "moving.glb"
+    write_gltf(path, _grid("cm", n=3), np.zeros((2, 9, 3)), ["a", "b"], weights=weights,
+               rotation=np.tile(np.eye(3), (n, 1, 1)), translation=np.ones((n, 3)), rate=30)
+    want = blender_check.expected(*blender_check.read_glb(path))
+    assert (want["vertices"], want["names"], want["n_targets"]) == (9, ["a", "b"], 2)
+    np.testing.assert_allclose(want["times"], np.arange(n) / 30, rtol=EXPORT_FLOAT32_REL)
+    np.testing.assert_allclose(want["weights"], weights, rtol=EXPORT_FLOAT32_REL)
 
 def test_output_never_replaces_the_neutral(tmp_path):
     neutral = _grid("cm", n=3)
