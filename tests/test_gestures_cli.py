@@ -220,7 +220,7 @@ def test_gestures_needs_an_action(capsys):
 
 
 def test_analyze_takes_the_neutral_from_a_hold(simulated, capsys):
-    """``--neutral-frame hold`` (the parser takes it, as bind's does) picks a frame, not an error."""
+    """``--neutral-frame hold`` (bind's parser takes it) picks a frame instead of failing."""
     out = simulated["folder"] / "hold.npz"
     assert main(["gestures", "analyze", str(simulated["capture"]), *simulated["common"],
                  "--speech", str(simulated["wav"]), "--neutral-frame", "hold",
@@ -253,3 +253,19 @@ def test_clip_from_capture_keeps_every_ingest_option(simulated, monkeypatch):
         wav=simulated["wav"], options=given, neutral_frame=NEUTRAL)
     assert seen == [IngestOptions(fix_swaps=True, reject_implausible=True, fill="spline",
                                   max_gap=40, lowpass_hz=8.0, resample_hz=RATE, stabilize=True)]
+
+
+def test_synthesize_with_an_unreadable_binding_writes_nothing(simulated, tmp_path, capsys):
+    """The binding is read with the other inputs: a bad one fails before any output."""
+    clip = tmp_path / "clip.npz"
+    assert main(["gestures", "analyze", str(simulated["capture"]), *simulated["common"],
+                 "--speech", str(simulated["wav"]), "-o", str(clip)]) == 0
+    bad, out = tmp_path / "binding.json", tmp_path / "out"
+    bad.write_text("{not json", encoding="utf-8")
+    out.mkdir()
+    assert main(["gestures", "synthesize", str(simulated["wav"]), "--palette", str(clip),
+                 "-o", str(out), "--mesh", str(simulated["mesh"]), "--shapes",
+                 str(simulated["shapes"]), "--units", "cm", "--binding", str(bad)]) == 1
+    err = capsys.readouterr().err
+    assert "binding.json" in err and err.count("\n") == 1, err
+    assert list(out.iterdir()) == []

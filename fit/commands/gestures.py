@@ -201,10 +201,8 @@ def _in_basis(clip, shapes):
 
 def run_synthesize(args) -> int:
     from basis.artist import load_artist_basis
-    from basis.gltf import write_gltf
-    from fit.exports import write_mesh_sequence, write_weights_csv
+    from fit.exports import write_weights_csv
     from fit.gestures import load_timeline, synthesize_gestures, wav_intensity
-    from fit.gestures.transfer import build_detail_transfer, head_motion_on_mesh
     from mocap._atomic import atomic_path
     from mocap.bind import load_binding
 
@@ -216,6 +214,7 @@ def run_synthesize(args) -> int:
         raise InputError(f"{args.output}: the output directory does not exist")
     basis = None if args.mesh is None else load_artist_basis(args.mesh, args.shapes,
                                                              units=args.units)
+    binding = None if args.binding is None else load_binding(args.binding)
     rate = args.rate
     clips = load_palette(args.palette, rate=rate,
                          shapes=None if basis is None else basis.names)
@@ -240,27 +239,35 @@ def run_synthesize(args) -> int:
                                                    for g, v in syn.details.items()},
                      **{f"labels.{g}": np.array(v, dtype=str)
                         for g, v in syn.detail_labels.items()})
-    if basis is None:
-        return 0
+    if basis is not None:
+        _write_face(out, syn, basis, binding, support=args.support, inputs=inputs)
+    return 0
+
+
+def _write_face(out: Path, syn, basis, binding, *, support, inputs) -> None:
+    """``mesh.npz`` and ``gestures.glb``: the synthesis on the target face (details and head
+    motion placed on it with a binding)."""
+    from basis.gltf import write_gltf
+    from fit.exports import write_mesh_sequence
+    from fit.gestures.transfer import build_detail_transfer, head_motion_on_mesh
+
     fields, names, weights = basis.displacements, basis.names, syn.weights
-    binding = None if args.binding is None else load_binding(args.binding)
     if binding is not None and syn.details:
         transfer = build_detail_transfer(binding, basis.neutral, syn.detail_labels,
-                                         support=args.support)
+                                         support=support)
         extra, extra_names = transfer.shapes()
         fields = np.concatenate([fields, extra])
         names = names + extra_names
         weights = np.concatenate([weights, transfer.weights(syn.details)], axis=1)
     write_mesh_sequence(out / "mesh.npz", basis.neutral, fields, weights, names=names,
-                        rate=rate, inputs=inputs)
+                        rate=syn.rate, inputs=inputs)
     motion = {}
     if syn.head_rotation is not None and binding is None:
         warnings.warn("the head motion is in head.npz only: --binding places it on the mesh "
-                      "(gestures.glb)", stacklevel=2)
+                      "(gestures.glb)", stacklevel=3)
     elif syn.head_rotation is not None:
         rotation, translation = head_motion_on_mesh(binding, syn.head_rotation,
                                                     syn.head_translation)
         motion = {"rotation": rotation, "translation": translation}
-    write_gltf(out / "gestures.glb", basis.neutral, fields, names, weights=weights, rate=rate,
-               inputs=inputs, **motion)
-    return 0
+    write_gltf(out / "gestures.glb", basis.neutral, fields, names, weights=weights,
+               rate=syn.rate, inputs=inputs, **motion)
