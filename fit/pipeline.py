@@ -21,7 +21,8 @@ from basis.artist import ArtistBasis
 from basis.pca import PCAModel, pca_from_operator
 from basis.quasi_eigen import MISSING_POLICIES, QuasiEigenBasis, quasi_eigen
 from mocap._validation import as_choice, as_int, as_positive_float
-from mocap.bind import Binding, bind_markers, hold_window, resolve_neutral_frame
+from mocap.bind import (PICKED_FRAMES, Binding, bind_markers, hold_window,
+                        resolve_neutral_frame)
 from mocap.errors import InputError, MarkerError
 from mocap.layout import MarkerLayout
 from mocap.markerset import MarkerSet
@@ -72,7 +73,7 @@ class BindOptions:
 
     def __post_init__(self):
         if isinstance(self.frame, str):
-            if self.frame not in ("auto", "hold"):
+            if self.frame not in PICKED_FRAMES:
                 raise InputError(f"frame must be a frame index, 'auto' or 'hold', "
                                  f"got {self.frame!r}")
         else:

@@ -23,7 +23,7 @@ import numpy as np
 
 from mocap._atomic import atomic_path, refuse_overwrite
 from mocap._validation import as_choice, as_float_array, as_int, as_positive_float
-from mocap.bind import Binding, resolve_neutral_frame
+from mocap.bind import PICKED_FRAMES, Binding, resolve_neutral_frame
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.mesh import Mesh, face_normals, save_obj
@@ -427,7 +427,7 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
                                      f"(index {t}; {int(missing.sum())} missing marker-frames "
                                      "in all): fill gaps before retargeting")
     frame = (resolve_neutral_frame(face.positions, neutral_frame, rate=face.rate)
-             if neutral_frame in ("auto", "hold") else _check_frame(face, neutral_frame))
+             if neutral_frame in PICKED_FRAMES else _check_frame(face, neutral_frame))
     rotation = align_head_frame(face, binding, mesh, neutral_frame=frame) if align \
         else np.eye(3)
     displacements = marker_displacements(face, binding, neutral_frame=frame, rotation=rotation,

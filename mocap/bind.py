@@ -28,7 +28,7 @@ from .mesh_landmarks import check_mesh_landmarks
 from .rigid import fit_rigid
 
 __all__ = ["Binding", "bind_markers", "load_binding", "closest_surface_points",
-           "resolve_neutral_frame", "hold_window",
+           "resolve_neutral_frame", "hold_window", "NEUTRAL_METHODS", "PICKED_FRAMES", "HOLD_S",
            "pick_neutral_frame"]
 
 _FORMAT = "mocap2mesh-binding-1"
@@ -396,6 +396,8 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
 
 #: How :func:`pick_neutral_frame` finds the rest frame.
 NEUTRAL_METHODS = ("median", "hold")
+#: The neutral-frame options besides a frame index (:func:`resolve_neutral_frame`).
+PICKED_FRAMES = ("auto", "hold")
 #: Window of the stillness of a frame, and shortest neutral hold, s.
 HOLD_S = 0.5
 

@@ -356,3 +356,10 @@ def test_neutral_pose_is_the_window_mean_and_checks_its_arguments():
     with pytest.raises(InputError, match=r"positions must have shape \(n_frames, n_markers, "
                                          r"3\), got \(20, 12\)"):
         neutral_pose(positions.reshape(20, 12), 3)
+
+
+def test_bind_capture_names_a_frame_of_no_kind(ict_capture):
+    basis, sim = ict_capture[:2]
+    with pytest.raises(InputError, match=r"frame must be an integer, got 'still'"):
+        bind_capture(sim.take, load_markerset(ICT_MARKERSET), basis.neutral,
+                     load_mesh_landmarks(ICT_LANDMARKS, basis.neutral), frame="still")

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import mocap
 from mocap._atomic import refuse_overwrite
-from mocap.bind import HOLD_S, bind_markers, resolve_neutral_frame
+from mocap._validation import as_int
+from mocap.bind import HOLD_S, PICKED_FRAMES, bind_markers, resolve_neutral_frame
 from mocap.errors import InputError
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
@@ -19,7 +20,7 @@ __all__ = ["add_parser", "run", "bind_capture", "parse_frame"]
 
 def parse_frame(text: str):
     """``"auto"``, ``"hold"`` or a frame index >= 0 (argparse type)."""
-    if text in ("auto", "hold"):
+    if text in PICKED_FRAMES:
         return text
     try:
         value = int(text)
@@ -99,7 +100,9 @@ def bind_capture(take: mocap.Take, markerset, mesh, mesh_landmarks, *, frame="au
     """
     markerset.check_labels(take.labels, source=take.source.path or "the take")
     take = take.select(markerset.markers)
-    picked = frame in ("auto", "hold")
+    picked = frame in PICKED_FRAMES
+    if not picked:
+        frame = as_int(frame, "frame", minimum=0)
     if not picked and frame >= take.n_frames:
         raise InputError(f"{take.source.path}: frame index {frame} is beyond the take's "
                          f"{take.n_frames} frames")
