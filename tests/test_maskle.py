@@ -343,6 +343,8 @@ def test_bad_option_is_an_error(ict, mask):
     fit = fit_mask(mask, mesh, marks, max_iterations=1)
     with pytest.raises(InputError, match=r"min_facing must lie in \[-1, 1\), got 1.0"):
         transfer_operator(mask, fit, mesh, min_facing=1.0)
+    with pytest.raises(InputError, match="min_facing must be a numeric array"):
+        transfer_operator(mask, fit, mesh, min_facing="facing")
 
 
 def test_region_masks_need_regions(mask):

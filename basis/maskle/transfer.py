@@ -155,7 +155,7 @@ def transfer_operator(mask: Mask, fit: MaskFit, mesh: Mesh, *, max_distance: flo
     TransferOperator
     """
     max_distance = as_positive_float(max_distance, "max_distance")
-    min_facing = float(min_facing)
+    min_facing = float(as_float_array(min_facing, "min_facing", ndim=0, allow_nan=False))
     if not -1.0 <= min_facing < 1.0:
         raise InputError(f"min_facing must lie in [-1, 1), got {min_facing}")
     x = fit.vertices
