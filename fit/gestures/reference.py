@@ -44,16 +44,18 @@ class CaptureClip:
     analysis : GestureAnalysis
     neutral_frame : int
         Frame index (at the clip's rate) whose stabilized markers are N.
-    intensity_source : str
-        What S(t) was made of (also ``clip.intensity_source``).
     message : str
     """
 
     clip: GestureClip
     analysis: GestureAnalysis
     neutral_frame: int
-    intensity_source: str
     message: str
+
+    @property
+    def intensity_source(self) -> str:
+        """What S(t) was made of (``clip.intensity_source``)."""
+        return self.clip.intensity_source
 
 
 def _intensity(markerset, cleaned: Take, stabilized: Take, wav, analog, opening, window):
@@ -178,4 +180,4 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
     clip = clip_from_analysis(analysis, intensity, name=name, intensity_source=source)
     message = (f"clip {name!r}: {analysis.message}; neutral frame {neutral_frame}; "
                f"S(t) {source}")
-    return CaptureClip(clip, analysis, neutral_frame, source, message)
+    return CaptureClip(clip, analysis, neutral_frame, message)

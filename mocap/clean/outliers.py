@@ -61,7 +61,7 @@ class ImplausibleRun:
     reason: str
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ImplausibleSamples:
     """Outcome of :func:`find_implausible_samples`.
 
@@ -73,8 +73,6 @@ class ImplausibleSamples:
         The flagged samples as runs, ordered by start frame then marker.
     labels : tuple of str
         Marker labels of the take, one per column of `mask`.
-    n_flagged : int
-        Number of flagged samples.
     message : str
         One-line summary.
     """
@@ -82,8 +80,12 @@ class ImplausibleSamples:
     mask: np.ndarray
     runs: tuple
     labels: tuple
-    n_flagged: int
     message: str
+
+    @property
+    def n_flagged(self) -> int:
+        """Number of flagged samples."""
+        return int(self.mask.sum())
 
 
 def _runs_of(mask: np.ndarray):
@@ -305,7 +307,7 @@ def find_implausible_samples(take: Take, *, head=None, off_rest: float = 25.0,
                + (f" ({counts})" if counts else "")
                + f", {'head' if head is not None else 'capture'} frame")
     return ImplausibleSamples(mask=read_only(mask), runs=tuple(runs), labels=take.labels,
-                              n_flagged=n_flagged, message=message)
+                              message=message)
 
 
 def remove_implausible_samples(take: Take, found: ImplausibleSamples) -> Take:
