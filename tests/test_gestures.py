@@ -421,6 +421,32 @@ def test_cli_writes_weights_and_head_motion(cli_files, flags):
     assert head["rotation"].shape == (120, 3, 3)
 
 
+
+def test_cli_one_chain_keeps_blinks_and_brows_in_the_weights_chain(cli_files):
+    """``--one-chain`` is ``weight_groups={}``; without it the blink and brow shapes (by name)
+    follow chains of their own, which choose other frames."""
+    import pandas as pd
+    wav, _, out = cli_files
+    clip = dataclasses.replace(_clip("calm", seed=4),
+                               names=("jawOpen", "eyeBlink_L", "browInnerUp_L"))
+    path = out.parent / "named.npz"
+    save_clip(path, clip)
+    got = {}
+    for flags in ([], ["--one-chain"]):
+        folder = out / ("one" if flags else "own")
+        folder.mkdir()
+        assert main(["gestures", "synthesize", str(wav), "--palette", str(path), "-o",
+                     str(folder), *flags]) == 0
+        got[bool(flags)] = pd.read_csv(folder / "weights.csv").to_numpy()[:, 2:]
+    intensity = wav_intensity(wav, frame_rate=RATE)
+    for one_chain, groups in ((True, {}), (False, None)):
+        want = synthesize_gestures(intensity, [load_clip(path)], rate=RATE,
+                                   weight_groups=groups)
+        assert set(want.sources) == ({"weights"} if one_chain
+                                     else {"weights", "blinks", "brows"})
+        np.testing.assert_allclose(got[one_chain], want.weights, atol=1e-6)
+    assert np.abs(got[True] - got[False]).max() > 0.01
+
 @pytest.mark.parametrize("args, match", [
     (["--palette", "{clip}", "-o", "{out}/missing"], "output directory does not exist"),
     (["--palette", "{wav}", "-o", "{out}"], "a palette clip is a .npz clip"),
