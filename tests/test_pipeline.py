@@ -11,6 +11,7 @@ from scipy.optimize import lsq_linear
 import mocap
 from basis.basis_io import load_basis
 from fit.demo import make_demo_session
+from fit.gestures import marker_basis as gesture_marker_basis
 from fit.ingest import IngestOptions
 from fit.pipeline import (SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
                           bind_stage, complete_span, fit_stage, ingest_stage, marker_basis,
@@ -125,6 +126,25 @@ def test_marker_basis_moves_the_offset_marker_centres_with_the_skin(chain):
     np.testing.assert_allclose(got[1], np.cross(omega, lifted - centre), atol=1e-7)
     assert np.abs(got[1] - skin[1]).max() > 1e-3 * np.abs(skin[1]).max()
 
+
+
+def test_gesture_marker_basis_lifts_the_centres_too_in_capture_mm(chain):
+    """The gestures' basis B_i (capture mm) follows the same offset centres: a mesh
+    rotation field, brought to the capture frame by the binding's similarity."""
+    binding, mesh = chain["bound"].binding, chain["mesh"]
+    omega = np.array([0.02, -0.05, 0.03])
+    centre = mesh.vertices.mean(axis=0)
+    fields = np.cross(omega, mesh.vertices - centre)[None]
+    labels = binding.labels[::-1]
+    got = gesture_marker_basis(binding, fields, labels, mesh=mesh)
+    lifted = MarkerLayout(binding.labels, binding.vertex_ids, binding.barycentric,
+                          binding.face_ids, np.full(len(binding.labels),
+                                                    binding.skin_offset * binding.scale),
+                          mesh.faces, mesh.n_vertices).positions(mesh.vertices)[::-1]
+    want = np.cross(omega, lifted - centre) @ np.asarray(binding.rotation) / binding.scale
+    np.testing.assert_allclose(got[0], want, atol=1e-7 / binding.scale)
+    skin = gesture_marker_basis(binding, fields, labels)
+    assert np.abs(got - skin).max() > 1e-3 * np.abs(skin).max()
 
 
 def test_marker_basis_names_a_marker_the_binding_lacks(chain):

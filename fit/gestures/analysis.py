@@ -21,6 +21,7 @@ from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.stabilize import Stabilization
 
+from ..pipeline import marker_basis as _mesh_marker_basis
 from ..sampling_estimator import estimate_weights_by_sampling
 from ..solve import solve_weights
 from ..temporal import moving_average
@@ -231,8 +232,8 @@ def analyze_gestures(stabilization: Stabilization, neutral, basis, regions, *, l
         cost=read_only(cost, copy=True), estimator=estimator, message=message)
 
 
-def marker_basis(binding: Binding, displacements, labels) -> np.ndarray:
-    """Mesh shapes sampled at bound marker points, in capture mm: the marker-space basis B_i.
+def marker_basis(binding: Binding, displacements, labels, *, mesh=None) -> np.ndarray:
+    """Mesh shapes sampled at the bound markers, in capture mm: the marker-space basis B_i.
 
     Parameters
     ----------
@@ -243,15 +244,21 @@ def marker_basis(binding: Binding, displacements, labels) -> np.ndarray:
         Shape displacements from the neutral mesh (``ArtistBasis.displacements``). No NaN.
     labels : sequence of str
         The M markers to sample, in the order of the analysis.
+    mesh : Mesh, optional
+        The binding's neutral mesh: with a binding made with a skin offset,
+        the marker centres off the skin are sampled, not the surface points
+        (:func:`fit.pipeline.marker_basis`).
 
     Returns
     -------
     ndarray of shape (n_shapes, M, 3), mm
-        Each shape's displacement at the bound points (barycentric on the
-        binding's faces) brought to the capture frame: ``d_mm = Rᵀ d_mesh / scale``.
+        Each shape's displacement at the bound markers brought to the capture
+        frame: ``d_mm = Rᵀ d_mesh / scale``.
 
     Raises
     ------
+    InputError
+        `binding` not a Binding, `displacements` not (n, N, 3) or with NaN.
     MarkerError
         A label not in the binding.
     """
@@ -259,12 +266,7 @@ def marker_basis(binding: Binding, displacements, labels) -> np.ndarray:
         raise InputError(f"binding must be a Binding, got {type(binding).__name__}")
     displacements = as_float_array(displacements, "displacements", shape=(None, None, 3),
                                    allow_nan=False)
-    index = []
-    for label in labels:
-        if label not in binding.labels:
-            raise MarkerError(label, "is not in the binding")
-        index.append(binding.labels.index(label))
-    points = binding.marker_points(displacements)[:, index]
+    points = _mesh_marker_basis(binding, displacements, list(labels), mesh=mesh)
     return points @ np.asarray(binding.rotation) / binding.scale
 
 

@@ -174,9 +174,10 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
                                    opening, intensity_window)
     if source.startswith("stand-in"):
         warnings.warn(f"S(t) is a {source}", stacklevel=2)
-    analysis = analyze_gestures(stab, neutral, marker_basis(binding, basis.displacements, labels),
-                                markerset, labels=labels, names=basis.names, epsilon=epsilon,
-                                window=window, estimator=estimator, seed=seed)
+    shapes = marker_basis(binding, basis.displacements, labels, mesh=basis.neutral)
+    analysis = analyze_gestures(stab, neutral, shapes, markerset, labels=labels,
+                                names=basis.names, epsilon=epsilon, window=window,
+                                estimator=estimator, seed=seed)
     clip = clip_from_analysis(analysis, intensity, name=name, intensity_source=source)
     message = (f"clip {name!r}: {analysis.message}; neutral frame {neutral_frame}; "
                f"S(t) {source}")
