@@ -164,9 +164,7 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
                 + ": weights along its null space are the minimum-norm reduced solution",
                 RuntimeWarning, stacklevel=2)
         if smoothness > 0:
-            start = solve_box_qp(qp, C, tol=tol, max_iter=max_iter, warm_start=warm_start)[0]
-            w, it, res, _ = solve_smooth(qp, C, smoothness, tol=tol, max_iter=max_iter,
-                                         start=start)
+            w, it, res, _ = solve_smooth(qp, C, smoothness, tol=tol, max_iter=max_iter)
         else:
             w, it, res, _ = solve_box_qp(qp, C[frames], tol=tol, max_iter=max_iter,
                                          warm_start=warm_start)
