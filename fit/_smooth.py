@@ -87,7 +87,7 @@ def unbounded(spectrum: Spectrum, spectral, lam):
     return spectrum.inverse(np.where(ok, spectral / np.where(ok, denom, 1.0), 0.0))
 
 
-def rough(spectrum: Spectrum, spectral, lam, lo, hi, n_steps: int = _ADMM_ITER):
+def rough(spectrum: Spectrum, spectral, lam, lo, hi, n_steps: int):
     """A point (T, n) in the box near the bounded minimizer, by ``n_steps`` of ADMM.
 
     ADMM on ``f(w) + ι_box(z)`` with ``w = z``: w-steps solve the unbounded
@@ -243,7 +243,7 @@ def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter):
     T, n = c.shape
     ridge = RANK_RTOL * spectrum.eig[-1] if qp.singular else 0.0
     band = _Band(qp.G, lam, ridge)
-    start = rough(spectrum, spectrum.transform(c), lam, qp.lo, qp.hi)
+    start = rough(spectrum, spectrum.transform(c), lam, qp.lo, qp.hi, _ADMM_ITER)
     state = np.where(start <= qp.lo, -1, np.where(start >= qp.hi, 1, 0)).astype(np.int8)
     state[:, qp.fixed] = -1
     every = np.arange(T)
