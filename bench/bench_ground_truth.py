@@ -120,6 +120,17 @@ def simulate(basis, performance, layout, head, *, noise, lead=0.0, motion=True):
                                 head_translation_mm=30.0 if motion else 0.0)
 
 
+def tangent_basis(basis, layout, face):
+    """The markers' linear basis (n, F, 3) in mm: the tangent of each shape's marker
+    motion at the neutral (central differences; exact for skin points), face markers only."""
+    mesh = basis.neutral
+    steps = 1e-4 * np.ptp(mesh.vertices, axis=0).max() / np.abs(basis.displacements).max(
+        axis=(1, 2))
+    return MM_PER_CM * np.stack([(layout.positions(mesh.vertices + h * e)
+                                  - layout.positions(mesh.vertices - h * e))[face] / (2 * h)
+                                 for h, e in zip(steps, basis.displacements)])
+
+
 def markers_alone(label, basis, performance, layout, markerset):
     """One row of table 1."""
     mesh = basis.neutral
@@ -131,12 +142,7 @@ def markers_alone(label, basis, performance, layout, markerset):
             layout.labels, layout.vertex_ids, layout.weights, layout.face_ids,
             np.zeros(layout.n_markers), layout.faces, layout.n_vertices, units=layout.units)
         rest = lay.positions(mesh.vertices)
-        # the tangent at the neutral (central differences; exact for skin points)
-        steps = 1e-4 * np.ptp(mesh.vertices, axis=0).max() / np.abs(basis.displacements).max(
-            axis=(1, 2))
-        B = MM_PER_CM * np.stack([(lay.positions(mesh.vertices + h * e)
-                                   - lay.positions(mesh.vertices - h * e))[face] / (2 * h)
-                                  for h, e in zip(steps, basis.displacements)])
+        B = tangent_basis(basis, lay, face)
         truth = simulate(basis, performance, lay, markerset.head, noise=0.0, motion=False).truth
         W, X = truth.weights, truth.markers_head[:, face]
         neutral = MM_PER_CM * rest[face]
@@ -193,14 +199,19 @@ def chain(label, basis, performance, layout, markerset, landmarks, *, noise, lea
           + f" {time.perf_counter() - tic:>6.1f}")
 
 
-def main() -> None:
-    root = shared_data()
+def load_ict(root):
+    """The ICT basis (cm), the ICT marker set, layout and landmarks, and alex_rom_4."""
     ict = root / "ict-face"
     basis = load_artist_basis(ict / "generic_neutral_mesh.obj", ict / "expressions", units="cm")
     markerset = load_markerset(REPO / "tests" / "ict_markerset.toml")
     layout = load_marker_layout(REPO / "tests" / "ict_marker_layout.toml", basis.neutral)
     landmarks = load_mesh_landmarks(REPO / "tests" / "ict_landmarks.toml", basis.neutral)
     performance = read_performance(root / "arkit-performances" / "alex_rom_4.csv")
+    return basis, markerset, layout, landmarks, performance
+
+
+def main() -> None:
+    basis, markerset, layout, landmarks, performance = load_ict(shared_data())
     layouts = {"designed (the 66-marker)": (layout, markerset),
                "designed + 60 fill": extended(layout, markerset, basis, 60),
                "designed + 180 fill": extended(layout, markerset, basis, 180),

@@ -39,7 +39,7 @@ from _common import shared_data  # noqa: E402
 from bench_solve import CM_TO_MM, arkit_column, load_basis  # noqa: E402
 
 from fit._active_set import RANK_RTOL, BoxQP, kkt_residual, solve_box_qp  # noqa: E402
-from fit._smooth import gradient  # noqa: E402
+from fit._smooth import _step, gradient  # noqa: E402
 from fit.temporal import solve_smooth  # noqa: E402
 
 N_FRAMES = 3870
@@ -93,11 +93,7 @@ def old_solve(qp, c, lam, max_iter):
         g, scale = gradient(qp.G, c, lam, w)
         if (kkt_residual(w, g, scale, qp.lo, qp.hi) <= TOL).all():
             break
-        new = state.copy()
-        new[free & (w < qp.lo)] = -1
-        new[free & (w > qp.hi)] = 1
-        new[((state == -1) & (g < 0)) | ((state == 1) & (g > 0))] = 0
-        new[:, qp.fixed] = -1
+        new = _step(qp, state, w, g)       # the old update, unchanged in fit._smooth
         key = new.tobytes()
         if key in seen:
             break
