@@ -22,7 +22,6 @@ differs from the least-squares fit of c by the second order of the offset.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,7 +91,8 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     tol : float, default 1e-6
         A frame has settled when its step changes no weight by more than this.
     max_steps : int, default 50
-        Most chord steps (the first one is the linear model's solve).
+        Most chord steps (each one solve; the first one, from zero weights, is
+        the linear model's).
 
     Returns
     -------
@@ -116,17 +116,20 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     def centres(w):
         return layout.positions_under_weights(neutral, displacements, w) - rest
 
-    rest = layout.positions_under_weights(neutral, displacements, np.zeros((1, len(basis))))[0]
-    first = solve_weights(basis, data, lower=lower, upper=upper, smoothness=smoothness)
-    w, rank = first.weights.copy(), first.rank
-    kkt, converged, n_iter = first.kkt_residual.copy(), first.converged.copy(), first.n_iter.copy()
-    n_steps = np.ones(len(data), np.int64)
-    step = np.full(len(data), np.inf)
-    x = w.copy()                        # the iterate the next step linearizes at
-    last_x = last_g = None              # the previous iterate and its chord step, for Anderson
-    todo = np.arange(len(data))
+    n, T = len(basis), len(data)
+    rest = layout.positions_under_weights(neutral, displacements, np.zeros((1, n)))[0]
     coupled = smoothness > 0            # the frames are one problem: they step together
-    for _ in range(max_steps - 1):
+    # the first step from x = 0 is the linear model's solve (r(0) = 0); a smooth
+    # fit starts from the frames' own fixed points, a few coupled steps away
+    x = np.zeros((T, n)) if not coupled else solve_at_marker_centres(
+        layout, neutral, displacements, basis, data, lower=lower, upper=upper, tol=tol,
+        max_steps=max_steps).solution.weights
+    w, kkt, converged = np.empty((T, n)), np.empty(T), np.zeros(T, bool)
+    n_steps, n_iter, step = np.zeros(T, np.int64), np.zeros(T, np.int64), np.full(T, np.inf)
+    rank = n
+    last_x = last_g = None              # the previous iterate and its chord step, for Anderson
+    todo = np.arange(T)
+    for _ in range(max_steps):
         xt = x[todo]
         nonlinear = centres(xt) - np.tensordot(xt, basis, axes=1)
         sol = solve_weights(basis, data[todo] - nonlinear, lower=lower, upper=upper,
@@ -149,8 +152,8 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     moved = centres(w)
     settled = step <= tol
     ok = converged & settled
-    solution = dataclasses.replace(
-        first, weights=w, cost=0.5 * np.sum((moved - data) ** 2, axis=(1, 2)), n_iter=n_iter,
+    solution = WeightSolution(
+        weights=w, cost=0.5 * np.sum((moved - data) ** 2, axis=(1, 2)), n_iter=n_iter,
         converged=ok, kkt_residual=kkt, rank=rank, status=int(not ok.all()),
         message=_message(ok, settled, step, n_steps, tol))
     return MarkerCentreFit(solution=solution, displacements=moved, n_steps=n_steps, step=step,
