@@ -4,7 +4,7 @@ The ICT face (53 shapes) driven by ``alex_rom_4.csv`` at 30 Hz, seen by the
 60 face markers of ``tests/ict_marker_layout.toml`` 2 mm off the skin, in
 the head frame (true, no head motion, no gaps), plus 0.2 mm of noise: the
 "2mm,σ" case of ``bench_ground_truth.py``'s table 1 (its linear marker basis,
-:func:`bench_ground_truth.tangent_basis`, mm; bounds [0, 1]). For each λ of a
+:func:`bench_ground_truth.tangent_case`, mm; bounds [0, 1]). For each λ of a
 sweep (shown, never picked on the truth) and for ``smoothness="gcv"``: the
 RMSE of the weights against the truth, the GCV score of the unbounded
 problem (:func:`fit.gcv.gcv_score`, mm²) and the solve's time. The λ the
@@ -25,7 +25,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 from _common import shared_data  # noqa: E402
-from bench_ground_truth import MM_PER_CM, NOISE_MM, load_ict, simulate, tangent_basis  # noqa: E402
+from bench_ground_truth import NOISE_MM, load_ict, tangent_case  # noqa: E402
 
 from fit.gcv import gcv_score  # noqa: E402
 from fit.solve import solve_weights  # noqa: E402
@@ -35,15 +35,11 @@ SWEEP = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0)
 
 def main() -> None:
     basis, markerset, layout, _, performance = load_ict(shared_data())
-    face = [i for i, x in enumerate(layout.labels) if x not in markerset.head]
-    B = tangent_basis(basis, layout, face)
-    truth = simulate(basis, performance, layout, markerset.head, noise=0.0, motion=False).truth
+    B, markers, rest, weights = tangent_case(basis, performance, layout, markerset, offset=True)
     rng = np.random.default_rng(5)
-    markers = truth.markers_head[:, face]
-    data = markers + NOISE_MM * rng.standard_normal(markers.shape) \
-        - MM_PER_CM * layout.positions(basis.neutral.vertices)[face]
+    data = markers + NOISE_MM * rng.standard_normal(markers.shape) - rest
     Bm, D = B.reshape(len(B), -1).T, data.reshape(len(data), -1)
-    print(f"alex_rom_4 at 30 Hz onto ICT, {len(face)} face markers 2 mm off the skin, true "
+    print(f"alex_rom_4 at 30 Hz onto ICT, {markers.shape[1]} face markers 2 mm off the skin, true "
           f"head frame, {NOISE_MM} mm noise; {len(D)} frames x {Bm.shape[1]} shapes, "
           f"bounds [0, 1]; BLAS threads {os.environ['OPENBLAS_NUM_THREADS']}\n")
     print(f"{'smoothness':<14} {'λ':>9} {'RMSE w':>7} {'GCV mm²':>9} {'solve s':>7}")
@@ -55,7 +51,7 @@ def main() -> None:
             warnings.simplefilter("ignore", RuntimeWarning)
             sol = solve_weights(Bm, D, lower=0.0, upper=1.0, smoothness=option)
         seconds = time.perf_counter() - tic
-        rmse = float(np.sqrt(np.mean((sol.weights - truth.weights) ** 2)))
+        rmse = float(np.sqrt(np.mean((sol.weights - weights) ** 2)))
         score = float(gcv_score(Bm, D, sol.smoothness))
         rows.append((label, sol.smoothness, rmse))
         print(f"{label:<14} {sol.smoothness:>9.4g} {rmse:>7.4f} {score:>9.5f} {seconds:>7.2f}",

@@ -24,12 +24,12 @@ from mocap._validation import as_choice, as_int, as_positive_float
 from mocap.bind import (PICKED_FRAMES, Binding, bind_markers, hold_window,
                         resolve_neutral_frame)
 from mocap.errors import InputError, MarkerError
-from mocap.layout import MarkerLayout
 from mocap.markerset import MarkerSet
 from mocap.mesh import Mesh
 from mocap.take import Take
 
 from .ingest import IngestOptions, IngestResult, ingest
+from .marker_centres import solve_at_marker_centres
 from .retarget import RetargetOptions, Retargeting, neutral_pose, retarget
 from .sampling_estimator import estimate_weights_by_sampling
 from .solve import WeightSolution, as_smoothness, solve_weights
@@ -38,7 +38,7 @@ from .temporal import moving_average
 __all__ = ["BASES", "SPACES", "BindOptions", "BasisOptions", "FitOptions", "BindResult", "complete_span",
            "NamedBasis", "BasisResult", "FitResult", "ingest_stage",
            "bind_stage", "retarget_stage", "basis_stage", "fit_stage", "marker_basis",
-           "solve_mesh_space", "H_SOLVERS"]
+           "solve_mesh_space", "H_SOLVERS", "CENTRE_MODELS"]
 
 #: The bases every take is fitted with: hand-made (artist), quasi-eigen, PCA.
 BASES = ("H", "QE", "PCA")
@@ -48,6 +48,9 @@ SPACES = ("marker", "mesh")
 _NORMAL_STEP = 1e-4
 #: How the H weights are found: exactly, or by the gestures paper's sampling estimator.
 H_SOLVERS = ("exact", "sampling")
+#: How the artist shapes move the marker centres in a marker-space fit
+#: (:attr:`FitOptions.marker_centres`).
+CENTRE_MODELS = ("exact", "linear")
 
 
 @dataclass(frozen=True)
@@ -142,6 +145,14 @@ class FitOptions:
         the H weights in marker space, to compare with the exact solver.
     n_samples, n_neighbors : int
         Samples and nearest neighbours of "sampling" (paper: 1000 and 60).
+    marker_centres : str
+        One of :data:`CENTRE_MODELS`, for the H weights of the exact solver in
+        marker space with a binding made with a skin offset: "exact" (default)
+        fits the centres as they move, off the turning skin
+        (:func:`fit.marker_centres.solve_at_marker_centres`); "linear" fits
+        their tangent at the neutral (:func:`marker_basis`) only, which is off
+        by up to 0.25 in weight at full expressions on the ICT face with 2 mm
+        markers.
     """
 
     space: str = "marker"
@@ -151,10 +162,12 @@ class FitOptions:
     h_solver: str = "exact"
     n_samples: int = 1000
     n_neighbors: int = 60
+    marker_centres: str = "exact"
 
     def __post_init__(self):
         as_choice(self.space, "space", SPACES)
         as_choice(self.h_solver, "h_solver", H_SOLVERS)
+        as_choice(self.marker_centres, "marker_centres", CENTRE_MODELS)
         if not np.isfinite(self.h_epsilon) or self.h_epsilon < 0:
             raise InputError(f"h_epsilon must be a finite number >= 0, got {self.h_epsilon!r}")
         as_smoothness(self.smoothness)
@@ -418,10 +431,7 @@ def marker_basis(binding: Binding, displacements, labels=None, *,
     if mesh is None or binding.skin_offset == 0:
         points = binding.marker_points(displacements)
     else:
-        layout = MarkerLayout(binding.labels, binding.vertex_ids, binding.barycentric,
-                              binding.face_ids,
-                              np.full(len(binding.labels), binding.skin_offset * binding.scale),
-                              mesh.faces, mesh.n_vertices)
+        layout = binding.centre_layout(mesh)
         displacements = np.asarray(displacements, dtype=np.float64)
         size = np.ptp(mesh.vertices, axis=0).max()
         largest = np.abs(displacements).reshape(len(displacements), -1).max(axis=1)
@@ -527,7 +537,7 @@ def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: Bas
     neutral = bound.neutral_pose(take.select(labels).positions)
     solutions, weights, reconstructed = {}, {}, {}
     for name, basis in bases.bases.items():
-        k = basis.n_fixed
+        k, centres = basis.n_fixed, None
         # the artist's shapes move the skin: lift them to the marker centres; the
         # PCA and QE bases come from W·D, which already holds the centres' motion
         # at the bound points
@@ -549,11 +559,17 @@ def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: Bas
                                        offset=basis.displacements[:k].sum(axis=0),
                                        lower=lower, upper=upper,
                                        smoothness=options.smoothness)
+            elif name == "H" and options.marker_centres == "exact" and binding.skin_offset:
+                centres = solve_at_marker_centres(
+                    binding.centre_layout(retargeted.mesh, labels),
+                    retargeted.mesh.vertices, basis.displacements, at_markers, data,
+                    lower=lower, upper=upper, smoothness=options.smoothness)
+                sol = centres.solution
             else:
                 sol = solve_weights(at_markers[k:], data, lower=lower, upper=upper,
                                     smoothness=options.smoothness)
         full = np.concatenate([np.ones((len(D), k)), sol.weights], axis=1)
-        disp = np.tensordot(full, at_markers, axes=1)            # (T, M, 3) mesh units
+        disp = centres.displacements if centres else np.tensordot(full, at_markers, axes=1)
         solutions[name], weights[name] = sol, full
         reconstructed[name] = neutral + disp @ binding.rotation / binding.scale
     return FitResult(solutions=solutions, weights=weights, reconstructed=reconstructed,

@@ -21,7 +21,7 @@ stage with the same name)::
     [retarget]  # fit.retarget.RetargetOptions: kernel, epsilon, degree, smoothing, ...
     [basis]     # fit.pipeline.BasisOptions: pca_components, pca_coverage, qe_missing, ...
     [fit]       # fit.pipeline.FitOptions: space, h_epsilon, smoothness, moving_average,
-                #   h_solver, n_samples, n_neighbors
+                #   h_solver, n_samples, n_neighbors, marker_centres
     [report]    # ReportOptions: video, video_step, n_worst, exaggerate
 
 Every error names the file and the key at fault (``run.toml: fit.space: ...``).

@@ -23,6 +23,7 @@ from ._atomic import atomic_path
 from ._validation import as_float_array, as_int, as_positive_float
 from .anatomy import ANATOMICAL_POINTS
 from .errors import FileFormatError, InputError, MarkerError
+from .layout import MarkerLayout
 from .mesh import Mesh, degenerate_faces, face_normals
 from .mesh_landmarks import check_mesh_landmarks
 from .rigid import fit_rigid
@@ -121,6 +122,27 @@ class Binding:
                              f"{self.vertex_ids.max()}, got {vertices.shape}")
         return np.einsum("...mkc,mk->...mc", vertices[..., self.vertex_ids, :],
                          self.barycentric)
+
+    def centre_layout(self, mesh: Mesh, labels=None) -> MarkerLayout:
+        """The bound markers as a layout of `mesh`: their centres, `skin_offset` off the skin.
+
+        The offset is along the interpolated vertex normal
+        (:meth:`mocap.layout.MarkerLayout.positions`), in mesh units. `labels`
+        picks and orders the markers (default: all, in the binding's order).
+
+        Raises
+        ------
+        MarkerError
+            A label not in the binding.
+        """
+        labels = self.labels if labels is None else tuple(labels)
+        absent = [x for x in labels if x not in self.labels]
+        if absent:
+            raise MarkerError(absent[0], "is not in the binding")
+        rows = [self.labels.index(x) for x in labels]
+        return MarkerLayout(labels, self.vertex_ids[rows], self.barycentric[rows],
+                            self.face_ids[rows], np.full(len(rows), self.skin_offset * self.scale),
+                            mesh.faces, mesh.n_vertices)
 
     def save(self, path) -> None:
         """Write the binding to a JSON file atomically (see :func:`load_binding`)."""

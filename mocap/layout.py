@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from ._arrays import read_only
 from ._atomic import atomic_path
 from ._toml import read_toml
+from ._validation import as_float_array
 from .errors import FileFormatError, InputError, MarkerError
 from .mesh import Mesh
 
@@ -37,6 +38,11 @@ __all__ = ["MarkerLayout", "make_layout", "load_marker_layout", "save_marker_lay
 _KEYS = {"name", "description", "n_vertices", "units", "offset", "markers"}
 _MARKER_KEYS = {"vertex", "face", "bary", "offset"}
 _BARY_TOL = 1e-6
+
+
+#: Frames whose marker positions :meth:`MarkerLayout.positions_under_weights`
+#: forms together (their edge and normal arrays stay in cache).
+_FRAMES_PER_PASS = 256
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,29 +146,91 @@ class MarkerLayout:
         if vertices.ndim < 2 or vertices.shape[-2:] != (self.n_vertices, 3):
             raise InputError(f"vertices must have shape (..., {self.n_vertices}, 3) for layout "
                              f"{self.name!r}, got {vertices.shape}")
-        needed, local, sub_faces, corners, incidence, slot = self._normal_op
-        near = vertices[..., needed, :]                                  # (..., K, 3) copy
+        near = vertices[..., self._normal_op[0], :]                      # (..., K, 3) copy
         if np.isinf(near).any():
             raise InputError("vertices contains infinite values")
-        points = np.einsum("...mkc,mk->...mc", near[..., local, :], self.weights)
+        xyz = np.ascontiguousarray(np.moveaxis(near.reshape((-1,) + near.shape[-2:]), -1, 0))
+
+        def combine(index, coeffs):
+            return np.einsum("cbrk,rk->cbr", xyz[:, :, index], coeffs)
+        return self._place(combine, near.shape[:-2], offset)
+
+    def positions_under_weights(self, neutral, displacements, weights) -> np.ndarray:
+        """Marker positions on ``neutral + Σ_i w_i e_i`` for each row of `weights`.
+
+        Only the vertices the markers and their normals depend on are formed,
+        so a long take of a large mesh costs (T, K, 3), K a few per marker.
+
+        Parameters
+        ----------
+        neutral : array_like of shape (N, 3), mesh units
+        displacements : array_like of shape (n, N, 3), mesh units
+            The shapes e_i.
+        weights : array_like of shape (T, n)
+
+        Returns
+        -------
+        ndarray of shape (T, M, 3), mesh units
+        """
+        needed = self._normal_op[0]
+        neutral = as_float_array(neutral, "neutral", shape=(self.n_vertices, 3),
+                                 allow_nan=False)
+        displacements = np.asarray(displacements, dtype=np.float64)
+        if displacements.ndim != 3 or displacements.shape[1:] != (self.n_vertices, 3):
+            raise InputError(f"displacements must have shape (n, {self.n_vertices}, 3), got "
+                             f"{displacements.shape}")
+        weights = as_float_array(weights, "weights", shape=(None, len(displacements)))
+        rest, shapes = neutral[needed], displacements[:, needed]
+        maps = {}
+
+        def linear_map(index, coeffs):
+            # Σ_k coeffs·v[index[:, k]] is linear in the weights: (3, 1, R) and (n, 3R)
+            key = (index.tobytes(), coeffs.tobytes())
+            if key not in maps:
+                maps[key] = (np.einsum("rkc,rk->cr", rest[index], coeffs)[:, None, :],
+                             np.einsum("nrkc,rk->ncr", shapes[:, index], coeffs).reshape(
+                                 len(shapes), -1))
+            return maps[key]
+
+        out = np.empty((len(weights), self.n_markers, 3))
+        for first in range(0, len(weights), _FRAMES_PER_PASS):
+            part = weights[first:first + _FRAMES_PER_PASS]
+
+            def combine(index, coeffs):
+                at_rest, moved = linear_map(index, coeffs)
+                return (part @ moved).reshape(len(part), 3, -1).transpose(1, 0, 2) + at_rest
+            out[first:first + len(part)] = self._place(combine, (len(part),))
+        return out
+
+    def _place(self, combine, batch: tuple, offset: bool = True) -> np.ndarray:
+        """Marker positions (batch + (M, 3)) from vertex combinations.
+
+        ``combine(index, coeffs)`` returns ``Σ_k coeffs[r, k] · v[index[r, k]]``
+        for the vertices v the markers depend on (indices into them), as
+        (3, B, R): each coordinate a contiguous (B, R) array for B frames.
+        """
+        _, local, sub_faces, corners, incidence, slot = self._normal_op
+        points = combine(local, self.weights).transpose(1, 2, 0).copy()      # (B, M, 3)
         if not offset or not np.any(self.offsets):
-            return points
-        a = near[..., sub_faces[:, 0], :]
-        cross = np.cross(near[..., sub_faces[:, 1], :] - a, near[..., sub_faces[:, 2], :] - a)
-        batch = cross.shape[:-2]
-        flat = np.moveaxis(cross.reshape((-1,) + cross.shape[-2:]), 0, 1)   # (Fs, B, 3)
-        summed = (incidence @ flat.reshape(len(sub_faces), -1)).reshape(len(corners), -1, 3)
-        normals = _unit(np.moveaxis(summed, 0, 1).reshape(batch + (len(corners), 3)))
+            return points.reshape(batch + points.shape[1:])
+        ones = np.ones((len(sub_faces), 2))
+        u = combine(sub_faces[:, [0, 1]], ones * [-1.0, 1.0])               # edges (3, B, Fs)
+        v = combine(sub_faces[:, [0, 2]], ones * [-1.0, 1.0])
+        cross = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                 u[0] * v[1] - u[1] * v[0])
+        # area-weighted vertex normals at the corners: (B, Fs) @ (Fs, C) per coordinate
+        summed = np.stack([(incidence @ comp.T).T for comp in cross])      # (3, B, C)
+        normals = summed / _norm(summed)
         has = self.offsets != 0
-        marker = np.zeros(batch + (self.n_markers, 3))
-        marker[..., has, :] = _unit(np.einsum("...mkc,mk->...mc", normals[..., slot[has], :],
-                                              self.weights[has]))
-        return points + self.offsets[:, None] * marker
+        along = np.einsum("cbmk,mk->cbm", normals[:, :, slot[has]], self.weights[has])
+        points[:, has] += (self.offsets[has] * along / _norm(along)).transpose(1, 2, 0)
+        return points.reshape(batch + points.shape[1:])
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    norm = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.divide(v, norm, out=np.zeros_like(v), where=norm > 0)
+def _norm(v: np.ndarray) -> np.ndarray:
+    """Length of the (3, ...) vectors ``v``, with zero lengths as 1 (the vector stays 0)."""
+    norm = np.sqrt(np.einsum("c...,c...->...", v, v))
+    return np.where(norm > 0, norm, 1.0)
 
 
 def make_layout(mesh: Mesh, markers: Mapping[str, Mapping], *, offset: float = 0.0,

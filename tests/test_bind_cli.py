@@ -12,6 +12,7 @@ import pytest
 import mocap
 from fit.cli import main
 from mocap.bind import load_binding
+from mocap.errors import MarkerError
 from mocap.layout import load_marker_layout
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
@@ -243,3 +244,50 @@ def test_bind_hold_of_a_take_shorter_than_a_hold(ict, tmp_path, capsys):
 def test_bind_frame_that_is_no_option_is_a_usage_error(simulated, ict, tmp_path, capsys):
     assert main(_bind_args(ict, simulated[0], tmp_path / "b.json", "--frame", "still")) == 2
     assert "expected a frame index, 'auto' or 'hold', got 'still'" in capsys.readouterr().err
+
+
+def test_bind_hold_binds_the_mean_pose_of_the_hold(ict, tmp_path):
+    """`--frame hold` binds the hold window's mean shape, averaged in the head frame.
+
+    Oracle: the simulation's noise-free markers at the window's centre, up to
+    a rigid motion (a binding fits its own placement). The mean of the
+    window's N frames has the noise of one frame divided by sqrt(N).
+    """
+    from fit.commands.bind import _hold_pose
+    from mocap.bind import hold_window
+    from mocap.rigid import fit_rigid
+    from mocap.stabilize import stabilize
+
+    capture, truth_path = tmp_path / "led.c3d", tmp_path / "led.npz"
+    performance = _performance_csv(tmp_path / "performance.csv")
+    noise = 0.2
+    with pytest.warns(UserWarning, match=r"48 shapes of .*expressions have no weight column"):
+        assert main(_synth_args(ict, performance, capture, "--truth", str(truth_path),
+                                "--neutral-lead", "1", "--noise", str(noise), "--gaps", "0",
+                                "--head-motion", "15,30")) == 0
+    truth = load_capture_truth(truth_path)
+    markerset = load_markerset(ICT_MARKERSET)
+    take = mocap.read(capture).select(markerset.markers)
+    head = stabilize(take, markerset.head)
+    window = hold_window(take.rate)
+    frame = window                                   # inside the 1 s hold, away from its ends
+    exact = truth.markers_world[frame, [truth.labels.index(x) for x in take.labels]]
+
+    def shape_rms(points):
+        fit = fit_rigid(points, exact)
+        return float(np.sqrt(np.mean(np.sum((fit.apply(points) - exact) ** 2, axis=1))))
+    expected = noise * np.sqrt(3 / window)
+    pose = _hold_pose(take, head, frame, carry=True)
+    assert shape_rms(pose) < 1.5 * expected < 0.3 * shape_rms(take.positions[frame])
+    # carried to the capture frame by the centre frame's head pose
+    in_head = _hold_pose(take, head, frame, carry=False)
+    np.testing.assert_allclose(head.to_head(np.broadcast_to(pose, take.positions.shape))[frame],
+                               in_head, atol=1e-9)
+    # a marker missing in one frame of the window: named, with the window's frame
+    positions = take.positions.copy()
+    positions[frame + 3, take.labels.index("chin")] = np.nan
+    holed = take.replace(positions=positions)
+    with pytest.raises(MarkerError, match=rf"'chin'.*missing in the {window} frames of the "
+                                          rf"neutral hold around frame {take.first_frame + frame} "
+                                          rf"\(index {frame}\) of .*led.c3d"):
+        _hold_pose(holed, stabilize(holed, markerset.head), frame, carry=True)

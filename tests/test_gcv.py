@@ -1,4 +1,4 @@
-"""Choosing the smoothness λ by generalized cross-validation, against dense oracles and the truth."""
+"""Choosing the smoothness λ by GCV, against dense oracles and the truth."""
 
 from __future__ import annotations
 

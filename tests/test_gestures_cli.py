@@ -269,3 +269,43 @@ def test_synthesize_with_an_unreadable_binding_writes_nothing(simulated, tmp_pat
     err = capsys.readouterr().err
     assert "binding.json" in err and err.count("\n") == 1, err
     assert list(out.iterdir()) == []
+
+
+def test_clip_from_capture_takes_n_as_the_mean_of_the_hold(simulated, shared_data):
+    """``neutral_frame="hold"``: N is the hold window's mean pose, with 1/sqrt(window) the noise.
+
+    Oracle: the simulation's noise-free head-frame markers during the hold,
+    up to the rigid motion between the two head frames.
+    """
+    import mocap
+    from basis.artist import load_artist_basis
+    from fit.gestures.reference import clip_from_capture
+    from mocap.bind import hold_window
+    from mocap.layout import load_marker_layout
+    from mocap.markerset import load_markerset
+    from mocap.performance import read_performance
+    from mocap.rigid import fit_rigid
+    from mocap.synth import simulate_capture
+
+    basis = load_artist_basis(simulated["mesh"], simulated["shapes"], units="cm")
+    markerset = load_markerset(HERE / "ict_markerset.toml")
+    noise, rate = 0.2, 30.0
+    with pytest.warns(UserWarning, match="match no shape"):
+        sim = simulate_capture(basis, read_performance(shared_data / "arkit-performances"
+                                                       / "alex_rom_3.csv"),
+                               load_marker_layout(HERE / "ict_marker_layout.toml",
+                                                  basis.neutral),
+                               markerset.head, rate=rate, start=20.0, duration=2.0,
+                               noise_mm=noise, n_gaps=0, neutral_lead_s=1.5, seed=3,
+                               head_rotation_deg=10.0, head_translation_mm=20.0)
+    with pytest.warns(UserWarning, match="stand-in"):
+        made = clip_from_capture(sim.take, markerset, load_binding(simulated["binding"]), basis,
+                                 name="held", rate=rate, neutral_frame="hold")
+    window = hold_window(rate)
+    assert window // 2 <= made.neutral_frame < 45 - window // 2      # inside the 1.5 s hold
+    neutral = made.analysis.neutral
+    exact = sim.truth.markers_head[made.neutral_frame,
+                                   [sim.truth.labels.index(x) for x in made.analysis.labels]]
+    fit = fit_rigid(neutral, exact)
+    shape_rms = np.sqrt(np.mean(np.sum((fit.apply(neutral) - exact) ** 2, axis=1)))
+    assert shape_rms < 1.5 * noise * np.sqrt(3 / window) < 0.5 * noise * np.sqrt(3), shape_rms

@@ -49,17 +49,21 @@ def chain(tmp_path_factory):
 def fitted(chain):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)   # QE: rank ≤ m + 1 by construction
-        return {space: fit_stage(chain["take"], chain["bound"], chain["retargeted"],
-                                 chain["bases"], options=FitOptions(space=space))
-                for space in SPACES}
+        out = {space: fit_stage(chain["take"], chain["bound"], chain["retargeted"],
+                                chain["bases"], options=FitOptions(space=space))
+               for space in SPACES}
+        out["linear"] = fit_stage(chain["take"], chain["bound"], chain["retargeted"],
+                                  chain["bases"], options=FitOptions(marker_centres="linear"))
+        return out
 
 
 def test_h_weights_solve_marker_problem_like_lsq_linear(chain, fitted):
+    """marker_centres = "linear": the tangent basis' bounded least squares, as bvls solves it."""
     basis = chain["bases"].bases["H"]
     B = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels,
                      mesh=chain["mesh"]).reshape(len(basis.names), -1).T
-    D = chain["retargeted"].displacements.reshape(len(fitted["marker"].weights["H"]), -1)
-    sol = fitted["marker"].solutions["H"]
+    D = chain["retargeted"].displacements.reshape(len(fitted["linear"].weights["H"]), -1)
+    sol = fitted["linear"].solutions["H"]
     assert np.all((sol.weights >= 0) & (sol.weights <= 1))
     for t in np.linspace(0, len(D) - 1, 6).astype(int):
         ref = lsq_linear(B, D[t], bounds=(0, 1), method="bvls", max_iter=10_000)
@@ -68,12 +72,47 @@ def test_h_weights_solve_marker_problem_like_lsq_linear(chain, fitted):
         assert sol.cost[t] == pytest.approx(ours, rel=1e-12)
 
 
+def test_h_weights_at_the_exact_marker_centres_near_least_squares(chain, fitted):
+    """The default fits the centres as they move off the turning skin.
+
+    Oracle: scipy's bounded nonlinear least squares of the same centres,
+    frame by frame. Ours (a fixed point whose residual is orthogonal to the
+    tangent basis) costs at most 1 % more than its optimum, and less than the
+    linear model's weights do under the exact model.
+    """
+    from scipy.optimize import least_squares
+
+    basis, bound = chain["bases"].bases["H"], chain["bound"]
+    labels, mesh = chain["retargeted"].labels, chain["mesh"]
+    layout = bound.binding.centre_layout(mesh, labels)
+    rest = layout.positions(mesh.vertices)
+    D = chain["retargeted"].displacements
+    exact, linear = fitted["marker"].solutions["H"], fitted["linear"].solutions["H"]
+    assert exact.status == 0, exact.message
+
+    def residual(w, t):
+        return (layout.positions(mesh.vertices + np.tensordot(w, basis.displacements, axes=1))
+                - rest - D[t]).ravel()
+    for t in np.linspace(0, len(D) - 1, 4).astype(int):
+        ref = least_squares(residual, linear.weights[t], bounds=(0.0, 1.0), args=(t,),
+                            xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        ours = 0.5 * np.sum(residual(exact.weights[t], t) ** 2)
+        assert ours == pytest.approx(exact.cost[t], rel=1e-9)
+        assert ref.cost * (1 - 1e-9) <= ours <= 1.01 * ref.cost
+        assert ours < 0.5 * np.sum(residual(linear.weights[t], t) ** 2)
+    np.testing.assert_allclose(fitted["marker"].reconstructed["H"],
+                               bound.neutral_pose(chain["take"].select(labels).positions)
+                               + np.stack([residual(w, t).reshape(-1, 3) + D[t] for t, w in
+                                           enumerate(exact.weights)]) @ bound.binding.rotation
+                               / bound.binding.scale, rtol=0, atol=1e-9)
+
+
 def test_moving_average_fit_solves_the_averaged_displacements(chain):
     window = 5
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         fit = fit_stage(chain["take"], chain["bound"], chain["retargeted"], chain["bases"],
-                        options=FitOptions(moving_average=window))
+                        options=FitOptions(moving_average=window, marker_centres="linear"))
     basis = chain["bases"].bases["H"]
     B = marker_basis(chain["bound"].binding, basis.displacements, chain["retargeted"].labels,
                      mesh=chain["mesh"]).reshape(len(basis.names), -1).T
@@ -115,7 +154,7 @@ def test_sampling_h_solver_is_the_estimator_and_never_beats_the_exact_fit(chain,
     direct = estimate_weights_by_sampling(at, chain["retargeted"].displacements,
                                           n_samples=300, n_neighbors=20)
     np.testing.assert_array_equal(fit.weights["H"], direct.weights)
-    exact = fitted["marker"].solutions["H"].cost
+    exact = fitted["linear"].solutions["H"].cost           # the estimator's problem
     assert (fit.solutions["H"].cost >= exact * (1 - SOLVE_OBJECTIVE_REL)).all()
     assert fit.solutions["H"].cost.mean() > exact.mean()
     # the other bases are solved exactly as before
@@ -264,6 +303,7 @@ def test_complete_span_rejects_a_take_without_a_complete_frame():
     (FitOptions, {"n_samples": 0}, "n_samples must be at least 1"),
     (FitOptions, {"h_solver": "sampling", "space": "mesh"}, "needs space = 'marker'"),
     (FitOptions, {"h_solver": "sampling", "smoothness": 1.0}, "and smoothness = 0"),
+    (FitOptions, {"marker_centres": "curved"}, "marker_centres must be one of"),
 ])
 def test_option_errors(cls, kwargs, match):
     with pytest.raises(InputError, match=match):

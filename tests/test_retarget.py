@@ -17,7 +17,7 @@ from fit.commands.bind import bind_capture
 from fit.retarget import (CONTENTS, RetargetOptions, align_head_frame,
                           build_retarget_operator, marker_displacements, neutral_pose, retarget,
                           save_npz, save_obj_sequence)
-from mocap.bind import Binding
+from mocap.bind import Binding, hold_window
 from mocap.errors import InputError, MarkerError
 from mocap.layout import load_marker_layout
 from mocap.markerset import MarkerSet, load_markerset
@@ -363,3 +363,35 @@ def test_bind_capture_names_a_frame_of_no_kind(ict_capture):
     with pytest.raises(InputError, match=r"frame must be an integer, got 'still'"):
         bind_capture(sim.take, load_markerset(ICT_MARKERSET), basis.neutral,
                      load_mesh_landmarks(ICT_LANDMARKS, basis.neutral), frame="still")
+
+
+def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, shared_data,
+                                                                   tmp_path):
+    """``--neutral-frame hold``: the rest pose is the mean of the hold window, not one frame.
+
+    Oracle: arithmetic. Displacements from a window's mean average to zero
+    over that window, and no single frame is the rest pose (with one noisy
+    frame as the rest pose, that frame's displacements would be exactly 0).
+    """
+    basis, _, _, binding_path, mesh = ict_capture
+    markerset = load_markerset(ICT_MARKERSET)
+    layout = load_marker_layout(LAYOUT, basis.neutral)
+    full = read_performance(shared_data / "arkit-performances" / "alex_rom_3.csv")
+    with pytest.warns(UserWarning, match="match no shape"):
+        sim = simulate_capture(basis, full, layout, markerset.head, rate=30.0, duration=0.6,
+                               noise_mm=0.2, n_gaps=0, neutral_lead_s=1.0, seed=7)
+    capture = tmp_path / "held.c3d"
+    mocap.write(sim.take, capture)
+    output = tmp_path / "held.npz"
+    assert main(["retarget", str(capture), "--markerset", str(ICT_MARKERSET), "--mesh",
+                 str(mesh), "--binding", str(binding_path), "-o", str(output),
+                 "--neutral-frame", "hold", "--content", "displacements"]) == 0
+    with np.load(output) as data:
+        moved = data["marker_displacements"].astype(np.float64)
+    window = hold_window(30.0)
+    means = np.abs(np.stack([moved[s:s + window].mean(axis=0)
+                             for s in range(len(moved) - window + 1)])).max(axis=(1, 2))
+    start = int(np.argmin(means))
+    assert means[start] < 1e-6                            # float32 storage
+    assert start + window <= 30                           # inside the 1 s lead at 30 Hz
+    assert np.abs(moved).max(axis=(1, 2)).min() > 1e-3    # no frame is the rest pose

@@ -5,15 +5,20 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 import mocap
 from mocap._atomic import refuse_overwrite
 from mocap._validation import as_int
-from mocap.bind import HOLD_S, PICKED_FRAMES, bind_markers, resolve_neutral_frame
-from mocap.errors import InputError
+from mocap.bind import HOLD_S, PICKED_FRAMES, bind_markers, hold_window, resolve_neutral_frame
+from mocap.errors import InputError, MarkerError
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
 from mocap.mesh_landmarks import load_mesh_landmarks
+from mocap.rigid import apply_transform
 from mocap.stabilize import stabilize
+
+from ..retarget import neutral_pose
 
 __all__ = ["add_parser", "run", "bind_capture", "parse_frame"]
 
@@ -49,8 +54,8 @@ def add_parser(sub) -> None:
     p.add_argument("--frame", type=parse_frame, default="auto", metavar="N|auto|hold",
                    help="0-based index of the neutral frame, 'auto' (default): the frame "
                         "closest to the median pose after head stabilization, or 'hold': "
-                        f"the centre of the first still {HOLD_S:g} s of the neutral hold the take "
-                        "starts with")
+                        f"the mean pose of the first still {HOLD_S:g} s of the neutral hold the "
+                        "take starts with (averaged in the head frame)")
     p.add_argument("--no-icp", action="store_true",
                    help="keep the landmark similarity (no ICP refinement)")
     p.add_argument("--skin-offset", type=float, default=0.0, metavar="MM",
@@ -79,7 +84,12 @@ def bind_capture(take: mocap.Take, markerset, mesh, mesh_landmarks, *, frame="au
     mesh_landmarks : mapping of str to int
     frame : int, "auto" or "hold"
         0-based index of the neutral frame, or picked on the head-stabilized
-        markers: :func:`mocap.bind.resolve_neutral_frame`.
+        markers: :func:`mocap.bind.resolve_neutral_frame`. With "hold" the
+        bound pose is the mean over the hold's window
+        (:func:`mocap.bind.hold_window` frames centred on the picked frame),
+        taken in the head frame (the head may move during the hold) and, unless
+        `stabilized`, carried to the capture frame by the centre frame's head
+        pose: one frame's noise is not bound into every displacement.
     icp, skin_offset, max_distance_warn
         As in :func:`mocap.bind.bind_markers` (skin_offset in mm).
     stabilized : bool
@@ -89,7 +99,7 @@ def bind_capture(take: mocap.Take, markerset, mesh, mesh_landmarks, *, frame="au
     -------
     binding : Binding
     frame : int
-        The frame index bound.
+        The frame index bound (the window's centre for "hold").
 
     Raises
     ------
@@ -100,6 +110,7 @@ def bind_capture(take: mocap.Take, markerset, mesh, mesh_landmarks, *, frame="au
     """
     markerset.check_labels(take.labels, source=take.source.path or "the take")
     take = take.select(markerset.markers)
+    hold = frame == "hold"
     picked = frame in PICKED_FRAMES
     if not picked:
         frame = as_int(frame, "frame", minimum=0)
@@ -107,13 +118,34 @@ def bind_capture(take: mocap.Take, markerset, mesh, mesh_landmarks, *, frame="au
         raise InputError(f"{take.source.path}: frame index {frame} is beyond the take's "
                          f"{take.n_frames} frames")
     if picked or stabilized:
-        head_take = stabilize(take, markerset.head).take
+        head = stabilize(take, markerset.head)
     if picked:
-        frame = resolve_neutral_frame(head_take.positions, frame, rate=take.rate)
-    positions = (head_take if stabilized else take).positions[frame]
+        frame = resolve_neutral_frame(head.take.positions, frame, rate=take.rate)
+    if hold:
+        positions = _hold_pose(take, head, frame, carry=not stabilized)
+    else:
+        positions = (head.take if stabilized else take).positions[frame]
     binding = bind_markers(positions, take.labels, markerset.landmarks, mesh, mesh_landmarks,
                            icp=icp, skin_offset=skin_offset, max_distance_warn=max_distance_warn)
     return binding, frame
+
+
+def _hold_pose(take, head, frame, *, carry):
+    """Mean head-frame pose (M, 3), mm, of the hold window centred on `frame`.
+
+    With `carry`, mapped to the capture frame by the head pose of `frame`.
+    """
+    window = hold_window(take.rate)
+    pose = neutral_pose(head.take.positions, frame, window)
+    missing = np.flatnonzero(np.isnan(pose).any(axis=1))
+    if missing.size:
+        raise MarkerError(take.labels[missing[0]],
+                          f"is missing in the {window} frames of the neutral hold around frame "
+                          f"{take.first_frame + frame} (index {frame}) of "
+                          f"{take.source.path or 'the take'}: the bound pose is their mean")
+    if not carry:
+        return pose
+    return apply_transform(head.rotation[frame], head.translation[frame], pose)
 
 
 def run(args) -> int:
@@ -128,7 +160,9 @@ def run(args) -> int:
     refuse_overwrite(args.output, (args.capture, args.markerset, args.mesh, args.landmarks))
     binding.save(args.output)
     if args.verbose:
-        print(f"frame      {frame} (index; frame number {take.first_frame + frame})")
+        held = (f"; the mean of its {hold_window(take.rate)}-frame neutral hold window"
+                if args.frame == "hold" else "")
+        print(f"frame      {frame} (index; frame number {take.first_frame + frame}{held})")
         print(f"fit        {binding.message}; {binding.n_landmarks} landmarks, "
               f"scale {binding.scale:.6g} mesh units/mm, rms {binding.rms:.3f} mm")
         width = max(len(label) for label in binding.labels)

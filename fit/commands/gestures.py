@@ -91,8 +91,8 @@ def _add_analyze(actions) -> None:
                    help="bounded least squares (default), or the paper's sampling estimator")
     p.add_argument("--neutral-frame", type=parse_frame, default="auto", metavar="N|auto|hold",
                    help="0-based frame index at RATE of the neutral, 'auto' (default): "
-                        "the frame closest to the median pose, or 'hold': a frame of the "
-                        "neutral hold the take starts with")
+                        "the frame closest to the median pose, or 'hold': the mean pose of "
+                        "the neutral hold the take starts with")
     p.add_argument("--fill", choices=FILL_CHOICES, default="auto",
                    help="gap filling (default auto)")
     p.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import mocap
-from mocap.bind import HOLD_S, load_binding
+from mocap.bind import HOLD_S, hold_window, load_binding
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
 
@@ -54,7 +54,7 @@ def add_parser(sub) -> None:
     p.add_argument("--neutral-frame", type=parse_frame, default="auto",
                    metavar="N|auto|hold",
                    help="0-based index of the rest frame, 'auto' (default): the frame "
-                        "closest to the median pose, or 'hold': the centre of the first "
+                        "closest to the median pose, or 'hold': the mean pose of the first "
                         f"still {HOLD_S:g} s of the neutral hold the take starts with")
     p.add_argument("--fill", choices=FILL_CHOICES, default="auto",
                    help="gap filling before retargeting (default auto; 'none' fails on gaps)")
@@ -76,8 +76,9 @@ def run(args) -> int:
     take = mocap.read(args.capture)
     ingested = ingest(take, markerset=markerset, options=IngestOptions(
         fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass, stabilize=True))
+    window = hold_window(ingested.take.rate) if args.neutral_frame == "hold" else 1
     result = retarget(ingested.take, binding, mesh, markerset, options=options,
-                      neutral_frame=args.neutral_frame)
+                      neutral_frame=args.neutral_frame, neutral_window=window)
     if args.output.suffix.lower() == ".npz":
         save_npz(result, args.output, content=args.content, inputs=inputs)
     else:

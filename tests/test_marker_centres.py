@@ -1,0 +1,118 @@
+"""The exact marker-centre model: centres 2 mm off the ICT skin, against the true weights."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from basis.artist import load_artist_basis
+from fit.gcv import gcv_smoothness
+from fit.marker_centres import solve_at_marker_centres
+from fit.solve import solve_weights
+from mocap.errors import InputError
+from mocap.layout import load_marker_layout
+from mocap.performance import match_shape_names, read_performance
+
+HERE = Path(__file__).resolve().parent
+N_FRAMES = 120
+
+
+@pytest.fixture(scope="module")
+def ict(shared_data):
+    """The ICT face, the 66-marker layout (2 mm offsets), real weights and their exact centres."""
+    ict = shared_data / "ict-face"
+    basis = load_artist_basis(ict / "generic_neutral_mesh.obj", ict / "expressions", units="cm")
+    layout = load_marker_layout(HERE / "ict_marker_layout.toml", basis.neutral)
+    assert np.all(layout.offsets > 0)
+    performance = read_performance(shared_data / "arkit-performances" / "alex_rom_3.csv")
+    columns = match_shape_names(performance.names, basis.names)
+    weights = np.zeros((performance.n_frames, len(basis.names)))
+    for i, name in enumerate(basis.names):
+        if name in columns:
+            weights[:, i] = performance.weights[:, columns[name]]
+    rows = np.linspace(0, len(weights) - 1, N_FRAMES).astype(int)
+    truth = np.clip(weights[rows], 0.0, 1.0)
+    V0, E = basis.neutral.vertices, basis.displacements
+    rest = layout.positions(V0)
+    # the oracle: the layout's centres on the whole deformed mesh, frame by frame
+    data = np.stack([layout.positions(V0 + np.tensordot(w, E, axes=1)) for w in truth]) - rest
+    # the tangent at the neutral, by central differences on the whole mesh
+    h = 1e-4
+    tangent = np.stack([(layout.positions(V0 + h * e) - layout.positions(V0 - h * e)) / (2 * h)
+                        for e in E])
+    return basis, layout, truth, data, tangent
+
+
+def test_positions_under_weights_are_the_positions_on_the_deformed_mesh(ict):
+    basis, layout, truth, data, _ = ict
+    got = layout.positions_under_weights(basis.neutral.vertices, basis.displacements, truth)
+    np.testing.assert_allclose(got - layout.positions(basis.neutral.vertices), data,
+                               rtol=0, atol=1e-12)
+
+
+def test_noise_free_centres_give_back_the_true_weights(ict):
+    """The linear (tangent) model misses the normals turning; the exact model does not."""
+    basis, layout, truth, data, tangent = ict
+    linear = solve_weights(tangent, data, lower=0.0, upper=1.0).weights
+    fit = solve_at_marker_centres(layout, basis.neutral.vertices, basis.displacements, tangent,
+                                  data, lower=0.0, upper=1.0)
+    assert fit.solution.status == 0, fit.solution.message
+    assert fit.settled.all() and fit.n_steps.max() > 2
+    linear_error = np.abs(linear - truth).max()
+    assert linear_error > 0.1                           # the tangent model is off here
+    assert np.abs(fit.solution.weights - truth).max() < 1e-5
+    np.testing.assert_allclose(fit.displacements, data, rtol=0, atol=1e-6)   # cm: 0.1 µm
+    assert np.all(fit.solution.cost < 1e-12)
+
+
+def test_noisy_centres_reach_a_fixed_point_of_the_chord_step(ict):
+    """With noise the result solves the linear problem of its own nonlinear residual."""
+    basis, layout, truth, data, tangent = ict
+    noisy = data + 0.02 * np.random.default_rng(3).standard_normal(data.shape)   # 0.2 mm
+    for smoothness in (0.0, 0.5):
+        fit = solve_at_marker_centres(layout, basis.neutral.vertices, basis.displacements,
+                                      tangent, noisy, lower=0.0, upper=1.0,
+                                      smoothness=smoothness, tol=1e-9, max_steps=200)
+        w = fit.solution.weights
+        moved = layout.positions_under_weights(basis.neutral.vertices, basis.displacements, w) \
+            - layout.positions(basis.neutral.vertices)
+        again = solve_weights(tangent, noisy - (moved - np.tensordot(w, tangent, axes=1)),
+                              lower=0.0, upper=1.0, smoothness=smoothness).weights
+        assert fit.settled.all(), fit.solution.message
+        np.testing.assert_allclose(again, w, rtol=0, atol=1e-7)
+        np.testing.assert_allclose(fit.displacements, moved, rtol=0, atol=1e-12)
+
+
+def test_gcv_smoothness_is_chosen_once_on_the_tangent_model(ict):
+    basis, layout, _, data, tangent = ict
+    noisy = data + 0.02 * np.random.default_rng(4).standard_normal(data.shape)
+    args = (layout, basis.neutral.vertices, basis.displacements, tangent, noisy)
+    chosen = solve_at_marker_centres(*args, lower=0.0, upper=1.0, smoothness="gcv")
+    lam = gcv_smoothness(tangent.reshape(len(tangent), -1).T, noisy.reshape(len(noisy), -1))
+    assert chosen.solution.smoothness == lam > 0
+    fixed = solve_at_marker_centres(*args, lower=0.0, upper=1.0, smoothness=lam)
+    np.testing.assert_array_equal(chosen.solution.weights, fixed.solution.weights)
+
+
+def test_an_unsettled_frame_is_reported(ict):
+    basis, layout, _, data, tangent = ict
+    fit = solve_at_marker_centres(layout, basis.neutral.vertices, basis.displacements, tangent,
+                                  data, lower=0.0, upper=1.0, max_steps=1)
+    assert fit.solution.status == 1 and not fit.settled.any()
+    assert f"{N_FRAMES} frames had not settled after 1 steps" in fit.solution.message
+
+
+def test_mismatched_inputs_are_named(ict):
+    basis, layout, _, data, tangent = ict
+    args = (layout, basis.neutral.vertices, basis.displacements)
+    with pytest.raises(InputError, match=r"basis has 65 markers, the layout 66"):
+        solve_at_marker_centres(*args, tangent[:, 1:], data[:, 1:])
+    with pytest.raises(InputError, match=r"displacements hold 52 shapes, the basis 53"):
+        solve_at_marker_centres(layout, basis.neutral.vertices, basis.displacements[1:],
+                                tangent, data)
+    with pytest.raises(InputError, match=r"data must have shape \(any, 66, 3\)"):
+        solve_at_marker_centres(*args, tangent, data[:, :, :2])
+    with pytest.raises(InputError, match=r"data contains NaN"):
+        solve_at_marker_centres(*args, tangent, np.where(data == data[0, 0, 0], np.nan, data))
