@@ -66,7 +66,8 @@ class WeightSolution:
 
 def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
                   warm_start: bool = True, smoothness: float | str = 0.0,
-                  tol: float = 1e-9, max_iter: int | None = None) -> WeightSolution:
+                  tol: float = 1e-9, max_iter: int | None = None,
+                  start=None) -> WeightSolution:
     """Solve ``min ½‖B w − d_t‖²`` with ``lower ≤ w ≤ upper`` for every frame.
 
     Parameters
@@ -90,7 +91,8 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
         whose gradient points inwards are freed), instead of with every
         weight free. Does not change the result, only the work. (The
         active set of a neighbouring frame is a worse start: with noisy
-        data, weights near a bound flip between frames.)
+        data, weights near a bound flip between frames.) Frames solved
+        independently only: the smooth solve has a start of its own.
     smoothness : float or "gcv", default 0
         λ ≥ 0: minimize Σ_t ½‖B w_t − d_t‖² + ½ λ Σ_t ‖w_t − w_{t−1}‖² over
         the whole sequence instead (see :func:`fit.temporal.solve_smooth`);
@@ -103,6 +105,11 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
         Largest accepted KKT residual.
     max_iter : int, optional
         Iterations of the monotone phase; default 20 · n_shapes + 20.
+    start : array_like, shape (n_frames, n_shapes), optional
+        With ``smoothness`` > 0: weights whose active set (which weights are
+        at a bound) starts the smooth solve, e.g. the solution of a nearby
+        problem (the marker-centre fit's previous step). Does not change the
+        result, only the work; default a rough estimate of the solution.
 
     Returns
     -------
@@ -155,6 +162,8 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
     max_iter = 20 * n + 20 if max_iter is None else as_int(max_iter, "max_iter", minimum=1)
     if smoothness in SMOOTHNESS_RULES:
         smoothness = gcv_smoothness(B, D)
+    if start is not None:
+        start = as_float_array(start, "start", shape=(len(D), n), allow_nan=False)
 
     patterns, group = (np.ones((1, len(B)), bool), np.zeros(len(D), np.intp)) \
         if valid is None else np.unique(valid, axis=0, return_inverse=True)
@@ -174,7 +183,8 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
                 + ": weights along its null space are the minimum-norm reduced solution",
                 RuntimeWarning, stacklevel=2)
         if smoothness > 0:
-            w, it, res, _ = solve_smooth(qp, C, smoothness, tol=tol, max_iter=max_iter)
+            w, it, res, _ = solve_smooth(qp, C, smoothness, tol=tol, max_iter=max_iter,
+                                         start=start)
         else:
             w, it, res, _ = solve_box_qp(qp, C[frames], tol=tol, max_iter=max_iter,
                                          warm_start=warm_start)

@@ -78,7 +78,7 @@ def _window_sums(values: np.ndarray, window: int) -> np.ndarray:
 
 
 def solve_smooth(qp: BoxQP, c: np.ndarray, smoothness: float, *, tol: float,
-                 max_iter: int):
+                 max_iter: int, start: np.ndarray | None = None):
     """Minimize Σ_t ½ w_tᵀG w_t − c_tᵀw_t + ½ λ Σ_t ‖w_t − w_{t−1}‖² in the box.
 
     Parameters
@@ -91,6 +91,9 @@ def solve_smooth(qp: BoxQP, c: np.ndarray, smoothness: float, *, tol: float,
         λ > 0.
     tol, max_iter :
         KKT tolerance and limit of global iterations (bounded case).
+    start : ndarray, shape (T, n), optional
+        Weights whose active set starts the bounded iteration (e.g. the
+        solution of a nearby problem); default: a rough ADMM solution.
 
     Returns
     -------
@@ -104,8 +107,8 @@ def solve_smooth(qp: BoxQP, c: np.ndarray, smoothness: float, *, tol: float,
     μ_k = 4 sin²(πk / 2T), and G = V Λ Vᵀ, so the system diagonalizes exactly:
     W = Q [(Qᵀ C V)_kj / (Λ_j + λ μ_k)] Vᵀ (a pseudo-inverse where the
     denominator vanishes, i.e. for a rank-deficient G). Bounded: a primal-dual
-    active-set iteration on the whole sequence from the active set of the
-    clipped unbounded minimizer, each global step one banded (bandwidth n)
+    active-set iteration on the whole sequence from the active set of
+    `start` or a rough ADMM solution, each global step one banded (bandwidth n)
     positive-definite solve of the reduced system, with state changes
     settled in windows around them between global steps
     (:mod:`fit._smooth`); stopped when every frame meets the KKT conditions,
@@ -119,7 +122,7 @@ def solve_smooth(qp: BoxQP, c: np.ndarray, smoothness: float, *, tol: float,
         w = unbounded(spectrum, spectrum.transform(c), smoothness)
         n_iter = np.ones(len(c), np.int64)
     else:
-        w, n_iter = bounded(qp, spectrum, c, smoothness, tol, max_iter)
+        w, n_iter = bounded(qp, spectrum, c, smoothness, tol, max_iter, start)
     g, scale = gradient(qp.G, c, smoothness, w)
     kkt = kkt_residual(w, g, scale, qp.lo, qp.hi)
     return w, n_iter, kkt, kkt <= tol

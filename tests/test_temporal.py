@@ -173,6 +173,21 @@ def test_long_smooth_sequence_meets_dense_kkt(bounds, lam, admm_steps, monkeypat
         assert sol.n_iter.max() > sol.n_iter.min()
 
 
+@pytest.mark.parametrize("start", ["frames", "zeros", "ones", "answer"])
+def test_smooth_start_changes_the_work_not_the_result(start):
+    rng = np.random.default_rng(21)
+    T, n, K = 300, 5, 12
+    basis, data = _smooth_problem(rng, T, n, K, collinear=True)
+    ref = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0)
+    given = {"frames": solve_weights(basis, data, lower=0, upper=1).weights,
+             "zeros": np.zeros((T, n)), "ones": np.ones((T, n)), "answer": ref.weights}[start]
+    sol = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0, start=given)
+    assert sol.status == 0
+    np.testing.assert_allclose(sol.weights, ref.weights, rtol=0, atol=1e-9)
+    if start == "answer":           # the optimal active set: one global solve
+        assert sol.n_iter.max() == 1
+
+
 def test_smoothness_reduces_frame_to_frame_change():
     rng = np.random.default_rng(11)
     basis = rng.standard_normal((15, 4))
