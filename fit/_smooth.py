@@ -188,7 +188,7 @@ def _reduced(qp: BoxQP, band: _Band, c, state, w, frames):
     held[frames] = fixed_part
     rhs = np.where(free, -gradient(qp.G, c, lam, held, frames)[0], 0.0).ravel()
     ab = band.matrix(free, degree(T)[frames], np.diff(frames) == 1)
-    step = scipy.linalg.solveh_banded(ab, rhs, check_finite=False)
+    step = scipy.linalg.solveh_banded(ab, rhs, overwrite_ab=True, check_finite=False)
     return fixed_part + np.where(free, step.reshape(len(frames), n), 0.0)
 
 
@@ -242,9 +242,11 @@ def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None):
     at or beyond a bound are bound), else of :func:`rough`.
 
     ``n_iter`` counts the reduced solves (global and local) each frame took
-    part in. When the global state repeats (a cycle) or ``max_iter`` global
-    steps pass, the last iterate is returned clipped to the box (the caller's
-    KKT check reports it unconverged).
+    part in. When the global state repeats (a cycle), the local phase is
+    turned off (it proposes states the plain iteration would not visit); when
+    the plain iteration cycles too, or ``max_iter`` global steps pass, the
+    last iterate is returned clipped to the box (the caller's KKT check
+    reports it unconverged).
     """
     T, n = c.shape
     ridge = RANK_RTOL * spectrum.eig[-1] if qp.singular else 0.0
@@ -257,6 +259,7 @@ def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None):
     n_iter = np.zeros(T, np.int64)
     w = np.zeros_like(c)
     seen = {state.tobytes()}
+    local = True
     for _ in range(max_iter):
         w = _reduced(qp, band, c, state, w, every)
         n_iter += 1
@@ -264,10 +267,13 @@ def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None):
         if (kkt_residual(w, grad, scale, qp.lo, qp.hi) <= tol).all():
             break
         new = _step(qp, state, w, grad)
-        _settle(qp, band, c, new, w, (new != state).any(axis=1), n_iter)
+        if local:
+            _settle(qp, band, c, new, w, (new != state).any(axis=1), n_iter)
         key = new.tobytes()
         if key in seen:
-            break
+            if not local:
+                break
+            local, seen = False, set()     # a cycle: go on with plain primal-dual steps
         seen.add(key)
         state = new
     return np.clip(w, qp.lo, qp.hi), n_iter
