@@ -234,14 +234,19 @@ def chain(label, basis, performance, layout, markerset, landmarks, *, noise, lea
           + f" {time.perf_counter() - tic:>6.1f}")
 
 
-def main() -> None:
-    root = shared_data()
+def load_ict(root):
+    """The ICT basis (cm), the ICT marker set, layout and landmarks, and alex_rom_4."""
     ict = root / "ict-face"
     basis = load_artist_basis(ict / "generic_neutral_mesh.obj", ict / "expressions", units="cm")
     markerset = load_markerset(REPO / "tests" / "ict_markerset.toml")
     layout = load_marker_layout(REPO / "tests" / "ict_marker_layout.toml", basis.neutral)
     landmarks = load_mesh_landmarks(REPO / "tests" / "ict_landmarks.toml", basis.neutral)
     performance = read_performance(root / "arkit-performances" / "alex_rom_4.csv")
+    return basis, markerset, layout, landmarks, performance
+
+
+def main() -> None:
+    basis, markerset, layout, landmarks, performance = load_ict(shared_data())
     layouts = {"designed (the 66-marker)": (layout, markerset),
                "designed + 60 fill": extended(layout, markerset, basis, 60),
                "designed + 180 fill": extended(layout, markerset, basis, 180),

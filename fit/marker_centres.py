@@ -30,7 +30,8 @@ from mocap._validation import as_float_array, as_int, as_positive_float
 from mocap.errors import InputError
 from mocap.layout import MarkerLayout
 
-from .solve import WeightSolution, solve_weights
+from .gcv import SMOOTHNESS_RULES, gcv_smoothness
+from .solve import WeightSolution, as_smoothness, solve_weights
 
 __all__ = ["MarkerCentreFit", "solve_at_marker_centres"]
 
@@ -69,7 +70,7 @@ class MarkerCentreFit:
 
 
 def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis, data, *,
-                            lower=-np.inf, upper=np.inf, smoothness: float = 0.0,
+                            lower=-np.inf, upper=np.inf, smoothness: float | str = 0.0,
                             tol: float = 1e-6, max_steps: int = 50) -> MarkerCentreFit:
     """Fit weights to marker-centre displacements with the exact, nonlinear centre model.
 
@@ -87,7 +88,10 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     data : array_like of shape (T, M, 3), mesh units
         Marker-centre displacements from the rest pose, no NaN.
     lower, upper, smoothness
-        As in :func:`fit.solve.solve_weights`.
+        As in :func:`fit.solve.solve_weights`; ``smoothness="gcv"`` chooses λ
+        once, by generalized cross-validation of the linear (tangent) model
+        (:func:`fit.gcv.gcv_smoothness` on `basis` and `data`), and every
+        chord step solves with that λ (the result's ``smoothness``).
     tol : float, default 1e-6
         A frame has settled when its step changes no weight by more than this.
     max_steps : int, default 50
@@ -117,6 +121,9 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
         return layout.positions_under_weights(neutral, displacements, w) - rest
 
     n, T = len(basis), len(data)
+    smoothness = as_smoothness(smoothness)
+    if smoothness in SMOOTHNESS_RULES:
+        smoothness = gcv_smoothness(basis.reshape(n, -1).T, data.reshape(T, -1))
     rest = layout.positions_under_weights(neutral, displacements, np.zeros((1, n)))[0]
     coupled = smoothness > 0            # the frames are one problem: they step together
     # the first step from x = 0 is the linear model's solve (r(0) = 0); a smooth
@@ -133,7 +140,7 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
         xt = x[todo]
         nonlinear = centres(xt) - np.tensordot(xt, basis, axes=1)
         sol = solve_weights(basis, data[todo] - nonlinear, lower=lower, upper=upper,
-                            smoothness=smoothness)
+                            smoothness=smoothness, start=xt if coupled else None)
         g = sol.weights - xt
         step[todo] = np.abs(g).max(axis=1)
         w[todo], n_steps[todo], n_iter[todo] = sol.weights, n_steps[todo] + 1, \
@@ -155,7 +162,7 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     solution = WeightSolution(
         weights=w, cost=0.5 * np.sum((moved - data) ** 2, axis=(1, 2)), n_iter=n_iter,
         converged=ok, kkt_residual=kkt, rank=rank, status=int(not ok.all()),
-        message=_message(ok, settled, step, n_steps, tol))
+        message=_message(ok, settled, step, n_steps, tol), smoothness=smoothness)
     return MarkerCentreFit(solution=solution, displacements=moved, n_steps=n_steps, step=step,
                            tol=tol)
 

@@ -32,7 +32,7 @@ from .ingest import IngestOptions, IngestResult, ingest
 from .marker_centres import solve_at_marker_centres
 from .retarget import RetargetOptions, Retargeting, neutral_pose, retarget
 from .sampling_estimator import estimate_weights_by_sampling
-from .solve import WeightSolution, solve_weights
+from .solve import WeightSolution, as_smoothness, solve_weights
 from .temporal import moving_average
 
 __all__ = ["BASES", "SPACES", "BindOptions", "BasisOptions", "FitOptions", "BindResult", "complete_span",
@@ -128,8 +128,12 @@ class FitOptions:
     h_epsilon : float
         Hand-made weights are bounded to [−ε, 1 + ε]; QE and PCA weights are
         unbounded (QE weights may be negative, as in the paper).
-    smoothness : float
-        λ of :func:`fit.solve.solve_weights` (0: frames independent).
+    smoothness : float or "gcv"
+        λ of :func:`fit.solve.solve_weights` (0: frames independent), or
+        "gcv": chosen per basis by generalized cross-validation
+        (:func:`fit.gcv.gcv_smoothness`; in mesh space, of the projected
+        n-row problem of :func:`solve_mesh_space`). The λ used is each
+        solution's ``smoothness``.
     moving_average : int
         Odd window (frames) of the centred moving average of the marker
         displacements before solving (:func:`fit.temporal.moving_average`;
@@ -153,7 +157,7 @@ class FitOptions:
 
     space: str = "marker"
     h_epsilon: float = 0.0
-    smoothness: float = 0.0
+    smoothness: float | str = 0.0
     moving_average: int = 0
     h_solver: str = "exact"
     n_samples: int = 1000
@@ -164,10 +168,9 @@ class FitOptions:
         as_choice(self.space, "space", SPACES)
         as_choice(self.h_solver, "h_solver", H_SOLVERS)
         as_choice(self.marker_centres, "marker_centres", CENTRE_MODELS)
-        for name in ("h_epsilon", "smoothness"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value < 0:
-                raise InputError(f"{name} must be a finite number >= 0, got {value!r}")
+        if not np.isfinite(self.h_epsilon) or self.h_epsilon < 0:
+            raise InputError(f"h_epsilon must be a finite number >= 0, got {self.h_epsilon!r}")
+        as_smoothness(self.smoothness)
         window = as_int(self.moving_average, "moving_average", minimum=0)
         if window > 1 and window % 2 == 0:
             raise InputError(f"moving_average must be an odd number of frames, got {window}")
@@ -441,7 +444,7 @@ def marker_basis(binding: Binding, displacements, labels=None, *,
 
 
 def solve_mesh_space(displacements, operator, marker_disp, *, offset=None, lower=-np.inf,
-                     upper=np.inf, smoothness: float = 0.0) -> WeightSolution:
+                     upper=np.inf, smoothness: float | str = 0.0) -> WeightSolution:
     """Per frame ``min ½‖E w − (W d_t − o)‖²`` over every vertex, without forming W·D(t).
 
     Parameters

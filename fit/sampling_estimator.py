@@ -45,6 +45,11 @@ class SamplingEstimate:
     status: int
     message: str
 
+    @property
+    def smoothness(self) -> float:
+        """Always 0: frames are estimated one by one (as ``WeightSolution.smoothness``)."""
+        return 0.0
+
 
 def estimate_weights_by_sampling(basis, data, *, lower=0.0, upper=1.0,
                                  n_samples: int = 1000, n_neighbors: int = 60,

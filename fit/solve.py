@@ -16,9 +16,10 @@ from mocap._validation import as_float_array, as_int
 from mocap.errors import InputError
 
 from ._active_set import BoxQP, solve_box_qp
+from .gcv import SMOOTHNESS_RULES, gcv_smoothness
 from .temporal import solve_smooth
 
-__all__ = ["WeightSolution", "solve_weights"]
+__all__ = ["WeightSolution", "solve_weights", "as_smoothness"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,9 @@ class WeightSolution:
         the terms of the gradient.
     rank : int
         Numerical rank of BᵀB (the smallest over the mask's row patterns).
+    smoothness : float
+        The λ the weights were solved with (the one GCV chose for
+        ``smoothness="gcv"``; 0: frames independent).
     status : int
         0 when every frame converged, 1 when some did not.
     message : str
@@ -57,11 +61,13 @@ class WeightSolution:
     rank: int
     status: int
     message: str
+    smoothness: float = 0.0
 
 
 def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
-                  warm_start: bool = True, smoothness: float = 0.0,
-                  tol: float = 1e-9, max_iter: int | None = None) -> WeightSolution:
+                  warm_start: bool = True, smoothness: float | str = 0.0,
+                  tol: float = 1e-9, max_iter: int | None = None,
+                  start=None) -> WeightSolution:
     """Solve ``min ½‖B w − d_t‖²`` with ``lower ≤ w ≤ upper`` for every frame.
 
     Parameters
@@ -85,14 +91,25 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
         whose gradient points inwards are freed), instead of with every
         weight free. Does not change the result, only the work. (The
         active set of a neighbouring frame is a worse start: with noisy
-        data, weights near a bound flip between frames.)
-    smoothness : float, default 0
+        data, weights near a bound flip between frames.) Frames solved
+        independently only: the smooth solve has a start of its own.
+    smoothness : float or "gcv", default 0
         λ ≥ 0: minimize Σ_t ½‖B w_t − d_t‖² + ½ λ Σ_t ‖w_t − w_{t−1}‖² over
-        the whole sequence instead (see :func:`fit.temporal.solve_smooth`).
+        the whole sequence instead (see :func:`fit.temporal.solve_smooth`);
+        λ in data units² per unit weight change (mm² for markers), so it
+        scales with B. ``"gcv"`` (:data:`fit.gcv.SMOOTHNESS_RULES`): λ chosen
+        by generalized cross-validation of the unbounded smooth problem
+        (:func:`fit.gcv.gcv_smoothness`), then the bounded problem solved at
+        that λ; the result's ``smoothness`` says which.
     tol : float, default 1e-9
         Largest accepted KKT residual.
     max_iter : int, optional
         Iterations of the monotone phase; default 20 · n_shapes + 20.
+    start : array_like, shape (n_frames, n_shapes), optional
+        With ``smoothness`` > 0: weights whose active set (which weights are
+        at a bound) starts the smooth solve, e.g. the solution of a nearby
+        problem (the marker-centre fit's previous step). Does not change the
+        result, only the work; default a rough estimate of the solution.
 
     Returns
     -------
@@ -136,15 +153,17 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
     B, D, valid = _as_problem(basis, data, mask)
     n = B.shape[1]
     lo, hi = _as_bounds(lower, upper, n)
-    smoothness = float(smoothness)
-    if not np.isfinite(smoothness) or smoothness < 0:
-        raise InputError(f"smoothness must be finite and >= 0, got {smoothness}")
-    if smoothness > 0 and valid is not None:
+    smoothness = as_smoothness(smoothness)
+    if smoothness != 0 and valid is not None:
         raise InputError("smoothness cannot be combined with mask: the smooth "
                          "solve needs one BᵀB for all frames")
     if not (isinstance(tol, float | int) and np.isfinite(tol) and tol > 0):
         raise InputError(f"tol must be a positive number, got {tol!r}")
     max_iter = 20 * n + 20 if max_iter is None else as_int(max_iter, "max_iter", minimum=1)
+    if smoothness in SMOOTHNESS_RULES:
+        smoothness = gcv_smoothness(B, D)
+    if start is not None:
+        start = as_float_array(start, "start", shape=(len(D), n), allow_nan=False)
 
     patterns, group = (np.ones((1, len(B)), bool), np.zeros(len(D), np.intp)) \
         if valid is None else np.unique(valid, axis=0, return_inverse=True)
@@ -164,7 +183,6 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
                 + ": weights along its null space are the minimum-norm reduced solution",
                 RuntimeWarning, stacklevel=2)
         if smoothness > 0:
-            start = solve_box_qp(qp, C, tol=tol, max_iter=max_iter, warm_start=warm_start)[0]
             w, it, res, _ = solve_smooth(qp, C, smoothness, tol=tol, max_iter=max_iter,
                                          start=start)
         else:
@@ -177,7 +195,31 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
     if status:
         warnings.warn(message, RuntimeWarning, stacklevel=2)
     return WeightSolution(weights=weights, cost=cost, n_iter=n_iter, converged=converged,
-                          kkt_residual=kkt, rank=min(ranks), status=status, message=message)
+                          kkt_residual=kkt, rank=min(ranks), status=status, message=message,
+                          smoothness=smoothness)
+
+
+def as_smoothness(value, name: str = "smoothness") -> float | str:
+    """``value`` as a finite λ ≥ 0 (float) or one of :data:`fit.gcv.SMOOTHNESS_RULES`.
+
+    Raises
+    ------
+    InputError
+        Anything else, naming `name`.
+    """
+    if isinstance(value, str):
+        if value not in SMOOTHNESS_RULES:
+            raise InputError(f"{name} must be a number >= 0 or one of "
+                             f"{', '.join(map(repr, SMOOTHNESS_RULES))}, got {value!r}")
+        return value
+    try:
+        lam = float(value)
+    except (TypeError, ValueError):
+        lam = np.nan
+    if isinstance(value, bool) or not np.isfinite(lam) or lam < 0:
+        raise InputError(f"{name} must be a finite number >= 0 or one of "
+                         f"{', '.join(map(repr, SMOOTHNESS_RULES))}, got {value!r}")
+    return lam
 
 
 def _cost(weights, B, D, valid, rows: int = 1024):

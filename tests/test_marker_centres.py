@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from basis.artist import load_artist_basis
+from fit.gcv import gcv_smoothness
 from fit.marker_centres import solve_at_marker_centres
 from fit.solve import solve_weights
 from mocap.errors import InputError
@@ -82,6 +83,17 @@ def test_noisy_centres_reach_a_fixed_point_of_the_chord_step(ict):
         assert fit.settled.all(), fit.solution.message
         np.testing.assert_allclose(again, w, rtol=0, atol=1e-7)
         np.testing.assert_allclose(fit.displacements, moved, rtol=0, atol=1e-12)
+
+
+def test_gcv_smoothness_is_chosen_once_on_the_tangent_model(ict):
+    basis, layout, _, data, tangent = ict
+    noisy = data + 0.02 * np.random.default_rng(4).standard_normal(data.shape)
+    args = (layout, basis.neutral.vertices, basis.displacements, tangent, noisy)
+    chosen = solve_at_marker_centres(*args, lower=0.0, upper=1.0, smoothness="gcv")
+    lam = gcv_smoothness(tangent.reshape(len(tangent), -1).T, noisy.reshape(len(noisy), -1))
+    assert chosen.solution.smoothness == lam > 0
+    fixed = solve_at_marker_centres(*args, lower=0.0, upper=1.0, smoothness=lam)
+    np.testing.assert_array_equal(chosen.solution.weights, fixed.solution.weights)
 
 
 def test_an_unsettled_frame_is_reported(ict):

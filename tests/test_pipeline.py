@@ -13,7 +13,7 @@ from basis.basis_io import load_basis
 from fit.demo import make_demo_session
 from fit.gestures import marker_basis as gesture_marker_basis
 from fit.ingest import IngestOptions
-from fit.pipeline import (SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
+from fit.pipeline import (BASES, SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
                           bind_stage, complete_span, fit_stage, ingest_stage, marker_basis,
                           retarget_stage, solve_mesh_space)
 from fit.sampling_estimator import estimate_weights_by_sampling
@@ -24,6 +24,7 @@ from mocap.layout import MarkerLayout
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
 from mocap.mesh_landmarks import load_mesh_landmarks
+from fit.gcv import gcv_smoothness
 from tests.tolerances import SOLVE_OBJECTIVE_REL
 
 
@@ -122,6 +123,23 @@ def test_moving_average_fit_solves_the_averaged_displacements(chain):
         ref = lsq_linear(B, d, bounds=(0, 1), method="bvls", max_iter=10_000)
         ours = 0.5 * np.sum((B @ fit.weights["H"][t] - d) ** 2)
         assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + 1e-15
+
+
+@pytest.mark.parametrize("space", SPACES)
+def test_gcv_smoothness_is_chosen_per_basis(chain, space):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        fit = fit_stage(chain["take"], chain["bound"], chain["retargeted"], chain["bases"],
+                        options=FitOptions(space=space, smoothness="gcv"))
+    lams = {name: sol.smoothness for name, sol in fit.solutions.items()}
+    assert all(lam > 0 for lam in lams.values()) and set(lams) == set(BASES)
+    if space == "marker":          # H: the marker problem of the test above, GCV on it
+        basis = chain["bases"].bases["H"]
+        B = marker_basis(chain["bound"].binding, basis.displacements,
+                         chain["retargeted"].labels, mesh=chain["mesh"])
+        D = chain["retargeted"].displacements
+        assert lams["H"] == gcv_smoothness(B.reshape(len(B), -1).T, D.reshape(len(D), -1))
+        assert fit.solutions["H"].status == 0
 
 
 def test_sampling_h_solver_is_the_estimator_and_never_beats_the_exact_fit(chain, fitted):
@@ -268,6 +286,9 @@ def test_complete_span_rejects_a_take_without_a_complete_frame():
     (FitOptions, {"space": "vertex"}, "space must be one of"),
     (FitOptions, {"h_epsilon": -0.1}, "h_epsilon must be a finite number >= 0"),
     (FitOptions, {"smoothness": float("nan")}, "smoothness must be a finite number >= 0"),
+    (FitOptions, {"smoothness": "GCV"}, "smoothness must be a number >= 0 or one of 'gcv'"),
+    (FitOptions, {"smoothness": True}, "smoothness must be a finite number >= 0 or one"),
+    (FitOptions, {"h_solver": "sampling", "smoothness": "gcv"}, "and smoothness = 0"),
     (BasisOptions, {"pca_coverage": 1.5}, r"pca_coverage must be in \(0, 1\]"),
     (BasisOptions, {"pca_components": 0}, "pca_components must be at least 1"),
     (BasisOptions, {"qe_missing": "drop"}, "qe_missing must be one of"),

@@ -66,6 +66,7 @@ def test_every_promised_file_is_written(session_root, first_run):
             assert (out / take / name).is_file(), name
             assert f"{take}/{name}" in record["files"]
         assert set(record["metrics"]) == set(BASES)
+        assert all(record["metrics"][b]["smoothness"] == 0.0 for b in BASES)  # none asked
         assert record["frames"]["neutral_window"] == 1         # bind.frame "auto": one frame
         html = (out / take / "report" / f"{take}.html").read_text()
         for picture in ("gaps.png", "head_residuals.png"):       # ingestion QA embedded
@@ -154,6 +155,8 @@ def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
 @pytest.mark.parametrize("edit, match", [
     (lambda t: t.replace('space = "marker"', 'spcae = "marker"'), r"fit\.spcae: unknown key"),
     (lambda t: t.replace('space = "marker"', 'space = "vertex"'), r"fit\.space: space must be"),
+    (lambda t: t.replace('space = "marker"', 'space = "marker"\nsmoothness = "auto"'),
+     r"fit\.smoothness: smoothness must be a number >= 0 or one of 'gcv', got 'auto'"),
     (lambda t: t.replace('mesh = "session/neutral.obj"\n', ""), r"inputs\.mesh: missing"),
     (lambda t: t.replace("landmarks.toml", "nope.toml"), r"inputs\.landmarks: .* does not exist"),
     (lambda t: t.replace("video_step = 12", "video_step = 0"),

@@ -166,7 +166,10 @@ BAD_INPUTS = [
     ({"lower": 1.0, "upper": 0.0}, r"bounds of shape 0 are empty"),
     ({"lower": np.zeros(3)}, r"lower must be a number or an array of 12 bounds"),
     ({"upper": np.nan}, r"upper contains NaN"),
-    ({"smoothness": -1.0}, r"smoothness must be finite and >= 0"),
+    ({"smoothness": -1.0}, r"smoothness must be a finite number >= 0 or one of 'gcv', got -1.0"),
+    ({"smoothness": "auto"}, r"smoothness must be a number >= 0 or one of 'gcv', got 'auto'"),
+    ({"smoothness": "gcv", "mask": "ones"}, r"smoothness cannot be combined with mask"),
+    ({"smoothness": 1.0, "start": "wrong"}, r"start must have shape \(5, 12\), got \(5, 3\)"),
     ({"smoothness": 1.0, "mask": "ones"}, r"smoothness cannot be combined with mask"),
     ({"mask": "wrong"}, r"mask must have shape"),
     ({"tol": 0.0}, r"tol must be a positive number"),
@@ -190,6 +193,8 @@ def test_bad_input_raises(change, message):
         kwargs["mask"] = np.ones(data.shape, bool)
     elif kwargs.get("mask") == "wrong":
         kwargs["mask"] = np.ones((5, 2), bool)
+    if kwargs.get("start") == "wrong":
+        kwargs["start"] = np.zeros((5, 3))
     with pytest.raises(InputError, match=message):
         solve_weights(basis, data, **kwargs)
 

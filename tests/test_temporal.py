@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
+import fit._smooth
 from fit.sampling_estimator import estimate_weights_by_sampling
 from fit.solve import solve_weights
 from fit.temporal import EDGE_MODES, moving_average
 from mocap.errors import InputError
-from tests.tolerances import SOLVE_OBJECTIVE_REL
+from tests.tolerances import SOLVE_KKT_REL, SOLVE_OBJECTIVE_REL
 
 
 def brute_moving_average(data, window, edge):
@@ -88,6 +91,101 @@ def test_smoothness_matches_stacked_oracle(bounds, lam):
     got = sequence_cost(basis, data, lam, sol.weights)
     assert abs(got - expected) <= SOLVE_OBJECTIVE_REL * expected
     np.testing.assert_allclose(sol.cost, 0.5 * np.sum((sol.weights @ basis.T - data) ** 2, 1))
+
+
+def _smooth_problem(rng, T, n, K, *, rank=None, spread=(-0.3, 1.3), noise=0.2,
+                    collinear=False):
+    """A basis (rank-deficient with ``rank``, ill-conditioned if ``collinear``) and
+    data from smooth weights in ``spread``."""
+    basis = rng.standard_normal((K, n))
+    if collinear:
+        basis = rng.standard_normal((K, 1)) + 0.05 * basis
+    if rank is not None:
+        basis = basis[:, :rank] @ rng.standard_normal((rank, n))
+    phase = rng.uniform(0, 2 * np.pi, n)
+    t = np.arange(T)[:, None]
+    lo, hi = spread
+    truth = lo + (hi - lo) * 0.5 * (1 + np.sin(2 * np.pi * t / rng.uniform(8, 40, n) + phase))
+    return basis, truth @ basis.T + noise * rng.standard_normal((T, K))
+
+
+@pytest.mark.parametrize("case", ["upper active", "one-sided", "singular", "fixed shape"])
+@pytest.mark.parametrize("lam", [0.5, 50.0])
+def test_smoothness_matches_stacked_oracle_hard_cases(case, lam):
+    """Weights pushed above 1, a one-sided box, a rank-deficient basis, a shape with
+    lower = upper: the sequence objective equals lsq_linear's on the stacked problem."""
+    rng = np.random.default_rng(int(lam) + len(case))
+    T, n, K = 14, 4, 10
+    lower, upper = np.zeros(n), np.ones(n)
+    basis, data = _smooth_problem(rng, T, n, K, rank=3 if case == "singular" else None,
+                                  spread=(0.2, 1.6) if case == "upper active" else (-0.3, 1.3))
+    if case == "one-sided":
+        upper[:] = np.inf
+    if case == "fixed shape":
+        lower[1] = upper[1] = 0.25
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)    # the singular basis
+        sol = solve_weights(basis, data, lower=lower, upper=upper, smoothness=lam)
+    big, rhs = stacked_problem(basis, data, lam)
+    lo, hi = np.tile(lower, T), np.tile(upper, T)
+    ref = lo.copy()                   # lsq_linear needs lower < upper: fixed columns out
+    var = lo < hi
+    ref[var] = lsq_linear(big[:, var], rhs - big[:, ~var] @ lo[~var], bounds=(lo[var], hi[var]),
+                          method="bvls", max_iter=10_000).x
+    ref = ref.reshape(T, n)
+    assert sol.status == 0
+    if case == "upper active":
+        assert (sol.weights == 1.0).sum() > T      # the case is what it says
+    expected = sequence_cost(basis, data, lam, ref)
+    got = sequence_cost(basis, data, lam, sol.weights)
+    assert got - expected <= SOLVE_OBJECTIVE_REL * expected
+    if case != "singular":                         # unique minimizer
+        np.testing.assert_allclose(sol.weights, ref, atol=1e-6)
+
+
+@pytest.mark.parametrize("admm_steps", [0, fit._smooth._ADMM_ITER])
+@pytest.mark.parametrize("bounds", [(0.0, 1.0), (-0.05, 1.05)])
+@pytest.mark.parametrize("lam", [0.1, 3.0, 300.0])
+def test_long_smooth_sequence_meets_dense_kkt(bounds, lam, admm_steps, monkeypatch):
+    """A take long enough for the local phase (windows around state changes), from
+    the ADMM start or (0 steps) the clipped unbounded minimizer, on a basis of
+    nearly collinear shapes: the KKT conditions of the whole sequence, from the
+    dense Hessian, hold to tol."""
+    monkeypatch.setattr(fit._smooth, "_ADMM_ITER", admm_steps)
+    rng = np.random.default_rng(int(10 * lam))
+    T, n, K = 400, 5, 12
+    basis, data = _smooth_problem(rng, T, n, K, collinear=True)
+    sol = solve_weights(basis, data, lower=bounds[0], upper=bounds[1], smoothness=lam)
+    assert sol.status == 0
+    w = sol.weights.ravel()
+    lap = np.diag(np.r_[1.0, np.full(T - 2, 2.0), 1.0]) - np.eye(T, k=1) - np.eye(T, k=-1)
+    hess = np.kron(np.eye(T), basis.T @ basis) + lam * np.kron(lap, np.eye(n))
+    grad = hess @ w - (data @ basis).ravel()
+    scale = np.abs(hess) @ np.abs(w) + np.abs(data @ basis).ravel()
+    rel = grad / scale
+    lo_on, hi_on = w <= bounds[0], w >= bounds[1]
+    assert np.all((w >= bounds[0]) & (w <= bounds[1]))
+    assert np.abs(rel[~lo_on & ~hi_on]).max() <= SOLVE_KKT_REL
+    assert rel[lo_on].min(initial=0) >= -SOLVE_KKT_REL
+    assert rel[hi_on].max(initial=0) <= SOLVE_KKT_REL
+    assert (lo_on | hi_on).any()
+    if admm_steps == 0:    # the local phase ran: some frames took part in more solves
+        assert sol.n_iter.max() > sol.n_iter.min()
+
+
+@pytest.mark.parametrize("start", ["frames", "zeros", "ones", "answer"])
+def test_smooth_start_changes_the_work_not_the_result(start):
+    rng = np.random.default_rng(21)
+    T, n, K = 300, 5, 12
+    basis, data = _smooth_problem(rng, T, n, K, collinear=True)
+    ref = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0)
+    given = {"frames": solve_weights(basis, data, lower=0, upper=1).weights,
+             "zeros": np.zeros((T, n)), "ones": np.ones((T, n)), "answer": ref.weights}[start]
+    sol = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0, start=given)
+    assert sol.status == 0
+    np.testing.assert_allclose(sol.weights, ref.weights, rtol=0, atol=1e-9)
+    if start == "answer":           # the optimal active set: one global solve
+        assert sol.n_iter.max() == 1
 
 
 def test_smoothness_reduces_frame_to_frame_change():

@@ -160,7 +160,8 @@ def process_take(capture, config: RunConfig) -> dict:
                           exaggerate=config.report.exaggerate, name=capture.stem).values()
     stages["report"] = time.perf_counter() - tic
     metrics = {name: _finite(reconstruction_errors(face.positions, rec, neutral,
-                                                   labels=face.labels, name=name).summary())
+                                                   labels=face.labels, name=name).summary()
+                             | {"smoothness": fitted.solutions[name].smoothness})
                for name, rec in fitted.reconstructed.items()}
     return {"status": "ok", "skipped": False, "error": None,
             "seconds": round(time.perf_counter() - start, 3),
