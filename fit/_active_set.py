@@ -111,17 +111,25 @@ def reduced_solve(qp: BoxQP, state: np.ndarray, c: np.ndarray, *, unconstrained=
     and fewer variables are bound, through the Schur complement of G⁻¹:
     ``w = u + G⁻¹λ`` with ``(G⁻¹)_AA λ_A = w_A − u_A``, u = G⁻¹c the
     unconstrained minimizer (`unconstrained`, computed if not given), an
-    |A| × |A| system. Frames are sorted by that size and factored in batches.
-    Every pass corrects ``w`` by the reduced solve of its residual; with
-    ``refine``, ill-conditioned problems get more passes (iterative refinement).
-    Returns the weights and the gradient ``G w − c``, both (T, n) (the
-    gradient None unless ``gradient`` or refining).
+    |A| × |A| system, and λ (zero off A) is the gradient ``G w − c``.
+    Frames are sorted by that size and factored in batches. With ``refine``,
+    ill-conditioned problems get more passes (iterative refinement: each
+    corrects ``w`` by the reduced solve of its residual).
+
+    Returns
+    -------
+    w : ndarray, shape (T, n)
+        The weights, exactly at their bounds on A.
+    grad : ndarray, shape (T, n), or None
+        The gradient ``G w − c``: after refinement, the product itself; else
+        λ on the Schur path (zero on F, equal in exact arithmetic) and, on the
+        direct path, the product if ``gradient`` (else None).
     """
     free = state == 0
     n_free = np.count_nonzero(free, axis=1)
     via_bound = (2 * n_free > qp.n) & (qp.inverse is not None)
     size = np.where(via_bound, qp.n - n_free, n_free)
-    # each batch's entries of the (T, n + 1) residual, as flat indices
+    # each batch's entries of the (T, n + 1) right-hand side, as flat indices
     batches = [(rows * (qp.n + 1) + sel,
                 _factor(qp, _principal(qp.inverse if bound else qp.G, sel)))
                for rows, bound, sel in _batches(free, via_bound, size)]
@@ -129,26 +137,45 @@ def reduced_solve(qp: BoxQP, state: np.ndarray, c: np.ndarray, *, unconstrained=
     # Frames of each path, as a slice when they are all of them (views, no copies).
     schur = slice(None) if via_bound.all() else np.flatnonzero(via_bound)
     direct = slice(None) if not via_bound.any() else np.flatnonzero(~via_bound)
-    resid = np.zeros((len(c), qp.n + 1))
-    if via_bound.any():
-        if unconstrained is None:
-            unconstrained = _dot(c, qp.inverse)
-        resid[schur, :-1] = unconstrained[schur] - w[schur]
-    if not via_bound.all():
-        resid[direct, :-1] = c[direct] - _dot(w[direct], qp.G)
-    for left in range(_refinements(qp.cond) if refine else 0, -1, -1):
-        coef = np.zeros_like(resid)
+    on_schur, on_direct = via_bound.any(), not via_bound.all()
+    rhs = np.zeros((len(c), qp.n + 1))
+    if on_schur:
+        base = _dot(c[schur], qp.inverse) if unconstrained is None else unconstrained[schur]
+        rhs[schur, :-1] = w[schur] - base
+    if on_direct:
+        rhs[direct, :-1] = c[direct] - _dot(w[direct], qp.G)
+    lam = np.zeros((len(c), qp.n)) if on_schur else None
+    passes = _refinements(qp.cond) if refine else 0
+    for left in range(passes, -1, -1):
+        coef = np.zeros_like(rhs)
         for flat, solve in batches:
-            np.put(coef, flat, solve(resid.take(flat)))
-        delta = coef[:, :-1]
-        if via_bound.any():
-            delta[schur] = resid[schur, :-1] - _dot(delta[schur], qp.inverse)
-        w = w + delta * free
-        grad = _dot(w, qp.G) - c if gradient or left else None
-        if left:
-            resid[:, :-1] = -grad
-            if via_bound.any():
-                resid[schur, :-1] = _dot(resid[schur, :-1], qp.inverse)
+            np.put(coef, flat, solve(rhs.take(flat)))
+        coef = coef[:, :-1]
+        if on_schur:
+            lam[schur] += coef[schur]
+            step = _dot(coef[schur], qp.inverse)
+            step += base
+            step *= free[schur]
+            w[schur] += step
+        if on_direct:
+            w[direct] += coef[direct]
+        if not left:
+            break
+        # the next pass solves for the correction from the residual -grad
+        grad = _dot(w, qp.G) - c
+        if on_schur:
+            base = -_dot(grad[schur], qp.inverse)
+            rhs[schur, :-1] = -base
+        if on_direct:
+            rhs[direct, :-1] = -grad[direct]
+    if passes:
+        return w, _dot(w, qp.G) - c
+    if not on_direct:
+        return w, lam
+    if not gradient:
+        return w, None
+    grad = lam if on_schur else np.empty_like(w)
+    grad[direct] = _dot(w[direct], qp.G) - c[direct]
     return w, grad
 
 
@@ -182,6 +209,8 @@ def _batches(free, via_bound, size):
     order = np.lexsort((size, via_bound))
     key = (size + (len(free[0]) + 1) * via_bound)[order]
     ends = np.r_[np.flatnonzero(np.diff(key)) + 1, len(order)]
+    # each frame's smaller set: its bound variables on the Schur path, else its free ones
+    index = _padded_index(free ^ via_bound[:, None], size)
     start = 0
     for end in ends:
         if end - start < _MIN_BATCH and end < len(order) and \
@@ -189,21 +218,23 @@ def _batches(free, via_bound, size):
             continue
         for first in range(start, end, _CHUNK):
             rows = order[first:min(first + _CHUNK, end)]
-            bound = bool(via_bound[rows[0]])
-            mask = ~free[rows] if bound else free[rows]
             width = int(size[rows[-1]])
             if width:
-                yield rows[None, :], bound, _padded_index(mask, width)
+                # contiguous: the principal submatrices gathered with it inherit its layout
+                yield rows[None, :], bool(via_bound[rows[0]]), \
+                    np.ascontiguousarray(index[rows, :width].T)
         start = end
 
 
-def _padded_index(mask, width):
-    """(width, frames): indices of the True entries of each row of ``mask``, padded with n."""
-    # a stable sort of the negated mask lists each row's True entries first, in order
-    out = np.argsort(~mask, axis=1, kind="stable")[:, :width]
-    out[np.arange(width) >= np.count_nonzero(mask, axis=1)[:, None]] = mask.shape[1]
-    # contiguous: the principal submatrices gathered with it inherit its layout
-    return np.ascontiguousarray(out.T)
+def _padded_index(mask, count):
+    """(T, max count): indices of the True entries of each row of ``mask``, padded with n.
+
+    ``count`` (T,) is each row's number of True entries.
+    """
+    out = np.full((len(mask), max(int(count.max(initial=0)), 1)), mask.shape[1], np.intp)
+    rows, cols = np.nonzero(mask)  # row by row, each row's entries in order
+    out[rows, np.arange(len(rows)) - (np.cumsum(count) - count)[rows]] = cols
+    return out
 
 
 def _principal(mat, sel):
@@ -328,7 +359,7 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter):
         check = np.nonzero((new == s).all(axis=1))[0]
         ok = np.zeros(len(todo), bool)
         # (a state that reproduces itself has free weights inside the bounds)
-        ok[check] = residual(qp, wt[check], ct[check], g[check], feasible=True) <= tol
+        ok[check] = residual(qp, wt[check], ct[check], feasible=True) <= tol
         redo = check[~ok[check]]
         if redo.size and _refinements(qp.cond):
             wt[redo], g[redo] = reduced_solve(qp, s[redo], ct[redo], refine=True,
@@ -349,46 +380,98 @@ def _rows_of(u, rows):
 
 
 def _primal(qp, c, u, w, state, max_iter, tol, n_iter):
-    """Monotone primal active-set iterations from feasible ``w`` (in place)."""
+    """Monotone primal active-set iterations from feasible ``w``, ``state`` (both in place).
+
+    The working arrays hold the frames not yet converged; a frame's weights
+    and state are written back when it converges or the iterations end.
+    """
     done = np.zeros(len(c), bool)
     todo = np.arange(len(c))
+    s, wt, ct, ut = state.copy(), w, c, u
     for _ in range(max_iter):
-        if not todo.size:
-            break
-        s, wt, ct, ut = state[todo], w[todo], c[todo], _rows_of(u, todo)
-        target = reduced_solve(qp, s, ct, unconstrained=ut, gradient=False)[0]
+        target, lam = reduced_solve(qp, s, ct, unconstrained=ut)
         n_iter[todo] += 1
-        step = target - wt
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # the bound the step heads for gives the larger of the two ratios
-            ratio = np.fmax((qp.lo - wt) / step, (qp.hi - wt) / step)
-        ratio = np.where((s == 0) & (step != 0), np.maximum(ratio, 0.0), np.inf)
-        alpha = np.minimum(ratio.min(axis=1), 1.0)
-        wt = wt + alpha[:, None] * step
-        blocked = (s == 0) & (ratio <= alpha[:, None]) & (alpha[:, None] < 1.0)
-        s = s + (blocked * np.sign(step)).astype(np.int8)
-        wt = np.clip(wt, qp.lo, qp.hi) * (s == 0) + qp.bound_values(s)
+        alpha = _step_to_first_bound(qp, wt, target, s)
+        wt = target
         # Frames at their subproblem optimum: optimal, or release the worst
         # wrong-signed multiplier, or (nothing to release) refine the solve.
-        at = np.nonzero(alpha >= 1.0)[0]
-        wa, sa, ca = wt[at], s[at], ct[at]
-        g = _dot(wa, qp.G) - ca
-        scale = _dot(np.abs(wa), np.abs(qp.G)) + np.abs(ca)
+        at = np.flatnonzero(alpha >= 1.0)
+        scale = _scale(qp, wt[at], ct[at])
+        worst, wrong = _worst_multiplier(qp, s[at], lam[at], scale)
+        # a multiplier of the solve clearly wrong-signed is released unchecked;
+        # the others are checked with the exact gradient
+        sure = wrong > tol
+        check = at[~sure]
+        g = _dot(wt[check], qp.G) - ct[check]
         ok = np.zeros(len(todo), bool)
-        ok[at] = kkt_residual(wa, g, scale, qp.lo, qp.hi, feasible=True) <= tol
-        wrong = sa * g / np.maximum(scale, np.finfo(float).tiny)
-        wrong[:, qp.fixed] = 0.0
-        release = ~ok[at] & (wrong.max(axis=1) > 0)
-        redo = at[~ok[at] & ~release]
+        ok[check] = kkt_residual(wt[check], g, scale[~sure], qp.lo, qp.hi, feasible=True) <= tol
+        worst_g, wrong_g = _worst_multiplier(qp, s[check], g, scale[~sure])
+        failed = ~ok[check]
+        release = failed & (wrong_g > 0)
+        s[at[sure], worst[sure]] = 0
+        s[check[release], worst_g[release]] = 0
+        redo = check[failed & ~release]
         if redo.size and _refinements(qp.cond):
             wt[redo], grad = reduced_solve(qp, s[redo], ct[redo], refine=True,
                                            unconstrained=_rows_of(ut, redo))
             ok[redo] = residual(qp, wt[redo], ct[redo], grad) <= tol
-        s[at[release], wrong[release].argmax(axis=1)] = 0
-        w[todo], state[todo] = wt, s
+            wt[redo] = np.clip(wt[redo], qp.lo, qp.hi)
+        w[todo[ok]], state[todo[ok]] = wt[ok], s[ok]
         done[todo[ok]] = True
-        todo = todo[~ok]
+        keep = ~ok
+        todo, s, wt, ct, ut = todo[keep], s[keep], wt[keep], ct[keep], _rows_of(ut, keep)
+        if not todo.size:
+            break
+    w[todo], state[todo] = wt, s
     return done
+
+
+def _step_to_first_bound(qp, w, target, state):
+    """Step every frame from feasible ``w`` towards ``target`` up to the first bound
+    in the way; binds the free variables that block it (ties too).
+
+    ``target`` (T, n) becomes the new weights and ``state`` is updated, both
+    in place. Only the free weights that ``target`` puts outside the box can
+    block (bound weights are at their bound in both). Returns the step
+    length, (T,), 1 where nothing blocks.
+    """
+    alpha = np.ones(len(w))
+    frames, var = np.nonzero((target < qp.lo) | (target > qp.hi))
+    if not frames.size:
+        return alpha
+    to, frm = target[frames, var], w[frames, var]
+    up = to > qp.hi[var]
+    bound = np.where(up, qp.hi[var], qp.lo[var])
+    ratio = np.maximum((bound - frm) / (to - frm), 0.0)
+    first = np.flatnonzero(np.r_[True, frames[1:] != frames[:-1]])
+    alpha[frames[first]] = np.minimum.reduceat(ratio, first)
+    moving = frames[first]
+    target[moving] = np.clip(w[moving] + alpha[moving, None] * (target[moving] - w[moving]),
+                             qp.lo, qp.hi)
+    blocked = ratio <= alpha[frames]
+    target[frames[blocked], var[blocked]] = bound[blocked]
+    state[frames[blocked], var[blocked]] = np.where(up[blocked], 1, -1)
+    return alpha
+
+
+def _scale(qp, w, c):
+    """Magnitude of the terms summed into the gradient ``G w − c``, (T, n)."""
+    scale = _dot(np.abs(w), np.abs(qp.G))
+    scale += np.abs(c)
+    return scale
+
+
+def _worst_multiplier(qp, state, g, scale):
+    """Each frame's most wrong-signed multiplier: (variable, violation relative to ``scale``).
+
+    The multiplier of a bound variable is its gradient ``g``; its sign is
+    wrong when it pulls the variable into the box. Fixed variables never count.
+    """
+    wrong = state * g
+    wrong /= np.maximum(scale, np.finfo(float).tiny)
+    wrong[:, qp.fixed] = 0.0
+    worst = wrong.argmax(axis=1)
+    return worst, wrong[np.arange(len(worst)), worst]
 
 
 def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
