@@ -1,0 +1,370 @@
+"""Reduced systems of the batched box QP: each frame's equations on its free weights.
+
+Every frame ``t`` of :mod:`fit._active_set` minimizes ``½ wᵀGw − c_tᵀw``
+over ``lo ≤ w ≤ hi``, one symmetric positive semi-definite ``G`` (n × n)
+for all frames. A frame's *state* (int8 per variable: -1 at the lower bound,
++1 at the upper bound, 0 free) fixes its bound set A and free set F; its
+reduced system ``G_FF w_F = c_F − G_FA w_A`` gives the weights of that state.
+
+No frame inverts an n × n matrix: G⁻¹ is computed once, and each frame
+factors only an m × m system, m = min(|F|, |A|): directly, or (usually the
+few bound weights) through the Schur complement of G⁻¹, whose solution λ
+is the gradient on A. Frames with the same m are factored together (LDLᵀ
+vectorized over frames, frames on the last axis). A factored system can then
+take one change of its state (one variable bound or freed) by bordering
+(:meth:`ReducedSystems.update`): no new factorization.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+#: Most frames factored together (their (m, m, frames) systems stay in cache).
+_CHUNK = 512
+#: Fewest frames of a batch whose size is padded up to the next batch's.
+_MIN_BATCH = 64
+#: Rows of the products with G and G⁻¹ (see :func:`dot`).
+_DOT_ROWS = 64
+#: An eigenvalue of G below this fraction of the largest one counts as zero.
+RANK_RTOL = 1e3 * np.finfo(float).eps
+#: Above this condition number of G, reduced solves that must be exact get a
+#: refinement step (two above its square).
+_REFINE_COND = 1e6
+
+
+@dataclass(frozen=True)
+class BoxQP:
+    """The shared part of every frame's problem: G, its inverse, bounds, rank."""
+
+    G: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    rank: int
+    cond: float
+    #: G⁻¹ (symmetrized), None when G is singular.
+    inverse: np.ndarray | None
+
+    @classmethod
+    def build(cls, G, lo, hi) -> "BoxQP":
+        G = 0.5 * (G + G.T)
+        eig = np.linalg.eigvalsh(G)
+        top = max(eig[-1], np.finfo(float).tiny)
+        rank = int(np.count_nonzero(eig > RANK_RTOL * top))
+        cond = top / eig[0] if eig[0] > 0 else np.inf
+        inverse = None
+        if rank == len(G):
+            inverse = np.linalg.inv(G)
+            inverse = 0.5 * (inverse + inverse.T)
+        return cls(G=G, lo=lo, hi=hi, rank=rank, cond=float(cond), inverse=inverse)
+
+    @property
+    def n(self) -> int:
+        return self.G.shape[0]
+
+    @property
+    def singular(self) -> bool:
+        return self.rank < self.n
+
+    @property
+    def fixed(self) -> np.ndarray:
+        return self.lo == self.hi
+
+    @property
+    def refinements(self) -> int:
+        """Refinement steps that bring a reduced solve to full accuracy."""
+        return 0 if self.cond <= _REFINE_COND else 1 if self.cond <= _REFINE_COND ** 2 else 2
+
+    @cached_property
+    def _finite_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) with infinite bounds replaced by 0."""
+        return (np.where(np.isfinite(self.lo), self.lo, 0.0),
+                np.where(np.isfinite(self.hi), self.hi, 0.0))
+
+    def bound_values(self, state: np.ndarray) -> np.ndarray:
+        """Bound values where ``state`` is ±1, 0 where free, shape of ``state``."""
+        lo, hi = self._finite_bounds
+        # a bound at zero contributes nothing: its product (a (T, n) pass) is skipped
+        out = hi * (state > 0) if hi.any() else np.zeros(state.shape)
+        if lo.any():
+            out += lo * (state < 0)
+        return out
+
+
+
+@dataclass
+class _Batch:
+    """Frames factored together: rows (1, r) of the system, indices sel (m, r) of
+    each frame's smaller set (padded with n), their flat entries of a (T, n + 1)
+    array, the solver of their m × m systems, and the last solution (m, r)."""
+
+    rows: np.ndarray
+    schur: bool
+    sel: np.ndarray
+    flat: np.ndarray
+    solve: object
+    x: np.ndarray | None = None
+
+
+class ReducedSystems:
+    """Every frame's reduced system for one state (T, n), factored once.
+
+    Each frame solves ``G_FF w_F = c_F − G_FA w_A`` through the smaller of its
+    free set F and bound set A: directly (|F| × |F|), or, when G is invertible
+    and fewer variables are bound, through the Schur complement of G⁻¹:
+    ``w = u + G⁻¹λ`` with ``(G⁻¹)_AA λ_A = w_A − u_A``, u = G⁻¹c the
+    unconstrained minimizer, an |A| × |A| system; λ (zero off A) is the
+    gradient ``G w − c``. Frames are sorted by that size and factored in batches.
+    """
+
+    def __init__(self, qp: BoxQP, state: np.ndarray):
+        self.qp, self.state = qp, state
+        free = state == 0
+        n_free = np.count_nonzero(free, axis=1)
+        self.via_bound = (2 * n_free > qp.n) & (qp.inverse is not None)
+        size = np.where(self.via_bound, qp.n - n_free, n_free)
+        self.batches = [
+            _Batch(rows, bound, sel, rows * (qp.n + 1) + sel,
+                   _factor(qp, _principal(qp.inverse if bound else qp.G, sel)))
+            for rows, bound, sel in _batches(free, self.via_bound, size)]
+        self.unconstrained = None
+
+    def solve(self, c: np.ndarray, *, unconstrained=None, refine: bool = False,
+              gradient: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """Weights with bound variables at their bounds and free ones stationary.
+
+        ``c`` (T, n) the frames' linear terms, ``unconstrained`` G⁻¹c
+        (computed if not given). With ``refine``, ill-conditioned problems get
+        more passes (iterative refinement: each corrects ``w`` by the reduced
+        solve of its residual).
+
+        Returns
+        -------
+        w : ndarray, shape (T, n)
+            The weights, exactly at their bounds on A.
+        grad : ndarray, shape (T, n), or None
+            The gradient ``G w − c``: after refinement, the product itself; else
+            λ on the Schur path (zero on F, equal in exact arithmetic) and, on
+            the direct path, the product if ``gradient`` (else None).
+        """
+        qp, via_bound = self.qp, self.via_bound
+        free = self.state == 0
+        w = qp.bound_values(self.state)
+        # Frames of each path, as a slice when they are all of them (views, no copies).
+        schur = slice(None) if via_bound.all() else np.flatnonzero(via_bound)
+        direct = slice(None) if not via_bound.any() else np.flatnonzero(~via_bound)
+        on_schur, on_direct = via_bound.any(), not via_bound.all()
+        rhs = np.zeros((len(c), qp.n + 1))
+        if on_schur:
+            if unconstrained is None:
+                unconstrained = np.zeros_like(c)
+                unconstrained[schur] = dot(c[schur], qp.inverse)
+            self.unconstrained = unconstrained
+            base = unconstrained[schur]
+            rhs[schur, :-1] = w[schur] - base
+        if on_direct:
+            rhs[direct, :-1] = c[direct] - dot(w[direct], qp.G)
+        lam = np.zeros((len(c), qp.n)) if on_schur else None
+        passes = qp.refinements if refine else 0
+        for left in range(passes, -1, -1):
+            coef = np.zeros_like(rhs)
+            for batch in self.batches:
+                batch.x = batch.solve(rhs.take(batch.flat))
+                np.put(coef, batch.flat, batch.x)
+            coef = coef[:, :-1]
+            if on_schur:
+                lam[schur] += coef[schur]
+                w[schur] += self._step(coef[schur], base, free[schur])
+            if on_direct:
+                w[direct] += coef[direct]
+            if not left:
+                break
+            # the next pass solves for the correction from the residual -grad
+            grad = dot(w, qp.G) - c
+            if on_schur:
+                base = -dot(grad[schur], qp.inverse)
+                rhs[schur, :-1] = -base
+            if on_direct:
+                rhs[direct, :-1] = -grad[direct]
+        if passes:
+            # the batches' solutions are corrections now: no update from them
+            self.unconstrained = None
+            return w, dot(w, qp.G) - c
+        if not on_direct:
+            return w, lam
+        if not gradient:
+            return w, None
+        grad = lam if on_schur else np.empty_like(w)
+        grad[direct] = dot(w[direct], qp.G) - c[direct]
+        return w, grad
+
+    def _step(self, lam, base, free):
+        """Free weights ``base + G⁻¹λ`` (zero on the bound ones), (T, n)."""
+        step = dot(lam, self.qp.inverse)
+        step += base
+        step *= free
+        return step
+
+    def update(self, var: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weights and λ after one change of state per frame, from the factors.
+
+        ``var`` (T,) is each frame's changed variable (n: none), ``state``
+        (T, n) the new state. Only frames solved (unrefined) through the
+        Schur complement can be updated; for them, adding variable j to A
+        borders the system with ``h = (G⁻¹)_Aj``: with ``v = (G⁻¹)_AA⁻¹ h``,
+        ``λ_j = (r_j − hᵀλ_A) / ((G⁻¹)_jj − hᵀv)`` and ``λ_A −= v λ_j``
+        (r = w_A − u_A); freeing p (at slot e) is the same with ``h = e`` and
+        zero for ``r_p`` and ``(G⁻¹)_pp``: λ_p becomes 0.
+
+        Returns
+        -------
+        w, lam : ndarray, shape (T, n)
+            As from :meth:`solve`, on the rows where ``updated``.
+        updated : ndarray of bool, shape (T,)
+            The frames that could be updated.
+        """
+        qp, n = self.qp, self.qp.n
+        updated = self.via_bound & (self.unconstrained is not None)
+        if not updated.any():
+            return None, None, updated
+        ext = np.zeros((n + 1, n + 1))
+        ext[:n, :n] = qp.inverse
+        ext_diag = np.r_[np.diag(qp.inverse), 0.0]
+        u = self.unconstrained
+        target = qp.bound_values(state)
+        lam = np.zeros((len(state), n + 1))
+        for batch in self.batches:
+            if not batch.schur:
+                continue
+            rows = batch.rows[0]
+            j = var[rows]
+            changed = j < n
+            at = (rows, np.minimum(j, n - 1))
+            add = changed & (state[at] != 0)
+            # column of G⁻¹ (added variable) or the freed variable's slot
+            freed = batch.sel == np.where(changed & ~add, j, -1)
+            h = np.where(add, ext.ravel().take(batch.sel * (n + 1) + np.where(add, j, n)), freed)
+            v = batch.solve(h)
+            rho = np.where(add, target[at] - u[at], 0.0)
+            denom = np.where(add, ext_diag[j], 0.0) - np.einsum("it,it->t", h, v)
+            y = (rho - np.einsum("it,it->t", h, batch.x)) / np.where(changed, denom, 1.0)
+            x = batch.x - v * y
+            x *= ~freed  # a freed variable's λ is exactly 0
+            np.put(lam, batch.flat, x)
+            lam[rows[add], j[add]] = y[add]
+        lam = lam[:, :-1]
+        target += self._step(lam, u, state == 0)
+        return target, lam, updated
+
+
+def reduced_solve(qp: BoxQP, state: np.ndarray, c: np.ndarray, *, unconstrained=None,
+                  refine: bool = False,
+                  gradient: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """:meth:`ReducedSystems.solve` of the systems of ``state`` (T, n)."""
+    return ReducedSystems(qp, state).solve(c, unconstrained=unconstrained, refine=refine,
+                                           gradient=gradient)
+
+
+def dot(a, mat):
+    """``a @ mat`` for (T, n) ``a``, as products of ``_DOT_ROWS`` rows.
+
+    Products that small stay single-threaded in BLAS: on a machine whose cores
+    are busy, threaded products of skinny matrices mostly wait.
+    """
+    out = np.empty((len(a), mat.shape[1]))
+    # one product per slice, written in place: 2.6x faster than a stacked
+    # (T / 64, 64, n) matmul, which copies its result
+    for first in range(0, len(a), _DOT_ROWS):
+        np.matmul(a[first:first + _DOT_ROWS], mat, out=out[first:first + _DOT_ROWS])
+    return out
+
+
+def _batches(free, via_bound, size):
+    """Batches (frames, via_bound, sel) of frames solved together.
+
+    Frames sorted by path and size; a batch holds up to ``_CHUNK`` frames,
+    and fewer than ``_MIN_BATCH`` frames of one size join (padded up) the
+    frames of the next size.
+    ``sel`` (width, frames) indexes each frame's smaller set, padded with n.
+    """
+    order = np.lexsort((size, via_bound))
+    key = (size + (len(free[0]) + 1) * via_bound)[order]
+    ends = np.r_[np.flatnonzero(np.diff(key)) + 1, len(order)]
+    # each frame's smaller set: its bound variables on the Schur path, else its free ones
+    index = _padded_index(free ^ via_bound[:, None], size)
+    start = 0
+    for end in ends:
+        if end - start < _MIN_BATCH and end < len(order) and \
+                via_bound[order[end]] == via_bound[order[start]]:
+            continue
+        for first in range(start, end, _CHUNK):
+            rows = order[first:min(first + _CHUNK, end)]
+            width = int(size[rows[-1]])
+            if width:
+                # contiguous: the principal submatrices gathered with it inherit its layout
+                yield rows[None, :], bool(via_bound[rows[0]]), \
+                    np.ascontiguousarray(index[rows, :width].T)
+        start = end
+
+
+def _padded_index(mask, count):
+    """(T, max count): indices of the True entries of each row of ``mask``, padded with n.
+
+    ``count`` (T,) is each row's number of True entries.
+    """
+    out = np.full((len(mask), max(int(count.max(initial=0)), 1)), mask.shape[1], np.intp)
+    rows, cols = np.nonzero(mask)  # row by row, each row's entries in order
+    out[rows, np.arange(len(rows)) - (np.cumsum(count) - count)[rows]] = cols
+    return out
+
+
+def _principal(mat, sel):
+    """Principal submatrices ``mat[sel, sel]``, (m, m, frames) for ``sel`` (m, frames).
+
+    Index n (the padding) selects a row and column of the identity.
+    """
+    n = len(mat)
+    ext = np.zeros((n + 1, n + 1))
+    ext[:n, :n] = mat
+    out = np.take(ext.ravel(), sel[:, None, :] * (n + 1) + sel[None, :, :])
+    diag = np.arange(len(sel))
+    out[diag, diag] += sel == n
+    return out
+
+
+def _factor(qp, mats):
+    """Solver ``rhs (m, frames) -> mats⁻¹ rhs`` for the batch ``mats`` (m, m, frames).
+
+    LDLᵀ factorization without pivoting (the matrices are symmetric positive
+    definite), by columns from the lower triangle only (Crout: one product per
+    column, half the work of elimination), vectorized over frames; a
+    pseudo-inverse when G is singular.
+    """
+    if qp.singular:
+        top = np.linalg.eigvalsh(qp.G)[-1]
+        pinv = np.linalg.pinv(mats.transpose(2, 0, 1), rcond=RANK_RTOL * top / max(top, 1.0),
+                              hermitian=True)
+        return lambda rhs: np.einsum("tij,jt->it", pinv, rhs)
+    m = len(mats)
+    d = np.empty(mats.shape[1:])
+    for j in range(m):
+        if j:
+            scaled = mats[j, :j] * d[:j]
+            mats[j, j] -= np.einsum("kt,kt->t", mats[j, :j], scaled)
+            mats[j + 1:, j] -= np.einsum("ikt,kt->it", mats[j + 1:, :j], scaled)
+        d[j] = mats[j, j]
+        mats[j + 1:, j] /= d[j]
+
+    def solve(rhs):
+        x = rhs.copy()
+        for k in range(m - 1):
+            x[k + 1:] -= mats[k + 1:, k] * x[k]
+        x /= d
+        for k in range(m - 2, -1, -1):
+            x[k] -= np.einsum("jt,jt->t", mats[k + 1:, k], x[k + 1:])
+        return x
+    return solve
+
+
