@@ -229,9 +229,10 @@ def _step_to_first_bound(qp, w, target, state, change):
     (T,), 1 where nothing blocks.
     """
     alpha = np.ones(len(w))
-    frames, var = np.nonzero((target < qp.lo) | (target > qp.hi))
-    if not frames.size:
+    flat = np.flatnonzero((target < qp.lo) | (target > qp.hi))
+    if not flat.size:
         return alpha
+    frames, var = np.divmod(flat, qp.n)
     to, frm = target[frames, var], w[frames, var]
     up = to > qp.hi[var]
     bound = np.where(up, qp.hi[var], qp.lo[var])
