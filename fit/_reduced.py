@@ -18,7 +18,7 @@ take one change of its state (one variable bound or freed) by bordering
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -167,7 +167,7 @@ class ReducedSystems:
             rhs[schur, :-1] = w[schur] - base
         if on_direct:
             rhs[direct, :-1] = c[direct] - dot(w[direct], qp.G)
-        lam = np.zeros((len(c), qp.n)) if on_schur else None
+        lam = None  # the sum of the passes' coefficients (λ on the Schur path)
         passes = qp.refinements if refine else 0
         for left in range(passes, -1, -1):
             coef = np.zeros_like(rhs)
@@ -175,8 +175,8 @@ class ReducedSystems:
                 batch.x = batch.solve(rhs.take(batch.flat))
                 np.put(coef, batch.flat, batch.x)
             coef = coef[:, :-1]
+            lam = coef if lam is None else lam + coef
             if on_schur:
-                lam[schur] += coef[schur]
                 w[schur] += self._step(coef[schur], base, free[schur])
             if on_direct:
                 w[direct] += coef[direct]
@@ -197,9 +197,9 @@ class ReducedSystems:
             return w, lam
         if not gradient:
             return w, None
-        grad = lam if on_schur else np.empty_like(w)
-        grad[direct] = dot(w[direct], qp.G) - c[direct]
-        return w, grad
+        # (lam holds the direct frames' free weights: overwritten)
+        lam[direct] = dot(w[direct], qp.G) - c[direct]
+        return w, lam
 
     def _step(self, lam, base, free):
         """Free weights ``base + G⁻¹λ`` (zero on the bound ones), (T, n)."""
@@ -333,12 +333,18 @@ def _principal(mat, sel, *, lower: bool = False):
     n, m = len(mat), len(sel)
     ext = np.zeros((n + 1, n + 1))
     ext[:n, :n] = mat
-    i, j = np.tril_indices(m) if lower else np.indices((m, m)).reshape(2, -1)
+    i, j = _pairs(m, lower)
     out = np.empty((m, m, sel.shape[1]))
     out[i, j] = np.take(ext.ravel(), sel[i] * (n + 1) + sel[j])
     diag = np.arange(m)
     out[diag, diag] += sel == n
     return out
+
+
+@lru_cache(maxsize=None)
+def _pairs(m: int, lower: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of the lower triangle (or all entries) of an m × m matrix."""
+    return np.tril_indices(m) if lower else tuple(np.indices((m, m)).reshape(2, -1))
 
 
 def _factor(qp, mats):
