@@ -94,8 +94,11 @@ def start_state(qp: BoxQP, c: np.ndarray, unconstrained=None) -> np.ndarray:
     return state
 
 
-def _pdas(qp, c, u, state, max_iter, tol, n_iter):
-    """Primal-dual active-set iterations; returns weights and the converged mask."""
+def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
+    """Primal-dual active-set iterations; returns weights and the converged mask.
+
+    ``kkt`` (T,) gets the KKT residual of the frames that converge.
+    """
     T = len(c)
     w = np.empty_like(c)
     done = np.zeros(T, bool)
@@ -112,14 +115,16 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter):
         new[:, qp.fixed] = -1
         # Only a state that reproduces itself is optimal (up to accuracy).
         check = np.nonzero((new == s).all(axis=1))[0]
-        ok = np.zeros(len(todo), bool)
+        res = np.full(len(todo), np.inf)
         # (a state that reproduces itself has free weights inside the bounds)
-        ok[check] = residual(qp, wt[check], ct[check], feasible=True) <= tol
-        redo = check[~ok[check]]
+        res[check] = residual(qp, wt[check], ct[check], feasible=True)
+        redo = check[res[check] > tol]
         if redo.size and qp.refinements:
             wt[redo], g[redo] = reduced_solve(qp, s[redo], ct[redo], refine=True,
                                               unconstrained=_rows_of(ut, redo))
-            ok[redo] = residual(qp, wt[redo], ct[redo], g[redo]) <= tol
+            res[redo] = residual(qp, wt[redo], ct[redo], g[redo])
+        ok = res <= tol
+        kkt[todo[ok]] = res[ok]
         w[todo] = wt
         state[todo] = np.where(ok[:, None], s, new)
         done[todo[ok]] = True
@@ -134,7 +139,7 @@ def _rows_of(u, rows):
     return None if u is None else u[rows]
 
 
-def _primal(qp, c, u, w, state, max_iter, tol, n_iter):
+def _primal(qp, c, u, w, state, max_iter, tol, n_iter, kkt):
     """Monotone primal active-set iterations from feasible ``w``, ``state`` (both in place).
 
     Each iteration changes one variable of a frame's state (binds the one
@@ -171,8 +176,9 @@ def _primal(qp, c, u, w, state, max_iter, tol, n_iter):
         sure = wrong > tol
         check = at[~sure]
         g = dot(wt[check], qp.G) - ct[check]
-        ok = np.zeros(len(todo), bool)
-        ok[check] = kkt_residual(wt[check], g, scale[~sure], qp.lo, qp.hi, feasible=True) <= tol
+        res = np.full(len(todo), np.inf)
+        res[check] = kkt_residual(wt[check], g, scale[~sure], qp.lo, qp.hi, feasible=True)
+        ok = res <= tol
         worst_g, wrong_g = _worst_multiplier(qp, s[check], g, scale[~sure])
         failed = ~ok[check]
         release = failed & (wrong_g > 0)
@@ -183,10 +189,11 @@ def _primal(qp, c, u, w, state, max_iter, tol, n_iter):
         if redo.size and qp.refinements:
             wt[redo], grad = reduced_solve(qp, s[redo], ct[redo], refine=True,
                                            unconstrained=_rows_of(ut, redo))
-            ok[redo] = residual(qp, wt[redo], ct[redo], grad) <= tol
+            res[redo] = residual(qp, wt[redo], ct[redo], grad)
+            ok[redo] = res[redo] <= tol
             wt[redo] = np.clip(wt[redo], qp.lo, qp.hi)
             change[redo] = -1
-        w[todo[ok]], state[todo[ok]] = wt[ok], s[ok]
+        w[todo[ok]], state[todo[ok]], kkt[todo[ok]] = wt[ok], s[ok], res[ok]
         done[todo[ok]] = True
         keep = ~ok
         todo, s, wt, ct, ut = todo[keep], s[keep], wt[keep], ct[keep], _rows_of(ut, keep)
@@ -288,29 +295,36 @@ def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
         w = dot(c, inverse)
         kkt = residual(qp, w, c)
         return w, np.ones(T, np.int64), kkt, kkt <= tol
-    w, n_iter = np.empty_like(c), np.zeros(T, np.int64)
+    w, n_iter, kkt = np.empty_like(c), np.zeros(T, np.int64), np.empty(T)
     for start in range(0, T, _BLOCK):
         part = slice(start, start + _BLOCK)
         cp = c[part]
         u = None if qp.inverse is None else dot(cp, qp.inverse)
         state = start_state(qp, cp, u) if warm_start else np.zeros(cp.shape, np.int8)
-        w[part], n_iter[part] = _solve_from(qp, cp, u, state, tol, max_iter)
-    kkt = residual(qp, w, c, feasible=True)  # clipped
+        w[part], n_iter[part], kkt[part] = _solve_from(qp, cp, u, state, tol, max_iter)
     return w, n_iter, kkt, kkt <= tol
 
 
 def _solve_from(qp, c, u, state, tol, max_iter):
-    """Both phases from an initial state (updated in place); returns (clipped w, n_iter)."""
-    n_iter = np.zeros(len(c), np.int64)
-    w, done = _pdas(qp, c, u, state, min(_PDAS_ITER, max_iter), tol, n_iter)
+    """Both phases from an initial state (updated in place).
+
+    Returns the clipped weights, the iterations and the KKT residual of
+    each frame: that of its converged weights (which the clip leaves alone),
+    computed anew for the others.
+    """
+    n_iter, kkt = np.zeros(len(c), np.int64), np.full(len(c), np.inf)
+    w, done = _pdas(qp, c, u, state, min(_PDAS_ITER, max_iter), tol, n_iter, kkt)
     rest = np.nonzero(~done)[0]
     if rest.size:
         ws, ss = w[rest], state[rest]
         outside = (ss == 0) & ((ws < qp.lo) | (ws > qp.hi))
         ss = np.where(outside, np.where(ws < qp.lo, -1, 1), ss).astype(np.int8)
         ws = np.where(ss != 0, qp.bound_values(ss), ws)
-        it = np.zeros(rest.size, np.int64)
-        _primal(qp, c[rest], _rows_of(u, rest), ws, ss, max_iter, tol, it)
-        w[rest], state[rest] = ws, ss
+        it, res = np.zeros(rest.size, np.int64), np.full(rest.size, np.inf)
+        _primal(qp, c[rest], _rows_of(u, rest), ws, ss, max_iter, tol, it, res)
+        w[rest], state[rest], kkt[rest] = ws, ss, res
         n_iter[rest] += it
-    return np.clip(w, qp.lo, qp.hi), n_iter
+    clipped = np.clip(w, qp.lo, qp.hi)
+    again = np.flatnonzero((kkt > tol) | (clipped != w).any(axis=1))
+    kkt[again] = residual(qp, clipped[again], c[again], feasible=True)
+    return clipped, n_iter, kkt
