@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._reduced import RANK_RTOL, BoxQP, ReducedSystems, dot, reduced_solve
+from ._reduced import RANK_RTOL, BoxQP, ReducedSystems, dot, reduced_solve, schur_weights
 
 __all__ = ["RANK_RTOL", "BoxQP", "kkt_residual", "reduced_solve", "residual", "solve_box_qp",
            "start_state"]
@@ -104,7 +104,10 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
     done = np.zeros(T, bool)
     todo = np.arange(T)
     for _ in range(max_iter):
-        s, ct, ut = state[todo], c[todo], _rows_of(u, todo)
+        if len(todo) == T:  # views, no copies
+            s, ct, ut = state, c, u
+        else:
+            s, ct, ut = state[todo], c[todo], _rows_of(u, todo)
         wt, g = reduced_solve(qp, s, ct, unconstrained=ut)
         n_iter[todo] += 1
         # Bind the free weights outside the bounds, free the bound ones whose
@@ -126,7 +129,7 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
         ok = res <= tol
         kkt[todo[ok]] = res[ok]
         w[todo] = wt
-        state[todo] = np.where(ok[:, None], s, new)
+        state[todo[~ok]] = new[~ok]
         done[todo[ok]] = True
         todo = todo[~ok]
         if not todo.size:
@@ -211,15 +214,17 @@ def _updated(qp, systems, rows, change, s, c, u):
     each changed since (n: none, -1: several). Frames that the systems cannot
     update are solved anew.
     """
-    var = np.full(len(systems.state), qp.n)
-    var[rows] = np.where(change < 0, qp.n, change)
-    state = systems.state.copy()
-    state[rows] = s
-    target, lam, updated = systems.update(var, state)
-    new = np.flatnonzero(~updated[rows] | (change < 0))
+    single = change >= 0
+    var = np.full(len(systems.via_bound), qp.n)
+    var[rows[single]] = change[single]
+    now = np.zeros(len(var), np.int8)
+    now[rows[single]] = s[single, np.minimum(change[single], qp.n - 1)]
+    lam, updated = systems.update(var, now)
+    new = np.flatnonzero(~updated[rows] | ~single)
     if new.size == len(rows):
         return reduced_solve(qp, s, c, unconstrained=u)
-    target, lam = target[rows], lam[rows]
+    lam = lam[rows]
+    target = schur_weights(qp, s, lam, u)
     if new.size:
         target[new], lam[new] = reduced_solve(qp, s[new], c[new], unconstrained=_rows_of(u, new))
     return target, lam

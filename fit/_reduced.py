@@ -182,7 +182,7 @@ class ReducedSystems:
             coef = coef[:, :-1]
             lam = coef if lam is None else lam + coef
             if on_schur:
-                w[schur] += self._step(coef[schur], base, free[schur])
+                w[schur] += _free_part(qp, coef[schur], base, free[schur])
             if on_direct:
                 w[direct] += coef[direct]
             if not left:
@@ -206,63 +206,70 @@ class ReducedSystems:
         lam[direct] = dot(w[direct], qp.G) - c[direct]
         return w, lam
 
-    def _step(self, lam, base, free):
-        """Free weights ``base + G⁻¹λ`` (zero on the bound ones), (T, n)."""
-        step = dot(lam, self.qp.inverse)
-        step += base
-        step *= free
-        return step
+    def update(self, var: np.ndarray, now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """λ after one change of state per frame, from the factors of :meth:`solve`.
 
-    def update(self, var: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Weights and λ after one change of state per frame, from the factors.
-
-        ``var`` (T,) is each frame's changed variable (n: none), ``state``
-        (T, n) the new state. Only frames solved (unrefined) through the
-        Schur complement can be updated; for them, adding variable j to A
-        borders the system with ``h = (G⁻¹)_Aj``: with ``v = (G⁻¹)_AA⁻¹ h``,
-        ``λ_j = (r_j − hᵀλ_A) / ((G⁻¹)_jj − hᵀv)`` and ``λ_A −= v λ_j``
-        (r = w_A − u_A); freeing p (at slot e) is the same with ``h = e`` and
-        zero for ``r_p`` and ``(G⁻¹)_pp``: λ_p becomes 0.
+        ``var`` (T,) is each frame's changed variable (n: none), ``now`` (T,)
+        its new state (-1, +1 bound, 0 freed). Only frames solved (unrefined)
+        through the Schur complement can be updated; for them, binding
+        variable j borders the system with ``h = (G⁻¹)_Aj``: with
+        ``v = (G⁻¹)_AA⁻¹ h``, ``λ_j = (r_j − hᵀλ_A) / ((G⁻¹)_jj − hᵀv)`` and
+        ``λ_A −= v λ_j`` (r = w_A − u_A); freeing p (at slot e) is the same with
+        ``h = e`` and zero for ``r_p`` and ``(G⁻¹)_pp``: λ_p becomes 0. The
+        weights follow with :func:`schur_weights`.
 
         Returns
         -------
-        w, lam : ndarray, shape (T, n)
-            As from :meth:`solve`, on the rows where ``updated``.
+        lam : ndarray, shape (T, n)
+            λ of the new states, on the rows where ``updated``.
         updated : ndarray of bool, shape (T,)
             The frames that could be updated.
         """
         qp, n = self.qp, self.qp.n
         updated = self.via_bound & (self.unconstrained is not None)
+        lam = np.zeros((len(var), n + 1))
         if not updated.any():
-            return None, None, updated
+            return lam[:, :-1], updated
         ext = np.zeros((n + 1, n + 1))
         ext[:n, :n] = qp.inverse
         ext_diag = np.r_[np.diag(qp.inverse), 0.0]
-        u = self.unconstrained
-        target = qp.bound_values(state)
-        lam = np.zeros((len(state), n + 1))
+        lo, hi = qp._finite_bounds
         for batch in self.batches:
             if not batch.schur:
                 continue
             rows = batch.rows[0]
-            j = var[rows]
+            j, side = var[rows], now[rows]
             changed = j < n
-            at = (rows, np.minimum(j, n - 1))
-            add = changed & (state[at] != 0)
-            # column of G⁻¹ (added variable) or the freed variable's slot
+            add = changed & (side != 0)
+            # column of G⁻¹ (bound variable) or the freed variable's slot
             freed = batch.sel == np.where(changed & ~add, j, -1)
             h = np.where(add, ext.ravel().take(batch.sel * (n + 1) + np.where(add, j, n)), freed)
             v = batch.solve(h)
-            rho = np.where(add, target[at] - u[at], 0.0)
+            k = np.minimum(j, n - 1)
+            rho = np.where(add, np.where(side > 0, hi[k], lo[k]) - self.unconstrained[rows, k],
+                           0.0)
             denom = np.where(add, ext_diag[j], 0.0) - np.einsum("it,it->t", h, v)
             y = (rho - np.einsum("it,it->t", h, batch.x)) / np.where(changed, denom, 1.0)
             x = batch.x - v * y
             x *= ~freed  # a freed variable's λ is exactly 0
             np.put(lam, batch.flat, x)
             lam[rows[add], j[add]] = y[add]
-        lam = lam[:, :-1]
-        target += self._step(lam, u, state == 0)
-        return target, lam, updated
+        return lam[:, :-1], updated
+
+
+def schur_weights(qp: BoxQP, state, lam, unconstrained) -> np.ndarray:
+    """Weights ``u + G⁻¹λ`` of the free variables, bound values of the others, (T, n)."""
+    w = qp.bound_values(state)
+    w += _free_part(qp, lam, unconstrained, state == 0)
+    return w
+
+
+def _free_part(qp, lam, base, free):
+    """Free weights ``base + G⁻¹λ`` (zero on the bound ones), (T, n)."""
+    step = dot(lam, qp.inverse)
+    step += base
+    step *= free
+    return step
 
 
 def reduced_solve(qp: BoxQP, state: np.ndarray, c: np.ndarray, *, unconstrained=None,

@@ -308,7 +308,7 @@ def test_update_by_one_variable_matches_fresh_solve(kind):
     """Bordering the factored systems with one bound or freed variable per frame
     (or none) gives the weights and gradient of solving the new state from scratch."""
     from fit._active_set import BoxQP, reduced_solve
-    from fit._reduced import ReducedSystems
+    from fit._reduced import ReducedSystems, schur_weights
 
     rng = np.random.default_rng([15, BASES.index(kind)])
     basis = make_basis(kind, rng)
@@ -328,7 +328,8 @@ def test_update_by_one_variable_matches_fresh_solve(kind):
     side = np.where(var[rows] == 10, 1, np.where(var[rows] == 11, -1,
                                                   np.where(rng.random(rows.size) < 0.5, -1, 1)))
     new[rows, var[rows]] = np.where(freed, 0, side)
-    w, lam, updated = systems.update(var, new)
+    lam, updated = systems.update(var, new[np.arange(len(c)), np.minimum(var, N_SHAPES - 1)])
+    w = schur_weights(qp, new, lam, systems.unconstrained)
     # the frames factored through the Schur complement (fewer than half bound)
     np.testing.assert_array_equal(updated, 2 * np.count_nonzero(state, axis=1) < N_SHAPES)
     assert 100 < np.count_nonzero(updated) < 390
@@ -355,10 +356,10 @@ def test_update_leaves_direct_and_refined_systems_alone():
     state[25:] = -1  # all bound: the direct path
     systems = ReducedSystems(qp, state)
     systems.solve(c)
-    var = np.zeros(len(c), int)
-    assert systems.update(var, state)[2].tolist() == [True] * 25 + [False] * 25
+    var, now = np.zeros(len(c), int), np.ones(len(c), np.int8)
+    assert systems.update(var, now)[1].tolist() == [True] * 25 + [False] * 25
     systems.solve(c, refine=True)
-    assert not systems.update(var, state)[2].any()
+    assert not systems.update(var, now)[1].any()
 
 
 def test_fixed_weights_against_bvls_on_the_rest():
