@@ -165,7 +165,7 @@ def _primal(qp, c, u, w, state, max_iter, tol, n_iter, kkt):
             target, lam = _updated(qp, systems, rows, change, s, ct, ut)
             systems = None
         n_iter[todo] += 1
-        # the variable each frame changes (n: none, -1: more than one)
+        # the variable each frame changes (n: none, -1: solved anew, refined)
         change = np.full(len(todo), qp.n)
         alpha = _step_to_first_bound(qp, wt, target, s, change)
         wt = target
@@ -211,8 +211,8 @@ def _updated(qp, systems, rows, change, s, c, u):
     """Weights and gradient of the working frames' states ``s`` from ``systems``.
 
     ``rows`` are the frames' rows in ``systems``, ``change`` the variable
-    each changed since (n: none, -1: several). Frames that the systems cannot
-    update are solved anew.
+    each changed since (n: none, -1: to be solved anew). Frames that the
+    systems cannot update are solved anew.
     """
     single = change >= 0
     var = np.full(len(systems.via_bound), qp.n)
@@ -232,10 +232,10 @@ def _updated(qp, systems, rows, change, s, c, u):
 
 def _step_to_first_bound(qp, w, target, state, change):
     """Step every frame from feasible ``w`` towards ``target`` up to the first bound
-    in the way; binds the free variables that block it (ties too).
+    in the way; binds the free variable that blocks it.
 
     ``target`` (T, n) becomes the new weights and ``state`` is updated, both
-    in place, and ``change`` (T,) gets the bound variable (-1 for several).
+    in place, and ``change`` (T,) gets the bound variable.
     Only the free weights that ``target`` puts outside the box can block
     (bound weights are at their bound in both). Returns the step length,
     (T,), 1 where nothing blocks.
@@ -254,12 +254,15 @@ def _step_to_first_bound(qp, w, target, state, change):
     alpha[moving] = np.minimum.reduceat(ratio, first)
     target[moving] = np.clip(w[moving] + alpha[moving, None] * (target[moving] - w[moving]),
                              qp.lo, qp.hi)
-    blocked = ratio <= alpha[frames]
+    # One variable per frame, the first that blocks (of ties, the lowest): the
+    # others, at their bound now, block the next step (of length 0), which the
+    # factored systems can take as an update.
+    blocked = np.flatnonzero(ratio <= alpha[frames])
+    blocked = blocked[np.r_[True, frames[blocked][1:] != frames[blocked][:-1]]]
     frames, var = frames[blocked], var[blocked]
     target[frames, var] = bound[blocked]
     state[frames, var] = np.where(up[blocked], 1, -1)
     change[frames] = var
-    change[np.bincount(frames, minlength=len(w)) > 1] = -1
     return alpha
 
 
