@@ -112,8 +112,8 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
         n_iter[todo] += 1
         # Bind the free weights outside the bounds, free the bound ones whose
         # multiplier has the wrong sign (arithmetic on masks: no branches).
+        # (bound weights are at their bound exactly: only free ones can be outside)
         new = np.subtract(wt > qp.hi, wt < qp.lo, dtype=np.int8)
-        new *= s == 0
         new += s * (s * g <= 0)
         new[:, qp.fixed] = -1
         # Only a state that reproduces itself is optimal (up to accuracy).
@@ -252,8 +252,11 @@ def _step_to_first_bound(qp, w, target, state, change):
     first = np.flatnonzero(np.r_[True, frames[1:] != frames[:-1]])
     moving = frames[first]
     alpha[moving] = np.minimum.reduceat(ratio, first)
-    target[moving] = np.clip(w[moving] + alpha[moving, None] * (target[moving] - w[moving]),
-                             qp.lo, qp.hi)
+    part, start = target[moving], w[moving]
+    part -= start
+    part *= alpha[moving, None]
+    part += start
+    target[moving] = np.clip(part, qp.lo, qp.hi, out=part)
     # One variable per frame, the first that blocks (of ties, the lowest): the
     # others, at their bound now, block the next step (of length 0), which the
     # factored systems can take as an update.
@@ -267,20 +270,22 @@ def _step_to_first_bound(qp, w, target, state, change):
 
 
 def _scale(qp, w, c):
-    """Magnitude of the terms summed into the gradient ``G w − c``, (T, n)."""
+    """Magnitude of the terms summed into the gradient ``G w − c``, (T, n), at least
+    the smallest positive float (a divisor)."""
     scale = dot(np.abs(w), np.abs(qp.G))
     scale += np.abs(c)
-    return scale
+    return np.maximum(scale, np.finfo(float).tiny, out=scale)
 
 
 def _worst_multiplier(qp, state, g, scale):
-    """Each frame's most wrong-signed multiplier: (variable, violation relative to ``scale``).
+    """Each frame's most wrong-signed multiplier: (variable, violation relative to
+    ``scale``, from :func:`_scale`).
 
     The multiplier of a bound variable is its gradient ``g``; its sign is
     wrong when it pulls the variable into the box. Fixed variables never count.
     """
     wrong = state * g
-    wrong /= np.maximum(scale, np.finfo(float).tiny)
+    wrong /= scale
     wrong[:, qp.fixed] = 0.0
     worst = wrong.argmax(axis=1)
     return worst, wrong[np.arange(len(worst)), worst]

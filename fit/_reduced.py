@@ -126,7 +126,7 @@ class ReducedSystems:
 
     def __init__(self, qp: BoxQP, state: np.ndarray):
         self.qp, self.state = qp, state
-        free = state == 0
+        self.free = free = state == 0
         n_free = np.count_nonzero(free, axis=1)
         self.via_bound = (2 * n_free > qp.n) & (qp.inverse is not None)
         size = np.where(self.via_bound, qp.n - n_free, n_free)
@@ -155,8 +155,7 @@ class ReducedSystems:
             λ on the Schur path (zero on F, equal in exact arithmetic) and, on
             the direct path, the product if ``gradient`` (else None).
         """
-        qp, via_bound = self.qp, self.via_bound
-        free = self.state == 0
+        qp, via_bound, free = self.qp, self.via_bound, self.free
         w = qp.bound_values(self.state)
         # Frames of each path, as a slice when they are all of them (views, no copies).
         schur = slice(None) if via_bound.all() else np.flatnonzero(via_bound)
