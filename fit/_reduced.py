@@ -9,8 +9,8 @@ reduced system ``G_FF w_F = c_F − G_FA w_A`` gives the weights of that state.
 No frame inverts an n × n matrix: G⁻¹ is computed once, and each frame
 factors only an m × m system, m = min(|F|, |A|): directly, or (usually the
 few bound weights) through the Schur complement of G⁻¹, whose solution λ
-is the gradient on A. Frames with the same m are factored together (LDLᵀ
-vectorized over frames, frames on the last axis). A factored system can then
+is the gradient on A. Frames of about the same m are factored together
+(padded to the largest; LDLᵀ vectorized over frames, frames on the last axis). A factored system can then
 take one change of its state (one variable bound or freed) by bordering
 (:meth:`ReducedSystems.update`): no new factorization.
 """
@@ -83,20 +83,19 @@ class BoxQP:
         return 0 if self.cond <= _REFINE_COND else 1 if self.cond <= _REFINE_COND ** 2 else 2
 
     @cached_property
-    def _finite_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+    def finite_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) with infinite bounds replaced by 0."""
         return (np.where(np.isfinite(self.lo), self.lo, 0.0),
                 np.where(np.isfinite(self.hi), self.hi, 0.0))
 
     def bound_values(self, state: np.ndarray) -> np.ndarray:
         """Bound values where ``state`` is ±1, 0 where free, shape of ``state``."""
-        lo, hi = self._finite_bounds
+        lo, hi = self.finite_bounds
         # a bound at zero contributes nothing: its product (a (T, n) pass) is skipped
         out = hi * (state > 0) if hi.any() else np.zeros(state.shape)
         if lo.any():
             out += lo * (state < 0)
         return out
-
 
 
 @dataclass
@@ -125,7 +124,8 @@ class ReducedSystems:
     """
 
     def __init__(self, qp: BoxQP, state: np.ndarray):
-        self.qp, self.state = qp, state
+        # a copy: the caller's state moves on, the factors stay with this one
+        self.qp, self.state = qp, state.copy()
         self.free = free = state == 0
         n_free = np.count_nonzero(free, axis=1)
         self.via_bound = (2 * n_free > qp.n) & (qp.inverse is not None)
@@ -232,7 +232,7 @@ class ReducedSystems:
         ext = np.zeros((n + 1, n + 1))
         ext[:n, :n] = qp.inverse
         ext_diag = np.r_[np.diag(qp.inverse), 0.0]
-        lo, hi = qp._finite_bounds
+        lo, hi = qp.finite_bounds
         for batch in self.batches:
             if not batch.schur:
                 continue
