@@ -346,7 +346,7 @@ def _principal(mat, sel, *, lower: bool = False):
     ext[:n, :n] = mat
     i, j = _pairs(m, lower)
     out = np.empty((m, m, sel.shape[1]))
-    out[i, j] = np.take(ext.ravel(), sel[i] * (n + 1) + sel[j])
+    out[i, j] = np.take(ext.ravel(), (sel * (n + 1))[i] + sel[j])
     diag = np.arange(m)
     out[diag, diag] += sel == n
     return out
