@@ -399,3 +399,20 @@ def test_many_real_frames_against_bvls(shared_data):
     lo, hi = np.zeros(len(paths)), np.ones(len(paths))
     np.testing.assert_allclose(sol.cost, oracle_cost(flat, data, lo, hi), rtol=SOLVE_OBJECTIVE_REL)
     assert_kkt(flat, data, sol.weights, lo, hi)
+
+
+@pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
+@pytest.mark.parametrize("kind", BASES)
+def test_reported_kkt_residual_is_that_of_the_weights(kind):
+    """Each frame's KKT residual (kept from where it converged) equals the residual
+    of its final weights computed afresh, up to the rounding of the gradient."""
+    from fit._active_set import BoxQP, residual
+
+    rng = np.random.default_rng([19, BASES.index(kind)])
+    basis = make_basis(kind, rng)
+    data = make_data(basis, rng, n_frames=200)
+    sol = solve_weights(basis, data, lower=0, upper=1)
+    qp = BoxQP.build(basis.T @ basis, np.zeros(N_SHAPES), np.ones(N_SHAPES))
+    expected = residual(qp, sol.weights, data @ basis)
+    np.testing.assert_allclose(sol.kkt_residual, expected, rtol=0, atol=1e-13)
+    assert np.all(expected <= 1e-9)
