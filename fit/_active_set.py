@@ -110,12 +110,7 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
             s, ct, ut = state[todo], c[todo], _rows_of(u, todo)
         wt, g = reduced_solve(qp, s, ct, unconstrained=ut)
         n_iter[todo] += 1
-        # Bind the free weights outside the bounds, free the bound ones whose
-        # multiplier has the wrong sign (arithmetic on masks: no branches).
-        # (bound weights are at their bound exactly: only free ones can be outside)
-        new = np.subtract(wt > qp.hi, wt < qp.lo, dtype=np.int8)
-        new += s * (s * g <= 0)
-        new[:, qp.fixed] = -1
+        new = _next_state(qp, s, wt, g)
         # Only a state that reproduces itself is optimal (up to accuracy).
         check = np.nonzero((new == s).all(axis=1))[0]
         res = np.full(len(todo), np.inf)
@@ -126,15 +121,32 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
             wt[redo], g[redo] = reduced_solve(qp, s[redo], ct[redo], refine=True,
                                               unconstrained=_rows_of(ut, redo))
             res[redo] = residual(qp, wt[redo], ct[redo], g[redo])
+            new[redo] = _next_state(qp, s[redo], wt[redo], g[redo])
         ok = res <= tol
         kkt[todo[ok]] = res[ok]
-        w[todo] = wt
+        if len(todo) == T:
+            w = wt
+        else:
+            w[todo] = wt
         state[todo[~ok]] = new[~ok]
         done[todo[ok]] = True
         todo = todo[~ok]
         if not todo.size:
             break
     return w, done
+
+
+def _next_state(qp, state, w, g):
+    """The primal-dual step: bind the free weights outside the bounds, free the
+    bound ones whose multiplier (gradient ``g``) has the wrong sign.
+
+    Arithmetic on masks, no branches; bound weights are at their bound
+    exactly, so only free ones can be outside.
+    """
+    new = np.subtract(w > qp.hi, w < qp.lo, dtype=np.int8)
+    new += state * (state * g <= 0)
+    new[:, qp.fixed] = -1
+    return new
 
 
 def _rows_of(u, rows):
@@ -329,10 +341,9 @@ def _solve_from(qp, c, u, state, tol, max_iter):
     w, done = _pdas(qp, c, u, state, min(_PDAS_ITER, max_iter), tol, n_iter, kkt)
     rest = np.nonzero(~done)[0]
     if rest.size:
-        ws, ss = w[rest], state[rest]
-        outside = (ss == 0) & ((ws < qp.lo) | (ws > qp.hi))
-        ss = np.where(outside, np.where(ws < qp.lo, -1, 1), ss).astype(np.int8)
-        ws = np.where(ss != 0, qp.bound_values(ss), ws)
+        # PDAS's next state binds the weights outside the box, which the clip
+        # puts at that bound; the other bound weights are at their bound
+        ws, ss = np.clip(w[rest], qp.lo, qp.hi), state[rest]
         it, res = np.zeros(rest.size, np.int64), np.full(rest.size, np.inf)
         _primal(qp, c[rest], _rows_of(u, rest), ws, ss, max_iter, tol, it, res)
         w[rest], state[rest], kkt[rest] = ws, ss, res
