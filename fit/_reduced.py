@@ -100,20 +100,23 @@ class BoxQP:
 
 @dataclass
 class _Batch:
-    """Frames factored together: rows (1, r) of the system, indices sel (m, r) of
-    each frame's smaller set (padded with n), their flat entries of a (T, n + 1)
-    array, the solver of their m × m systems, and the last solution (m, r)."""
+    """Frames factored together: their rows (1, r) of the system, the indices
+    sel (m, r) of each frame's smaller set (padded with n), their flat entries
+    of a (T, n + 1) array, the gathered systems, and once solved their solver
+    and last solution (m, r)."""
 
     rows: np.ndarray
     schur: bool
     sel: np.ndarray
     flat: np.ndarray
-    solve: object
+    #: the gathered systems (m + 1, m, r), factored in place by the first solve
+    mats: np.ndarray
+    solve: object = None
     x: np.ndarray | None = None
 
 
 class ReducedSystems:
-    """Every frame's reduced system for one state (T, n), factored once.
+    """Every frame's reduced system for one state (T, n), factored by the first solve.
 
     Each frame solves ``G_FF w_F = c_F − G_FA w_A`` through the smaller of its
     free set F and bound set A: directly (|F| × |F|), or, when G is invertible
@@ -132,8 +135,7 @@ class ReducedSystems:
         size = np.where(self.via_bound, qp.n - n_free, n_free)
         self.batches = [
             _Batch(rows, bound, sel, rows * (qp.n + 1) + sel,
-                   _factor(qp, _principal(qp.inverse if bound else qp.G, sel,
-                                          lower=not qp.singular)))
+                   _principal(qp.inverse if bound else qp.G, sel, lower=not qp.singular))
             for rows, bound, sel in _batches(free, self.via_bound, size)]
         self.unconstrained = None
 
@@ -176,7 +178,11 @@ class ReducedSystems:
         for left in range(passes, -1, -1):
             coef = np.zeros_like(rhs)
             for batch in self.batches:
-                batch.x = batch.solve(rhs.take(batch.flat))
+                if batch.solve is None:
+                    batch.mats[-1] = rhs.take(batch.flat)
+                    batch.solve, batch.x = _factor(qp, batch.mats)
+                else:
+                    batch.x = batch.solve(rhs.take(batch.flat))
                 np.put(coef, batch.flat, batch.x)
             coef = coef[:, :-1]
             lam = coef if lam is None else lam + coef
@@ -335,7 +341,9 @@ def _padded_index(mask, count):
 
 
 def _principal(mat, sel, *, lower: bool = False):
-    """Principal submatrices ``mat[sel, sel]``, (m, m, frames) for ``sel`` (m, frames).
+    """Principal submatrices ``mat[sel, sel]`` for ``sel`` (m, frames), as rows
+    0..m-1 of an (m + 1, m, frames) array whose last row (unset) is for a
+    right-hand side (see :func:`_factor`).
 
     Index n (the padding) selects a row and column of the identity. With
     ``lower``, only the lower triangle is gathered (the upper one is left
@@ -345,7 +353,7 @@ def _principal(mat, sel, *, lower: bool = False):
     ext = np.zeros((n + 1, n + 1))
     ext[:n, :n] = mat
     i, j = _pairs(m, lower)
-    out = np.empty((m, m, sel.shape[1]))
+    out = np.empty((m + 1, m, sel.shape[1]))
     out[i, j] = np.take(ext.ravel(), (sel * (n + 1))[i] + sel[j])
     diag = np.arange(m)
     out[diag, diag] += sel == n
@@ -359,36 +367,47 @@ def _pairs(m: int, lower: bool) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _factor(qp, mats):
-    """Solver ``rhs (m, frames) -> mats⁻¹ rhs`` for the batch ``mats`` (m, m, frames).
+    """Factor the batch ``mats`` (m + 1, m, frames) in place: systems in rows
+    0..m-1, a right-hand side in row m (one per frame).
 
-    LDLᵀ factorization without pivoting (the matrices are symmetric positive
-    definite), by columns from the lower triangle only (Crout: one product per
-    column, half the work of elimination), vectorized over frames; a
-    pseudo-inverse when G is singular.
+    Returns the solver ``rhs (m, frames) -> systems⁻¹ rhs`` and the solution for
+    row m. LDLᵀ factorization without pivoting (the matrices are symmetric
+    positive definite), by columns from the lower triangle only (Crout: one
+    product per column, half the work of elimination), vectorized over frames;
+    row m rides along as one more row of L, which makes it D⁻¹L⁻¹ b: the forward
+    substitution for free. A pseudo-inverse when G is singular.
     """
+    m = mats.shape[1]
     if qp.singular:
         top = np.linalg.eigvalsh(qp.G)[-1]
-        pinv = np.linalg.pinv(mats.transpose(2, 0, 1), rcond=RANK_RTOL * top / max(top, 1.0),
-                              hermitian=True)
-        return lambda rhs: np.einsum("tij,jt->it", pinv, rhs)
-    m = len(mats)
+        pinv = np.linalg.pinv(mats[:m].transpose(2, 0, 1),
+                              rcond=RANK_RTOL * top / max(top, 1.0), hermitian=True)
+
+        def pseudo(rhs):
+            return np.einsum("tij,jt->it", pinv, rhs)
+        return pseudo, pseudo(mats[m])
     d = np.empty(mats.shape[1:])
     for j in range(m):
         if j:
-            # column j of L D from the diagonal down, in one product
+            # column j of L D from the diagonal down (and of the rhs row), in one product
             scaled = mats[j, :j] * d[:j]
             mats[j:, j] -= np.einsum("ikt,kt->it", mats[j:, :j], scaled)
         d[j] = mats[j, j]
         mats[j + 1:, j] /= d[j]
+    L = mats[:m]
+
+    def back(x):
+        """Lᵀ⁻¹ x, in place."""
+        for k in range(m - 2, -1, -1):
+            x[k] -= np.einsum("jt,jt->t", L[k + 1:, k], x[k + 1:])
+        return x
 
     def solve(rhs):
         x = rhs.copy()
         for k in range(m - 1):
-            x[k + 1:] -= mats[k + 1:, k] * x[k]
+            x[k + 1:] -= L[k + 1:, k] * x[k]
         x /= d
-        for k in range(m - 2, -1, -1):
-            x[k] -= np.einsum("jt,jt->t", mats[k + 1:, k], x[k + 1:])
-        return x
-    return solve
+        return back(x)
+    return solve, back(mats[m].copy())
 
 
