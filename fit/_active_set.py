@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._reduced import RANK_RTOL, BoxQP, ReducedSystems, dot, reduced_solve, schur_weights
+from ._reduced import (RANK_RTOL, BoxQP, ReducedSystems, dot, gradient_of, reduced_solve,
+                       schur_weights)
 
 __all__ = ["RANK_RTOL", "BoxQP", "kkt_residual", "reduced_solve", "residual", "solve_box_qp",
            "start_state"]
@@ -74,9 +75,8 @@ def residual(qp: BoxQP, w: np.ndarray, c: np.ndarray, grad=None, *,
     ``grad``, the gradient ``G w − c``, is computed when not given;
     ``feasible`` as in :func:`kkt_residual`.
     """
-    grad = dot(w, qp.G) - c if grad is None else grad
-    scale = dot(np.abs(w), np.abs(qp.G)) + np.abs(c)
-    return kkt_residual(w, grad, scale, qp.lo, qp.hi, feasible=feasible)
+    grad = gradient_of(qp, w, c) if grad is None else grad
+    return kkt_residual(w, grad, _scale(qp, w, c), qp.lo, qp.hi, feasible=feasible)
 
 
 def start_state(qp: BoxQP, c: np.ndarray, unconstrained=None) -> np.ndarray:
@@ -87,7 +87,7 @@ def start_state(qp: BoxQP, c: np.ndarray, unconstrained=None) -> np.ndarray:
     if unconstrained is None:
         unconstrained = reduced_solve(qp, np.zeros(c.shape, np.int8), c, gradient=False)[0]
     w = np.clip(unconstrained, qp.lo, qp.hi)
-    g = dot(w, qp.G) - c
+    g = gradient_of(qp, w, c)
     state = np.where((w <= qp.lo) & (g > 0), -1,
                      np.where((w >= qp.hi) & (g < 0), 1, 0)).astype(np.int8)
     state[:, qp.fixed] = -1
@@ -190,7 +190,7 @@ def _primal(qp, c, u, w, state, max_iter, tol, n_iter, kkt):
         # the others are checked with the exact gradient
         sure = wrong > tol
         check = at[~sure]
-        g = dot(wt[check], qp.G) - ct[check]
+        g = gradient_of(qp, wt[check], ct[check])
         res = np.full(len(todo), np.inf)
         res[check] = kkt_residual(wt[check], g, scale[~sure], qp.lo, qp.hi, feasible=True)
         ok = res <= tol

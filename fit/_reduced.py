@@ -193,7 +193,7 @@ class ReducedSystems:
             if not left:
                 break
             # the next pass solves for the correction from the residual -grad
-            grad = dot(w, qp.G) - c
+            grad = gradient_of(qp, w, c)
             if on_schur:
                 base = -dot(grad[schur], qp.inverse)
                 rhs[schur, :-1] = -base
@@ -202,13 +202,13 @@ class ReducedSystems:
         if passes:
             # the batches' solutions are corrections now: no update from them
             self.unconstrained = None
-            return w, dot(w, qp.G) - c
+            return w, gradient_of(qp, w, c)
         if not on_direct:
             return w, lam
         if not gradient:
             return w, None
         # (lam holds the direct frames' free weights: overwritten)
-        lam[direct] = dot(w[direct], qp.G) - c[direct]
+        lam[direct] = gradient_of(qp, w[direct], c[direct])
         return w, lam
 
     def update(self, var: np.ndarray, now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -297,6 +297,13 @@ def dot(a, mat):
     for first in range(0, len(a), _DOT_ROWS):
         np.matmul(a[first:first + _DOT_ROWS], mat, out=out[first:first + _DOT_ROWS])
     return out
+
+
+def gradient_of(qp: BoxQP, w, c) -> np.ndarray:
+    """``G w − c`` (T, n), in one new array."""
+    g = dot(w, qp.G)
+    g -= c
+    return g
 
 
 def _batches(free, via_bound, size):
