@@ -10,9 +10,15 @@ No frame inverts an n × n matrix: G⁻¹ is computed once, and each frame
 factors only an m × m system, m = min(|F|, |A|): directly, or (usually the
 few bound weights) through the Schur complement of G⁻¹, whose solution λ
 is the gradient on A. Frames of about the same m are factored together
-(padded to the largest; LDLᵀ vectorized over frames, frames on the last axis). A factored system can then
+(padded to the largest; LDLᵀ vectorized over frames, frames on the last
+axis, the first right-hand side carried along). A factored system can then
 take one change of its state (one variable bound or freed) by bordering
 (:meth:`ReducedSystems.update`): no new factorization.
+
+NumPy calls, not flops, bound the small systems: every column of a batch's
+factorization or solve costs a few calls whatever its frames, so batches are
+big and the (T, n) work avoids passes and copies (products with masks, slices
+as views, in-place updates).
 """
 
 from __future__ import annotations
