@@ -386,8 +386,10 @@ def _factor(qp, mats):
     Returns the solver ``rhs (m, frames) -> systems⁻¹ rhs`` and the solution for
     row m. LDLᵀ factorization without pivoting (the matrices are symmetric
     positive definite), by columns from the lower triangle only (Crout: one
-    product per column, half the work of elimination), vectorized over frames;
-    row m rides along as one more row of L, which makes it D⁻¹L⁻¹ b: the forward
+    product per column, half the work of elimination), vectorized over frames.
+    The lower triangle keeps L D, not L (no pass dividing each column by its
+    pivot; each row of L is formed when its column is, a j-vector), and row m
+    rides along as one more row of L D, which makes it L⁻¹ b: the forward
     substitution for free. A pseudo-inverse when G is singular.
     """
     m = mats.shape[1]
@@ -399,27 +401,26 @@ def _factor(qp, mats):
         def pseudo(rhs):
             return np.einsum("tij,jt->it", pinv, rhs)
         return pseudo, pseudo(mats[m])
-    d = np.empty(mats.shape[1:])
+    inv = np.empty(mats.shape[1:])  # 1 / D
     for j in range(m):
         if j:
             # column j of L D from the diagonal down (and of the rhs row), in one product
-            scaled = mats[j, :j] * d[:j]
-            mats[j:, j] -= np.einsum("ikt,kt->it", mats[j:, :j], scaled)
-        d[j] = mats[j, j]
-        mats[j + 1:, j] /= d[j]
-    L = mats[:m]
+            mats[j:, j] -= np.einsum("ikt,kt->it", mats[j:, :j], mats[j, :j] * inv[:j])
+        inv[j] = 1.0 / mats[j, j]
+    ld = mats[:m]
 
-    def back(x):
-        """Lᵀ⁻¹ x, in place."""
+    def back(y):
+        """(D Lᵀ)⁻¹ y = ((L D)ᵀ)⁻¹ y, in place."""
+        y[m - 1] *= inv[m - 1]
         for k in range(m - 2, -1, -1):
-            x[k] -= np.einsum("jt,jt->t", L[k + 1:, k], x[k + 1:])
-        return x
+            y[k] -= np.einsum("jt,jt->t", ld[k + 1:, k], y[k + 1:])
+            y[k] *= inv[k]
+        return y
 
     def solve(rhs):
         x = rhs.copy()
         for k in range(m - 1):
-            x[k + 1:] -= L[k + 1:, k] * x[k]
-        x /= d
+            x[k + 1:] -= ld[k + 1:, k] * (x[k] * inv[k])
         return back(x)
     return solve, back(mats[m].copy())
 
