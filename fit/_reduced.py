@@ -36,6 +36,9 @@ _CHUNK = 2048
 #: tight padding (the ARKit bench ~7 % faster than with batches of at least
 #: 64 and at most 512 frames).
 _MIN_BATCH = 512
+#: ... but when G is singular, a pseudo-inverse (SVD) per frame costs m³ flops
+#: whatever the batch: there padding is what costs.
+_MIN_BATCH_SINGULAR = 64
 #: Rows of the products with G and G⁻¹ (see :func:`dot`): 256 took 0.63 ms for
 #: 7,000 × 53 @ 53 × 53 on one thread, 64 rows 0.78 ms, 1,024 rows 0.96 ms.
 _DOT_ROWS = 256
@@ -142,7 +145,9 @@ class ReducedSystems:
         self.batches = [
             _Batch(rows, bound, sel, rows * (qp.n + 1) + sel,
                    _principal(qp.inverse if bound else qp.G, sel, lower=not qp.singular))
-            for rows, bound, sel in _batches(free, self.via_bound, size)]
+            for rows, bound, sel in _batches(
+                free, self.via_bound, size,
+                _MIN_BATCH_SINGULAR if qp.singular else _MIN_BATCH)]
         self.unconstrained = None
 
     def solve(self, c: np.ndarray, *, unconstrained=None, refine: bool = False,
@@ -312,11 +317,11 @@ def gradient_of(qp: BoxQP, w, c) -> np.ndarray:
     return g
 
 
-def _batches(free, via_bound, size):
+def _batches(free, via_bound, size, min_batch):
     """Batches (frames, via_bound, sel) of frames solved together.
 
     Frames sorted by path and size; a batch holds up to ``_CHUNK`` frames,
-    and fewer than ``_MIN_BATCH`` frames of one size join (padded up) the
+    and fewer than ``min_batch`` frames of one size join (padded up) the
     frames of the next size.
     ``sel`` (width, frames) indexes each frame's smaller set, padded with n.
     """
@@ -327,7 +332,7 @@ def _batches(free, via_bound, size):
     index = _padded_index(free ^ via_bound[:, None], size)
     start = 0
     for end in ends:
-        if end - start < _MIN_BATCH and end < len(order) and \
+        if end - start < min_batch and end < len(order) and \
                 via_bound[order[end]] == via_bound[order[start]]:
             continue
         for first in range(start, end, _CHUNK):
