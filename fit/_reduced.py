@@ -148,6 +148,10 @@ class ReducedSystems:
             for rows, bound, sel in _batches(
                 free, self.via_bound, size,
                 _MIN_BATCH_SINGULAR if qp.singular else _MIN_BATCH)]
+        # frames in a factored batch (not those with nothing to factor, m = 0)
+        self.factored = np.zeros(len(state), bool)
+        for batch in self.batches:
+            self.factored[batch.rows[0]] = True
         self.unconstrained = None
 
     def solve(self, c: np.ndarray, *, unconstrained=None, refine: bool = False,
@@ -227,7 +231,8 @@ class ReducedSystems:
 
         ``var`` (T,) is each frame's changed variable (n: none), ``now`` (T,)
         its new state (-1, +1 bound, 0 freed). Only frames solved (unrefined)
-        through the Schur complement can be updated; for them, binding
+        through the Schur complement of a factored system (one variable bound
+        at least) can be updated; for them, binding
         variable j borders the system with ``h = (G⁻¹)_Aj``: with
         ``v = (G⁻¹)_AA⁻¹ h``, ``λ_j = (r_j − hᵀλ_A) / ((G⁻¹)_jj − hᵀv)`` and
         ``λ_A −= v λ_j`` (r = w_A − u_A); freeing p (at slot e) is the same with
@@ -242,7 +247,7 @@ class ReducedSystems:
             The frames that could be updated.
         """
         qp, n = self.qp, self.qp.n
-        updated = self.via_bound & (self.unconstrained is not None)
+        updated = self.via_bound & self.factored & (self.unconstrained is not None)
         lam = np.zeros((len(var), n + 1))
         if not updated.any():
             return lam[:, :-1], updated

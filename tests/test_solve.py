@@ -353,10 +353,11 @@ def test_update_leaves_direct_and_refined_systems_alone():
     G, c = basis.T @ basis, make_data(basis, rng, n_frames=50) @ basis
     qp = BoxQP.build(G, np.zeros(N_SHAPES), np.ones(N_SHAPES))
     state = np.zeros(c.shape, np.int8)
+    state[:25, 0] = -1  # one bound: the Schur path
     state[25:] = -1  # all bound: the direct path
     systems = ReducedSystems(qp, state)
     systems.solve(c)
-    var, now = np.zeros(len(c), int), np.ones(len(c), np.int8)
+    var, now = np.full(len(c), 5), np.ones(len(c), np.int8)  # bind a free weight
     assert systems.update(var, now)[1].tolist() == [True] * 25 + [False] * 25
     systems.solve(c, refine=True)
     assert not systems.update(var, now)[1].any()
@@ -416,3 +417,26 @@ def test_reported_kkt_residual_is_that_of_the_weights(kind):
     expected = residual(qp, sol.weights, data @ basis)
     np.testing.assert_allclose(sol.kkt_residual, expected, rtol=0, atol=1e-13)
     assert np.all(expected <= 1e-9)
+
+
+def test_update_leaves_frames_with_nothing_bound_alone():
+    """Frames with every weight free have no factored system to border (enough of
+    them make a batch of their own, which is never factored): not updated."""
+    from fit._active_set import BoxQP, reduced_solve
+    from fit._reduced import ReducedSystems, schur_weights
+
+    rng = np.random.default_rng(20)
+    basis = make_basis("random", rng)
+    G, c = basis.T @ basis, make_data(basis, rng, n_frames=1200) @ basis
+    qp = BoxQP.build(G, np.zeros(N_SHAPES), np.ones(N_SHAPES))
+    state = np.zeros(c.shape, np.int8)
+    state[600:, 0] = -1
+    systems = ReducedSystems(qp, state)
+    systems.solve(c)
+    new = state.copy()
+    new[:, 3] = 1
+    lam, updated = systems.update(np.full(len(c), 3), new[:, 3])
+    np.testing.assert_array_equal(updated, np.arange(len(c)) >= 600)
+    w = schur_weights(qp, new[updated], lam[updated], systems.unconstrained[updated])
+    np.testing.assert_allclose(w, reduced_solve(qp, new[updated], c[updated])[0],
+                               rtol=0, atol=1e-10)
