@@ -88,8 +88,7 @@ def start_state(qp: BoxQP, c: np.ndarray, unconstrained=None) -> np.ndarray:
         unconstrained = reduced_solve(qp, np.zeros(c.shape, np.int8), c, gradient=False)[0]
     w = np.clip(unconstrained, qp.lo, qp.hi)
     g = gradient_of(qp, w, c)
-    state = np.where((w <= qp.lo) & (g > 0), -1,
-                     np.where((w >= qp.hi) & (g < 0), 1, 0)).astype(np.int8)
+    state = np.subtract((w >= qp.hi) & (g < 0), (w <= qp.lo) & (g > 0), dtype=np.int8)
     state[:, qp.fixed] = -1
     return state
 

@@ -357,9 +357,9 @@ def _padded_index(mask, count):
     """
     n = mask.shape[1]
     out = np.full((len(mask), max(int(count.max(initial=0)), 1)), n, np.intp)
-    flat = np.flatnonzero(mask)  # row by row, each row's entries in order (2.4x np.nonzero's speed)
-    rows = flat // n
-    out[rows, np.arange(len(flat)) - np.repeat(np.cumsum(count) - count, count)] = flat - rows * n
+    # row by row, each row's entries in order (2.4x np.nonzero's speed)
+    rows, cols = np.divmod(np.flatnonzero(mask), n)
+    out[rows, np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count)] = cols
     return out
 
 
