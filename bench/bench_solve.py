@@ -155,7 +155,7 @@ def main():
     part = data[:5000]
     mem = peak_memory_mb(lambda: solve_weights(basis, part, lower=0.0, upper=1.0))
     print(f"peak memory of a 5,000-frame solve: {mem:.0f} MB (tracemalloc): a few (T, n) "
-          "arrays and the (m, m, 512) batches of reduced systems")
+          "arrays and the (m + 1, m, up to 2048) batches of reduced systems")
 
 
 if __name__ == "__main__":

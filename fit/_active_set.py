@@ -4,254 +4,41 @@ Every frame ``t`` solves ``min_w ½ wᵀGw − c_tᵀw`` subject to ``lo ≤ w �
 with one symmetric positive semi-definite ``G`` (n × n) shared by all frames.
 All frames iterate together: a frame's iterate is fixed by its *state*
 (int8 per variable: -1 at the lower bound, +1 at the upper bound, 0 free) and
-each iteration solves every frame's reduced system ``G_FF w_F = c_F − G_FA w_A``.
-No frame inverts an n × n matrix: G⁻¹ is computed once, and each frame
-factors only an m × m system, m = min(|F|, |A|) (usually the few bound
-weights, through the Schur complement of G⁻¹). Frames with the same m are
-factored together (LDLᵀ vectorized over frames). Elementwise work uses
-arithmetic on masks rather than ``np.where``: the masks follow the data, and
-branching on them per element costs more than the products.
+each iteration solves every frame's reduced system ``G_FF w_F = c_F − G_FA w_A``
+(:mod:`fit._reduced`: m × m systems, m = min(|F|, |A|), factored in batches;
+on the usual Schur path the solution's λ is the gradient on the bound set, so
+sign tests need no product). Elementwise work uses arithmetic on masks rather
+than ``np.where``: the masks follow the data, and branching on them per
+element costs more than the products.
 
 Two phases: a primal-dual active-set (semismooth Newton) iteration, which
 changes many variables at once and converges in a few iterations, then, for
 frames where it has not converged (it can cycle when G is far from an
 M-matrix), the monotone primal active-set method (one release per iteration,
 step to the first blocking bound), which cannot cycle on a strictly convex
-problem. Convergence is declared only from the KKT residual of the clipped
-final weights, never from the iteration itself. Reduced solves get iterative
-refinement (ill-conditioned G) only where the state is optimal but the KKT
-residual misses the tolerance.
+problem. Its iterations change one variable of a frame's state each, so every
+other one borders the previous factorization instead of factoring anew.
+Convergence is declared only from the KKT residual of the clipped final
+weights (with the exact gradient), never from the iteration itself. Reduced
+solves get iterative refinement (ill-conditioned G) only where the state is
+optimal but the KKT residual misses the tolerance.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from functools import cached_property
-
 import numpy as np
 
-#: Most frames factored together (their (m, m, frames) systems stay in cache).
-_CHUNK = 512
-#: Fewest frames of a batch whose size is padded up to the next batch's.
-_MIN_BATCH = 64
-#: Rows of the products with G and G⁻¹ (see :func:`_dot`).
-_DOT_ROWS = 64
+from ._reduced import (RANK_RTOL, BoxQP, ReducedSystems, dot, gradient_of, reduced_solve,
+                       schur_weights)
+
+__all__ = ["RANK_RTOL", "BoxQP", "kkt_residual", "reduced_solve", "residual", "solve_box_qp",
+           "start_state"]
+
 #: Frames solved together (working set of the iterations).
 _BLOCK = 16384
 #: Iterations of the primal-dual phase before the monotone fallback takes over
-#: (2: fewest reduced solves on the ARKit bench, 4.54 per frame; 5.73 with 1, 5.02 with 3).
+#: (2: fastest on the ARKit bench; 1 took 17 % longer, 3 took 2 % longer).
 _PDAS_ITER = 2
-#: An eigenvalue of G below this fraction of the largest one counts as zero.
-RANK_RTOL = 1e3 * np.finfo(float).eps
-#: Above this condition number of G, reduced solves that must be exact get a
-#: refinement step (two above its square).
-_REFINE_COND = 1e6
-
-
-@dataclass(frozen=True)
-class BoxQP:
-    """The shared part of every frame's problem: G, its inverse, bounds, rank."""
-
-    G: np.ndarray
-    lo: np.ndarray
-    hi: np.ndarray
-    rank: int
-    cond: float
-    #: G⁻¹ (symmetrized), None when G is singular.
-    inverse: np.ndarray | None
-
-    @classmethod
-    def build(cls, G, lo, hi) -> "BoxQP":
-        G = 0.5 * (G + G.T)
-        eig = np.linalg.eigvalsh(G)
-        top = max(eig[-1], np.finfo(float).tiny)
-        rank = int(np.count_nonzero(eig > RANK_RTOL * top))
-        cond = top / eig[0] if eig[0] > 0 else np.inf
-        inverse = None
-        if rank == len(G):
-            inverse = np.linalg.inv(G)
-            inverse = 0.5 * (inverse + inverse.T)
-        return cls(G=G, lo=lo, hi=hi, rank=rank, cond=float(cond), inverse=inverse)
-
-    @property
-    def n(self) -> int:
-        return self.G.shape[0]
-
-    @property
-    def singular(self) -> bool:
-        return self.rank < self.n
-
-    @property
-    def fixed(self) -> np.ndarray:
-        return self.lo == self.hi
-
-    @cached_property
-    def _finite_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi) with infinite bounds replaced by 0."""
-        return (np.where(np.isfinite(self.lo), self.lo, 0.0),
-                np.where(np.isfinite(self.hi), self.hi, 0.0))
-
-    def bound_values(self, state: np.ndarray) -> np.ndarray:
-        """Bound values where ``state`` is ±1, 0 where free, shape of ``state``."""
-        lo, hi = self._finite_bounds
-        # a bound at zero contributes nothing: its product (a (T, n) pass) is skipped
-        out = hi * (state > 0) if hi.any() else np.zeros(state.shape)
-        if lo.any():
-            out += lo * (state < 0)
-        return out
-
-
-def reduced_solve(qp: BoxQP, state: np.ndarray, c: np.ndarray, *, unconstrained=None,
-                  refine: bool = False,
-                  gradient: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-    """Weights with bound variables at their bounds and free ones stationary.
-
-    Each frame solves ``G_FF w_F = c_F − G_FA w_A`` through the smaller of its
-    free set F and bound set A: directly (|F| × |F|), or, when G is invertible
-    and fewer variables are bound, through the Schur complement of G⁻¹:
-    ``w = u + G⁻¹λ`` with ``(G⁻¹)_AA λ_A = w_A − u_A``, u = G⁻¹c the
-    unconstrained minimizer (`unconstrained`, computed if not given), an
-    |A| × |A| system. Frames are sorted by that size and factored in batches.
-    Every pass corrects ``w`` by the reduced solve of its residual; with
-    ``refine``, ill-conditioned problems get more passes (iterative refinement).
-    Returns the weights and the gradient ``G w − c``, both (T, n) (the
-    gradient None unless ``gradient`` or refining).
-    """
-    free = state == 0
-    n_free = np.count_nonzero(free, axis=1)
-    via_bound = (2 * n_free > qp.n) & (qp.inverse is not None)
-    size = np.where(via_bound, qp.n - n_free, n_free)
-    # each batch's entries of the (T, n + 1) residual, as flat indices
-    batches = [(rows * (qp.n + 1) + sel,
-                _factor(qp, _principal(qp.inverse if bound else qp.G, sel)))
-               for rows, bound, sel in _batches(free, via_bound, size)]
-    w = qp.bound_values(state)
-    # Frames of each path, as a slice when they are all of them (views, no copies).
-    schur = slice(None) if via_bound.all() else np.flatnonzero(via_bound)
-    direct = slice(None) if not via_bound.any() else np.flatnonzero(~via_bound)
-    resid = np.zeros((len(c), qp.n + 1))
-    if via_bound.any():
-        if unconstrained is None:
-            unconstrained = _dot(c, qp.inverse)
-        resid[schur, :-1] = unconstrained[schur] - w[schur]
-    if not via_bound.all():
-        resid[direct, :-1] = c[direct] - _dot(w[direct], qp.G)
-    for left in range(_refinements(qp.cond) if refine else 0, -1, -1):
-        coef = np.zeros_like(resid)
-        for flat, solve in batches:
-            np.put(coef, flat, solve(resid.take(flat)))
-        delta = coef[:, :-1]
-        if via_bound.any():
-            delta[schur] = resid[schur, :-1] - _dot(delta[schur], qp.inverse)
-        w = w + delta * free
-        grad = _dot(w, qp.G) - c if gradient or left else None
-        if left:
-            resid[:, :-1] = -grad
-            if via_bound.any():
-                resid[schur, :-1] = _dot(resid[schur, :-1], qp.inverse)
-    return w, grad
-
-
-def _dot(a, mat):
-    """``a @ mat`` for (T, n) ``a``, as products of ``_DOT_ROWS`` rows.
-
-    Products that small stay single-threaded in BLAS: on a machine whose cores
-    are busy, threaded products of skinny matrices mostly wait.
-    """
-    out = np.empty((len(a), mat.shape[1]))
-    # one product per slice, written in place: 2.6x faster than a stacked
-    # (T / 64, 64, n) matmul, which copies its result
-    for first in range(0, len(a), _DOT_ROWS):
-        np.matmul(a[first:first + _DOT_ROWS], mat, out=out[first:first + _DOT_ROWS])
-    return out
-
-
-def _refinements(cond: float) -> int:
-    """Refinement steps that bring a reduced solve to full accuracy."""
-    return 0 if cond <= _REFINE_COND else 1 if cond <= _REFINE_COND ** 2 else 2
-
-
-def _batches(free, via_bound, size):
-    """Batches (frames, via_bound, sel) of frames solved together.
-
-    Frames sorted by path and size; a batch holds up to ``_CHUNK`` frames,
-    and fewer than ``_MIN_BATCH`` frames of one size join (padded up) the
-    frames of the next size.
-    ``sel`` (width, frames) indexes each frame's smaller set, padded with n.
-    """
-    order = np.lexsort((size, via_bound))
-    key = (size + (len(free[0]) + 1) * via_bound)[order]
-    ends = np.r_[np.flatnonzero(np.diff(key)) + 1, len(order)]
-    start = 0
-    for end in ends:
-        if end - start < _MIN_BATCH and end < len(order) and \
-                via_bound[order[end]] == via_bound[order[start]]:
-            continue
-        for first in range(start, end, _CHUNK):
-            rows = order[first:min(first + _CHUNK, end)]
-            bound = bool(via_bound[rows[0]])
-            mask = ~free[rows] if bound else free[rows]
-            width = int(size[rows[-1]])
-            if width:
-                yield rows[None, :], bound, _padded_index(mask, width)
-        start = end
-
-
-def _padded_index(mask, width):
-    """(width, frames): indices of the True entries of each row of ``mask``, padded with n."""
-    # a stable sort of the negated mask lists each row's True entries first, in order
-    out = np.argsort(~mask, axis=1, kind="stable")[:, :width]
-    out[np.arange(width) >= np.count_nonzero(mask, axis=1)[:, None]] = mask.shape[1]
-    # contiguous: the principal submatrices gathered with it inherit its layout
-    return np.ascontiguousarray(out.T)
-
-
-def _principal(mat, sel):
-    """Principal submatrices ``mat[sel, sel]``, (m, m, frames) for ``sel`` (m, frames).
-
-    Index n (the padding) selects a row and column of the identity.
-    """
-    n = len(mat)
-    ext = np.zeros((n + 1, n + 1))
-    ext[:n, :n] = mat
-    out = np.take(ext.ravel(), sel[:, None, :] * (n + 1) + sel[None, :, :])
-    diag = np.arange(len(sel))
-    out[diag, diag] += sel == n
-    return out
-
-
-def _factor(qp, mats):
-    """Solver ``rhs (m, frames) -> mats⁻¹ rhs`` for the batch ``mats`` (m, m, frames).
-
-    LDLᵀ factorization without pivoting (the matrices are symmetric positive
-    definite), by columns from the lower triangle only (Crout: one product per
-    column, half the work of elimination), vectorized over frames; a
-    pseudo-inverse when G is singular.
-    """
-    if qp.singular:
-        top = np.linalg.eigvalsh(qp.G)[-1]
-        pinv = np.linalg.pinv(mats.transpose(2, 0, 1), rcond=RANK_RTOL * top / max(top, 1.0),
-                              hermitian=True)
-        return lambda rhs: np.einsum("tij,jt->it", pinv, rhs)
-    m = len(mats)
-    d = np.empty(mats.shape[1:])
-    for j in range(m):
-        if j:
-            scaled = mats[j, :j] * d[:j]
-            mats[j, j] -= np.einsum("kt,kt->t", mats[j, :j], scaled)
-            mats[j + 1:, j] -= np.einsum("ikt,kt->it", mats[j + 1:, :j], scaled)
-        d[j] = mats[j, j]
-        mats[j + 1:, j] /= d[j]
-
-    def solve(rhs):
-        x = rhs.copy()
-        for k in range(m - 1):
-            x[k + 1:] -= mats[k + 1:, k] * x[k]
-        x /= d
-        for k in range(m - 2, -1, -1):
-            x[k] -= np.einsum("jt,jt->t", mats[k + 1:, k], x[k + 1:])
-        return x
-    return solve
 
 
 def kkt_residual(w, g, scale, lo, hi, *, atol=None, feasible: bool = False) -> np.ndarray:
@@ -288,9 +75,8 @@ def residual(qp: BoxQP, w: np.ndarray, c: np.ndarray, grad=None, *,
     ``grad``, the gradient ``G w − c``, is computed when not given;
     ``feasible`` as in :func:`kkt_residual`.
     """
-    grad = _dot(w, qp.G) - c if grad is None else grad
-    scale = _dot(np.abs(w), np.abs(qp.G)) + np.abs(c)
-    return kkt_residual(w, grad, scale, qp.lo, qp.hi, feasible=feasible)
+    grad = gradient_of(qp, w, c) if grad is None else grad
+    return kkt_residual(w, grad, _scale(qp, w, c), qp.lo, qp.hi, feasible=feasible)
 
 
 def start_state(qp: BoxQP, c: np.ndarray, unconstrained=None) -> np.ndarray:
@@ -301,41 +87,47 @@ def start_state(qp: BoxQP, c: np.ndarray, unconstrained=None) -> np.ndarray:
     if unconstrained is None:
         unconstrained = reduced_solve(qp, np.zeros(c.shape, np.int8), c, gradient=False)[0]
     w = np.clip(unconstrained, qp.lo, qp.hi)
-    g = _dot(w, qp.G) - c
-    state = np.where((w <= qp.lo) & (g > 0), -1,
-                     np.where((w >= qp.hi) & (g < 0), 1, 0)).astype(np.int8)
+    g = gradient_of(qp, w, c)
+    state = np.subtract((w >= qp.hi) & (g < 0), (w <= qp.lo) & (g > 0), dtype=np.int8)
     state[:, qp.fixed] = -1
     return state
 
 
-def _pdas(qp, c, u, state, max_iter, tol, n_iter):
-    """Primal-dual active-set iterations; returns weights and the converged mask."""
+def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
+    """Primal-dual active-set iterations; returns weights and the converged mask.
+
+    ``kkt`` (T,) gets the KKT residual of the frames that converge.
+    """
     T = len(c)
     w = np.empty_like(c)
     done = np.zeros(T, bool)
     todo = np.arange(T)
     for _ in range(max_iter):
-        s, ct, ut = state[todo], c[todo], _rows_of(u, todo)
+        if len(todo) == T:  # views, no copies
+            s, ct, ut = state, c, u
+        else:
+            s, ct, ut = state[todo], c[todo], _rows_of(u, todo)
         wt, g = reduced_solve(qp, s, ct, unconstrained=ut)
         n_iter[todo] += 1
-        # Bind the free weights outside the bounds, free the bound ones whose
-        # multiplier has the wrong sign (arithmetic on masks: no branches).
-        new = np.subtract(wt > qp.hi, wt < qp.lo, dtype=np.int8)
-        new *= s == 0
-        new += s * (s * g <= 0)
-        new[:, qp.fixed] = -1
+        new = _next_state(qp, s, wt, g)
         # Only a state that reproduces itself is optimal (up to accuracy).
         check = np.nonzero((new == s).all(axis=1))[0]
-        ok = np.zeros(len(todo), bool)
+        res = np.full(len(todo), np.inf)
         # (a state that reproduces itself has free weights inside the bounds)
-        ok[check] = residual(qp, wt[check], ct[check], g[check], feasible=True) <= tol
-        redo = check[~ok[check]]
-        if redo.size and _refinements(qp.cond):
+        res[check] = residual(qp, wt[check], ct[check], feasible=True)
+        redo = check[res[check] > tol]
+        if redo.size and qp.refinements:
             wt[redo], g[redo] = reduced_solve(qp, s[redo], ct[redo], refine=True,
                                               unconstrained=_rows_of(ut, redo))
-            ok[redo] = residual(qp, wt[redo], ct[redo], g[redo]) <= tol
-        w[todo] = wt
-        state[todo] = np.where(ok[:, None], s, new)
+            res[redo] = residual(qp, wt[redo], ct[redo], g[redo])
+            new[redo] = _next_state(qp, s[redo], wt[redo], g[redo])
+        ok = res <= tol
+        kkt[todo[ok]] = res[ok]
+        if len(todo) == T:
+            w = wt
+        else:
+            w[todo] = wt
+        state[todo[~ok]] = new[~ok]
         done[todo[ok]] = True
         todo = todo[~ok]
         if not todo.size:
@@ -343,52 +135,171 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter):
     return w, done
 
 
+def _next_state(qp, state, w, g):
+    """The primal-dual step: bind the free weights outside the bounds, free the
+    bound ones whose multiplier (gradient ``g``) has the wrong sign.
+
+    Arithmetic on masks, no branches; bound weights are at their bound
+    exactly, so only free ones can be outside.
+    """
+    new = np.subtract(w > qp.hi, w < qp.lo, dtype=np.int8)
+    new += state * (state * g <= 0)
+    new[:, qp.fixed] = -1
+    return new
+
+
 def _rows_of(u, rows):
     """``u[rows]``, or None when there is no ``u`` (singular G)."""
     return None if u is None else u[rows]
 
 
-def _primal(qp, c, u, w, state, max_iter, tol, n_iter):
-    """Monotone primal active-set iterations from feasible ``w`` (in place)."""
+def _primal(qp, c, u, w, state, max_iter, tol, n_iter, kkt):
+    """Monotone primal active-set iterations from feasible ``w``, ``state`` (both in place).
+
+    Each iteration changes one variable of a frame's state (binds the one
+    blocking the step, or frees one), so every other iteration updates the
+    previous iteration's factored systems (:meth:`ReducedSystems.update`)
+    instead of factoring anew. The working arrays hold the frames not yet
+    converged; a frame's weights and state are written back when it
+    converges or the iterations end.
+    """
     done = np.zeros(len(c), bool)
     todo = np.arange(len(c))
+    s, wt, ct, ut = state.copy(), w, c, u
+    # the last factored systems, and each working frame's row in them
+    systems, rows = None, None
     for _ in range(max_iter):
-        if not todo.size:
-            break
-        s, wt, ct, ut = state[todo], w[todo], c[todo], _rows_of(u, todo)
-        target = reduced_solve(qp, s, ct, unconstrained=ut, gradient=False)[0]
+        if systems is None:
+            systems, rows = ReducedSystems(qp, s), np.arange(len(todo))
+            target, lam = systems.solve(ct, unconstrained=ut)
+        else:
+            target, lam = _updated(qp, systems, rows, change, s, ct, ut)
+            systems = None
         n_iter[todo] += 1
-        step = target - wt
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # the bound the step heads for gives the larger of the two ratios
-            ratio = np.fmax((qp.lo - wt) / step, (qp.hi - wt) / step)
-        ratio = np.where((s == 0) & (step != 0), np.maximum(ratio, 0.0), np.inf)
-        alpha = np.minimum(ratio.min(axis=1), 1.0)
-        wt = wt + alpha[:, None] * step
-        blocked = (s == 0) & (ratio <= alpha[:, None]) & (alpha[:, None] < 1.0)
-        s = s + (blocked * np.sign(step)).astype(np.int8)
-        wt = np.clip(wt, qp.lo, qp.hi) * (s == 0) + qp.bound_values(s)
+        # the variable each frame changes (n: none, -1: solved anew, refined)
+        change = np.full(len(todo), qp.n)
+        alpha = _step_to_first_bound(qp, wt, target, s, change)
+        wt = target
         # Frames at their subproblem optimum: optimal, or release the worst
         # wrong-signed multiplier, or (nothing to release) refine the solve.
-        at = np.nonzero(alpha >= 1.0)[0]
-        wa, sa, ca = wt[at], s[at], ct[at]
-        g = _dot(wa, qp.G) - ca
-        scale = _dot(np.abs(wa), np.abs(qp.G)) + np.abs(ca)
-        ok = np.zeros(len(todo), bool)
-        ok[at] = kkt_residual(wa, g, scale, qp.lo, qp.hi, feasible=True) <= tol
-        wrong = sa * g / np.maximum(scale, np.finfo(float).tiny)
-        wrong[:, qp.fixed] = 0.0
-        release = ~ok[at] & (wrong.max(axis=1) > 0)
-        redo = at[~ok[at] & ~release]
-        if redo.size and _refinements(qp.cond):
+        at = np.flatnonzero(alpha >= 1.0)
+        scale = _scale(qp, wt[at], ct[at])
+        worst, wrong = _worst_multiplier(qp, s[at], lam[at], scale)
+        # a multiplier of the solve clearly wrong-signed is released unchecked;
+        # the others are checked with the exact gradient
+        sure = wrong > tol
+        check = at[~sure]
+        g = gradient_of(qp, wt[check], ct[check])
+        res = np.full(len(todo), np.inf)
+        res[check] = kkt_residual(wt[check], g, scale[~sure], qp.lo, qp.hi, feasible=True)
+        ok = res <= tol
+        worst_g, wrong_g = _worst_multiplier(qp, s[check], g, scale[~sure])
+        failed = ~ok[check]
+        release = failed & (wrong_g > 0)
+        for frames, var in ((at[sure], worst[sure]), (check[release], worst_g[release])):
+            s[frames, var] = 0
+            change[frames] = var
+        redo = check[failed & ~release]
+        if redo.size and qp.refinements:
             wt[redo], grad = reduced_solve(qp, s[redo], ct[redo], refine=True,
                                            unconstrained=_rows_of(ut, redo))
-            ok[redo] = residual(qp, wt[redo], ct[redo], grad) <= tol
-        s[at[release], wrong[release].argmax(axis=1)] = 0
-        w[todo], state[todo] = wt, s
+            res[redo] = residual(qp, wt[redo], ct[redo], grad)
+            ok[redo] = res[redo] <= tol
+            wt[redo] = np.clip(wt[redo], qp.lo, qp.hi)
+            change[redo] = -1
+        w[todo[ok]], state[todo[ok]], kkt[todo[ok]] = wt[ok], s[ok], res[ok]
         done[todo[ok]] = True
-        todo = todo[~ok]
+        keep = ~ok
+        todo, s, wt, ct, ut = todo[keep], s[keep], wt[keep], ct[keep], _rows_of(ut, keep)
+        rows, change = rows[keep], change[keep]
+        if not todo.size:
+            break
+    w[todo], state[todo] = wt, s
     return done
+
+
+def _updated(qp, systems, rows, change, s, c, u):
+    """Weights and gradient of the working frames' states ``s`` from ``systems``.
+
+    ``rows`` are the frames' rows in ``systems``, ``change`` the variable
+    each changed since (n: none, -1: to be solved anew). Frames that the
+    systems cannot update are solved anew.
+    """
+    single = change >= 0
+    var = np.full(len(systems.via_bound), qp.n)
+    var[rows[single]] = change[single]
+    now = np.zeros(len(var), np.int8)
+    now[rows[single]] = s[single, np.minimum(change[single], qp.n - 1)]
+    lam, updated = systems.update(var, now)
+    new = np.flatnonzero(~updated[rows] | ~single)
+    if new.size == len(rows):
+        return reduced_solve(qp, s, c, unconstrained=u)
+    lam = lam[rows]
+    target = schur_weights(qp, s, lam, u)
+    if new.size:
+        target[new], lam[new] = reduced_solve(qp, s[new], c[new], unconstrained=_rows_of(u, new))
+    return target, lam
+
+
+def _step_to_first_bound(qp, w, target, state, change):
+    """Step every frame from feasible ``w`` towards ``target`` up to the first bound
+    in the way; binds the free variable that blocks it.
+
+    ``target`` (T, n) becomes the new weights and ``state`` is updated, both
+    in place, and ``change`` (T,) gets the bound variable.
+    Only the free weights that ``target`` puts outside the box can block
+    (bound weights are at their bound in both). Returns the step length,
+    (T,), 1 where nothing blocks.
+    """
+    alpha = np.ones(len(w))
+    flat = np.flatnonzero((target < qp.lo) | (target > qp.hi))
+    if not flat.size:
+        return alpha
+    frames, var = np.divmod(flat, qp.n)
+    to, frm = target[frames, var], w[frames, var]
+    up = to > qp.hi[var]
+    bound = np.where(up, qp.hi[var], qp.lo[var])
+    ratio = np.maximum((bound - frm) / (to - frm), 0.0)
+    first = np.flatnonzero(np.r_[True, frames[1:] != frames[:-1]])
+    moving = frames[first]
+    alpha[moving] = np.minimum.reduceat(ratio, first)
+    part, start = target[moving], w[moving]
+    part -= start
+    part *= alpha[moving, None]
+    part += start
+    target[moving] = np.clip(part, qp.lo, qp.hi, out=part)
+    # One variable per frame, the first that blocks (of ties, the lowest): the
+    # others, at their bound now, block the next step (of length 0), which the
+    # factored systems can take as an update.
+    blocked = np.flatnonzero(ratio <= alpha[frames])
+    blocked = blocked[np.r_[True, frames[blocked][1:] != frames[blocked][:-1]]]
+    frames, var = frames[blocked], var[blocked]
+    target[frames, var] = bound[blocked]
+    state[frames, var] = np.where(up[blocked], 1, -1)
+    change[frames] = var
+    return alpha
+
+
+def _scale(qp, w, c):
+    """Magnitude of the terms summed into the gradient ``G w − c``, (T, n), at least
+    the smallest positive float (a divisor)."""
+    scale = dot(np.abs(w), np.abs(qp.G))
+    scale += np.abs(c)
+    return np.maximum(scale, np.finfo(float).tiny, out=scale)
+
+
+def _worst_multiplier(qp, state, g, scale):
+    """Each frame's most wrong-signed multiplier: (variable, violation relative to
+    ``scale``, from :func:`_scale`).
+
+    The multiplier of a bound variable is its gradient ``g``; its sign is
+    wrong when it pulls the variable into the box. Fixed variables never count.
+    """
+    wrong = state * g
+    wrong /= scale
+    wrong[:, qp.fixed] = 0.0
+    worst = wrong.argmax(axis=1)
+    return worst, wrong[np.arange(len(worst)), worst]
 
 
 def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
@@ -405,32 +316,38 @@ def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
         # the minimum-norm minimizer), no iteration
         inverse = qp.inverse if qp.inverse is not None else np.linalg.pinv(
             qp.G, rcond=RANK_RTOL, hermitian=True)
-        w = _dot(c, inverse)
+        w = dot(c, inverse)
         kkt = residual(qp, w, c)
         return w, np.ones(T, np.int64), kkt, kkt <= tol
-    w, n_iter = np.empty_like(c), np.zeros(T, np.int64)
+    w, n_iter, kkt = np.empty_like(c), np.zeros(T, np.int64), np.empty(T)
     for start in range(0, T, _BLOCK):
         part = slice(start, start + _BLOCK)
         cp = c[part]
-        u = None if qp.inverse is None else _dot(cp, qp.inverse)
+        u = None if qp.inverse is None else dot(cp, qp.inverse)
         state = start_state(qp, cp, u) if warm_start else np.zeros(cp.shape, np.int8)
-        w[part], n_iter[part] = _solve_from(qp, cp, u, state, tol, max_iter)
-    kkt = residual(qp, w, c, feasible=True)  # clipped
+        w[part], n_iter[part], kkt[part] = _solve_from(qp, cp, u, state, tol, max_iter)
     return w, n_iter, kkt, kkt <= tol
 
 
 def _solve_from(qp, c, u, state, tol, max_iter):
-    """Both phases from an initial state (updated in place); returns (clipped w, n_iter)."""
-    n_iter = np.zeros(len(c), np.int64)
-    w, done = _pdas(qp, c, u, state, min(_PDAS_ITER, max_iter), tol, n_iter)
+    """Both phases from an initial state (updated in place).
+
+    Returns the clipped weights, the iterations and the KKT residual of
+    each frame: that of its converged weights (which the clip leaves alone),
+    computed anew for the others.
+    """
+    n_iter, kkt = np.zeros(len(c), np.int64), np.full(len(c), np.inf)
+    w, done = _pdas(qp, c, u, state, min(_PDAS_ITER, max_iter), tol, n_iter, kkt)
     rest = np.nonzero(~done)[0]
     if rest.size:
-        ws, ss = w[rest], state[rest]
-        outside = (ss == 0) & ((ws < qp.lo) | (ws > qp.hi))
-        ss = np.where(outside, np.where(ws < qp.lo, -1, 1), ss).astype(np.int8)
-        ws = np.where(ss != 0, qp.bound_values(ss), ws)
-        it = np.zeros(rest.size, np.int64)
-        _primal(qp, c[rest], _rows_of(u, rest), ws, ss, max_iter, tol, it)
-        w[rest], state[rest] = ws, ss
+        # PDAS's next state binds the weights outside the box, which the clip
+        # puts at that bound; the other bound weights are at their bound
+        ws, ss = np.clip(w[rest], qp.lo, qp.hi), state[rest]
+        it, res = np.zeros(rest.size, np.int64), np.full(rest.size, np.inf)
+        _primal(qp, c[rest], _rows_of(u, rest), ws, ss, max_iter, tol, it, res)
+        w[rest], state[rest], kkt[rest] = ws, ss, res
         n_iter[rest] += it
-    return np.clip(w, qp.lo, qp.hi), n_iter
+    clipped = np.clip(w, qp.lo, qp.hi)
+    again = np.flatnonzero((kkt > tol) | (clipped != w).any(axis=1))
+    kkt[again] = residual(qp, clipped[again], c[again], feasible=True)
+    return clipped, n_iter, kkt

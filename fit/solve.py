@@ -34,7 +34,8 @@ class WeightSolution:
         ½‖B w_t − d_t‖² over the frame's valid rows, in data units squared
         (mm² for markers); the smoothness term is not included.
     n_iter : ndarray of int, shape (n_frames,)
-        Reduced solves each frame went through (1 for an unbounded problem).
+        Reduced solves each frame went through, factored or bordered (1 for an
+        unbounded problem).
     converged : ndarray of bool, shape (n_frames,)
         True where ``kkt_residual <= tol``.
     kkt_residual : ndarray, shape (n_frames,)
@@ -137,7 +138,9 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
     ``G_FF w_F = c_F − G_FA w_A`` is solved through the smaller of the free
     set F and the bound set A: with A small, ``w = G⁻¹(c + λ)`` where λ,
     zero off A, solves the |A| × |A| system ``(G⁻¹)_AA λ_A = w_A − (G⁻¹c)_A``
-    (G⁻¹ computed once); frames of equal size are factored together.
+    (G⁻¹ computed once); frames of about equal size are factored together,
+    and the monotone phase borders a factorization with the one variable its
+    next iteration changes instead of factoring anew.
 
     References
     ----------

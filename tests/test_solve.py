@@ -306,3 +306,142 @@ def test_kkt_residual_matches_elementwise_loop(bounds):
         feas = max(lo[j] - w[t, j], w[t, j] - hi[j], 0.0) / max(1.0, abs(w[t, j]))
         expected[t] = max(expected[t], viol / scale[t, j], feas)
     np.testing.assert_allclose(kkt_residual(w, g, scale, lo, hi), expected, rtol=1e-15, atol=0)
+
+
+@pytest.mark.parametrize("kind", ["random", "ill-conditioned"])
+def test_update_by_one_variable_matches_fresh_solve(kind):
+    """Bordering the factored systems with one bound or freed variable per frame
+    (or none) gives the weights and gradient of solving the new state from scratch."""
+    from fit._active_set import BoxQP, reduced_solve
+    from fit._reduced import ReducedSystems, schur_weights
+
+    rng = np.random.default_rng([15, BASES.index(kind)])
+    basis = make_basis(kind, rng)
+    G, c = basis.T @ basis, make_data(basis, rng, n_frames=400) @ basis
+    lo, hi = np.r_[np.zeros(10), -np.inf, 0.0], np.r_[np.ones(10), 2.0, np.inf]
+    qp = BoxQP.build(G, lo, hi)
+    bound = rng.random(c.shape) < rng.uniform(0.05, 0.45, (len(c), 1))
+    state = np.where(bound, np.where(rng.random(c.shape) < 0.5, -1, 1), 0).astype(np.int8)
+    state[:, 10], state[:, 11] = bound[:, 10], -1 * bound[:, 11]  # at their finite bound
+    systems = ReducedSystems(qp, state)
+    systems.solve(c)
+    var = rng.integers(0, N_SHAPES, len(c))
+    var[::7] = N_SHAPES  # frames with no change
+    new = state.copy()
+    rows = np.flatnonzero(var < N_SHAPES)
+    freed = state[rows, var[rows]] != 0
+    side = np.where(var[rows] == 10, 1, np.where(var[rows] == 11, -1,
+                                                  np.where(rng.random(rows.size) < 0.5, -1, 1)))
+    new[rows, var[rows]] = np.where(freed, 0, side)
+    lam, updated = systems.update(var, new[np.arange(len(c)), np.minimum(var, N_SHAPES - 1)])
+    w = schur_weights(qp, new, lam, systems.unconstrained)
+    # the frames factored through the Schur complement (fewer than half bound)
+    np.testing.assert_array_equal(updated, 2 * np.count_nonzero(state, axis=1) < N_SHAPES)
+    assert 100 < np.count_nonzero(updated) < 390
+    w, lam, new = w[updated], lam[updated], new[updated]
+    expected_w, expected_grad = reduced_solve(qp, new, c[updated], refine=True)
+    scale = np.abs(expected_w) @ np.abs(G) + np.abs(c[updated])
+    np.testing.assert_array_equal(w[new != 0], qp.bound_values(new)[new != 0])
+    tol = 1e-10 if kind == "random" else 1e-6
+    np.testing.assert_allclose(w, expected_w, rtol=0, atol=tol * np.abs(expected_w).max())
+    assert np.all(lam[new == 0] == 0)
+    assert np.all(np.abs(lam - expected_grad)[new != 0] <= tol * scale[new != 0])
+
+
+def test_update_leaves_direct_and_refined_systems_alone():
+    """Frames solved directly (most weights bound) or refined cannot be updated."""
+    from fit._active_set import BoxQP
+    from fit._reduced import ReducedSystems
+
+    rng = np.random.default_rng(16)
+    basis = make_basis("ill-conditioned", rng)
+    G, c = basis.T @ basis, make_data(basis, rng, n_frames=50) @ basis
+    qp = BoxQP.build(G, np.zeros(N_SHAPES), np.ones(N_SHAPES))
+    state = np.zeros(c.shape, np.int8)
+    state[:25, 0] = -1  # one bound: the Schur path
+    state[25:] = -1  # all bound: the direct path
+    systems = ReducedSystems(qp, state)
+    systems.solve(c)
+    var, now = np.full(len(c), 5), np.ones(len(c), np.int8)  # bind a free weight
+    assert systems.update(var, now)[1].tolist() == [True] * 25 + [False] * 25
+    systems.solve(c, refine=True)
+    assert not systems.update(var, now)[1].any()
+
+
+def test_fixed_weights_against_bvls_on_the_rest():
+    """Shapes with lower == upper stay at that value; the others match bvls solving
+    for them alone with the fixed shapes' contribution taken off the data."""
+    rng = np.random.default_rng(17)
+    basis = make_basis("random", rng)
+    data = make_data(basis, rng)
+    lo, hi = np.zeros(N_SHAPES), np.ones(N_SHAPES)
+    lo[[2, 9]] = hi[[2, 9]] = [0.3, 1.0]
+    sol = solve_weights(basis, data, lower=lo, upper=hi)
+    assert sol.status == 0
+    np.testing.assert_array_equal(sol.weights[:, [2, 9]], np.broadcast_to([0.3, 1.0], (N_FRAMES, 2)))
+    rest = np.setdiff1d(np.arange(N_SHAPES), [2, 9])
+    residual_data = data - np.array([0.3, 1.0]) @ basis[:, [2, 9]].T
+    np.testing.assert_allclose(sol.cost, oracle_cost(basis[:, rest], residual_data, lo[rest], hi[rest]),
+                               rtol=SOLVE_OBJECTIVE_REL)
+
+
+@pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
+def test_many_real_frames_against_bvls(shared_data):
+    """The 53 ICT shapes at 66 vertices, 300 noisy frames of sparse weights: most
+    frames go through the monotone phase (factored and updated systems)."""
+    import trimesh
+    face = shared_data / "ict-face"
+    paths = sorted((face / "expressions").glob("*.obj"))
+    neutral = trimesh.load(face / "generic_neutral_mesh.obj", process=False).vertices
+    rng = np.random.default_rng(18)
+    picked = rng.choice(len(neutral), 66, replace=False)
+    flat = 10.0 * np.stack([(trimesh.load(p, process=False).vertices[picked]
+                             - neutral[picked]).ravel() for p in paths], axis=1)
+    weights = np.clip(rng.normal(0.15, 0.3, (300, len(paths))), 0, 1)
+    data = weights @ flat.T + 0.2 * rng.standard_normal((300, flat.shape[0]))
+    sol = solve_weights(flat, data, lower=0, upper=1)
+    assert sol.status == 0
+    assert np.mean(sol.n_iter > 2) > 0.5
+    lo, hi = np.zeros(len(paths)), np.ones(len(paths))
+    np.testing.assert_allclose(sol.cost, oracle_cost(flat, data, lo, hi), rtol=SOLVE_OBJECTIVE_REL)
+    assert_kkt(flat, data, sol.weights, lo, hi)
+
+
+@pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
+@pytest.mark.parametrize("kind", BASES)
+def test_reported_kkt_residual_is_that_of_the_weights(kind):
+    """Each frame's KKT residual (kept from where it converged) equals the residual
+    of its final weights computed afresh, up to the rounding of the gradient."""
+    from fit._active_set import BoxQP, residual
+
+    rng = np.random.default_rng([19, BASES.index(kind)])
+    basis = make_basis(kind, rng)
+    data = make_data(basis, rng, n_frames=200)
+    sol = solve_weights(basis, data, lower=0, upper=1)
+    qp = BoxQP.build(basis.T @ basis, np.zeros(N_SHAPES), np.ones(N_SHAPES))
+    expected = residual(qp, sol.weights, data @ basis)
+    np.testing.assert_allclose(sol.kkt_residual, expected, rtol=0, atol=1e-13)
+    assert np.all(expected <= 1e-9)
+
+
+def test_update_leaves_frames_with_nothing_bound_alone():
+    """Frames with every weight free have no factored system to border (enough of
+    them make a batch of their own, which is never factored): not updated."""
+    from fit._active_set import BoxQP, reduced_solve
+    from fit._reduced import ReducedSystems, schur_weights
+
+    rng = np.random.default_rng(20)
+    basis = make_basis("random", rng)
+    G, c = basis.T @ basis, make_data(basis, rng, n_frames=1200) @ basis
+    qp = BoxQP.build(G, np.zeros(N_SHAPES), np.ones(N_SHAPES))
+    state = np.zeros(c.shape, np.int8)
+    state[600:, 0] = -1
+    systems = ReducedSystems(qp, state)
+    systems.solve(c)
+    new = state.copy()
+    new[:, 3] = 1
+    lam, updated = systems.update(np.full(len(c), 3), new[:, 3])
+    np.testing.assert_array_equal(updated, np.arange(len(c)) >= 600)
+    w = schur_weights(qp, new[updated], lam[updated], systems.unconstrained[updated])
+    np.testing.assert_allclose(w, reduced_solve(qp, new[updated], c[updated])[0],
+                               rtol=0, atol=1e-10)
