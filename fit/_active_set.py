@@ -303,11 +303,13 @@ def _worst_multiplier(qp, state, g, scale):
 
 
 def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
-                 warm_start: bool):
+                 warm_start: bool, state: np.ndarray | None = None):
     """Solve every frame's box QP; returns (weights, n_iter, kkt, converged).
 
-    With ``warm_start`` every frame starts from :func:`start_state` (the
-    active set of its clipped unconstrained minimizer), else with every
+    Every frame starts from `state` when given (int8 (T, n): -1 at the lower
+    bound, +1 at the upper, 0 free; e.g. the active set of a nearby
+    problem's solution), else, with ``warm_start``, from :func:`start_state`
+    (the active set of its clipped unconstrained minimizer), else with every
     weight free (one more iteration). Frames go through in blocks of ``_BLOCK``.
     """
     T = len(c)
@@ -324,8 +326,11 @@ def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
         part = slice(start, start + _BLOCK)
         cp = c[part]
         u = None if qp.inverse is None else dot(cp, qp.inverse)
-        state = start_state(qp, cp, u) if warm_start else np.zeros(cp.shape, np.int8)
-        w[part], n_iter[part], kkt[part] = _solve_from(qp, cp, u, state, tol, max_iter)
+        if state is not None:
+            initial = state[part].copy()
+        else:
+            initial = start_state(qp, cp, u) if warm_start else np.zeros(cp.shape, np.int8)
+        w[part], n_iter[part], kkt[part] = _solve_from(qp, cp, u, initial, tol, max_iter)
     return w, n_iter, kkt, kkt <= tol
 
 

@@ -97,6 +97,13 @@ class BoxQP:
         return (np.where(np.isfinite(self.lo), self.lo, 0.0),
                 np.where(np.isfinite(self.hi), self.hi, 0.0))
 
+    def state_of(self, weights: np.ndarray) -> np.ndarray:
+        """The active set of `weights` (T, n): int8, -1 at (or below) the lower bound,
+        +1 at (or above) the upper one, 0 between; fixed weights -1."""
+        state = np.subtract(weights >= self.hi, weights <= self.lo, dtype=np.int8)
+        state[:, self.fixed] = -1
+        return state
+
     def bound_values(self, state: np.ndarray) -> np.ndarray:
         """Bound values where ``state`` is ±1, 0 where free, shape of ``state``."""
         lo, hi = self.finite_bounds

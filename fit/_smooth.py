@@ -253,8 +253,7 @@ def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None):
     band = _Band(qp.G, lam, ridge)
     if start is None:
         start = rough(spectrum, spectrum.transform(c), lam, qp.lo, qp.hi, _ADMM_ITER)
-    state = np.where(start <= qp.lo, -1, np.where(start >= qp.hi, 1, 0)).astype(np.int8)
-    state[:, qp.fixed] = -1
+    state = qp.state_of(start)
     every = np.arange(T)
     n_iter = np.zeros(T, np.int64)
     w = np.zeros_like(c)

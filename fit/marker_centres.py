@@ -140,7 +140,8 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
         xt = x[todo]
         nonlinear = centres(xt) - np.tensordot(xt, basis, axes=1)
         sol = solve_weights(basis, data[todo] - nonlinear, lower=lower, upper=upper,
-                            smoothness=smoothness, start=xt if coupled else None)
+                            smoothness=smoothness,
+                            start=xt if coupled or last_g is not None else None)
         g = sol.weights - xt
         step[todo] = np.abs(g).max(axis=1)
         w[todo], n_steps[todo], n_iter[todo] = sol.weights, n_steps[todo] + 1, \

@@ -107,10 +107,11 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
     max_iter : int, optional
         Iterations of the monotone phase; default 20 · n_shapes + 20.
     start : array_like, shape (n_frames, n_shapes), optional
-        With ``smoothness`` > 0: weights whose active set (which weights are
-        at a bound) starts the smooth solve, e.g. the solution of a nearby
-        problem (the marker-centre fit's previous step). Does not change the
-        result, only the work; default a rough estimate of the solution.
+        Weights whose active set (which weights are at a bound) starts the
+        solve, e.g. the solution of a nearby problem (the marker-centre fit's
+        previous step), instead of `warm_start`'s or, with ``smoothness`` > 0,
+        a rough estimate of the solution. Does not change the result, only
+        the work.
 
     Returns
     -------
@@ -189,8 +190,9 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
             w, it, res, _ = solve_smooth(qp, C, smoothness, tol=tol, max_iter=max_iter,
                                          start=start)
         else:
-            w, it, res, _ = solve_box_qp(qp, C[frames], tol=tol, max_iter=max_iter,
-                                         warm_start=warm_start)
+            w, it, res, _ = solve_box_qp(
+                qp, C[frames], tol=tol, max_iter=max_iter, warm_start=warm_start,
+                state=None if start is None else qp.state_of(start[frames]))
         weights[frames], n_iter[frames], kkt[frames] = w, it, res
     cost = _cost(weights, B, D, valid)
     converged = kkt <= tol

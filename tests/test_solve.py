@@ -97,6 +97,13 @@ def test_warm_and_cold_start_agree(bounds):
     cold = solve_weights(basis, data, lower=lo, upper=hi, warm_start=False)
     assert warm.status == cold.status == 0
     np.testing.assert_allclose(warm.cost, cold.cost, rtol=SOLVE_OBJECTIVE_REL)
+    # a given start (its active set): the answer's, a wrong one, a neighbour's
+    for start in (warm.weights, np.full_like(warm.weights, hi), np.roll(warm.weights, 1, 0)):
+        given = solve_weights(basis, data, lower=lo, upper=hi, start=start)
+        assert given.status == 0
+        np.testing.assert_allclose(given.cost, warm.cost, rtol=SOLVE_OBJECTIVE_REL)
+    exact = solve_weights(basis, data, lower=lo, upper=hi, start=warm.weights)
+    assert (exact.n_iter == 1).all()                      # the right active set: one solve
 
 
 def test_marker_layout_equals_flat_layout():
