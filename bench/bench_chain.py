@@ -5,8 +5,9 @@ driven by ``alex_rom_4.csv``, sampled at 276 Hz so that its 127 s give 35,000
 frames; 66 markers of ``tests/ict_marker_layout.toml``, 0.2 mm noise, head
 motion, 60 gaps) and written to C3D. Timed per stage, as ``mocap2mesh run``
 runs them (:mod:`fit.pipeline`): read + ingest (gap fill, stabilization),
-bind, retarget (W), bases (PCA of W·D without Ξ, quasi-eigen), fit (H, QE, PCA
-in marker space), exports (CSV, compact mesh npz, glb per basis) and the QA
+bind (with the layout's 2 mm skin offset), retarget (W), bases (PCA of W·D
+without Ξ, quasi-eigen), fit (H at the exact marker centres, QE, PCA in marker
+space), exports (CSV, compact mesh npz, glb per basis) and the QA
 figures (no video). Peak memory: the process's maximum resident set size.
 
 Baseline, the naive chain, on the first ``--naive-frames`` frames: an RBF
@@ -37,8 +38,8 @@ from basis.basis_io import save_basis
 from basis.gltf import write_gltf
 from fit.exports import write_mesh_sequence, write_weights_csv
 from fit.ingest import IngestOptions
-from fit.pipeline import (basis_stage, bind_stage, complete_span, fit_stage, ingest_stage,
-                          retarget_stage)
+from fit.pipeline import (BindOptions, basis_stage, bind_stage, complete_span, fit_stage,
+                          ingest_stage, retarget_stage)
 from fit.report import build_report
 from mocap.layout import load_marker_layout
 from mocap.markerset import load_markerset
@@ -88,7 +89,8 @@ def main() -> None:
         ingested = timed("read + ingest", lambda: ingest_stage(
             mocap.read(out / "take.c3d"), markerset, IngestOptions(fill="auto")))
         take = complete_span(ingested.take, markerset.face_markers)
-        bound = timed("bind", lambda: bind_stage(take, markerset, mesh, landmarks))
+        bound = timed("bind", lambda: bind_stage(take, markerset, mesh, landmarks,
+                                                 options=BindOptions(skin_offset=2.0)))
         retargeted = timed("retarget (W)", lambda: retarget_stage(take, bound, mesh, markerset))
         bases = timed("bases (PCA, QE)", lambda: basis_stage(retargeted, artist))
         fitted = timed("fit (H, QE, PCA)", lambda: fit_stage(take, bound, retargeted, bases))
