@@ -36,7 +36,6 @@ from .solve import WeightSolution, as_smoothness, solve_weights
 __all__ = ["MarkerCentreFit", "solve_at_marker_centres"]
 
 
-
 @dataclass(frozen=True, eq=False)
 class MarkerCentreFit:
     """Result of :func:`solve_at_marker_centres`.

@@ -158,8 +158,9 @@ class MarkerLayout:
     def positions_under_weights(self, neutral, displacements, weights) -> np.ndarray:
         """Marker positions on ``neutral + Σ_i w_i e_i`` for each row of `weights`.
 
-        Only the vertices the markers and their normals depend on are formed,
-        so a long take of a large mesh costs (T, K, 3), K a few per marker.
+        The skin points and the edges of the faces whose normals the markers
+        use are linear in the weights: each is one product with them (no
+        mesh is formed), frames ``_FRAMES_PER_PASS`` at a time.
 
         Parameters
         ----------
