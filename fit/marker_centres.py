@@ -110,9 +110,9 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     data = as_float_array(data, "data", shape=(None,) + basis.shape[1:], allow_nan=False)
     if basis.shape[1] != layout.n_markers:
         raise InputError(f"basis has {basis.shape[1]} markers, the layout {layout.n_markers}")
-    if len(np.asarray(displacements)) != len(basis):
-        raise InputError(f"displacements hold {len(np.asarray(displacements))} shapes, the "
-                         f"basis {len(basis)}")
+    n_shapes = len(np.asarray(displacements))
+    if n_shapes != len(basis):
+        raise InputError(f"displacements hold {n_shapes} shapes, the basis {len(basis)}")
     tol = as_positive_float(tol, "tol")
     max_steps = as_int(max_steps, "max_steps", minimum=1)
 
