@@ -21,7 +21,7 @@ from scipy.linalg import solve_triangular
 
 from mocap.errors import InputError
 
-from ._streaming_pca import Spectrum, frame_chunks
+from basis._streaming_pca import Spectrum, frame_chunks
 
 
 def marker_moments(displacements: np.ndarray, chunk_frames: int):

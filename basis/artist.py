@@ -13,9 +13,9 @@ from typing import Sequence
 
 import numpy as np
 
-from mocap._validation import as_float_array
+from mocap.util.validation import as_float_array
 from mocap.errors import FileFormatError, InputError
-from mocap.mesh import Mesh, load_mesh
+from mocap.mesh.mesh import Mesh, load_mesh
 from mocap.units import mm_per_unit
 
 __all__ = ["ArtistBasis", "load_artist_basis"]
@@ -94,7 +94,7 @@ def load_artist_basis(neutral, shapes, *, names: Sequence[str] | None = None,
     Parameters
     ----------
     neutral : str, os.PathLike or Mesh
-        The neutral mesh (file read with :func:`mocap.mesh.load_mesh`).
+        The neutral mesh (file read with :func:`mocap.mesh.mesh.load_mesh`).
     shapes : str or os.PathLike
         A directory of OBJ files, one shape each, named by file stem (all
         ``*.obj`` in name order unless `names` is given); or a glTF/GLB file whose

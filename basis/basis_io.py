@@ -25,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap._atomic import atomic_path
-from mocap._validation import as_choice
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_choice
 from mocap.errors import FileFormatError, InputError
-from mocap.mesh import Mesh, save_obj
+from mocap.mesh.mesh import Mesh, save_obj
 
-from .artist import ArtistBasis, load_artist_basis
+from basis.artist import ArtistBasis, load_artist_basis
 
 __all__ = ["BASIS_DTYPES", "save_basis", "load_basis", "shape_file_stems"]
 
@@ -124,7 +124,7 @@ def save_basis(basis: ArtistBasis, path, *, dtype: str = "float64", inputs=()) -
     npz keys: ``format_version`` (1), ``names`` (n, unicode), ``units`` ('' when
     unknown), ``neutral_vertices`` (N, 3) float64, ``faces`` (F, 3) int64,
     ``face_polygon`` (F,) and ``polygon_sizes`` (P,) int64 (the polygon map of
-    :class:`mocap.mesh.Mesh`), ``displacements`` (n, N, 3) `dtype`. Written to
+    :class:`mocap.mesh.mesh.Mesh`), ``displacements`` (n, N, 3) `dtype`. Written to
     a temporary file (directory) beside `path`, then renamed.
 
     Raises

@@ -24,14 +24,14 @@ import numpy as np
 import pygltflib
 from scipy.spatial.transform import Rotation
 
-from mocap._validation import as_float_array, as_positive_float
+from mocap.util.validation import as_float_array, as_positive_float
 from mocap.errors import InputError
-from mocap.mesh import Mesh, vertex_normals
+from mocap.mesh.mesh import Mesh, vertex_normals
 from mocap.units import mm_per_unit
 
-from mocap._atomic import atomic_path
+from mocap.util.atomic import atomic_path
 
-from .basis_io import as_shape_names
+from basis.basis_io import as_shape_names
 
 __all__ = ["GLTF_FORMATS", "write_gltf"]
 

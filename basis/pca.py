@@ -24,12 +24,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from mocap._arrays import read_only
-from mocap._validation import as_choice, as_float_array, as_int
+from mocap.util.arrays import read_only
+from mocap.util.validation import as_choice, as_float_array, as_int
 from mocap.errors import InputError
 
-from ._implicit_pca import operator_pca
-from ._streaming_pca import Spectrum, frame_chunks, incremental_pca, randomized_pca
+from basis._implicit_pca import operator_pca
+from basis._streaming_pca import Spectrum, frame_chunks, incremental_pca, randomized_pca
 
 __all__ = ["PCAModel", "PCA_METHODS", "pca_from_operator", "pca_streaming"]
 

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap._validation import as_choice, as_float_array
+from mocap.util.validation import as_choice, as_float_array
 from mocap.errors import InputError
 
-from .pca import PCAModel
+from basis.pca import PCAModel
 
 __all__ = ["QuasiEigenBasis", "MISSING_POLICIES", "quasi_eigen"]
 

@@ -1,10 +1,10 @@
 """Benchmark: the whole chain on a 35,000-frame, 66-marker take onto the ICT face (issue 5, item 3).
 
-The take is simulated (:func:`mocap.synth.simulate_capture`: the ICT face
+The take is simulated (:func:`mocap.synth.capture.simulate_capture`: the ICT face
 driven by ``alex_rom_4.csv``, sampled at 276 Hz so that its 127 s give 35,000
 frames; 66 markers of ``tests/ict_marker_layout.toml``, 0.2 mm noise, head
 motion, 60 gaps) and written to C3D. Timed per stage, as ``mocap2mesh run``
-runs them (:mod:`fit.pipeline`): read + ingest (gap fill, stabilization),
+runs them (:mod:`fit.pipeline.stages`): read + ingest (gap fill, stabilization),
 bind (with the layout's 2 mm skin offset), retarget (W), bases (PCA of W·D
 without Ξ, quasi-eigen), fit (H at the exact marker centres, QE, PCA in marker
 space), exports (CSV, compact mesh npz, glb per basis) and the QA
@@ -37,15 +37,15 @@ from basis.artist import ArtistBasis, load_artist_basis
 from basis.basis_io import save_basis
 from basis.gltf import write_gltf
 from fit.exports import write_mesh_sequence, write_weights_csv
-from fit.ingest import IngestOptions
-from fit.pipeline import (BindOptions, basis_stage, bind_stage, complete_span, fit_stage,
+from mocap.clean.ingest import IngestOptions
+from fit.pipeline.stages import (BindOptions, basis_stage, bind_stage, complete_span, fit_stage,
                           ingest_stage, retarget_stage)
 from fit.report import build_report
-from mocap.layout import load_marker_layout
+from mocap.mesh.layout import load_marker_layout
 from mocap.markerset import load_markerset
-from mocap.mesh_landmarks import load_mesh_landmarks
-from mocap.performance import read_performance
-from mocap.synth import simulate_capture
+from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.synth.performance import read_performance
+from mocap.synth.capture import simulate_capture
 
 
 def simulate(frames: int, path: Path):

@@ -45,8 +45,8 @@ import pandas as pd  # noqa: E402
 from _common import REPO, shared_data  # noqa: E402
 
 import mocap  # noqa: E402
-from fit.cli import main as cli  # noqa: E402
-from mocap.synth import load_capture_truth  # noqa: E402
+from fit.cli.main import main as cli  # noqa: E402
+from mocap.synth.capture import load_capture_truth  # noqa: E402
 
 OUT = REPO / "bench" / "out" / "fit-options"
 VARIANTS = (

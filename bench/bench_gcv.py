@@ -7,7 +7,7 @@ the head frame (true, no head motion, no gaps), plus 0.2 mm of noise: the
 :func:`bench_ground_truth.tangent_case`, mm; bounds [0, 1]). For each λ of a
 sweep (shown, never picked on the truth) and for ``smoothness="gcv"``: the
 RMSE of the weights against the truth, the GCV score of the unbounded
-problem (:func:`fit.gcv.gcv_score`, mm²) and the solve's time. The λ the
+problem (:func:`fit.solve.gcv.gcv_score`, mm²) and the solve's time. The λ the
 truth would pick is marked for comparison only. The chain's version of this
 (``mocap2mesh run`` with ``[fit] smoothness = "gcv"``) is in
 ``bench_fit_options.py``.
@@ -27,8 +27,8 @@ import numpy as np  # noqa: E402
 from _common import shared_data  # noqa: E402
 from bench_ground_truth import NOISE_MM, load_ict, tangent_case  # noqa: E402
 
-from fit.gcv import gcv_score  # noqa: E402
-from fit.solve import solve_weights  # noqa: E402
+from fit.solve.gcv import gcv_score  # noqa: E402
+from fit.solve.weights import solve_weights  # noqa: E402
 
 SWEEP = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0)
 

@@ -54,8 +54,8 @@ import numpy as np
 
 from _common import shared_data
 from fit.gestures import clip_from_performance, speech_intensity, synthesize_gestures
-from fit.temporal import moving_average
-from mocap.performance import read_performance
+from fit.solve.temporal import moving_average
+from mocap.synth.performance import read_performance
 
 RATE = 30.0
 MINUTE = int(60 * RATE)
@@ -169,11 +169,11 @@ def sing_clip(data):
     """The facial-sing capture analysed on the ICT basis (see the module docstring)."""
     import mocap
     from basis.artist import load_artist_basis
-    from fit.commands.bind import bind_capture
+    from fit.cli.commands.bind import bind_capture
     from fit.gestures.reference import clip_from_capture
     from mocap.markerset import load_markerset
-    from mocap.mesh import load_mesh
-    from mocap.mesh_landmarks import load_mesh_landmarks
+    from mocap.mesh.mesh import load_mesh
+    from mocap.mesh.landmarks import load_mesh_landmarks
 
     take = mocap.read(data / "captures" / "facial-sing.c3d")
     assert take.analog is None, "facial-sing.c3d has an analog channel: use it for S(t)"

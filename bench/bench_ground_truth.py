@@ -2,13 +2,13 @@
 
 The ICT face (53 shapes, cm) is driven by the real ARKit performance
 ``alex_rom_4.csv`` (30 Hz) and seen by a marker layout through
-:func:`mocap.synth.simulate_capture` (markers 2 mm off the skin). The aim is
+:func:`mocap.synth.capture.simulate_capture` (markers 2 mm off the skin). The aim is
 an RMSE between solved and true weights of at most 0.02; this script measures
 what each factor contributes to the error instead of tuning anything on it.
 
 Table 1, the markers alone (no chain): the true head-frame markers, the
 linear marker-space basis (the tangent of each shape's marker motion at the
-neutral, as :func:`fit.pipeline.marker_basis` takes it), bounds [0, 1].
+neutral, as :func:`fit.pipeline.stages.marker_basis` takes it), bounds [0, 1].
 Columns: the condition number of that basis and its smallest singular value (mm per unit weight); the unbounded least-squares RMSE that
 0.2 mm of noise alone predicts, σ·sqrt(tr((BᵀB)⁻¹)/n); then measured RMSEs:
 markers on the skin without noise (the linear model is exact there: 0 up to
@@ -63,15 +63,15 @@ from _common import REPO, shared_data  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 from basis.artist import load_artist_basis  # noqa: E402
-from fit.ingest import IngestOptions  # noqa: E402
-from fit.pipeline import (BasisResult, BindOptions, FitOptions, NamedBasis,  # noqa: E402
+from mocap.clean.ingest import IngestOptions  # noqa: E402
+from fit.pipeline.stages import (BasisResult, BindOptions, FitOptions, NamedBasis,  # noqa: E402
                           bind_stage, complete_span, fit_stage, ingest_stage, retarget_stage)
-from fit.solve import solve_weights  # noqa: E402
-from mocap.layout import MarkerLayout, load_marker_layout  # noqa: E402
+from fit.solve.weights import solve_weights  # noqa: E402
+from mocap.mesh.layout import MarkerLayout, load_marker_layout  # noqa: E402
 from mocap.markerset import MarkerSet, load_markerset  # noqa: E402
-from mocap.mesh_landmarks import load_mesh_landmarks  # noqa: E402
-from mocap.performance import read_performance  # noqa: E402
-from mocap.synth import simulate_capture  # noqa: E402
+from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
+from mocap.synth.performance import read_performance  # noqa: E402
+from mocap.synth.capture import simulate_capture  # noqa: E402
 
 MM_PER_CM = 10.0
 FACE_MM = 15.0

@@ -45,9 +45,9 @@ from basis.maskle.gold import (DEMO_GOLD_SHAPES, GOLD_SHAPES, LIP_SIDES,  # noqa
                                gold_weights, mouth_sides)
 from fit.demo.face import make_face  # noqa: E402
 from fit.demo.muscles import muscle_basis  # noqa: E402
-from mocap.mesh import load_mesh  # noqa: E402
-from mocap.mesh_landmarks import load_mesh_landmarks  # noqa: E402
-from mocap.render import Camera, image_grid, render_mesh, save_png  # noqa: E402
+from mocap.mesh.mesh import load_mesh  # noqa: E402
+from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
+from mocap.viz.render import Camera, image_grid, render_mesh, save_png  # noqa: E402
 
 N_FACES, SIGMA, SEED = 8, 2.0, 1
 SHORT = ("jaw", "ulL", "ulR", "llL", "llR", "brL", "brR")

@@ -1,7 +1,7 @@
 """Benchmark: the quasi-eigen paper's table on real data (issue 5, item 1).
 
 facial-sing.c3d (31 face markers, 3000 frames, 100 Hz) through the chain of
-``mocap2mesh run`` (:mod:`fit.pipeline`: ingest with gap fill, head
+``mocap2mesh run`` (:mod:`fit.pipeline.stages`: ingest with gap fill, head
 stabilization, binding to the ICT face, RBF retargeting, PCA of W·D,
 quasi-eigen faces of the 53 ICT shapes), then weights in marker space for H
 (bounded [0, 1]), QE and PCA (unbounded), for m = 53 and m at 99.5 %
@@ -22,12 +22,12 @@ from _common import REPO, shared_data
 
 import mocap
 from basis.artist import load_artist_basis
-from fit.ingest import IngestOptions
+from mocap.clean.ingest import IngestOptions
 from fit.metrics import reconstruction_errors
-from fit.pipeline import (BasisOptions, FitOptions, basis_stage, bind_stage, complete_span,
+from fit.pipeline.stages import (BasisOptions, FitOptions, basis_stage, bind_stage, complete_span,
                           fit_stage, ingest_stage, retarget_stage)
 from mocap.markerset import load_markerset
-from mocap.mesh_landmarks import load_mesh_landmarks
+from mocap.mesh.landmarks import load_mesh_landmarks
 
 PAPER = {"H": 5.2, "QE": 0.72, "PCA": 0.62}
 

@@ -34,11 +34,11 @@ def rbf_operator(root):
     landmarks = json.loads((root / "ict-face" / "vertex_indices.json").read_text())
     centers = mesh.vertices[landmarks["multi_pie_68_landmarks"][:N_MARKERS]]
     try:
-        from mocap.rbf import build_rbf_operator
+        from mocap.retarget.rbf import build_rbf_operator
     except ImportError:
-        return _thin_plate_operator(centers, mesh.vertices), "own thin-plate spline (no mocap.rbf)"
+        return _thin_plate_operator(centers, mesh.vertices), "own thin-plate spline (no mocap.retarget.rbf)"
     op = build_rbf_operator(centers, mesh.vertices, kernel="thin_plate_spline")
-    return op.matrix, "mocap.rbf.build_rbf_operator, thin_plate_spline"
+    return op.matrix, "mocap.retarget.rbf.build_rbf_operator, thin_plate_spline"
 
 
 def _thin_plate_operator(centers, points):

@@ -29,13 +29,13 @@ from basis.artist import load_artist_basis
 from basis.comparison import comparison_sheet, move_table, save_move_table
 from basis.pca import pca_from_operator
 from basis.quasi_eigen import quasi_eigen
-from fit.commands.bind import bind_capture
-from fit.ingest import IngestOptions, ingest
+from fit.cli.commands.bind import bind_capture
+from mocap.clean.ingest import IngestOptions, ingest
 from fit.report.plots import plot_coverage
-from fit.retarget import RetargetOptions, retarget
+from mocap.retarget.retargeting import RetargetOptions, retarget
 from mocap.markerset import load_markerset
-from mocap.mesh_landmarks import load_mesh_landmarks
-from mocap.render import save_png
+from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.viz.render import save_png
 
 OUT = REPO / "bench" / "out"
 TELLING = ("jawOpen", "mouthSmile_L", "browInnerUp_L", "eyeBlink_L")

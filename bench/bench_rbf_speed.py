@@ -31,7 +31,7 @@ from scipy.interpolate import RBFInterpolator
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, shared_data  # noqa: E402
 
-from mocap.rbf import build_rbf_operator  # noqa: E402
+from mocap.retarget.rbf import build_rbf_operator  # noqa: E402
 
 N_MARKERS = 66
 SCIPY_FRAMES = 30

@@ -20,7 +20,7 @@ from _common import best_time, peak_memory_mb, shared_data  # noqa: E402
 
 import ezc3d  # noqa: E402
 
-from mocap.c3d import read_c3d  # noqa: E402
+from mocap.io.c3d import read_c3d  # noqa: E402
 
 COMPARED = ["vicon-nexus/markers.c3d", "c3d-samples/sample_33/bigparlove.c3d",
             "c3d-samples/sample_01/Eb015pr.c3d", "c3d-samples/sample_01/Eb015vr.c3d",

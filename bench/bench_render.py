@@ -1,6 +1,6 @@
 """Benchmark: shaded picture of the ICT face (9,409 vertices, 18,460 triangles).
 
-Compares, in one run, ``mocap.render.render_mesh`` (numpy z-buffer, 2x
+Compares, in one run, ``mocap.viz.render.render_mesh`` (numpy z-buffer, 2x
 supersampling, per-pixel normals) with matplotlib's ``plot_trisurf`` of the
 same mesh drawn to an RGB array of the same size (Agg canvas, front view,
 one shade per triangle, no anti-aliasing). Also times our renderer without
@@ -26,8 +26,8 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, peak_memory_mb, shared_data  # noqa: E402
 
-from mocap.mesh import load_mesh  # noqa: E402
-from mocap.render import render_mesh  # noqa: E402
+from mocap.mesh.mesh import load_mesh  # noqa: E402
+from mocap.viz.render import render_mesh  # noqa: E402
 
 
 #: Zoom of the matplotlib 3-D axes so that the face fills the image as in render_mesh.

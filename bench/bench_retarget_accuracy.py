@@ -2,12 +2,12 @@
 
 The ICT face (cm) is driven by the real ARKit performance ``alex_rom_3.csv``
 (resampled to 30 Hz), seen by the 66 markers of ``tests/ict_marker_layout.toml``
-(2 mm off the skin) with :func:`mocap.synth.simulate_capture`: 0.2 mm noise,
+(2 mm off the skin) with :func:`mocap.synth.capture.simulate_capture`: 0.2 mm noise,
 head motion (15 deg, 30 mm), no gaps. Two sources of marker displacements:
 
 * ``pipeline``: the whole chain as a user runs it: head stabilization
-  (:func:`fit.ingest.ingest`), binding of the neutral frame (:func:`fit.commands.bind.bind_capture`,
-  landmarks + ICP, 2 mm skin offset), :func:`fit.retarget.retarget` (head frame aligned);
+  (:func:`mocap.clean.ingest.ingest`), binding of the neutral frame (:func:`fit.cli.commands.bind.bind_capture`,
+  landmarks + ICP, 2 mm skin offset), :func:`mocap.retarget.retargeting.retarget` (head frame aligned);
 * ``truth``: the layout's own surface points as centers and the noise-free
   head-frame markers (:attr:`CaptureTruth.markers_head`) as data: the error of
   the interpolation alone.
@@ -40,18 +40,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import REPO, shared_data  # noqa: E402
 
 from basis.artist import load_artist_basis  # noqa: E402
-from fit.commands.bind import bind_capture  # noqa: E402
-from fit.ingest import IngestOptions, ingest  # noqa: E402
-from fit.retarget import (RetargetOptions, build_retarget_operator,  # noqa: E402
+from fit.cli.commands.bind import bind_capture  # noqa: E402
+from mocap.clean.ingest import IngestOptions, ingest  # noqa: E402
+from mocap.retarget.retargeting import (RetargetOptions, build_retarget_operator,  # noqa: E402
                           marker_displacements, retarget)
 from mocap.bind import Binding  # noqa: E402
-from mocap.layout import load_marker_layout  # noqa: E402
+from mocap.mesh.layout import load_marker_layout  # noqa: E402
 from mocap.markerset import load_markerset  # noqa: E402
-from mocap.mesh import boundary_loops  # noqa: E402
-from mocap.mesh_landmarks import load_mesh_landmarks  # noqa: E402
-from mocap.performance import read_performance  # noqa: E402
-from mocap.render import colorbar, image_grid, render_mesh, save_png  # noqa: E402
-from mocap.synth import simulate_capture  # noqa: E402
+from mocap.mesh.mesh import boundary_loops  # noqa: E402
+from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
+from mocap.synth.performance import read_performance  # noqa: E402
+from mocap.viz.render import colorbar, image_grid, render_mesh, save_png  # noqa: E402
+from mocap.synth.capture import simulate_capture  # noqa: E402
 
 MM_PER_CM = 10.0
 FACE_MM = 15.0

@@ -7,12 +7,12 @@ the mesh's units (cm, as the chain's marker-space fit; λ is in those units²),
 driven by the real ARKit performance ``alex_rom_4.csv`` resampled to the
 chain's 3,870 frames, imaged by the basis, plus 0.02 cm (0.2 mm) of noise.
 
-Old: the previous ``fit.temporal._bounded``, copied here as the baseline (the
+Old: the previous ``fit.solve.temporal._bounded``, copied here as the baseline (the
 library no longer has it): primal-dual active set over the whole sequence
 from the frames' own optima (the exact per-frame solve, timed with it), one
 full banded factorization per iteration until every frame meets KKT. New:
-:func:`fit.temporal.solve_smooth` (ADMM start, local settling of sparse
-state changes, global banded solves; :mod:`fit._smooth`). Both are timed in
+:func:`fit.solve.temporal.solve_smooth` (ADMM start, local settling of sparse
+state changes, global banded solves; :mod:`fit.solve._smooth`). Both are timed in
 the same run, λ by λ, so the ratio holds under load; "global" counts the
 whole-sequence factorizations, "solves/frame" the reduced solves a frame
 took part in (global and local). Δ objective: the new sequence objective
@@ -38,9 +38,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import shared_data  # noqa: E402
 from bench_solve import CM_TO_MM, arkit_column, load_basis  # noqa: E402
 
-from fit._active_set import RANK_RTOL, BoxQP, kkt_residual, solve_box_qp  # noqa: E402
-from fit._smooth import _step, gradient  # noqa: E402
-from fit.temporal import solve_smooth  # noqa: E402
+from fit.solve._active_set import RANK_RTOL, BoxQP, kkt_residual, solve_box_qp  # noqa: E402
+from fit.solve._smooth import _step, gradient  # noqa: E402
+from fit.solve.temporal import solve_smooth  # noqa: E402
 
 N_FRAMES = 3870
 NOISE_CM = 0.02
@@ -93,7 +93,7 @@ def old_solve(qp, c, lam, max_iter):
         g, scale = gradient(qp.G, c, lam, w)
         if (kkt_residual(w, g, scale, qp.lo, qp.hi) <= TOL).all():
             break
-        new = _step(qp, state, w, g)       # the old update, unchanged in fit._smooth
+        new = _step(qp, state, w, g)       # the old update, unchanged in fit.solve._smooth
         key = new.tobytes()
         if key in seen:
             break

@@ -47,7 +47,7 @@ from scipy.optimize import lsq_linear  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import peak_memory_mb, shared_data  # noqa: E402
 
-from fit.solve import solve_weights  # noqa: E402
+from fit.solve.weights import solve_weights  # noqa: E402
 
 N_FRAMES = int(os.environ.get("BENCH_T", 35_000))
 N_MARKERS = 66

@@ -17,12 +17,12 @@ import numpy as np
 import pandas as pd
 
 from basis.basis_io import as_shape_names
-from mocap._atomic import atomic_path
-from mocap._validation import as_float_array, as_int, as_positive_float
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 from mocap.errors import FileFormatError, InputError
-from mocap.mesh import Mesh
+from mocap.mesh.mesh import Mesh
 
-from .solve import WeightSolution
+from fit.solve.weights import WeightSolution
 
 __all__ = ["weights_frame", "write_weights_csv", "read_weights_csv", "MeshSequence",
            "write_mesh_sequence", "read_mesh_sequence"]

@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 from scipy.signal import find_peaks
 
-from mocap._arrays import read_only
-from mocap._validation import as_choice, as_float_array, as_int, as_positions
+from mocap.util.arrays import read_only
+from mocap.util.validation import as_choice, as_float_array, as_int, as_positions
 from mocap.errors import InputError, MarkerError
 
 __all__ = ["ReconstructionErrors", "reconstruction_errors", "summary_frame",

@@ -1,8 +1,8 @@
 """mocap: marker tracks, from raw capture files up to mesh displacements."""
 
-from .errors import FileFormatError, InputError, MarkerError, Mocap2MeshError
-from .io import read, write
-from .take import FILL_METHODS, Analog, SourceInfo, Take
+from mocap.errors import FileFormatError, InputError, MarkerError, Mocap2MeshError
+from mocap.io import read, write
+from mocap.take import FILL_METHODS, Analog, SourceInfo, Take
 
 __all__ = ["Take", "SourceInfo", "Analog", "FILL_METHODS", "read", "write",
            "Mocap2MeshError", "FileFormatError", "MarkerError", "InputError"]

@@ -19,14 +19,14 @@ from typing import Mapping, Sequence
 import igl
 import numpy as np
 
-from ._atomic import atomic_path
-from ._validation import as_float_array, as_int, as_positive_float
-from .anatomy import ANATOMICAL_POINTS
-from .errors import FileFormatError, InputError, MarkerError
-from .layout import MarkerLayout
-from .mesh import Mesh, degenerate_faces, face_normals
-from .mesh_landmarks import check_mesh_landmarks
-from .rigid import fit_rigid
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_float_array, as_int, as_positive_float
+from mocap.anatomy import ANATOMICAL_POINTS
+from mocap.errors import FileFormatError, InputError, MarkerError
+from mocap.mesh.layout import MarkerLayout
+from mocap.mesh.mesh import Mesh, degenerate_faces, face_normals
+from mocap.mesh.landmarks import check_mesh_landmarks
+from mocap.rigid import fit_rigid
 
 __all__ = ["Binding", "bind_markers", "load_binding", "closest_surface_points",
            "resolve_neutral_frame", "hold_window", "NEUTRAL_METHODS", "PICKED_FRAMES", "HOLD_S",
@@ -51,7 +51,7 @@ class Binding:
     rotation : ndarray of shape (3, 3)
     translation : ndarray of shape (3,), mesh units
     face_ids : ndarray of shape (M,), int64
-        Triangle of :attr:`mocap.mesh.Mesh.faces` holding each bound point.
+        Triangle of :attr:`mocap.mesh.mesh.Mesh.faces` holding each bound point.
     vertex_ids : ndarray of shape (M, 3), int64
         Its three vertices.
     barycentric : ndarray of shape (M, 3)
@@ -127,7 +127,7 @@ class Binding:
         """The bound markers as a layout of `mesh`: their centres, `skin_offset` off the skin.
 
         The offset is along the interpolated vertex normal
-        (:meth:`mocap.layout.MarkerLayout.positions`), in mesh units. `labels`
+        (:meth:`mocap.mesh.layout.MarkerLayout.positions`), in mesh units. `labels`
         picks and orders the markers (default: all, in the binding's order).
 
         Raises
@@ -287,7 +287,7 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
     mesh : Mesh
         The neutral face mesh, in its own units.
     mesh_landmarks : mapping of str to int
-        Anatomical point to vertex id (:func:`mocap.mesh_landmarks.load_mesh_landmarks`).
+        Anatomical point to vertex id (:func:`mocap.mesh.landmarks.load_mesh_landmarks`).
     icp : bool, default True
         Refine the landmark fit by trimmed ICP on all markers.
     icp_scale : bool, default True
@@ -343,7 +343,7 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
         raise MarkerError(labels[missing[0]], "is missing (NaN) in the neutral frame; binding "
                                               "needs every marker (choose another frame)")
     if not isinstance(mesh, Mesh):
-        raise InputError(f"mesh must be a mocap.mesh.Mesh, got {type(mesh).__name__}")
+        raise InputError(f"mesh must be a mocap.mesh.mesh.Mesh, got {type(mesh).__name__}")
     skin_offset = float(as_float_array(skin_offset, "skin_offset", ndim=0, allow_nan=False))
     icp_keep = as_positive_float(icp_keep, "icp_keep")
     if icp_keep > 1:

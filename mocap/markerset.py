@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
-from ._toml import read_toml
-from .anatomy import ANATOMICAL_POINTS
-from .errors import FileFormatError, MarkerError
+from mocap.util.toml import read_toml
+from mocap.anatomy import ANATOMICAL_POINTS
+from mocap.errors import FileFormatError, MarkerError
 
 
 __all__ = ["MarkerSet", "load_markerset", "REQUIRED_REGIONS"]

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validation import as_float_array
-from .errors import InputError
+from mocap.util.validation import as_float_array
+from mocap.errors import InputError
 
 __all__ = ["RigidFit", "fit_rigid"]
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .errors import InputError
+from mocap.errors import InputError
 
 __all__ = ["UNITS_TO_MM", "mm_per_unit"]
 

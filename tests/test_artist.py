@@ -13,7 +13,7 @@ import trimesh
 
 from basis.artist import ArtistBasis, load_artist_basis
 from mocap.errors import FileFormatError, InputError
-from mocap.mesh import load_mesh, save_obj
+from mocap.mesh.mesh import load_mesh, save_obj
 from tolerances import GLTF_FLOAT32_CM, MESH_EXACT
 
 

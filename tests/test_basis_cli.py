@@ -14,10 +14,10 @@ from basis.artist import load_artist_basis
 from basis.basis_io import load_basis
 from basis.comparison import MOVE_COLUMNS
 from basis.quasi_eigen import MISSING_POLICIES
-from fit.cli import main
-from fit.retarget import CONTENTS, Retargeting, save_npz
-from mocap.mesh import Mesh, save_obj
-from mocap.rbf import build_rbf_operator
+from fit.cli.main import main
+from mocap.retarget.retargeting import CONTENTS, Retargeting, save_npz
+from mocap.mesh.mesh import Mesh, save_obj
+from mocap.retarget.rbf import build_rbf_operator
 from tolerances import BASIS_CLI_REL
 
 N_SIDE, N_SHAPES, N_FRAMES = 12, 4, 120

@@ -12,7 +12,7 @@ import pytest
 from basis.artist import ArtistBasis, load_artist_basis
 from basis.basis_io import BASIS_DTYPES, load_basis, save_basis, shape_file_stems
 from mocap.errors import FileFormatError, InputError
-from mocap.mesh import Mesh, load_mesh
+from mocap.mesh.mesh import Mesh, load_mesh
 
 #: Quads and one triangle: the polygon map must survive both forms.
 _OBJ = """v 0 0 0

@@ -1,4 +1,4 @@
-"""Marker layouts (mocap.layout), the ICT layout files, and marker binding (mocap.bind)."""
+"""Marker layouts (mocap.mesh.layout), the ICT layout files, and marker binding (mocap.bind)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ from scipy.spatial.transform import Rotation
 from mocap.bind import (Binding, bind_markers, closest_surface_points, load_binding,
                         pick_neutral_frame, resolve_neutral_frame)
 from mocap.errors import FileFormatError, InputError, MarkerError
-from mocap.layout import MarkerLayout, load_marker_layout, make_layout, save_marker_layout
+from mocap.mesh.layout import MarkerLayout, load_marker_layout, make_layout, save_marker_layout
 from mocap.markerset import REQUIRED_REGIONS, load_markerset
-from mocap.mesh import Mesh, boundary_loops, load_mesh
-from mocap.mesh_landmarks import load_mesh_landmarks
+from mocap.mesh.mesh import Mesh, boundary_loops, load_mesh
+from mocap.mesh.landmarks import load_mesh_landmarks
 from tolerances import BIND_EXACT, BIND_LAYOUT_MAX_MM, BIND_LAYOUT_MEAN_MM, MESH_EXACT
 
 HERE = Path(__file__).resolve().parent

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 import mocap
-from fit.cli import main
+from fit.cli.main import main
 from mocap.bind import load_binding
 from mocap.errors import MarkerError
-from mocap.layout import load_marker_layout
+from mocap.mesh.layout import load_marker_layout
 from mocap.markerset import load_markerset
-from mocap.mesh import load_mesh
-from mocap.synth import load_capture_truth
+from mocap.mesh.mesh import load_mesh
+from mocap.synth.capture import load_capture_truth
 from tolerances import BIND_CLI_SIM_MAX_MM, BIND_CLI_SIM_MEAN_MM
 
 HERE = Path(__file__).resolve().parent
@@ -253,7 +253,7 @@ def test_bind_hold_binds_the_mean_pose_of_the_hold(ict, tmp_path):
     a rigid motion (a binding fits its own placement). The mean of the
     window's N frames has the noise of one frame divided by sqrt(N).
     """
-    from fit.commands.bind import _hold_pose
+    from fit.cli.commands.bind import _hold_pose
     from mocap.bind import hold_window
     from mocap.rigid import fit_rigid
     from mocap.stabilize import stabilize

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from mocap import Take, read
-from mocap._c3d_numbers import BYTE_ORDERS
-from mocap.c3d import read_c3d, read_c3d_parameters, write_c3d
+from mocap.io._c3d_numbers import BYTE_ORDERS
+from mocap.io.c3d import read_c3d, read_c3d_parameters, write_c3d
 from mocap.errors import FileFormatError, InputError
 from mocap.take import Analog
 from mocap.units import mm_per_unit

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from mocap import Take
-from mocap.c3d import read_c3d, write_c3d
+from mocap.io.c3d import read_c3d, write_c3d
 from mocap.errors import Mocap2MeshError
 from mocap.take import Analog
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mocap
-from fit.cli import main
+from fit.cli.main import main
 from fit.demo import make_demo_session
 
 

@@ -16,10 +16,10 @@ from fit.demo.muscles import JAW, MUSCLES, UPPER_FACE
 from fit.demo.performance import HIDDEN, DemoPerformance
 from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import InputError
-from mocap.layout import load_marker_layout
+from mocap.mesh.layout import load_marker_layout
 from mocap.markerset import load_markerset
-from mocap.mesh import boundary_loops, degenerate_faces, face_normals, load_mesh
-from mocap.mesh_landmarks import load_mesh_landmarks
+from mocap.mesh.mesh import boundary_loops, degenerate_faces, face_normals, load_mesh
+from mocap.mesh.landmarks import load_mesh_landmarks
 
 SECONDS, RATE, SEED = 4.0, 60.0, 3
 

@@ -9,9 +9,9 @@ import pytest
 
 from fit.exports import (read_mesh_sequence, read_weights_csv, weights_frame,
                          write_mesh_sequence, write_weights_csv)
-from fit.solve import solve_weights
+from fit.solve.weights import solve_weights
 from mocap.errors import FileFormatError, InputError
-from mocap.mesh import Mesh, load_mesh, save_obj
+from mocap.mesh.mesh import Mesh, load_mesh, save_obj
 from mocap.take import Take
 from tolerances import EXPORT_FLOAT32_REL
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from fit.gcv import gcv_score, gcv_smoothness
-from fit.solve import solve_weights
+from fit.solve.gcv import gcv_score, gcv_smoothness
+from fit.solve.weights import solve_weights
 
 #: GCV scores from the spectral formula against the dense influence matrix, relative.
 GCV_SCORE_RTOL = 1e-8

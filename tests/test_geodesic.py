@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from mocap import InputError
-from mocap.geodesic import HeatGeodesics
+from mocap.mesh.geodesic import HeatGeodesics
 from tolerances import GEODESIC_HEAT_MAX_REL, GEODESIC_HEAT_MEAN_REL
 
 

@@ -13,7 +13,7 @@ from scipy.interpolate import BSpline
 from scipy.spatial.distance import cdist
 from scipy.spatial.transform import Rotation
 
-from fit.cli import main
+from fit.cli.main import main
 from fit.gestures import (ESTIMATORS, FEATURES, GestureClip, analyze_gestures,
                           candidate_distances, clip_from_analysis, load_clip, marker_basis,
                           parse_timeline, pick_candidate, save_clip, synthesize_gestures,
@@ -21,7 +21,7 @@ from fit.gestures import (ESTIMATORS, FEATURES, GestureClip, analyze_gestures,
 from fit.gestures.transfer import SUPPORT_SPACINGS, build_detail_transfer
 from mocap.bind import Binding
 from mocap.errors import FileFormatError, InputError, MarkerError
-from mocap.mesh import Mesh
+from mocap.mesh.mesh import Mesh
 from mocap.stabilize import stabilize
 from mocap.take import Take
 
@@ -600,9 +600,9 @@ def test_weights_need_every_group():
 def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_path):
     """``gestures --mesh --shapes --binding``: details as extra shapes of the real ICT face."""
     from fit.exports import read_mesh_sequence
-    from mocap.layout import load_marker_layout
-    from mocap.mesh import load_mesh
-    from mocap.rbf import build_rbf_operator
+    from mocap.mesh.layout import load_marker_layout
+    from mocap.mesh.mesh import load_mesh
+    from mocap.retarget.rbf import build_rbf_operator
 
     wav, _, out = cli_files
     ict = shared_data / "ict-face"

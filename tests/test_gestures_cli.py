@@ -10,11 +10,11 @@ import pytest
 import scipy.io.wavfile
 from scipy.spatial.transform import Rotation
 
-from fit.cli import main
+from fit.cli.main import main
 from fit.gestures import load_clip
 from mocap.bind import load_binding
-from mocap.mesh import load_mesh
-from mocap.synth import load_capture_truth
+from mocap.mesh.mesh import load_mesh
+from mocap.synth.capture import load_capture_truth
 
 HERE = Path(__file__).resolve().parent
 SHAPES = ("browInnerUp_L", "browInnerUp_R", "eyeBlink_L", "eyeBlink_R", "jawOpen",
@@ -233,7 +233,7 @@ def test_clip_from_capture_keeps_every_ingest_option(simulated, monkeypatch):
     import mocap
     from basis.artist import load_artist_basis
     from fit.gestures import reference
-    from fit.ingest import IngestOptions
+    from mocap.clean.ingest import IngestOptions
     from mocap.markerset import load_markerset
 
     seen = []
@@ -281,11 +281,11 @@ def test_clip_from_capture_takes_n_as_the_mean_of_the_hold(simulated, shared_dat
     from basis.artist import load_artist_basis
     from fit.gestures.reference import clip_from_capture
     from mocap.bind import hold_window
-    from mocap.layout import load_marker_layout
+    from mocap.mesh.layout import load_marker_layout
     from mocap.markerset import load_markerset
-    from mocap.performance import read_performance
+    from mocap.synth.performance import read_performance
     from mocap.rigid import fit_rigid
-    from mocap.synth import simulate_capture
+    from mocap.synth.capture import simulate_capture
 
     basis = load_artist_basis(simulated["mesh"], simulated["shapes"], units="cm")
     markerset = load_markerset(HERE / "ict_markerset.toml")

@@ -15,7 +15,7 @@ import trimesh
 from basis.artist import load_artist_basis
 from basis.gltf import GLTF_FORMATS, write_gltf
 from mocap.errors import InputError
-from mocap.mesh import Mesh, load_mesh
+from mocap.mesh.mesh import Mesh, load_mesh
 from tolerances import EXPORT_FLOAT32_REL, GLTF_FLOAT32_CM
 
 #: Metres per unit: the oracle of the unit conversion.

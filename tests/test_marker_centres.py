@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from basis.artist import load_artist_basis
-from fit.gcv import gcv_smoothness
-from fit.marker_centres import solve_at_marker_centres
-from fit.solve import solve_weights
+from fit.solve.gcv import gcv_smoothness
+from fit.solve.marker_centres import solve_at_marker_centres
+from fit.solve.weights import solve_weights
 from mocap.errors import InputError
-from mocap.layout import load_marker_layout
-from mocap.performance import match_shape_names, read_performance
+from mocap.mesh.layout import load_marker_layout
+from mocap.synth.performance import match_shape_names, read_performance
 
 HERE = Path(__file__).resolve().parent
 N_FRAMES = 120

@@ -13,13 +13,13 @@ from basis.maskle import (CHANNEL_KINDS, FIT_STATUSES, Mask, fit_mask, landmark_
 from basis.maskle._geometry import TriangleIndex, nearest_ray_hits, triangles_intersect
 from basis.maskle.build_default import BONES, build_default_mask
 from basis.maskle.gold import LIP_SIDES, mouth_sides
-from fit.cli import main
+from fit.cli.main import main
 from fit.demo.face import make_face
 from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
 from mocap.markerset import REQUIRED_REGIONS
-from mocap.mesh import load_mesh
-from mocap.mesh_landmarks import load_mesh_landmarks
+from mocap.mesh.mesh import load_mesh
+from mocap.mesh.landmarks import load_mesh_landmarks
 from tolerances import MESH_EXACT
 
 LANDMARKS = "tests/ict_landmarks.toml"

@@ -11,8 +11,8 @@ from basis.maskle.gold import DEMO_GOLD_SHAPES, GOLD_SHAPES, gold_weights, mouth
 from fit.demo.face import MOUTH, make_face, mouth_line
 from fit.demo.muscles import muscle_basis
 from mocap.errors import InputError
-from mocap.mesh import boundary_loops, load_mesh
-from mocap.mesh_landmarks import load_mesh_landmarks
+from mocap.mesh.mesh import boundary_loops, load_mesh
+from mocap.mesh.landmarks import load_mesh_landmarks
 
 LANDMARKS = "tests/ict_landmarks.toml"
 

@@ -1,4 +1,4 @@
-"""Face meshes (mocap.mesh) and mesh landmarks (mocap.mesh_landmarks)."""
+"""Face meshes (mocap.mesh.mesh) and mesh landmarks (mocap.mesh.landmarks)."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ import trimesh
 
 from mocap.anatomy import ANATOMICAL_POINTS, MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
-from mocap.mesh import (MESH_FORMATS, Mesh, boundary_loops, degenerate_faces, face_normals,
+from mocap.mesh.mesh import (MESH_FORMATS, Mesh, boundary_loops, degenerate_faces, face_normals,
                         load_mesh, save_obj, vertex_normals)
-from mocap.mesh_landmarks import check_mesh_landmarks, load_mesh_landmarks
+from mocap.mesh.landmarks import check_mesh_landmarks, load_mesh_landmarks
 from tolerances import GLTF_FLOAT32_CM, MESH_EXACT
 
 HERE = Path(__file__).resolve().parent

@@ -1,4 +1,4 @@
-"""Weight performances (mocap.performance): reading, name matching, resampling."""
+"""Weight performances (mocap.synth.performance): reading, name matching, resampling."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from scipy.interpolate import interp1d
 
 from mocap.errors import FileFormatError, InputError
-from mocap.performance import (NON_WEIGHT_COLUMNS, TIME_COLUMNS, Performance,
+from mocap.synth.performance import (NON_WEIGHT_COLUMNS, TIME_COLUMNS, Performance,
                                match_shape_names, performance_weights, read_performance,
                                resample_performance)
 

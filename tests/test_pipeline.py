@@ -12,19 +12,19 @@ import mocap
 from basis.basis_io import load_basis
 from fit.demo import make_demo_session
 from fit.gestures import marker_basis as gesture_marker_basis
-from fit.ingest import IngestOptions
-from fit.pipeline import (BASES, SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
+from mocap.clean.ingest import IngestOptions
+from fit.pipeline.stages import (BASES, SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
                           bind_stage, complete_span, fit_stage, ingest_stage, marker_basis,
                           retarget_stage, solve_mesh_space)
-from fit.sampling_estimator import estimate_weights_by_sampling
-from fit.solve import solve_weights
+from fit.solve.sampling_estimator import estimate_weights_by_sampling
+from fit.solve.weights import solve_weights
 from mocap.bind import hold_window
 from mocap.errors import InputError, MarkerError
-from mocap.layout import MarkerLayout
+from mocap.mesh.layout import MarkerLayout
 from mocap.markerset import load_markerset
-from mocap.mesh import load_mesh
-from mocap.mesh_landmarks import load_mesh_landmarks
-from fit.gcv import gcv_smoothness
+from mocap.mesh.mesh import load_mesh
+from mocap.mesh.landmarks import load_mesh_landmarks
+from fit.solve.gcv import gcv_smoothness
 from tests.tolerances import SOLVE_OBJECTIVE_REL
 
 

@@ -11,9 +11,9 @@ from scipy.interpolate import BSpline, RBFInterpolator
 from scipy.spatial.distance import cdist
 
 from mocap import InputError
-from mocap._rbf_kernels import COMPACT_KERNELS, KERNELS, MIN_DEGREE, evaluate
-from mocap.rbf import build_rbf_operator
-from mocap.regions import painted_region_weights, region_weights
+from mocap.retarget._kernels import COMPACT_KERNELS, KERNELS, MIN_DEGREE, evaluate
+from mocap.retarget.rbf import build_rbf_operator
+from mocap.mesh.regions import painted_region_weights, region_weights
 from test_geodesic import slit_grid  # the grid-with-a-cut mesh builder
 from tolerances import RBF_VS_SCIPY_RTOL
 

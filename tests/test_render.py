@@ -1,4 +1,4 @@
-"""Mesh renderer (mocap.render, mocap._raster)."""
+"""Mesh renderer (mocap.viz.render, mocap.viz._raster)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from mocap import _raster
+from mocap.viz import _raster
 from mocap.errors import InputError
-from mocap.mesh import load_mesh
-from mocap.render import (HIDDEN_POINTS, VIEWS, Camera, Lighting, colorbar, image_grid,
+from mocap.mesh.mesh import load_mesh
+from mocap.viz.render import (HIDDEN_POINTS, VIEWS, Camera, Lighting, colorbar, image_grid,
                           render_mesh, save_png)
 from tolerances import RENDER_RGB_LEVELS, RENDER_SILHOUETTE_REL
 
@@ -303,7 +303,7 @@ GOOD_V, GOOD_F = _square()
     (dict(size=(0, 10)), r"size\[0\] \(width\) must be at least 1"),
     (dict(size=100), r"size must be \(width, height\)"),
     (dict(camera=_camera(), size=(10, 10)), "disagrees with camera.size"),
-    (dict(camera="front"), "camera must be a mocap.render.Camera"),
+    (dict(camera="front"), "camera must be a mocap.viz.render.Camera"),
     (dict(colors=np.zeros(3)), r"colors must have shape \(4,\) .* or \(4, 3\)"),
     (dict(colors=np.full((4, 3), 2.0)), r"colors must be RGB in \[0, 1\]"),
     (dict(cmap="no-such-map"), "is not a matplotlib colour map"),
@@ -312,7 +312,7 @@ GOOD_V, GOOD_F = _square()
     (dict(points=np.zeros((2, 2))), r"points must have shape \(any, 3\)"),
     (dict(points=np.zeros((2, 3)), point_colors=np.zeros((3, 3))),
      r"point_colors must have shape \(3,\) or \(2, 3\)"),
-    (dict(lighting=(0, 0, 1)), "lighting must be a mocap.render.Lighting"),
+    (dict(lighting=(0, 0, 1)), "lighting must be a mocap.viz.render.Lighting"),
 ])
 def test_render_errors(kwargs, match):
     args = dict(vertices=GOOD_V, faces=GOOD_F) | kwargs

@@ -1,4 +1,4 @@
-"""Retargeting stage (fit.retarget) and ``mocap2mesh retarget``."""
+"""Retargeting stage (mocap.retarget.retargeting) and ``mocap2mesh retarget``."""
 
 from __future__ import annotations
 
@@ -12,19 +12,19 @@ from scipy.spatial.transform import Rotation
 
 import mocap
 from basis.artist import load_artist_basis
-from fit.cli import main
-from fit.commands.bind import bind_capture
-from fit.retarget import (CONTENTS, RetargetOptions, align_head_frame,
+from fit.cli.main import main
+from fit.cli.commands.bind import bind_capture
+from mocap.retarget.retargeting import (CONTENTS, RetargetOptions, align_head_frame,
                           build_retarget_operator, marker_displacements, neutral_pose, retarget,
                           save_npz, save_obj_sequence)
 from mocap.bind import Binding, hold_window
 from mocap.errors import InputError, MarkerError
-from mocap.layout import load_marker_layout
+from mocap.mesh.layout import load_marker_layout
 from mocap.markerset import MarkerSet, load_markerset
-from mocap.mesh import Mesh, load_mesh
-from mocap.mesh_landmarks import load_mesh_landmarks
-from mocap.performance import read_performance
-from mocap.synth import simulate_capture
+from mocap.mesh.mesh import Mesh, load_mesh
+from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.synth.performance import read_performance
+from mocap.synth.capture import simulate_capture
 from mocap.take import Take
 from tolerances import EXPORT_FLOAT32_REL, RETARGET_CLI_SIM_REL, RETARGET_EXACT
 

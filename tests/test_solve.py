@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from fit.solve import WeightSolution, solve_weights
+from fit.solve.weights import WeightSolution, solve_weights
 from mocap.errors import InputError
 from tests.tolerances import SOLVE_KKT_REL, SOLVE_OBJECTIVE_REL
 
@@ -231,7 +231,7 @@ def test_real_basis_against_bvls(shared_data):
 def test_reduced_solve_matches_dense_solve(kind, bound_fraction):
     """Both paths (Schur complement of G⁻¹ over few bound weights, direct over few
     free ones) against a dense solve of each frame's reduced system."""
-    from fit._active_set import BoxQP, reduced_solve
+    from fit.solve._active_set import BoxQP, reduced_solve
 
     rng = np.random.default_rng([11, BASES.index(kind), int(10 * bound_fraction)])
     basis = make_basis(kind, rng)
@@ -286,7 +286,7 @@ def test_frames_are_solved_independently():
 def test_kkt_residual_matches_elementwise_loop(bounds):
     """The vectorized KKT residual against the case-by-case definition, element by
     element, with weights inside, on, within 1e-12 of and outside each bound."""
-    from fit._active_set import kkt_residual
+    from fit.solve._active_set import kkt_residual
 
     rng = np.random.default_rng([14, list(BOUNDS).index(bounds)])
     lo, hi = (np.broadcast_to(np.asarray(b, float), (N_SHAPES,)) for b in BOUNDS[bounds])
@@ -319,8 +319,8 @@ def test_kkt_residual_matches_elementwise_loop(bounds):
 def test_update_by_one_variable_matches_fresh_solve(kind):
     """Bordering the factored systems with one bound or freed variable per frame
     (or none) gives the weights and gradient of solving the new state from scratch."""
-    from fit._active_set import BoxQP, reduced_solve
-    from fit._reduced import ReducedSystems, schur_weights
+    from fit.solve._active_set import BoxQP, reduced_solve
+    from fit.solve._reduced import ReducedSystems, schur_weights
 
     rng = np.random.default_rng([15, BASES.index(kind)])
     basis = make_basis(kind, rng)
@@ -357,8 +357,8 @@ def test_update_by_one_variable_matches_fresh_solve(kind):
 
 def test_update_leaves_direct_and_refined_systems_alone():
     """Frames solved directly (most weights bound) or refined cannot be updated."""
-    from fit._active_set import BoxQP
-    from fit._reduced import ReducedSystems
+    from fit.solve._active_set import BoxQP
+    from fit.solve._reduced import ReducedSystems
 
     rng = np.random.default_rng(16)
     basis = make_basis("ill-conditioned", rng)
@@ -419,7 +419,7 @@ def test_many_real_frames_against_bvls(shared_data):
 def test_reported_kkt_residual_is_that_of_the_weights(kind):
     """Each frame's KKT residual (kept from where it converged) equals the residual
     of its final weights computed afresh, up to the rounding of the gradient."""
-    from fit._active_set import BoxQP, residual
+    from fit.solve._active_set import BoxQP, residual
 
     rng = np.random.default_rng([19, BASES.index(kind)])
     basis = make_basis(kind, rng)
@@ -434,8 +434,8 @@ def test_reported_kkt_residual_is_that_of_the_weights(kind):
 def test_update_leaves_frames_with_nothing_bound_alone():
     """Frames with every weight free have no factored system to border (enough of
     them make a batch of their own, which is never factored): not updated."""
-    from fit._active_set import BoxQP, reduced_solve
-    from fit._reduced import ReducedSystems, schur_weights
+    from fit.solve._active_set import BoxQP, reduced_solve
+    from fit.solve._reduced import ReducedSystems, schur_weights
 
     rng = np.random.default_rng(20)
     basis = make_basis("random", rng)

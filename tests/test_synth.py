@@ -1,4 +1,4 @@
-"""Capture simulation (mocap.synth): against the dense mesh, stabilize, ezc3d."""
+"""Capture simulation (mocap.synth.capture): against the dense mesh, stabilize, ezc3d."""
 
 from __future__ import annotations
 
@@ -13,12 +13,12 @@ import mocap
 from basis.artist import load_artist_basis
 from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.gaps import find_gaps
-from mocap.layout import load_marker_layout, make_layout
+from mocap.mesh.layout import load_marker_layout, make_layout
 from mocap.markerset import load_markerset
-from mocap.mesh import Mesh
-from mocap.performance import Performance, read_performance
+from mocap.mesh.mesh import Mesh
+from mocap.synth.performance import Performance, read_performance
 from mocap.stabilize import stabilize
-from mocap.synth import CaptureTruth, load_capture_truth, simulate_capture
+from mocap.synth.capture import CaptureTruth, load_capture_truth, simulate_capture
 from tolerances import SYNTH_HEAD_EXACT, SYNTH_VS_DENSE_MM
 
 HERE = Path(__file__).resolve().parent

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-import fit._smooth
-from fit.sampling_estimator import estimate_weights_by_sampling
-from fit.solve import solve_weights
-from fit.temporal import EDGE_MODES, moving_average
+import fit.solve._smooth
+from fit.solve.sampling_estimator import estimate_weights_by_sampling
+from fit.solve.weights import solve_weights
+from fit.solve.temporal import EDGE_MODES, moving_average
 from mocap.errors import InputError
 from tests.tolerances import SOLVE_KKT_REL, SOLVE_OBJECTIVE_REL
 
@@ -143,7 +143,7 @@ def test_smoothness_matches_stacked_oracle_hard_cases(case, lam):
         np.testing.assert_allclose(sol.weights, ref, atol=1e-6)
 
 
-@pytest.mark.parametrize("admm_steps", [0, fit._smooth._ADMM_ITER])
+@pytest.mark.parametrize("admm_steps", [0, fit.solve._smooth._ADMM_ITER])
 @pytest.mark.parametrize("bounds", [(0.0, 1.0), (-0.05, 1.05)])
 @pytest.mark.parametrize("lam", [0.1, 3.0, 300.0])
 def test_long_smooth_sequence_meets_dense_kkt(bounds, lam, admm_steps, monkeypatch):
@@ -151,7 +151,7 @@ def test_long_smooth_sequence_meets_dense_kkt(bounds, lam, admm_steps, monkeypat
     the ADMM start or (0 steps) the clipped unbounded minimizer, on a basis of
     nearly collinear shapes: the KKT conditions of the whole sequence, from the
     dense Hessian, hold to tol."""
-    monkeypatch.setattr(fit._smooth, "_ADMM_ITER", admm_steps)
+    monkeypatch.setattr(fit.solve._smooth, "_ADMM_ITER", admm_steps)
     rng = np.random.default_rng(int(10 * lam))
     T, n, K = 400, 5, 12
     basis, data = _smooth_problem(rng, T, n, K, collinear=True)

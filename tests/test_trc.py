@@ -9,7 +9,7 @@ import pytest
 
 import mocap.io
 from mocap import FileFormatError, InputError, MarkerError, Take
-from mocap.trc import read_trc, write_trc
+from mocap.io.trc import read_trc, write_trc
 from tolerances import TRC_BOX_VS_C3D_MM
 
 

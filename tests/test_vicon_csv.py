@@ -10,7 +10,7 @@ import pytest
 import mocap.io
 from mocap import FileFormatError, InputError, MarkerError, Take
 from mocap.units import UNITS_TO_MM
-from mocap.vicon_csv import read_vicon_csv, write_vicon_csv
+from mocap.io.vicon_csv import read_vicon_csv, write_vicon_csv
 from tolerances import CSV_VS_C3D_MM
 
 DEVICES = ("Devices\n1000\n,,Force Plate 1 - Force,,\nFrame,Sub Frame,Fx,Fy,Fz\n"

@@ -25,7 +25,7 @@ import numpy as np
 
 from mocap.markerset import REQUIRED_REGIONS
 
-from .mask import DEFAULT_MASK_PATH, Mask, save_mask
+from basis.maskle.mask import DEFAULT_MASK_PATH, Mask, save_mask
 
 __all__ = ["build_default_mask", "BONES"]
 

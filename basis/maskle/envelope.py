@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap._validation import as_float_array
+from mocap.util.validation import as_float_array
 
-from .fitting import MaskFit
+from basis.maskle.fitting import MaskFit
 
 __all__ = ["Envelope", "envelope_weights", "calibrate_envelope"]
 

@@ -26,9 +26,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from mocap._atomic import atomic_path
-from mocap._arrays import read_only
-from mocap._validation import as_float_array
+from mocap.util.atomic import atomic_path
+from mocap.util.arrays import read_only
+from mocap.util.validation import as_float_array
 from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
 

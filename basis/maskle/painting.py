@@ -16,13 +16,13 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
-from mocap._validation import as_float_array, as_positive_float
+from mocap.util.validation import as_float_array, as_positive_float
 from mocap.errors import InputError
-from mocap.mesh import Mesh
+from mocap.mesh.mesh import Mesh
 
-from .fitting import MaskFit, _neighbour_mean
-from .mask import Mask
-from .transfer import transfer_operator
+from basis.maskle.fitting import MaskFit, _neighbour_mean
+from basis.maskle.mask import Mask
+from basis.maskle.transfer import transfer_operator
 
 __all__ = ["paint_mask"]
 

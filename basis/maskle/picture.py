@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from fit._figures import new_figure, save_figure
-from mocap.mesh import Mesh
+from mocap.viz.figures import new_figure, save_figure
+from mocap.mesh.mesh import Mesh
 
-from .transfer import MaskleWeights
+from basis.maskle.transfer import MaskleWeights
 
 __all__ = ["save_weights_picture"]
 

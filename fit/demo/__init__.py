@@ -7,6 +7,6 @@ and marker set (:mod:`fit.demo.markers`) and a simulated capture, all
 written by :func:`make_demo_session` (:mod:`fit.demo.session`).
 """
 
-from .session import SESSION_FILES, DemoSession, make_demo_session
+from fit.demo.session import SESSION_FILES, DemoSession, make_demo_session
 
 __all__ = ["DemoSession", "make_demo_session", "SESSION_FILES"]

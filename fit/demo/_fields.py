@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.mesh import vertex_normals
+from mocap.mesh.mesh import vertex_normals
 
-from .face import MOUTH, mouth_line
+from fit.demo.face import MOUTH, mouth_line
 
 
 def ramp(t) -> np.ndarray:

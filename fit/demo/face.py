@@ -21,7 +21,7 @@ import numpy as np
 from matplotlib.path import Path as _Polygon
 from scipy.spatial import Delaunay, cKDTree
 
-from mocap.mesh import Mesh, boundary_loops
+from mocap.mesh.mesh import Mesh, boundary_loops
 
 __all__ = ["FaceModel", "make_face", "MOUTH", "EYES", "height", "mouth_line", "eye_line"]
 

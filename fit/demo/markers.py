@@ -12,9 +12,9 @@ from __future__ import annotations
 import matplotlib.tri as mtri
 import numpy as np
 
-from mocap.layout import MarkerLayout, make_layout
+from mocap.mesh.layout import MarkerLayout, make_layout
 
-from .face import EYES, MOUTH, FaceModel, mouth_line
+from fit.demo.face import EYES, MOUTH, FaceModel, mouth_line
 
 __all__ = ["HEAD_MARKERS", "MARKER_OFFSET_MM", "marker_regions", "demo_layout",
            "markerset_toml", "landmarks_toml"]
@@ -128,7 +128,7 @@ def markerset_toml() -> str:
 def landmarks_toml(face: FaceModel) -> str:
     """The demo face's mesh landmarks as TOML text.
 
-    Read back by :func:`mocap.mesh_landmarks.load_mesh_landmarks`.
+    Read back by :func:`mocap.mesh.landmarks.load_mesh_landmarks`.
     """
     lines = ["# Anatomical points of the demo face (neutral.obj) by 0-based vertex id.",
              'mesh = "mocap2mesh demo face (neutral.obj)"',

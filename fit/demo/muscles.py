@@ -16,8 +16,8 @@ import numpy as np
 
 from basis.artist import ArtistBasis
 
-from ._fields import Sculptor, above_mouth, radial, ramp, window
-from .face import FaceModel, MOUTH, mouth_line
+from fit.demo._fields import Sculptor, above_mouth, radial, ramp, window
+from fit.demo.face import FaceModel, MOUTH, mouth_line
 
 __all__ = ["UPPER_FACE", "LOWER_FACE", "MUSCLES", "JAW", "muscle_basis"]
 

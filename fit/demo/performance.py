@@ -24,9 +24,9 @@ import numpy as np
 
 from basis.artist import ArtistBasis
 
-from ._fields import Sculptor, ramp, radial, slit_side
-from .face import EYES, FaceModel, eye_line
-from .muscles import JAW, MUSCLES, jaw_rotation_parts
+from fit.demo._fields import Sculptor, ramp, radial, slit_side
+from fit.demo.face import EYES, FaceModel, eye_line
+from fit.demo.muscles import JAW, MUSCLES, jaw_rotation_parts
 
 __all__ = ["HIDDEN", "TRUTH_SHAPES", "DemoPerformance", "make_performance", "truth_basis"]
 

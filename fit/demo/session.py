@@ -6,8 +6,8 @@ Files written by :func:`make_demo_session`:
 ``neutral.obj``     the face (:mod:`fit.demo.face`), mm (``# units: mm``)
 ``shapes/``         the 18 muscle shapes (:func:`basis.basis_io.save_basis`:
                     ``neutral.obj``, one OBJ per shape, ``basis.json``)
-``landmarks.toml``  mesh landmarks (:func:`mocap.mesh_landmarks.load_mesh_landmarks`)
-``layout.toml``     markers on the mesh (:func:`mocap.layout.load_marker_layout`)
+``landmarks.toml``  mesh landmarks (:func:`mocap.mesh.landmarks.load_mesh_landmarks`)
+``layout.toml``     markers on the mesh (:func:`mocap.mesh.layout.load_marker_layout`)
 ``markerset.toml``  head markers, regions, landmarks (:func:`mocap.markerset.load_markerset`)
 ``capture.c3d``     the simulated capture: head motion, noise, gaps (:func:`mocap.io.read`)
 ``truth.npz``       ground truth (keys below)
@@ -33,17 +33,17 @@ import numpy as np
 import mocap
 from basis.artist import ArtistBasis
 from basis.basis_io import save_basis
-from mocap._atomic import atomic_path
-from mocap._validation import as_int, as_positive_float
-from mocap.layout import MarkerLayout, save_marker_layout
-from mocap.mesh import save_obj
-from mocap.performance import Performance
-from mocap.synth import SimulatedCapture, simulate_capture
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_int, as_positive_float
+from mocap.mesh.layout import MarkerLayout, save_marker_layout
+from mocap.mesh.mesh import save_obj
+from mocap.synth.performance import Performance
+from mocap.synth.capture import SimulatedCapture, simulate_capture
 
-from .face import FaceModel, make_face
-from .markers import HEAD_MARKERS, demo_layout, landmarks_toml, markerset_toml
-from .muscles import muscle_basis
-from .performance import (HIDDEN, TRUTH_SHAPES, DemoPerformance, make_performance,
+from fit.demo.face import FaceModel, make_face
+from fit.demo.markers import HEAD_MARKERS, demo_layout, landmarks_toml, markerset_toml
+from fit.demo.muscles import muscle_basis
+from fit.demo.performance import (HIDDEN, TRUTH_SHAPES, DemoPerformance, make_performance,
                           truth_basis)
 
 __all__ = ["DemoSession", "make_demo_session", "SESSION_FILES"]

@@ -10,16 +10,16 @@
 - :mod:`.transfer`: details moved to a target face by compact RBFs, mesh outputs.
 """
 
-from .analysis import (DETAIL_GROUPS, ESTIMATORS, LIP_REGIONS, GestureAnalysis, analyze_gestures,
+from fit.gestures.analysis import (DETAIL_GROUPS, ESTIMATORS, LIP_REGIONS, GestureAnalysis, analyze_gestures,
                        marker_basis)
-from .clip import GestureClip, clip_from_analysis, clip_from_performance, load_clip, save_clip
-from .mrf import GestureSynthesis, candidate_distances, pick_candidate, synthesize_gestures
-from .reference import CaptureClip, clip_from_capture
-from .speech import (analog_intensity, opening_intensity, read_wav, speech_intensity,
+from fit.gestures.clip import GestureClip, clip_from_analysis, clip_from_performance, load_clip, save_clip
+from fit.gestures.mrf import GestureSynthesis, candidate_distances, pick_candidate, synthesize_gestures
+from fit.gestures.reference import CaptureClip, clip_from_capture
+from fit.gestures.speech import (analog_intensity, opening_intensity, read_wav, speech_intensity,
                      wav_intensity)
-from .features import (DETAIL_FEATURES, FEATURES, WEIGHT_FEATURES, WEIGHT_PATTERNS,
+from fit.gestures.features import (DETAIL_FEATURES, FEATURES, WEIGHT_FEATURES, WEIGHT_PATTERNS,
                        weight_columns)
-from .timeline import Segment, Timeline, load_timeline, parse_timeline
+from fit.gestures.timeline import Segment, Timeline, load_timeline, parse_timeline
 
 __all__ = ["GestureAnalysis", "analyze_gestures", "marker_basis", "DETAIL_GROUPS",
            "LIP_REGIONS", "ESTIMATORS",

@@ -14,17 +14,17 @@ from typing import Mapping
 
 import numpy as np
 
-from mocap._arrays import read_only
-from mocap._validation import as_choice, as_float_array, as_int
+from mocap.util.arrays import read_only
+from mocap.util.validation import as_choice, as_float_array, as_int
 from mocap.bind import Binding
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.stabilize import Stabilization
 
-from ..pipeline import marker_basis as _mesh_marker_basis
-from ..sampling_estimator import estimate_weights_by_sampling
-from ..solve import solve_weights
-from ..temporal import moving_average
+from fit.pipeline.stages import marker_basis as _mesh_marker_basis
+from fit.solve.sampling_estimator import estimate_weights_by_sampling
+from fit.solve.weights import solve_weights
+from fit.solve.temporal import moving_average
 
 __all__ = ["GestureAnalysis", "analyze_gestures", "marker_basis", "DETAIL_GROUPS",
            "LIP_REGIONS", "ESTIMATORS"]
@@ -34,8 +34,8 @@ DETAIL_GROUPS = ("left_brow", "right_brow", "left_eye", "right_eye")
 #: Marker-set regions whose residual is the lip movement P.
 LIP_REGIONS = ("upper_lip", "lower_lip")
 #: How the blend weights are found: exact bounded least squares
-#: (:func:`fit.solve.solve_weights`) or the paper's sampling estimator
-#: (:func:`fit.sampling_estimator.estimate_weights_by_sampling`).
+#: (:func:`fit.solve.weights.solve_weights`) or the paper's sampling estimator
+#: (:func:`fit.solve.sampling_estimator.estimate_weights_by_sampling`).
 ESTIMATORS = ("exact", "sampling")
 
 
@@ -247,7 +247,7 @@ def marker_basis(binding: Binding, displacements, labels, *, mesh=None) -> np.nd
     mesh : Mesh, optional
         The binding's neutral mesh: with a binding made with a skin offset,
         the marker centres off the skin are sampled, not the surface points
-        (:func:`fit.pipeline.marker_basis`).
+        (:func:`fit.pipeline.stages.marker_basis`).
 
     Returns
     -------

@@ -14,16 +14,16 @@ from typing import Mapping
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocap._arrays import read_only
-from mocap._atomic import atomic_path
-from mocap._validation import as_float_array, as_positive_float
+from mocap.util.arrays import read_only
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_float_array, as_positive_float
 from mocap.errors import FileFormatError, InputError
 
-from mocap.performance import Performance, performance_weights, resample_performance
+from mocap.synth.performance import Performance, performance_weights, resample_performance
 
-from .analysis import GestureAnalysis
-from .speech import OPENING_WINDOW_S, speech_intensity
-from .features import DETAIL_FEATURES, weight_columns
+from fit.gestures.analysis import GestureAnalysis
+from fit.gestures.speech import OPENING_WINDOW_S, speech_intensity
+from fit.gestures.features import DETAIL_FEATURES, weight_columns
 
 __all__ = ["GestureClip", "clip_from_analysis", "clip_from_performance", "save_clip",
            "load_clip", "ACTIVITY_COLUMNS"]
@@ -167,7 +167,7 @@ def clip_from_performance(performance: Performance, *, name: str, rate: float, s
     Parameters
     ----------
     performance : Performance
-        :func:`mocap.performance.read_performance`; resampled to `rate`.
+        :func:`mocap.synth.performance.read_performance`; resampled to `rate`.
     name : str
     rate : float, Hz
     shapes : sequence of str, optional

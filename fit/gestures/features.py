@@ -24,7 +24,7 @@ import numpy as np
 
 from mocap.errors import InputError
 
-from .analysis import DETAIL_GROUPS
+from fit.gestures.analysis import DETAIL_GROUPS
 
 __all__ = ["FEATURES", "WEIGHT_FEATURES", "DETAIL_FEATURES", "WEIGHT_PATTERNS",
            "weight_columns"]

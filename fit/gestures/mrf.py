@@ -17,13 +17,13 @@ from typing import Mapping, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocap._validation import as_float_array, as_int, as_positive_float
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 from mocap.errors import InputError
 
-from . import _mrf
-from .clip import GestureClip
-from .features import DETAIL_FEATURES, FEATURES, weight_columns
-from .timeline import Timeline
+from fit.gestures import _mrf
+from fit.gestures.clip import GestureClip
+from fit.gestures.features import DETAIL_FEATURES, FEATURES, weight_columns
+from fit.gestures.timeline import Timeline
 
 __all__ = ["GestureSynthesis", "synthesize_gestures", "candidate_distances",
            "pick_candidate"]

@@ -1,7 +1,7 @@
 """Reference clips from captures: ingestion, decomposition and speech intensity in one call.
 
 What ``mocap2mesh gestures analyze`` runs: the capture is gap-filled, resampled
-to the synthesis rate and head-stabilized (:func:`fit.ingest.ingest`); the
+to the synthesis rate and head-stabilized (:func:`mocap.clean.ingest.ingest`); the
 expression shapes are sampled at the bound markers (:func:`marker_basis`); the
 take is decomposed (:func:`analyze_gestures`); S(t) comes from a WAV file
 recorded with the take, from one of its analog channels, or, failing both,
@@ -22,11 +22,11 @@ from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.take import Take
 
-from ..ingest import IngestOptions, ingest
-from ..retarget import neutral_pose
-from .analysis import GestureAnalysis, analyze_gestures, marker_basis
-from .clip import GestureClip, clip_from_analysis
-from .speech import (DEFAULT_WINDOW_S, OPENING_WINDOW_S, analog_intensity, opening_intensity,
+from mocap.clean.ingest import IngestOptions, ingest
+from mocap.retarget.retargeting import neutral_pose
+from fit.gestures.analysis import GestureAnalysis, analyze_gestures, marker_basis
+from fit.gestures.clip import GestureClip, clip_from_analysis
+from fit.gestures.speech import (DEFAULT_WINDOW_S, OPENING_WINDOW_S, analog_intensity, opening_intensity,
                      wav_intensity)
 
 __all__ = ["CaptureClip", "clip_from_capture", "OPENING_LANDMARKS"]

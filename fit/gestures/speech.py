@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import scipy.io.wavfile
 
-from mocap._validation import as_float_array, as_int, as_positive_float
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 from mocap.errors import FileFormatError, InputError
 from mocap.take import Take
 

@@ -25,11 +25,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
-from mocap._toml import read_toml
+from mocap.util.toml import read_toml
 from mocap.errors import FileFormatError, InputError
-from mocap._validation import as_positive_float, as_int
+from mocap.util.validation import as_positive_float, as_int
 
-from .features import FEATURES
+from fit.gestures.features import FEATURES
 
 __all__ = ["Segment", "Timeline", "load_timeline", "parse_timeline", "FEATURES"]
 

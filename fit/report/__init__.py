@@ -12,11 +12,11 @@ from typing import Mapping
 
 from mocap.errors import InputError
 
-from ..metrics import reconstruction_errors
-from .html import ingest_stats, write_report
-from .plots import plot_alpha, plot_coverage, plot_error_heatmap, plot_marker_errors
-from .video import write_overlay_video
-from .views import plot_frame_views
+from fit.metrics import reconstruction_errors
+from fit.report.html import ingest_stats, write_report
+from fit.report.plots import plot_alpha, plot_coverage, plot_error_heatmap, plot_marker_errors
+from fit.report.video import write_overlay_video
+from fit.report.views import plot_frame_views
 
 __all__ = ["build_report"]
 
@@ -46,7 +46,7 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         Origin of α (default: centroid of `neutral`).
     pca : basis.pca.PCAModel, optional
         Adds the coverage curve.
-    ingest : fit.ingest.IngestResult, optional
+    ingest : mocap.clean.ingest.IngestResult, optional
         Adds the ingestion table.
     pictures : mapping of str to path, optional
         PNGs made elsewhere (the gap chart, the head residuals), embedded first

@@ -16,10 +16,10 @@ from typing import Mapping
 
 import numpy as np
 
-from mocap._atomic import atomic_path
+from mocap.util.atomic import atomic_path
 from mocap.errors import InputError
 
-from ..metrics import ReconstructionErrors
+from fit.metrics import ReconstructionErrors
 
 __all__ = ["render_report", "write_report", "ingest_stats"]
 
@@ -67,7 +67,7 @@ def _image(source) -> str:
 
 
 def ingest_stats(result) -> dict:
-    """Headline figures of an ingestion (:class:`fit.ingest.IngestResult`), a dict.
+    """Headline figures of an ingestion (:class:`mocap.clean.ingest.IngestResult`), a dict.
 
     Samples missing in the raw take, filled (in total and per method), still
     missing, and, when stabilized, the head-fit noise, slips and frames

@@ -12,8 +12,8 @@ from matplotlib.ticker import FuncFormatter, LogLocator
 
 from mocap.errors import InputError
 
-from .._figures import new_figure, save_figure
-from ..metrics import ReconstructionErrors
+from mocap.viz.figures import new_figure, save_figure
+from fit.metrics import ReconstructionErrors
 
 __all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "plot_coverage",
            "region_groups", "distinct_colours"]

@@ -8,11 +8,11 @@ import os
 import cv2
 import numpy as np
 
-from mocap._atomic import atomic_path
-from mocap._validation import as_int, as_positions, as_positive_float
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_int, as_positions, as_positive_float
 from mocap.errors import InputError
 
-from .views import view_axes
+from fit.report.views import view_axes
 
 __all__ = ["write_overlay_video"]
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.collections import LineCollection
 
-from mocap._validation import as_float_array, as_positions
+from mocap.util.validation import as_float_array, as_positions
 from mocap.errors import InputError
 
-from .._figures import new_figure, save_figure
-from ..ingest_plots import _front_view_axes
+from mocap.viz.figures import new_figure, save_figure
+from fit.report.ingest_plots import _front_view_axes
 
 __all__ = ["view_axes", "plot_frame_views"]
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..stabilize import stabilize
-from ..take import Take
+from mocap.stabilize import stabilize
+from mocap.take import Take
 
 #: Donors a rigid fit needs in a frame (and in a reference frame).
 MIN_DONORS = 3

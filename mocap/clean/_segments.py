@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..gaps import find_gaps
+from mocap.gaps import find_gaps
 
 
 def visible_segments(missing: np.ndarray) -> list[tuple[int, int, np.ndarray]]:

@@ -7,10 +7,10 @@ import warnings
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from .._validation import as_int, as_positive_float
-from ..errors import InputError
-from ..take import Take
-from ._segments import visible_segments
+from mocap.util.validation import as_int, as_positive_float
+from mocap.errors import InputError
+from mocap.take import Take
+from mocap.clean._segments import visible_segments
 
 __all__ = ["lowpass"]
 

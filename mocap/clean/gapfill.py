@@ -8,14 +8,14 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .._validation import as_choice, as_int
-from ..errors import InputError
-from ..gaps import find_gaps
-from ..take import Take, fill_code
-from . import _pca_fill, _rigid_fill
-from ._pca_fill import fill_pca, pca_donors
-from ._rigid_fill import fill_rigid
-from ._spline_fill import fill_spline
+from mocap.util.validation import as_choice, as_int
+from mocap.errors import InputError
+from mocap.gaps import find_gaps
+from mocap.take import Take, fill_code
+from mocap.clean import _pca_fill, _rigid_fill
+from mocap.clean._pca_fill import fill_pca, pca_donors
+from mocap.clean._rigid_fill import fill_rigid
+from mocap.clean._spline_fill import fill_spline
 
 __all__ = ["FILL_OPTIONS", "FillResult", "fill_gaps"]
 

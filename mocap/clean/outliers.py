@@ -16,13 +16,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._arrays import read_only
-from .._validation import as_int, as_positive_float
-from ..errors import InputError
-from ..gaps import find_gaps
-from ..stabilize import stabilize
-from ..take import Take
-from .swaps import (_last_visible, _long_gap_starts, _median_pose, _nanmedian_or_nan,
+from mocap.util.arrays import read_only
+from mocap.util.validation import as_int, as_positive_float
+from mocap.errors import InputError
+from mocap.gaps import find_gaps
+from mocap.stabilize import stabilize
+from mocap.take import Take
+from mocap.clean.swaps import (_last_visible, _long_gap_starts, _median_pose, _nanmedian_or_nan,
                     _typical_step)
 
 __all__ = ["REASONS", "ImplausibleRun", "ImplausibleSamples",

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from .._validation import as_int, as_positive_float
-from ..errors import InputError
-from ..take import Take
-from ._segments import visible_segments
-from .filtering import lowpass
+from mocap.util.validation import as_int, as_positive_float
+from mocap.errors import InputError
+from mocap.take import Take
+from mocap.clean._segments import visible_segments
+from mocap.clean.filtering import lowpass
 
 __all__ = ["resample"]
 

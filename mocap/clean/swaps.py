@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_int, as_positive_float
-from ..errors import InputError, MarkerError
-from ..gaps import find_gaps
-from ..take import Take
+from mocap.util.validation import as_int, as_positive_float
+from mocap.errors import InputError, MarkerError
+from mocap.gaps import find_gaps
+from mocap.take import Take
 
 __all__ = ["LabelSwap", "find_label_swaps", "fix_label_swaps"]
 

@@ -1,0 +1,273 @@
+"""``mocap2mesh gestures analyze|synthesize``: reference clips from captures, gestures from speech.
+
+``gestures analyze CAPTURE --markerset MS --binding B --mesh N --shapes S -o CLIP.npz``
+builds a reference clip (:func:`fit.gestures.reference.clip_from_capture`).
+
+``gestures synthesize SPEECH --palette CLIP... -o DIR`` writes into DIR:
+``weights.csv`` (c̃(t)), ``head.npz`` (R̃, T̃, if the palette has head motion),
+``details.npz`` (D̃_j in mm, if it has details), and with ``--mesh``/``--shapes``
+the animated face ``mesh.npz`` (neutral + basis + weights, the details
+transferred by compact RBFs when ``--binding`` is given) and ``gestures.glb``
+(morph-target animation; with ``--binding``, the head motion too, as the
+node's rotation and translation).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from mocap.errors import InputError
+from mocap.synth.performance import read_performance
+
+from fit.gestures.analysis import ESTIMATORS
+from mocap.clean.ingest import FILL_CHOICES
+from fit.cli.commands.bind import parse_frame
+
+__all__ = ["add_parser", "run_analyze", "run_synthesize", "load_palette"]
+
+
+def _pair(text: str) -> tuple:
+    parts = tuple(x.strip() for x in text.split(","))
+    if len(parts) != 2 or not all(parts):
+        raise ValueError(text)
+    return parts
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "gestures", help="facial gestures: reference clips from captures, synthesis from speech",
+        description="Expressive facial gestures (Ju & Lee 2008): 'analyze' decomposes a "
+                    "capture into a reference clip (blend weights, blinks, brows, head motion, "
+                    "details, speech intensity); 'synthesize' drives a Markov random field over "
+                    "such clips with a speech WAV file.")
+    actions = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    _add_analyze(actions)
+    _add_synthesize(actions)
+
+
+def _add_analyze(actions) -> None:
+    p = actions.add_parser(
+        "analyze", help="build a reference clip from a capture",
+        description="Fill the capture's gaps, resample it to RATE, stabilize it in the head "
+                    "frame, sample the expression shapes at the bound markers, fit the blend "
+                    "weights to the moving average of the markers (-eps <= c <= 1 + eps), split "
+                    "the residual into lips and the detail groups (brows, eyes), and take the "
+                    "speech intensity S(t) from --speech, --analog or, without audio, the "
+                    "loudness of the lip opening (stated in a warning and in the clip). "
+                    "Writes OUT.npz, read by 'gestures synthesize --palette'.")
+    p.add_argument("capture", type=Path, help="C3D, Vicon Nexus CSV, TRC or .npz take")
+    p.add_argument("--markerset", required=True, type=Path,
+                   help="marker-set TOML (head markers, regions, landmarks)")
+    p.add_argument("--binding", required=True, type=Path,
+                   help="binding .json of the capture to --mesh, in the head frame "
+                        "('mocap2mesh bind --stabilize')")
+    p.add_argument("--mesh", required=True, type=Path, help="neutral face mesh of the binding")
+    p.add_argument("--shapes", required=True, type=Path,
+                   help="expression shapes (OBJ directory or glTF/GLB, e.g. a basis written "
+                        "by 'mocap2mesh basis')")
+    p.add_argument("--units", help="units of the mesh (e.g. cm)")
+    p.add_argument("-o", "--output", required=True, type=Path, help="clip .npz")
+    p.add_argument("--name", help="style name of the clip (default: the output's stem)")
+    speech = p.add_mutually_exclusive_group()
+    speech.add_argument("--speech", type=Path, metavar="WAV",
+                        help="speech recorded with the capture, from its first frame")
+    speech.add_argument("--analog", metavar="CHANNEL",
+                        help="analog channel of the capture holding the speech")
+    speech.add_argument("--opening", type=_pair, metavar="UPPER,LOWER",
+                        help="lip markers of the stand-in (default: the marker set's "
+                             "upper_lip_top and lower_lip_bottom landmarks)")
+    p.add_argument("--intensity-window", type=float, metavar="S",
+                   help="RMS window of S(t) (default 0.05 for speech, 0.25 for the stand-in)")
+    p.add_argument("--rate", type=float, default=30.0, metavar="HZ",
+                   help="frame rate of the clip: the synthesis rate (default 30)")
+    p.add_argument("--window", type=int, default=41, metavar="FRAMES",
+                   help="moving-average window of the weight fit (default 41, the paper's)")
+    p.add_argument("--epsilon", type=float, default=0.1, help="weight bounds (default 0.1)")
+    p.add_argument("--estimator", choices=ESTIMATORS, default="exact",
+                   help="bounded least squares (default), or the paper's sampling estimator")
+    p.add_argument("--neutral-frame", type=parse_frame, default="auto", metavar="N|auto|hold",
+                   help="0-based frame index at RATE of the neutral, 'auto' (default): "
+                        "the frame closest to the median pose, or 'hold': the mean pose of "
+                        "the neutral hold the take starts with")
+    p.add_argument("--fill", choices=FILL_CHOICES, default="auto",
+                   help="gap filling (default auto)")
+    p.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")
+    p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
+    p.add_argument("--seed", type=int, default=0, help="seed of the sampling estimator")
+    p.set_defaults(run=run_analyze)
+
+
+def _add_synthesize(actions) -> None:
+    p = actions.add_parser(
+        "synthesize", help="synthesize gestures (weights, head motion, details) from speech",
+        description="Drive a Markov random field over reference clips (Ju & Lee 2008) with the "
+                    "intensity of a speech WAV file: the expression weights, the blinks, the "
+                    "brows, the head motion and each detail group follow their own chains; a "
+                    "TOML timeline paints styles (clip names) on time segments, per feature.")
+    p.add_argument("speech", type=Path, help="driving speech .wav")
+    p.add_argument("--palette", required=True, type=Path, nargs="+", metavar="CLIP",
+                   help="reference clips: .npz ('gestures analyze') or performance .csv "
+                        "(mouth opening stands in for speech); named by file stem")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    p.add_argument("--timeline", type=Path, help="timeline TOML of styles")
+    p.add_argument("--rate", type=float, default=30.0, metavar="HZ",
+                   help="output frame rate (default 30)")
+    p.add_argument("--window", type=float, default=0.05, metavar="S",
+                   help="RMS window of the speech intensity (default 0.05)")
+    p.add_argument("--history", type=int, default=10, help="frames matched, h (default 10)")
+    p.add_argument("--alpha", type=float, default=1.0, help="weight of speech (default 1)")
+    p.add_argument("--sigma", type=float, default=0.05, help="sigma of exp(-dist/sigma)")
+    p.add_argument("--candidates", type=int, default=3, help="best candidates drawn from")
+    p.add_argument("--run", type=int, default=1, dest="run_frames",
+                   help="frames copied per pick (default 1)")
+    p.add_argument("--blend", type=int, default=4, help="frames fading out a jump (default 4)")
+    p.add_argument("--no-time-warps", action="store_true",
+                   help="candidates are the continuation and frames at least --history from "
+                        "it: no stalls, short replays or skips")
+    p.add_argument("--one-chain", action="store_true",
+                   help="blinks and brows in the chain of the other weights (default: their own)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--mesh", type=Path, help="target neutral mesh")
+    p.add_argument("--shapes", type=Path, help="target expression shapes (OBJ dir or glTF)")
+    p.add_argument("--units", help="units of the mesh (e.g. cm)")
+    p.add_argument("--binding", type=Path,
+                   help="binding .json of the reference capture to --mesh (head frame): "
+                        "places the details and the head motion on the mesh")
+    p.add_argument("--support", type=float, help="RBF support radius, mesh units")
+    p.set_defaults(run=run_synthesize)
+
+
+def run_analyze(args) -> int:
+    import mocap
+    from basis.artist import load_artist_basis
+    from fit.gestures import save_clip
+    from fit.gestures.reference import clip_from_capture
+    from mocap.clean.ingest import IngestOptions
+    from mocap.util.atomic import refuse_overwrite
+    from mocap.bind import load_binding
+    from mocap.markerset import load_markerset
+
+    if args.output.suffix.lower() != ".npz":
+        raise InputError(f"{args.output}: a clip is written as .npz")
+    inputs = [x for x in (args.capture, args.markerset, args.binding, args.mesh, args.shapes,
+                          args.speech) if x is not None]
+    refuse_overwrite(args.output, inputs)
+    markerset = load_markerset(args.markerset)
+    binding = load_binding(args.binding)
+    basis = load_artist_basis(args.mesh, args.shapes, units=args.units)
+    take = mocap.read(args.capture)
+    options = IngestOptions(fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass)
+    made = clip_from_capture(take, markerset, binding, basis, name=args.name or args.output.stem,
+                             rate=args.rate, wav=args.speech, analog=args.analog,
+                             opening=args.opening, intensity_window=args.intensity_window,
+                             options=options, neutral_frame=args.neutral_frame,
+                             epsilon=args.epsilon, window=args.window,
+                             estimator=args.estimator, seed=args.seed)
+    save_clip(args.output, made.clip, inputs=inputs)
+    return 0
+
+
+def load_palette(paths, *, rate: float, shapes=None) -> list:
+    """Clips from ``.npz`` files and performance ``.csv`` files, named by stem."""
+    from fit.gestures import clip_from_performance, load_clip
+
+    clips = []
+    for path in paths:
+        if path.suffix.lower() == ".csv":
+            clips.append(clip_from_performance(read_performance(path), name=path.stem,
+                                               rate=rate, shapes=shapes))
+        elif path.suffix.lower() == ".npz":
+            clips.append(_in_basis(load_clip(path), shapes))
+        else:
+            raise InputError(f"{path}: a palette clip is a .npz clip or a performance .csv")
+    return clips
+
+
+def _in_basis(clip, shapes):
+    """The clip with its weights in the order of `shapes` (unchanged without shapes)."""
+    if shapes is None or tuple(shapes) == clip.names:
+        return clip
+    absent = [s for s in clip.names if s not in shapes]
+    if absent:
+        raise InputError(f"clip {clip.name!r}: shapes {absent} are not in the target basis")
+    weights = np.zeros((clip.n_frames, len(shapes)))
+    weights[:, [list(shapes).index(s) for s in clip.names]] = clip.weights
+    return dataclasses.replace(clip, weights=weights, names=tuple(shapes))
+
+
+def run_synthesize(args) -> int:
+    from basis.artist import load_artist_basis
+    from fit.exports import write_weights_csv
+    from fit.gestures import load_timeline, synthesize_gestures, wav_intensity
+    from mocap.util.atomic import atomic_path
+    from mocap.bind import load_binding
+
+    if (args.mesh is None) != (args.shapes is None):
+        raise InputError("--mesh and --shapes go together")
+    if args.binding is not None and args.mesh is None:
+        raise InputError("--binding needs --mesh and --shapes")
+    if not args.output.is_dir():
+        raise InputError(f"{args.output}: the output directory does not exist")
+    basis = None if args.mesh is None else load_artist_basis(args.mesh, args.shapes,
+                                                             units=args.units)
+    binding = None if args.binding is None else load_binding(args.binding)
+    rate = args.rate
+    clips = load_palette(args.palette, rate=rate,
+                         shapes=None if basis is None else basis.names)
+    timeline = None if args.timeline is None else load_timeline(args.timeline)
+    intensity = wav_intensity(args.speech, frame_rate=rate, window=args.window)
+    syn = synthesize_gestures(intensity, clips, rate=rate, timeline=timeline,
+                              history=args.history, alpha=args.alpha, sigma=args.sigma,
+                              n_candidates=args.candidates, run=args.run_frames, blend=args.blend,
+                              time_warps=not args.no_time_warps,
+                              weight_groups={} if args.one_chain else None, seed=args.seed)
+    inputs = [args.speech, *args.palette, args.timeline, args.mesh, args.binding]
+    inputs = [x for x in inputs if x is not None]
+    out = args.output
+    write_weights_csv(out / "weights.csv", syn.weights, syn.names, rate=rate, inputs=inputs)
+    if syn.head_rotation is not None:
+        with atomic_path(out / "head.npz", inputs=inputs) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, rotation=syn.head_rotation, translation=syn.head_translation,
+                     rate=np.float64(rate))
+    if syn.details:
+        with atomic_path(out / "details.npz", inputs=inputs) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, rate=np.float64(rate), **{f"details.{g}": v
+                                                   for g, v in syn.details.items()},
+                     **{f"labels.{g}": np.array(v, dtype=str)
+                        for g, v in syn.detail_labels.items()})
+    if basis is not None:
+        _write_face(out, syn, basis, binding, support=args.support, inputs=inputs)
+    return 0
+
+
+def _write_face(out: Path, syn, basis, binding, *, support, inputs) -> None:
+    """``mesh.npz`` and ``gestures.glb``: the synthesis on the target face (details and head
+    motion placed on it with a binding)."""
+    from basis.gltf import write_gltf
+    from fit.exports import write_mesh_sequence
+    from fit.gestures.transfer import build_detail_transfer, head_motion_on_mesh
+
+    fields, names, weights = basis.displacements, basis.names, syn.weights
+    if binding is not None and syn.details:
+        transfer = build_detail_transfer(binding, basis.neutral, syn.detail_labels,
+                                         support=support)
+        extra, extra_names = transfer.shapes()
+        fields = np.concatenate([fields, extra])
+        names = names + extra_names
+        weights = np.concatenate([weights, transfer.weights(syn.details)], axis=1)
+    write_mesh_sequence(out / "mesh.npz", basis.neutral, fields, weights, names=names,
+                        rate=syn.rate, inputs=inputs)
+    motion = {}
+    if syn.head_rotation is not None and binding is None:
+        warnings.warn("the head motion is in head.npz only: --binding places it on the mesh "
+                      "(gestures.glb)", stacklevel=3)
+    elif syn.head_rotation is not None:
+        rotation, translation = head_motion_on_mesh(binding, syn.head_rotation,
+                                                    syn.head_translation)
+        motion = {"rotation": rotation, "translation": translation}
+    write_gltf(out / "gestures.glb", basis.neutral, fields, names, weights=weights,
+               rate=syn.rate, inputs=inputs, **motion)

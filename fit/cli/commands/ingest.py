@@ -1,0 +1,72 @@
+"""``mocap2mesh ingest FILE -o OUT``: clean, filter, resample and stabilize a take."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tqdm import tqdm
+
+import mocap
+from mocap.markerset import load_markerset
+
+from mocap.clean.ingest import FILL_CHOICES, IngestOptions, ingest, save_head_motion
+from fit.report.ingest_plots import plot_gaps, plot_head_residuals
+
+__all__ = ["add_parser", "run", "ingest_file"]
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "ingest", help="gap-fill, filter, resample and head-stabilize a marker file",
+        description="Read a capture, fill its gaps, low-pass and resample it, express it in "
+                    "the head frame, and write it as .c3d, .csv or .npz (by extension).")
+    p.add_argument("file", help="input C3D, Vicon Nexus CSV, TRC or .npz take")
+    p.add_argument("-o", "--output", required=True, type=Path,
+                   help="output .c3d, .csv or .npz (never one of the inputs)")
+    p.add_argument("--markerset", type=Path, help="marker-set TOML (head markers, regions)")
+    p.add_argument("--fix-swaps", action="store_true",
+                   help="find and undo label swaps between neighbouring markers first")
+    p.add_argument("--reject-implausible", action="store_true",
+                   help="remove teleports, doubly labelled markers and ghost slides before "
+                        "filling (in the head frame with --markerset)")
+    p.add_argument("--fill", choices=FILL_CHOICES, default="auto", help="gap-filling method")
+    p.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")
+    p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
+    p.add_argument("--resample", type=float, metavar="HZ", help="new frame rate")
+    p.add_argument("--stabilize", action="store_true",
+                   help="express markers in the head frame; writes OUT.head.npz too")
+    p.add_argument("--qa", type=Path, metavar="DIR", help="write QA pictures here")
+    p.set_defaults(run=run)
+
+
+def ingest_file(path, output, *, markerset_path=None, options=IngestOptions(), qa_dir=None):
+    """Read `path`, ingest it, write `output` (and the QA pictures); returns the result."""
+    inputs = [p for p in (path, markerset_path) if p is not None]
+    stages = 2 + (qa_dir is not None)
+    with tqdm(total=stages, desc=f"ingest {Path(path).name}", disable=None, leave=False) as bar:
+        markerset = load_markerset(markerset_path) if markerset_path else None
+        take = mocap.read(path)
+        result = ingest(take, markerset=markerset, options=options)
+        bar.update()
+        mocap.write(result.take, output, inputs=inputs)
+        if result.stabilization is not None:
+            save_head_motion(result.stabilization, Path(output).with_suffix(".head.npz"),
+                             inputs=inputs)
+        bar.update()
+        if qa_dir is not None:
+            qa_dir = Path(qa_dir)
+            qa_dir.mkdir(parents=True, exist_ok=True)
+            plot_gaps(result.cleaned, qa_dir / "gaps.png")
+            if result.stabilization is not None:
+                plot_head_residuals(result.stabilization, qa_dir / "head_residuals.png")
+            bar.update()
+    return result
+
+
+def run(args) -> int:
+    options = IngestOptions(fix_swaps=args.fix_swaps, reject_implausible=args.reject_implausible,
+                            fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass,
+                            resample_hz=args.resample, stabilize=args.stabilize)
+    ingest_file(args.file, args.output, markerset_path=args.markerset, options=options,
+                qa_dir=args.qa)
+    return 0

@@ -1,0 +1,86 @@
+"""``mocap2mesh retarget CAPTURE -o OUT.npz|DIR``: drive a face mesh with a capture."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mocap
+from mocap.bind import HOLD_S, hold_window, load_binding
+from mocap.markerset import load_markerset
+from mocap.mesh.mesh import load_mesh
+
+from mocap.clean.ingest import FILL_CHOICES, IngestOptions, ingest
+from mocap.retarget.retargeting import (CONTENTS, DISTANCES, KERNELS, RetargetOptions, retarget, save_npz,
+                        save_obj_sequence)
+from fit.cli.commands.bind import parse_frame
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "retarget", help="retarget a capture onto a face mesh with an RBF operator",
+        description="Fill the capture's gaps, stabilize it in the head frame, take the "
+                    "face-marker displacements from the neutral frame into the mesh's units "
+                    "with the binding, and interpolate them over the mesh with radial basis "
+                    "functions. Writes OUT.npz (float32 vertex positions or displacements, "
+                    "neutral, faces; streamed chunk by chunk) or, for any other OUT, a "
+                    "directory with one OBJ per frame.")
+    p.add_argument("capture", type=Path, help="C3D, Vicon Nexus CSV, TRC or .npz take")
+    p.add_argument("--markerset", required=True, type=Path,
+                   help="marker-set TOML (head markers, regions)")
+    p.add_argument("--mesh", required=True, type=Path, help="neutral face mesh")
+    p.add_argument("--binding", required=True, type=Path,
+                   help="binding .json from 'mocap2mesh bind' (same mesh)")
+    p.add_argument("-o", "--output", required=True, type=Path,
+                   help="OUT.npz, or a directory for an OBJ sequence")
+    p.add_argument("--kernel", choices=KERNELS, default="thin_plate_spline",
+                   help="radial kernel (default thin_plate_spline)")
+    p.add_argument("--epsilon", type=float, metavar="PER_UNIT",
+                   help="shape parameter, 1/mesh units (compact kernels: 1/support radius); "
+                        "required for gaussian, multiquadric, wendland_c2, ...")
+    p.add_argument("--degree", type=int, help="polynomial degree (-1: none; default: the "
+                                              "kernel's minimum)")
+    p.add_argument("--smoothing", type=float, default=0.0,
+                   help="kernel-diagonal smoothing for noisy markers (default 0)")
+    p.add_argument("--distance", choices=DISTANCES, default="euclidean",
+                   help="distance the kernel is evaluated on (geodesic: heat method on "
+                        "the mesh)")
+    p.add_argument("--regions", action="store_true",
+                   help="each marker-set region drives only its own vertices")
+    p.add_argument("--region-width", type=float, metavar="UNITS",
+                   help="blend width of the region weights, mesh units (default: the "
+                        "median marker spacing)")
+    p.add_argument("--neutral-frame", type=parse_frame, default="auto",
+                   metavar="N|auto|hold",
+                   help="0-based index of the rest frame, 'auto' (default): the frame "
+                        "closest to the median pose, or 'hold': the mean pose of the first "
+                        f"still {HOLD_S:g} s of the neutral hold the take starts with")
+    p.add_argument("--fill", choices=FILL_CHOICES, default="auto",
+                   help="gap filling before retargeting (default auto; 'none' fails on gaps)")
+    p.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")
+    p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
+    p.add_argument("--content", choices=CONTENTS, default="vertices",
+                   help=".npz output: vertex positions (default) or displacements")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    options = RetargetOptions(kernel=args.kernel, epsilon=args.epsilon, degree=args.degree,
+                              smoothing=args.smoothing, distance=args.distance,
+                              use_regions=args.regions, region_width=args.region_width)
+    inputs = (args.capture, args.markerset, args.mesh, args.binding)
+    markerset = load_markerset(args.markerset)
+    mesh = load_mesh(args.mesh)
+    binding = load_binding(args.binding)
+    take = mocap.read(args.capture)
+    ingested = ingest(take, markerset=markerset, options=IngestOptions(
+        fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass, stabilize=True))
+    window = hold_window(ingested.take.rate) if args.neutral_frame == "hold" else 1
+    result = retarget(ingested.take, binding, mesh, markerset, options=options,
+                      neutral_frame=args.neutral_frame, neutral_window=window)
+    if args.output.suffix.lower() == ".npz":
+        save_npz(result, args.output, content=args.content, inputs=inputs)
+    else:
+        save_obj_sequence(result, args.output, inputs=inputs)
+    return 0

@@ -1,0 +1,265 @@
+"""The configuration of ``mocap2mesh run``: one TOML file naming the inputs and every stage's options.
+
+Schema (paths are relative to the configuration file; every table but
+``[inputs]`` is optional, every key of a stage table is an option of that
+stage with the same name)::
+
+    [inputs]
+    captures = ["take1.c3d", "take2.c3d"]   # or: session = "captures/" (its .c3d .csv .trc)
+    markerset = "markerset.toml"
+    mesh = "neutral.obj"
+    mesh_units = "cm"          # optional, when the mesh file does not say
+    landmarks = "landmarks.toml"
+    basis = "shapes"           # save_basis directory or .npz, a folder of OBJ shapes, or .glb
+
+    [output]
+    directory = "out"          # default: "out" beside the configuration
+    workers = 2                # default: min(2, number of takes)
+
+    [ingest]    # mocap.clean.ingest.IngestOptions: fix_swaps, reject_implausible, fill, max_gap, ...
+    [bind]      # fit.pipeline.stages.BindOptions: frame, icp, skin_offset, max_distance_warn
+    [retarget]  # mocap.retarget.retargeting.RetargetOptions: kernel, epsilon, degree, smoothing, ...
+    [basis]     # fit.pipeline.stages.BasisOptions: pca_components, pca_coverage, qe_missing, ...
+    [fit]       # fit.pipeline.stages.FitOptions: space, h_epsilon, smoothness, moving_average,
+                #   h_solver, n_samples, n_neighbors, marker_centres
+    [report]    # ReportOptions: video, video_step, n_worst, exaggerate
+
+Every error names the file and the key at fault (``run.toml: fit.space: ...``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from mocap.util.validation import as_int, as_positive_float
+from mocap.errors import FileFormatError, InputError
+
+from mocap.clean.ingest import IngestOptions
+from fit.pipeline.stages import BasisOptions, BindOptions, FitOptions
+from mocap.retarget.retargeting import RetargetOptions
+
+__all__ = ["RunConfig", "ReportOptions", "load_run_config", "CAPTURE_SUFFIXES",
+           "STAGE_TABLES"]
+
+#: Files of a session directory taken as captures.
+CAPTURE_SUFFIXES = (".c3d", ".csv", ".trc")
+
+
+@dataclass(frozen=True)
+class ReportOptions:
+    """Options of the QA report of each take.
+
+    Attributes
+    ----------
+    video : bool
+        Write the MP4 overlay video per basis.
+    video_step : int
+        Draw every n-th frame in the video.
+    n_worst : int
+        Worst frames shown and listed.
+    exaggerate : float
+        Error vectors drawn this many times longer.
+    """
+
+    video: bool = True
+    video_step: int = 1
+    n_worst: int = 5
+    exaggerate: float = 1.0
+
+    def __post_init__(self):
+        if not isinstance(self.video, bool):
+            raise InputError(f"video must be true or false, got {self.video!r}")
+        as_int(self.video_step, "video_step", minimum=1)
+        as_int(self.n_worst, "n_worst", minimum=1)
+        as_positive_float(self.exaggerate, "exaggerate")
+
+
+#: The option tables: TOML table name -> options class.
+STAGE_TABLES = {"ingest": IngestOptions, "bind": BindOptions, "retarget": RetargetOptions,
+                "basis": BasisOptions, "fit": FitOptions, "report": ReportOptions}
+_INPUT_KEYS = {"captures", "session", "markerset", "mesh", "mesh_units", "landmarks", "basis"}
+_OUTPUT_KEYS = {"directory", "workers"}
+_TOP = {"inputs", "output", *STAGE_TABLES}
+_NOT_IN_CONFIG = {"ingest": {"stabilize"}}     # always on in the chain
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """A validated run configuration (paths absolute).
+
+    Attributes
+    ----------
+    path : Path
+        The configuration file.
+    captures : tuple of Path
+        The takes, in order (unique file names).
+    markerset, mesh, landmarks, basis : Path
+    mesh_units : str or None
+    output : Path
+    workers : int
+    ingest, bind, retarget, basis_options, fit, report
+        The options of each stage.
+    """
+
+    path: Path
+    captures: tuple
+    markerset: Path
+    mesh: Path
+    landmarks: Path
+    basis: Path
+    mesh_units: str | None
+    output: Path
+    workers: int
+    ingest: IngestOptions
+    bind: BindOptions
+    retarget: RetargetOptions
+    basis_options: BasisOptions
+    fit: FitOptions
+    report: ReportOptions
+
+    @property
+    def shared_inputs(self) -> dict:
+        """Inputs every take reads, by role."""
+        return {"markerset": self.markerset, "mesh": self.mesh, "landmarks": self.landmarks,
+                "basis": self.basis}
+
+    def parameters(self) -> dict:
+        """Every stage's options as plain data (for the manifest and the skip logic)."""
+        return {"mesh_units": self.mesh_units,
+                **{table: dataclasses.asdict(self.options(table)) for table in STAGE_TABLES}}
+
+    def options(self, table: str):
+        """The options of one stage table."""
+        return getattr(self, "basis_options" if table == "basis" else table)
+
+
+def _fail(path: Path, key: str, message: str):
+    raise InputError(f"{path}: {key}: {message}")
+
+
+def _unknown(path: Path, table: dict, known, prefix: str) -> None:
+    for key in table:
+        if key not in known:
+            _fail(path, f"{prefix}{key}", f"unknown key; expected one of {sorted(known)}")
+
+
+def _file(path: Path, value, key: str, *, directory: bool | None = False) -> Path:
+    if not isinstance(value, str) or not value:
+        _fail(path, key, f"expected a path (string), got {value!r}")
+    resolved = (path.parent / value).resolve()
+    if not resolved.exists():
+        _fail(path, key, f"{resolved} does not exist")
+    if directory is True and not resolved.is_dir():
+        _fail(path, key, f"{resolved} is not a directory")
+    if directory is False and not resolved.is_file():
+        _fail(path, key, f"{resolved} is not a file")
+    return resolved
+
+
+def _captures(path: Path, inputs: dict) -> tuple:
+    if ("captures" in inputs) == ("session" in inputs):
+        _fail(path, "inputs.captures", "give either inputs.captures (a list of files) or "
+                                       "inputs.session (a directory), not both nor neither")
+    if "session" in inputs:
+        folder = _file(path, inputs["session"], "inputs.session", directory=True)
+        found = sorted(p for p in folder.iterdir() if p.suffix.lower() in CAPTURE_SUFFIXES)
+        if not found:
+            _fail(path, "inputs.session", f"{folder} holds no {'/'.join(CAPTURE_SUFFIXES)} file")
+        return tuple(found)
+    listed = inputs["captures"]
+    if isinstance(listed, str):
+        listed = [listed]
+    if not isinstance(listed, list) or not listed:
+        _fail(path, "inputs.captures", f"expected a non-empty list of paths, got {listed!r}")
+    files = tuple(_file(path, item, f"inputs.captures[{i}]") for i, item in enumerate(listed))
+    stems = [f.stem for f in files]
+    for i, stem in enumerate(stems):
+        if stems.index(stem) != i:
+            _fail(path, f"inputs.captures[{i}]", f"another capture is also named {stem!r}: "
+                                                 "each take's outputs go to a folder of its name")
+    return files
+
+
+def _stage(path: Path, name: str, table) -> object:
+    cls = STAGE_TABLES[name]
+    if not isinstance(table, dict):
+        _fail(path, name, f"expected a table, got {table!r}")
+    known = {f.name for f in dataclasses.fields(cls)} - _NOT_IN_CONFIG.get(name, set())
+    _unknown(path, table, known, f"{name}.")
+    for key, value in table.items():            # one key at a time: the error names it
+        try:
+            cls(**{key: value})
+        except (InputError, TypeError, ValueError) as exc:
+            _fail(path, f"{name}.{key}", str(exc))
+    try:
+        return cls(**table)
+    except (InputError, TypeError, ValueError) as exc:
+        _fail(path, name, str(exc))
+
+
+def load_run_config(path) -> RunConfig:
+    """Read and validate a run configuration.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The TOML file (schema in the module docstring).
+
+    Returns
+    -------
+    RunConfig
+
+    Raises
+    ------
+    FileFormatError
+        The file is not valid TOML (with the line).
+    InputError
+        A missing or unknown key, a wrong value, a path that does not exist:
+        the message names the file and the key (``inputs.mesh``, ``fit.space``).
+    """
+    path = Path(path).resolve()
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the configuration: {exc.strerror or exc}") \
+            from None
+    except tomllib.TOMLDecodeError as exc:
+        raise FileFormatError(path, f"not valid TOML: {exc}") from None
+    _unknown(path, doc, _TOP, "")
+    inputs = doc.get("inputs")
+    if not isinstance(inputs, dict):
+        _fail(path, "inputs", "missing table [inputs] (captures, markerset, mesh, landmarks, "
+                              "basis)")
+    _unknown(path, inputs, _INPUT_KEYS, "inputs.")
+    for key in ("markerset", "mesh", "landmarks", "basis"):
+        if key not in inputs:
+            _fail(path, f"inputs.{key}", "missing")
+    captures = _captures(path, inputs)
+    units = inputs.get("mesh_units")
+    if units is not None and not isinstance(units, str):
+        _fail(path, "inputs.mesh_units", f"expected a unit name such as 'cm', got {units!r}")
+    output = doc.get("output", {})
+    if not isinstance(output, dict):
+        _fail(path, "output", f"expected a table, got {output!r}")
+    _unknown(path, output, _OUTPUT_KEYS, "output.")
+    directory = output.get("directory", "out")
+    if not isinstance(directory, str) or not directory:
+        _fail(path, "output.directory", f"expected a path (string), got {directory!r}")
+    workers = output.get("workers", min(2, len(captures)))
+    try:
+        workers = as_int(workers, "workers", minimum=1)
+    except InputError as exc:
+        _fail(path, "output.workers", str(exc))
+    stages = {name: _stage(path, name, doc.get(name, {})) for name in STAGE_TABLES}
+    return RunConfig(
+        path=path, captures=captures,
+        markerset=_file(path, inputs["markerset"], "inputs.markerset"),
+        mesh=_file(path, inputs["mesh"], "inputs.mesh"),
+        landmarks=_file(path, inputs["landmarks"], "inputs.landmarks"),
+        basis=_file(path, inputs["basis"], "inputs.basis", directory=None),
+        mesh_units=units, output=(path.parent / directory).resolve(), workers=workers,
+        ingest=stages["ingest"], bind=stages["bind"], retarget=stages["retarget"],
+        basis_options=stages["basis"], fit=stages["fit"], report=stages["report"])

@@ -1,0 +1,171 @@
+"""QA pictures of ingestion: the gap chart and the head-marker residuals."""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.colors import ListedColormap
+from matplotlib.patches import Patch
+
+from mocap.take import FILL_METHODS, Take
+
+from mocap.viz.figures import new_figure, save_figure
+
+__all__ = ["plot_gaps", "plot_head_residuals"]
+
+_STATE_COLOURS = {"present": "#d9d9d9", "missing": "#202020",
+                  "spline": "#1f77b4", "rigid": "#2ca02c", "pca": "#d62728"}
+
+
+def _state_codes(take: Take, raw_missing: np.ndarray | None) -> np.ndarray:
+    """Per sample: 0 present, 1 missing, 2 + i filled by FILL_METHODS[i]; shape (M, T)."""
+    codes = np.where(take.missing, 1, 0)
+    filled = take.filled.astype(int)
+    codes = np.where(filled > 0, filled + 1, codes)
+    return codes.T
+
+
+def plot_gaps(take: Take, path, *, title: str | None = None) -> None:
+    """Markers × time chart of present, missing and filled samples (PNG).
+
+    Parameters
+    ----------
+    take : Take
+        After gap filling: ``take.filled`` says which samples were filled by what,
+        NaN samples are still missing.
+    path : str or os.PathLike
+        Output PNG.
+    """
+    names = ["present", "missing", *FILL_METHODS]
+    codes = _state_codes(take, None)
+    cmap = ListedColormap([_STATE_COLOURS[n] for n in names])
+    height = min(max(3.0, 0.16 * take.n_markers + 1.6), 14.0)
+    fig = new_figure(11, height)
+    ax = fig.add_subplot()
+    t = take.times
+    ax.imshow(codes, aspect="auto", interpolation="nearest", cmap=cmap,
+              vmin=-0.5, vmax=len(names) - 0.5,
+              extent=(t[0], t[-1] + 1 / take.rate, take.n_markers - 0.5, -0.5))
+    ax.set_yticks(range(take.n_markers))
+    ax.set_yticklabels(take.labels, fontsize=max(4, min(8, 400 // max(take.n_markers, 1))))
+    ax.set_xlabel("time (s)")
+    n_missing = int(take.missing.sum())
+    n_filled = int((take.filled > 0).sum())
+    ax.set_title(title or f"{take.n_markers} markers, {take.n_frames} frames at "
+                          f"{take.rate:g} Hz: {n_filled} samples filled, {n_missing} still missing")
+    counts = {"present": int((codes == 0).sum()), "missing": n_missing}
+    counts.update({m: int((take.filled == i + 1).sum()) for i, m in enumerate(FILL_METHODS)})
+    handles = [Patch(color=_STATE_COLOURS[n], label=f"{n} ({counts[n]})") for n in names]
+    fig.legend(handles=handles, loc="outside upper center", ncol=len(names), frameon=False)
+    save_figure(fig, path)
+
+
+def plot_head_residuals(stabilization, path) -> None:
+    """Residual of each head marker after the rigid fit, over time (PNG).
+
+    Parameters
+    ----------
+    stabilization : mocap.stabilize.Stabilization
+        Its ``head_residuals`` (T, H) mm, ``valid`` (T,), ``slips`` and ``take``.
+    path : str or os.PathLike
+        Output PNG.
+    """
+    res = np.asarray(stabilization.head_residuals)
+    take = stabilization.take
+    t = take.times
+    fig = new_figure(11, 4.2)
+    ax = fig.add_subplot()
+    for j, label in enumerate(stabilization.head_markers):
+        ax.plot(t, res[:, j], lw=0.8, label=label)
+    for slip in stabilization.slips:
+        ax.axvspan(t[slip.start], t[min(slip.stop, len(t)) - 1], color="red", alpha=0.15)
+        ax.annotate(f"{slip.marker} slips ({slip.max_residual:.1f} mm)",
+                    (t[slip.start], slip.max_residual), fontsize=8, color="darkred",
+                    xytext=(-4, 0), textcoords="offset points", ha="right", va="top")
+    invalid = ~np.asarray(stabilization.valid)
+    if invalid.any():
+        ax.fill_between(t, 0, 1, where=invalid, transform=ax.get_xaxis_transform(),
+                        color="black", alpha=0.12, step="mid", label="< 3 head markers")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("residual (mm)")
+    med = np.nanmedian(res)
+    ax.set_title(f"Head-marker residuals after the rigid fit (median {med:.2f} mm, "
+                 f"{len(stabilization.slips)} slip(s), {int(invalid.sum())} frames without a fit)")
+    ax.legend(loc="upper right", fontsize=8, ncol=min(len(stabilization.head_markers), 6))
+    ax.set_ylim(bottom=0)
+    save_figure(fig, path)
+
+
+def _colours(n: int) -> list:
+    """`n` distinct colours (tab20, then repeating)."""
+    cmap = colormaps["tab20"]
+    return [cmap(i % 20) for i in range(n)]
+
+
+def _front_view_axes(points: np.ndarray, markerset) -> tuple[np.ndarray, np.ndarray]:
+    """Screen axes (right, up) of a front view of face markers (F, 3).
+
+    With landmarks: the subject's left is the direction from right-side to
+    left-side landmarks, up from chin / lower lip to the brows, made orthogonal.
+    Without: the principal axes of the markers (largest spread up, towards
+    world +z). The subject's left appears on the viewer's right.
+    """
+    labels = markerset.face_markers
+    lm = markerset.landmarks
+
+    def mean_of(names):
+        idx = [labels.index(lm[n]) for n in names if n in lm and lm[n] in labels]
+        return points[idx].mean(axis=0) if idx else None
+
+    left = mean_of([n for n in lm if n.endswith("_left")])
+    right = mean_of([n for n in lm if n.endswith("_right")])
+    top = mean_of(["brow_inner_left", "brow_inner_right", "nose_bridge", "forehead"])
+    bottom = mean_of(["chin", "lower_lip_bottom"])
+    if all(v is not None for v in (left, right, top, bottom)):
+        lateral = left - right
+        lateral /= np.linalg.norm(lateral)
+        up = top - bottom
+        up -= (up @ lateral) * lateral
+        return lateral, up / np.linalg.norm(up)
+    _, _, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+    up = vt[0] if vt[0][2] >= 0 else -vt[0]
+    return vt[1], up
+
+
+def plot_marker_layout(take: Take, markerset, frame: int, path) -> None:
+    """Front and side views of one frame, markers coloured by region and labelled (PNG).
+
+    Parameters
+    ----------
+    take : Take
+    markerset : mocap.markerset.MarkerSet
+    frame : int
+        Frame index (0-based) to draw; markers missing there are left out.
+    path : str or os.PathLike
+    """
+    face_idx = take.indices(markerset.face_markers)
+    right, up = _front_view_axes(take.positions[frame, face_idx], markerset)
+    depth = np.cross(right, up)             # out of the face
+    fig = new_figure(13, 7.5)
+    front, side = fig.subplots(1, 2, width_ratios=[1.6, 1])
+    regions = ["head", *markerset.regions]
+    colours = dict(zip(regions, _colours(len(regions))))
+    for label in markerset.markers:
+        p = take.positions[frame, take.index(label)]
+        if np.isnan(p[0]):
+            continue
+        region = markerset.region_of(label)
+        for ax, h in ((front, right), (side, depth)):
+            ax.scatter(p @ h, p @ up, color=colours[region], s=25)
+        front.annotate(label, (p @ right, p @ up), fontsize=7, xytext=(3, 3),
+                       textcoords="offset points")
+    for region, colour in colours.items():
+        front.scatter([], [], color=colour, label=region)
+    front.legend(loc="upper left", fontsize=8, ncol=2)
+    front.set_title(f"{markerset.name}: frame {take.frames[frame]}, front view "
+                    "(subject's left on the right)")
+    side.set_title("side view (face towards the right)")
+    for ax in (front, side):
+        ax.set_aspect("equal")
+        ax.set_xlabel("mm")
+    save_figure(fig, path)

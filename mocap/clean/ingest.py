@@ -1,0 +1,173 @@
+"""Ingestion of one take: gap filling, low-pass, resampling, head stabilization.
+
+The library function behind ``mocap2mesh ingest`` and the first stage of
+``mocap2mesh run``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mocap.util.validation import as_choice, as_int, as_positive_float
+from mocap.clean import FILL_OPTIONS as FILL_CHOICES
+from mocap.clean import (FillResult, ImplausibleSamples, LabelSwap, fill_gaps,
+                         find_implausible_samples, find_label_swaps, fix_label_swaps, lowpass,
+                         remove_implausible_samples, resample)
+from mocap.errors import InputError
+from mocap.markerset import MarkerSet
+from mocap.stabilize import Stabilization, stabilize
+from mocap.take import Take
+
+__all__ = ["IngestOptions", "IngestResult", "ingest", "FILL_CHOICES"]
+
+
+@dataclass(frozen=True)
+class IngestOptions:
+    """Options of the ingestion stage.
+
+    Attributes
+    ----------
+    fill : str
+        Gap-filling method, one of ``FILL_CHOICES`` (``"none"`` keeps gaps).
+    max_gap : int or None
+        Longest gap to fill, frames; None fills gaps of any length.
+    lowpass_hz : float or None
+        Cut-off of the zero-lag Butterworth low-pass, Hz; None for no filter.
+    resample_hz : float or None
+        New frame rate, Hz; None keeps the rate.
+    stabilize : bool
+        Express all markers in the head frame (needs the marker set's head markers).
+    fix_swaps : bool
+        Find runs of frames where two markers exchanged labels and exchange them
+        back, before gap filling (:func:`mocap.clean.find_label_swaps`).
+    reject_implausible : bool
+        Remove samples that cannot be a real marker (teleports, one marker with
+        two labels, interpolated ghost slides; :func:`mocap.clean.find_implausible_samples`,
+        in the head frame when the marker set names head markers), after swap
+        repair and before gap filling, which fills them again.
+    """
+
+    fix_swaps: bool = False
+    reject_implausible: bool = False
+    fill: str = "auto"
+    max_gap: int | None = None
+    lowpass_hz: float | None = None
+    resample_hz: float | None = None
+    stabilize: bool = False
+
+    def __post_init__(self):
+        as_choice(self.fill, "fill", FILL_CHOICES)
+        if self.max_gap is not None:
+            as_int(self.max_gap, "max_gap", minimum=1)
+        if self.lowpass_hz is not None:
+            as_positive_float(self.lowpass_hz, "lowpass_hz")
+        if self.resample_hz is not None:
+            as_positive_float(self.resample_hz, "resample_hz")
+
+
+@dataclass(frozen=True)
+class IngestResult:
+    """What ingestion made of a take.
+
+    Attributes
+    ----------
+    raw : Take
+        The take as read.
+    swaps : tuple of LabelSwap
+        Label swaps found and repaired (empty unless asked).
+    implausible : ImplausibleSamples or None
+        Samples found implausible and removed before filling (None unless asked).
+    fill : FillResult or None
+        What gap filling did, gap by gap (None when filling was off).
+    cleaned : Take
+        After filling, filtering and resampling, in the capture's frame.
+    stabilization : Stabilization or None
+        Head transforms, residuals and the take in the head frame, if asked.
+    """
+
+    raw: Take
+    swaps: tuple[LabelSwap, ...]
+    implausible: ImplausibleSamples | None
+    fill: FillResult | None
+    cleaned: Take
+    stabilization: Stabilization | None
+
+    @property
+    def take(self) -> Take:
+        """The final take: stabilized if stabilization was asked, else cleaned."""
+        return self.cleaned if self.stabilization is None else self.stabilization.take
+
+
+def ingest(take: Take, *, markerset: MarkerSet | None = None,
+           options: IngestOptions = IngestOptions()) -> IngestResult:
+    """Clean and stabilize a take.
+
+    Stages, in order: label-swap repair (if asked), removal of implausible
+    samples (if asked), gap filling (rigid clusters
+    from the marker set), low-pass, resampling, head stabilization.
+
+    Parameters
+    ----------
+    take : Take
+    markerset : MarkerSet, optional
+        Needed for rigid fills (clusters) and for stabilization (head markers).
+        Its markers must all be in the take.
+    options : IngestOptions
+
+    Returns
+    -------
+    IngestResult
+
+    Raises
+    ------
+    InputError
+        Stabilization asked without a marker set.
+    MarkerError
+        A marker of the marker set is absent from the take, or too few head
+        markers are visible for a rigid fit.
+    """
+    if markerset is not None:
+        markerset.check_labels(take.labels, source=take.source.path or "the take")
+    if options.stabilize and markerset is None:
+        raise InputError("stabilization needs a marker set naming the head markers")
+    clusters = dict(markerset.clusters) if markerset is not None else None
+    cleaned, fill, swaps, implausible = take, None, (), None
+    if options.fix_swaps:
+        swaps = find_label_swaps(cleaned)
+        cleaned = fix_label_swaps(cleaned, swaps)
+    if options.reject_implausible:
+        implausible = find_implausible_samples(
+            cleaned, head=markerset.head if markerset is not None else None)
+        cleaned = remove_implausible_samples(cleaned, implausible)
+    if options.fill != "none":
+        fill = fill_gaps(cleaned, method=options.fill, max_gap=options.max_gap,
+                         clusters=clusters)
+        cleaned = fill.take
+    if options.lowpass_hz is not None:
+        cleaned = lowpass(cleaned, options.lowpass_hz)
+    if options.resample_hz is not None:
+        cleaned = resample(cleaned, options.resample_hz)
+    stab = stabilize(cleaned, markerset.head) if options.stabilize else None
+    return IngestResult(raw=take, swaps=swaps, implausible=implausible, fill=fill,
+                        cleaned=cleaned, stabilization=stab)
+
+
+def save_head_motion(stabilization: Stabilization, path, *, inputs=()) -> None:
+    """Write head transforms and residuals to ``.npz``, atomically.
+
+    Arrays: ``rotation`` (T, 3, 3), ``translation`` (T, 3) mm (world = R @ head + t),
+    ``head_residuals`` (T, H) mm, ``valid`` (T,), ``head_markers`` (H,),
+    ``reference_shape`` (H, 3) mm, ``rate`` Hz.
+    """
+    import numpy as np
+
+    from mocap.util.atomic import atomic_path
+
+    with atomic_path(path, inputs=inputs) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(
+                fh, rotation=stabilization.rotation, translation=stabilization.translation,
+                head_residuals=stabilization.head_residuals, valid=stabilization.valid,
+                head_markers=np.array(stabilization.head_markers, dtype=str),
+                reference_shape=stabilization.reference_shape,
+                rate=np.array(stabilization.take.rate))

@@ -1,0 +1,224 @@
+"""The data section of a C3D file: where it is, how big, and its vectorized decoding.
+
+The header and the parameters both describe the data section and either may
+be wrong in files in the wild: :func:`plan_layout` weighs them against the file
+size before anything is allocated, and :func:`decode_frames` then decodes all
+frames at once with ``numpy.frombuffer`` (no loop over frames).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocap.io._c3d_header import BLOCK, Header
+from mocap.io._c3d_numbers import float32, int16
+from mocap.io._c3d_params import Parameters
+from mocap.errors import FileFormatError
+
+__all__ = ["Layout", "plan_layout", "decode_frames"]
+
+_HEADER_POINTS = 2
+_HEADER_SCALE_OFFSET = 12
+_HEADER_DATA_BLOCK_OFFSET = 16
+_WRAP = 65536
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where the frames are and what each holds."""
+
+    offset: int             # byte offset of the first frame
+    n_frames: int
+    first_frame: int
+    n_points: int
+    analog_words: int       # analog values per frame (n_channels * analog_per_frame)
+    analog_per_frame: int
+    n_channels: int         # 0 when there is no (usable) analog data
+    storage: str            # "float" or "integer"
+    scale: float            # POINT:SCALE magnitude (integer storage)
+
+    @property
+    def word_size(self) -> int:
+        return 4 if self.storage == "float" else 2
+
+    @property
+    def frame_bytes(self) -> int:
+        return (4 * self.n_points + self.analog_words) * self.word_size
+
+
+def _scale(header: Header, params: Parameters, path, notes: list) -> float:
+    """The point scale: the header's copy unless it is unusable, then POINT:SCALE.
+
+    Where both are usable and differ, the header wins (sample_06/MACsample.c3d:
+    only the header's scale gives anatomically sized distances).
+    """
+    def usable(value):
+        return value is not None and np.isfinite(value) and value != 0
+
+    param = params.number("POINT", "SCALE")
+    if usable(header.scale):
+        if usable(param) and not np.isclose(param, header.scale, rtol=1e-6):
+            notes.append(f"header scale {header.scale:.6g} differs from POINT:SCALE "
+                         f"{param:.6g}; using the header's")
+        return header.scale
+    if usable(param):
+        return param
+    raise FileFormatError(path, f"point scale is {header.scale} (POINT:SCALE {param}): "
+                                "cannot tell float from integer storage (expected a negative "
+                                "scale for float, positive for integer)",
+                          offset=_HEADER_SCALE_OFFSET)
+
+
+def _data_offset(size: int, header: Header, params: Parameters, param_start: int,
+                 path, notes: list) -> int:
+    """Byte offset of the data section.
+
+    The header's block, unless it lies outside the file, before the parameter
+    section, or inside it while POINT:DATA_START (read unsigned) lies beyond it.
+    """
+    def usable(block):
+        return block is not None and param_start < (int(block) - 1) * BLOCK <= size
+
+    head = header.data_block
+    param = params.number("POINT", "DATA_START", unsigned16=True)
+    param = None if param is None else int(param)
+    if usable(head) and usable(param) and param != head:
+        if (head - 1) * BLOCK <= params.last_entry < (param - 1) * BLOCK:
+            notes.append(f"header data start block {head} lies inside the parameter section; "
+                         f"using POINT:DATA_START {param}")
+            return (param - 1) * BLOCK
+        notes.append(f"header data start block {head} differs from POINT:DATA_START "
+                     f"{param}; using the header's")
+    if usable(head):
+        return (head - 1) * BLOCK
+    if usable(param):
+        notes.append(f"header data start block {head} is impossible; using "
+                     f"POINT:DATA_START {param}")
+        return (param - 1) * BLOCK
+    raise FileFormatError(path, f"bad data-section pointer: header block {head}, "
+                                f"POINT:DATA_START {param}; neither lies after the parameter "
+                                f"section and inside the file ({size} bytes)",
+                          offset=_HEADER_DATA_BLOCK_OFFSET)
+
+
+def _frame_counts(header: Header, params: Parameters) -> tuple[list, int]:
+    """Candidate frame counts ``[(count, may_have_wrapped_at_16_bits), ...]`` and the
+    first frame number, from TRIAL:ACTUAL_START/END_FIELD, the header and POINT:FRAMES."""
+    counts = [((header.last_frame - header.first_frame + 1) % _WRAP, True)]
+    first = header.first_frame
+    start = params.numbers("TRIAL", "ACTUAL_START_FIELD", unsigned16=True)
+    stop = params.numbers("TRIAL", "ACTUAL_END_FIELD", unsigned16=True)
+    if start is not None and stop is not None and start.size >= 2 and stop.size >= 2:
+        trial_first = int(start[0] + _WRAP * start[1])
+        trial_last = int(stop[0] + _WRAP * stop[1])
+        if trial_last >= trial_first:
+            counts.append((trial_last - trial_first + 1, False))
+            first = trial_first
+    frames = params.get("POINT", "FRAMES")
+    if frames is not None and frames.type != -1 and len(frames.value) > 0:
+        value = float(frames.value[0])
+        if frames.type == 4 and np.isfinite(value) and value >= 0:
+            counts.append((int(min(value, 2.0 ** 62)), False))
+        elif frames.type != 4:
+            counts.append((int(value) % _WRAP, True))
+    return counts, first
+
+
+def _n_frames(counts: list, available: int, path, frame_bytes: int, size: int,
+              notes: list) -> int:
+    """The largest claimed count the file holds; the complete frames if none fits."""
+    fitting = [(n, wrapped) for n, wrapped in counts if n <= available]
+    claimed = min(n for n, _ in counts)
+    if not fitting:
+        if available == 0:
+            raise FileFormatError(path, f"data section is truncated: it holds no complete "
+                                        f"frame of {frame_bytes} bytes ({claimed} frames "
+                                        "claimed)", offset=size)
+        notes.append(f"data section is truncated: {available} complete frames of {claimed} "
+                     "claimed; reading those")
+        return available
+    n, wrapped = max(fitting)
+    if n == 0 and available > 0:
+        notes.append(f"the file claims no frames; reading the {available} frames its data "
+                     "section holds")
+        return available
+    if wrapped and available - n >= _WRAP:
+        n += _WRAP * ((available - n) // _WRAP)
+    return n
+
+
+def _analog(header: Header, params: Parameters, notes: list) -> tuple[int, int]:
+    """(analog samples per frame, channels) from the header words and ANALOG:USED."""
+    words, per_frame = header.analog_words, header.analog_per_frame
+    used = params.number("ANALOG", "USED", unsigned16=True)
+    if words == 0:
+        return per_frame, 0
+    if per_frame > 0 and words % per_frame == 0:
+        channels = words // per_frame
+    elif used and words % int(used) == 0:
+        channels, per_frame = int(used), words // int(used)
+    else:
+        notes.append(f"cannot split {words} analog values per frame into channels "
+                     f"(samples per frame {per_frame}, ANALOG:USED {used}); analog data skipped")
+        return per_frame, 0
+    if used is not None and int(used) != channels:
+        notes.append(f"ANALOG:USED is {int(used)} but the header's layout holds {channels} "
+                     "channels; using the header's")
+    return per_frame, channels
+
+
+def plan_layout(size: int, header: Header, params: Parameters, param_start: int,
+                path, notes: list) -> Layout:
+    """Decide where the frames are and how many complete ones the file holds.
+
+    A data section shorter than claimed yields the complete frames with a note
+    (a warning for the caller); one with no complete frame is an error.
+    """
+    scale = _scale(header, params, path, notes)
+    offset = _data_offset(size, header, params, param_start, path, notes)
+    used = params.number("POINT", "USED", unsigned16=True)
+    if used is not None and int(used) != header.n_points:
+        notes.append(f"POINT:USED is {int(used)} but the header says {header.n_points} "
+                     "points per frame; using the header's")
+    per_frame, channels = _analog(header, params, notes)
+    layout = Layout(offset, 0, 0, header.n_points, header.analog_words, per_frame, channels,
+                    "float" if scale < 0 else "integer", abs(scale))
+    if layout.frame_bytes == 0:
+        raise FileFormatError(path, "frames hold no point and no analog value (header: 0 "
+                                    "points, 0 analog values per frame)", offset=_HEADER_POINTS)
+    counts, first = _frame_counts(header, params)
+    available = (size - offset) // layout.frame_bytes
+    n_frames = _n_frames(counts, available, path, layout.frame_bytes, size, notes)
+    return Layout(offset, n_frames, first, layout.n_points, layout.analog_words, per_frame,
+                  channels, layout.storage, layout.scale)
+
+
+def decode_frames(buf: bytes, layout: Layout, order: str):
+    """Decode all frames at once.
+
+    Returns
+    -------
+    xyz : ndarray of shape (n_frames, n_points, 3), float64, file units
+        NaN where the residual word is negative or a coordinate is not finite.
+    analog : ndarray of shape (n_frames * analog_per_frame, n_channels), float64
+        Raw analog values (before offset and scale).
+    """
+    n, m = layout.n_frames, layout.n_points
+    per_frame = 4 * m + layout.analog_words
+    raw = memoryview(buf)[layout.offset:layout.offset + n * layout.frame_bytes]
+    if layout.storage == "float":
+        words = float32(raw, order).reshape(n, per_frame)
+        scale = 1.0
+    else:
+        words = int16(raw, order).reshape(n, per_frame)
+        scale = layout.scale
+    points = words[:, :4 * m].reshape(n, m, 4)
+    with np.errstate(all="ignore"):
+        xyz = points[:, :, :3] * scale
+        missing = (points[:, :, 3] < 0) | ~np.isfinite(xyz).all(axis=2)
+    xyz[missing] = np.nan
+    analog = words[:, 4 * m:4 * m + layout.n_channels * layout.analog_per_frame]
+    analog = analog.reshape(n * layout.analog_per_frame, layout.n_channels).astype(np.float64)
+    return xyz, analog

@@ -1,0 +1,380 @@
+"""Marker layouts: named markers placed on a face mesh, evaluated on many frames.
+
+A marker sits on a vertex, or on a triangle at barycentric coordinates, and
+optionally a distance off the skin along the (interpolated, area-weighted)
+vertex normal. A layout file is TOML::
+
+    name = "ict-layout"
+    n_vertices = 9409           # optional, checked against the mesh
+    units = "cm"                # optional, checked against the mesh
+    offset = 0.2                # default distance off the skin, mesh units
+    [markers]                   # in marker order
+    head-1 = { vertex = 8254, offset = 0.3 }
+    lip-upper-1 = { face = 1234, bary = [0.2, 0.3, 0.5] }
+
+Face ids index :attr:`mocap.mesh.mesh.Mesh.faces` (the fan triangulation of the
+file's polygons).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+import scipy.sparse as sp
+
+from mocap.util.arrays import read_only
+from mocap.util.atomic import atomic_path
+from mocap.util.toml import read_toml
+from mocap.util.validation import as_float_array
+from mocap.errors import FileFormatError, InputError, MarkerError
+from mocap.mesh.mesh import Mesh
+
+
+__all__ = ["MarkerLayout", "make_layout", "load_marker_layout", "save_marker_layout"]
+
+_KEYS = {"name", "description", "n_vertices", "units", "offset", "markers"}
+_MARKER_KEYS = {"vertex", "face", "bary", "offset"}
+_BARY_TOL = 1e-6
+
+
+#: Frames whose marker positions :meth:`MarkerLayout.positions_under_weights`
+#: forms together (their edge and normal arrays stay in cache).
+_FRAMES_PER_PASS = 256
+
+
+@dataclass(frozen=True, eq=False)
+class MarkerLayout:
+    """Named markers on a mesh topology; build once, evaluate on every frame.
+
+    Attributes
+    ----------
+    labels : tuple of str
+        Marker labels, M of them.
+    vertex_ids : ndarray of shape (M, 3), int64
+        The three vertices each marker interpolates (a vertex marker repeats its vertex).
+    weights : ndarray of shape (M, 3), float64
+        Barycentric weights (sum 1; ``(1, 0, 0)`` for a vertex marker).
+    face_ids : ndarray of shape (M,), int64
+        The triangle of each marker, -1 for a marker placed on a vertex.
+    offsets : ndarray of shape (M,), float64
+        Distance off the skin along the normal, mesh units.
+    faces : ndarray of shape (F, 3), int64
+        The mesh's triangles (for normals).
+    n_vertices : int
+    units : str or None
+    name : str
+    """
+
+    labels: tuple
+    vertex_ids: np.ndarray
+    weights: np.ndarray
+    face_ids: np.ndarray
+    offsets: np.ndarray
+    faces: np.ndarray
+    n_vertices: int
+    units: str | None = None
+    name: str = ""
+    _normal_op: tuple = field(init=False, repr=False)
+
+    def __post_init__(self):
+        m = len(self.labels)
+        for attr, shape in (("vertex_ids", (m, 3)), ("weights", (m, 3)), ("face_ids", (m,)),
+                            ("offsets", (m,))):
+            if np.shape(getattr(self, attr)) != shape:
+                raise InputError(f"layout {attr} must have shape {shape}, "
+                                 f"got {np.shape(getattr(self, attr))}")
+        if len(set(self.labels)) != m:
+            dup = next(x for x in self.labels if self.labels.count(x) > 1)
+            raise MarkerError(dup, "appears twice in the layout")
+        for attr in ("vertex_ids", "weights", "face_ids", "offsets", "faces"):
+            object.__setattr__(self, attr, read_only(np.array(getattr(self, attr))))
+        object.__setattr__(self, "labels", tuple(self.labels))
+        object.__setattr__(self, "_normal_op", self._build_normal_operator())
+
+    def _build_normal_operator(self) -> tuple:
+        """What evaluation needs, in ids local to the few vertices it reads.
+
+        ``needed`` lists the vertices the markers and their normals depend on;
+        ``local`` the marker corners, ``sub_faces`` the faces around corners of
+        offset markers and ``incidence`` (corners x sub_faces) sums their
+        normals, all indexing ``needed``.
+        """
+        corners = np.unique(self.vertex_ids[self.offsets != 0])
+        sub_faces = self.faces[np.isin(self.faces, corners).any(axis=1)]
+        needed = np.unique(np.concatenate([self.vertex_ids.ravel(), sub_faces.ravel()]))
+        rows, cols = np.nonzero(np.isin(sub_faces, corners))
+        incidence = sp.csr_matrix((np.ones(len(rows)), (np.searchsorted(
+            corners, sub_faces[rows, cols]), rows)), shape=(len(corners), len(sub_faces)))
+        return (needed, np.searchsorted(needed, self.vertex_ids),
+                np.searchsorted(needed, sub_faces), np.searchsorted(needed, corners),
+                incidence, np.searchsorted(corners, self.vertex_ids))
+
+    @property
+    def n_markers(self) -> int:
+        """Number of markers M."""
+        return len(self.labels)
+
+    def index(self, label: str) -> int:
+        """Position of a marker in the layout."""
+        try:
+            return self.labels.index(label)
+        except ValueError:
+            raise MarkerError(label, f"not in layout {self.name!r}") from None
+
+    def positions(self, vertices, *, offset: bool = True) -> np.ndarray:
+        """Marker positions on one mesh or on many frames of it at once.
+
+        Parameters
+        ----------
+        vertices : array_like of shape (..., N, 3)
+            Vertex positions, mesh units.
+        offset : bool
+            Add each marker's offset along the normal (False: the skin point).
+
+        Returns
+        -------
+        ndarray of shape (..., M, 3), mesh units
+            NaN where a vertex the marker (or its normal) depends on is NaN.
+        """
+        try:
+            vertices = np.asarray(vertices, dtype=np.float64)  # no copy: we gather a few rows
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"vertices must be a numeric array: {exc}") from None
+        if vertices.ndim < 2 or vertices.shape[-2:] != (self.n_vertices, 3):
+            raise InputError(f"vertices must have shape (..., {self.n_vertices}, 3) for layout "
+                             f"{self.name!r}, got {vertices.shape}")
+        near = vertices[..., self._normal_op[0], :]                      # (..., K, 3) copy
+        if np.isinf(near).any():
+            raise InputError("vertices contains infinite values")
+        xyz = np.ascontiguousarray(np.moveaxis(near.reshape((-1,) + near.shape[-2:]), -1, 0))
+
+        def combine(index, coeffs):
+            return np.einsum("cbrk,rk->cbr", xyz[:, :, index], coeffs)
+        return self._place(combine, near.shape[:-2], offset)
+
+    def positions_under_weights(self, neutral, displacements, weights) -> np.ndarray:
+        """Marker positions on ``neutral + Σ_i w_i e_i`` for each row of `weights`.
+
+        The skin points and the edges of the faces whose normals the markers
+        use are linear in the weights: each is one product with them (no
+        mesh is formed), frames ``_FRAMES_PER_PASS`` at a time.
+
+        Parameters
+        ----------
+        neutral : array_like of shape (N, 3), mesh units
+        displacements : array_like of shape (n, N, 3), mesh units
+            The shapes e_i.
+        weights : array_like of shape (T, n)
+
+        Returns
+        -------
+        ndarray of shape (T, M, 3), mesh units
+        """
+        needed = self._normal_op[0]
+        neutral = as_float_array(neutral, "neutral", shape=(self.n_vertices, 3),
+                                 allow_nan=False)
+        displacements = np.asarray(displacements, dtype=np.float64)
+        if displacements.ndim != 3 or displacements.shape[1:] != (self.n_vertices, 3):
+            raise InputError(f"displacements must have shape (n, {self.n_vertices}, 3), got "
+                             f"{displacements.shape}")
+        weights = as_float_array(weights, "weights", shape=(None, len(displacements)))
+        rest, shapes = neutral[needed], displacements[:, needed]
+        maps = {}
+
+        def linear_map(index, coeffs):
+            # Σ_k coeffs·v[index[:, k]] is linear in the weights: (3, 1, R) and (n, 3R)
+            key = (index.tobytes(), coeffs.tobytes())
+            if key not in maps:
+                maps[key] = (np.einsum("rkc,rk->cr", rest[index], coeffs)[:, None, :],
+                             np.einsum("nrkc,rk->ncr", shapes[:, index], coeffs).reshape(
+                                 len(shapes), -1))
+            return maps[key]
+
+        out = np.empty((len(weights), self.n_markers, 3))
+        for first in range(0, len(weights), _FRAMES_PER_PASS):
+            part = weights[first:first + _FRAMES_PER_PASS]
+
+            def combine(index, coeffs):
+                at_rest, moved = linear_map(index, coeffs)
+                return (part @ moved).reshape(len(part), 3, -1).transpose(1, 0, 2) + at_rest
+            out[first:first + len(part)] = self._place(combine, (len(part),))
+        return out
+
+    def _place(self, combine, batch: tuple, offset: bool = True) -> np.ndarray:
+        """Marker positions (batch + (M, 3)) from vertex combinations.
+
+        ``combine(index, coeffs)`` returns ``Σ_k coeffs[r, k] · v[index[r, k]]``
+        for the vertices v the markers depend on (indices into them), as
+        (3, B, R): each coordinate a contiguous (B, R) array for B frames.
+        """
+        _, local, sub_faces, corners, incidence, slot = self._normal_op
+        points = combine(local, self.weights).transpose(1, 2, 0).copy()      # (B, M, 3)
+        if not offset or not np.any(self.offsets):
+            return points.reshape(batch + points.shape[1:])
+        ones = np.ones((len(sub_faces), 2))
+        u = combine(sub_faces[:, [0, 1]], ones * [-1.0, 1.0])               # edges (3, B, Fs)
+        v = combine(sub_faces[:, [0, 2]], ones * [-1.0, 1.0])
+        cross = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                 u[0] * v[1] - u[1] * v[0])
+        # area-weighted vertex normals at the corners: (B, Fs) @ (Fs, C) per coordinate
+        summed = np.stack([(incidence @ comp.T).T for comp in cross])      # (3, B, C)
+        normals = summed / _norm(summed)
+        has = self.offsets != 0
+        along = np.einsum("cbmk,mk->cbm", normals[:, :, slot[has]], self.weights[has])
+        points[:, has] += (self.offsets[has] * along / _norm(along)).transpose(1, 2, 0)
+        return points.reshape(batch + points.shape[1:])
+
+
+def _norm(v: np.ndarray) -> np.ndarray:
+    """Length of the (3, ...) vectors ``v``, with zero lengths as 1 (the vector stays 0)."""
+    norm = np.sqrt(np.einsum("c...,c...->...", v, v))
+    return np.where(norm > 0, norm, 1.0)
+
+
+def make_layout(mesh: Mesh, markers: Mapping[str, Mapping], *, offset: float = 0.0,
+                name: str = "") -> MarkerLayout:
+    """Build a layout from marker specifications.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    markers : mapping of str to mapping
+        Label to ``{"vertex": v}`` or ``{"face": f, "bary": (b0, b1, b2)}``, each
+        with an optional ``"offset"`` (mesh units) overriding `offset`.
+    offset : float
+        Default distance off the skin along the normal, mesh units.
+    name : str
+
+    Returns
+    -------
+    MarkerLayout
+
+    Raises
+    ------
+    MarkerError
+        A specification with unknown keys, both or neither of vertex and face,
+        ids out of range, barycentric weights negative or not summing to 1.
+    """
+    n_markers = len(markers)
+    ids = np.zeros((n_markers, 3), np.int64)
+    weights = np.zeros((n_markers, 3))
+    face_ids = np.full(n_markers, -1, np.int64)
+    offsets = np.full(n_markers, float(offset))
+    for i, (label, spec) in enumerate(markers.items()):
+        if not isinstance(spec, Mapping) or set(spec) - _MARKER_KEYS:
+            raise MarkerError(label, f"specification must be a table with keys among "
+                                     f"{sorted(_MARKER_KEYS)}, got {spec!r}")
+        if ("vertex" in spec) == ("face" in spec):
+            raise MarkerError(label, "needs exactly one of 'vertex' or 'face' (with 'bary')")
+        if "vertex" in spec:
+            vertex = _index(label, spec["vertex"], mesh.n_vertices, "vertex")
+            ids[i], weights[i] = vertex, (1.0, 0.0, 0.0)
+            if "bary" in spec:
+                raise MarkerError(label, "'bary' goes with 'face', not with 'vertex'")
+        else:
+            face_ids[i] = _index(label, spec["face"], mesh.n_faces, "face")
+            ids[i] = mesh.faces[face_ids[i]]
+            weights[i] = _bary(label, spec.get("bary"))
+        if "offset" in spec:
+            value = spec["offset"]
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not np.isfinite(value):
+                raise MarkerError(label, f"offset must be a finite number, got {value!r}")
+            offsets[i] = float(value)
+    return MarkerLayout(tuple(markers), ids, weights, face_ids, offsets, mesh.faces,
+                        mesh.n_vertices, units=mesh.units, name=name)
+
+
+def _index(label, value, limit, what) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) \
+            or not 0 <= value < limit:
+        raise MarkerError(label, f"{what} must be an integer in 0..{limit - 1}, got {value!r}")
+    return int(value)
+
+
+def _bary(label, value) -> np.ndarray:
+    try:
+        bary = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        bary = np.zeros(0)
+    if bary.shape != (3,) or not np.all(np.isfinite(bary)) or np.any(bary < -_BARY_TOL) \
+            or abs(bary.sum() - 1) > _BARY_TOL:
+        raise MarkerError(label, f"bary must be 3 non-negative weights summing to 1, "
+                                 f"got {value!r}")
+    return bary / bary.sum()
+
+
+def load_marker_layout(path, mesh: Mesh) -> MarkerLayout:
+    """Read a layout TOML file (see the module docstring) for `mesh`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    mesh : Mesh
+        The mesh whose vertex and face ids the file uses.
+
+    Returns
+    -------
+    MarkerLayout
+
+    Raises
+    ------
+    FileFormatError
+        Unreadable TOML, unknown keys, no markers, a vertex count or unit
+        different from the mesh's, or a bad marker specification (named).
+    """
+    path = Path(path)
+    doc = read_toml(path, "layout")
+    unknown = set(doc) - _KEYS
+    if unknown:
+        raise FileFormatError(path, f"unknown keys {sorted(unknown)}; expected {sorted(_KEYS)}")
+    if "n_vertices" in doc and doc["n_vertices"] != mesh.n_vertices:
+        raise FileFormatError(path, f"written for a mesh of {doc['n_vertices']} vertices, but "
+                                    f"the mesh has {mesh.n_vertices}")
+    if "units" in doc and mesh.units is not None and doc["units"] != mesh.units:
+        raise FileFormatError(path, f"offsets are in {doc['units']!r} but the mesh is in "
+                                    f"{mesh.units!r}")
+    markers = doc.get("markers")
+    if not isinstance(markers, dict) or not markers:
+        raise FileFormatError(path, "needs a non-empty [markers] table")
+    offset = doc.get("offset", 0.0)
+    if isinstance(offset, bool) or not isinstance(offset, (int, float)):
+        raise FileFormatError(path, f"offset must be a number, got {offset!r}")
+    try:
+        return make_layout(mesh, markers, offset=offset, name=str(doc.get("name", path.stem)))
+    except MarkerError as exc:
+        raise FileFormatError(path, str(exc)) from None
+
+
+def save_marker_layout(layout: MarkerLayout, path, *, description: str = "") -> None:
+    """Write a layout to a TOML file atomically (readable by :func:`load_marker_layout`).
+
+    Offsets equal to the most common one are written as the file's default.
+    """
+    values, counts = np.unique(layout.offsets, return_counts=True)
+    default = float(values[np.argmax(counts)])
+    lines = [f"name = {_quote(layout.name)}"]
+    if description:
+        lines += [f"description = {_quote(description)}"]
+    lines += [f"n_vertices = {layout.n_vertices}"]
+    if layout.units:
+        lines += [f"units = {_quote(layout.units)}"]
+    lines += [f"offset = {default!r}", "", "[markers]"]
+    for i, label in enumerate(layout.labels):
+        if layout.face_ids[i] < 0:
+            spec = f"vertex = {layout.vertex_ids[i, 0]}"
+        else:
+            bary = ", ".join(f"{w:.8f}" for w in layout.weights[i])
+            spec = f"face = {layout.face_ids[i]}, bary = [{bary}]"
+        if layout.offsets[i] != default:
+            spec += f", offset = {float(layout.offsets[i])!r}"
+        lines.append(f"{_quote(label)} = {{ {spec} }}")
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def _quote(text: str) -> str:
+    return '"' + str(text).replace("\\", "\\\\").replace('"', '\\"') + '"'

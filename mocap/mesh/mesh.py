@@ -1,0 +1,494 @@
+"""Face meshes: vertices in the mesh's own units, triangulated polygon faces.
+
+A :class:`Mesh` keeps the vertex order of its file and triangulates each
+polygon as a fan from its first corner, ``(a, b, c, d) -> (a, b, c), (a, c, d)``,
+polygon after polygon, so that every mesh of one topology (a neutral and its
+expression shapes) gets the same triangles in the same order.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from mocap.util.arrays import read_only
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_float_array
+from mocap.errors import FileFormatError, InputError
+from mocap.units import mm_per_unit
+
+__all__ = ["Mesh", "MESH_FORMATS", "load_mesh", "save_obj", "vertex_normals",
+           "face_normals", "boundary_loops", "degenerate_faces"]
+
+#: File extensions :func:`load_mesh` reads.
+MESH_FORMATS = (".obj", ".ply", ".gltf", ".glb")
+
+#: A triangle is degenerate when its doubled area is below this fraction of the
+#: squared bounding-box diagonal.
+_DEGENERATE_REL_AREA = 1e-12
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangulated surface mesh.
+
+    Attributes
+    ----------
+    vertices : ndarray of shape (N, 3), float64
+        Vertex positions in the mesh's own units (read-only).
+    faces : ndarray of shape (F, 3), int64
+        Triangles as 0-based vertex ids (read-only).
+    face_polygon : ndarray of shape (F,), int64
+        The polygon of the file each triangle comes from (``arange(F)`` by default).
+    polygon_sizes : ndarray of shape (P,), int64
+        Number of corners of each polygon of the file (all 3 by default).
+    units : str or None
+        Length unit of the vertices (``"cm"`` for the ICT face), None if unknown.
+    path : str or None
+        The file read, None for a mesh made in memory.
+
+    Raises
+    ------
+    InputError
+        Non-finite vertices, faces out of range, no vertices or no faces, a
+        face-to-polygon map inconsistent with the polygon sizes, an unknown unit.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_polygon: np.ndarray | None = None
+    polygon_sizes: np.ndarray | None = None
+    units: str | None = None
+    path: str | None = None
+
+    def __post_init__(self):
+        where = self.path or "mesh"
+        vertices = as_float_array(self.vertices, "vertices", shape=(None, 3))
+        try:
+            faces = np.array(self.faces, dtype=np.int64, copy=True)
+        except (TypeError, ValueError):
+            raise InputError(f"{where}: faces must be an integer array") from None
+        if faces.ndim != 2 or faces.shape[1] != 3:
+            raise InputError(f"{where}: faces must have shape (F, 3), got {faces.shape}")
+        if self.face_polygon is None:
+            face_polygon = np.arange(len(faces), dtype=np.int64)
+            sizes = np.full(len(faces), 3, dtype=np.int64)
+        else:
+            face_polygon = np.array(self.face_polygon, dtype=np.int64)
+            sizes = np.array(self.polygon_sizes, dtype=np.int64)
+            counts = np.bincount(face_polygon, minlength=len(sizes)) if len(faces) else sizes * 0
+            if face_polygon.shape != (len(faces),) or len(counts) != len(sizes) \
+                    or np.any(counts != sizes - 2):
+                raise InputError(f"{where}: face_polygon does not match polygon_sizes "
+                                 "(a polygon of k corners gives k - 2 triangles)")
+        message = _topology_problem(vertices, faces)
+        if message:
+            raise InputError(f"{where}: {message}")
+        if self.units is not None:
+            mm_per_unit(self.units, where=f"{where}: units")
+        for name, arr in (("vertices", vertices), ("faces", faces),
+                          ("face_polygon", face_polygon), ("polygon_sizes", sizes)):
+            object.__setattr__(self, name, read_only(arr))
+
+    @property
+    def n_vertices(self) -> int:
+        """Number of vertices N."""
+        return len(self.vertices)
+
+    @property
+    def n_faces(self) -> int:
+        """Number of triangles F."""
+        return len(self.faces)
+
+    @property
+    def polygon_corners(self) -> np.ndarray:
+        """Flat 0-based corner ids of the file's polygons, polygon after polygon."""
+        first = np.ones(len(self.faces), dtype=bool)
+        first[1:] = self.face_polygon[1:] != self.face_polygon[:-1]
+        keep = np.ones(self.faces.shape, dtype=bool)
+        keep[~first, :2] = False  # later fan triangles add only their last corner
+        return self.faces[keep]
+
+    def with_vertices(self, vertices) -> "Mesh":
+        """The same topology with other vertex positions (N, 3), same units."""
+        vertices = as_float_array(vertices, "vertices", shape=(self.n_vertices, 3),
+                                  allow_nan=False)
+        return Mesh(vertices, self.faces, self.face_polygon, self.polygon_sizes,
+                    units=self.units)
+
+    def same_topology(self, other: "Mesh") -> bool:
+        """True when `other` has the same vertex count and the same triangles."""
+        return (self.n_vertices == other.n_vertices and self.faces.shape == other.faces.shape
+                and bool(np.array_equal(self.faces, other.faces)))
+
+
+def _topology_problem(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """What is wrong with a vertex/face pair, or an empty string."""
+    if len(vertices) == 0:
+        return "empty mesh: no vertices"
+    if len(faces) == 0:
+        return "empty mesh: no faces"
+    bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
+    if len(bad):
+        return (f"{len(bad)} vertices have NaN or infinite coordinates "
+                f"(first: vertex {bad[0]})")
+    out = np.flatnonzero(((faces < 0) | (faces >= len(vertices))).any(axis=1))
+    if len(out):
+        return (f"face {out[0]} indexes vertex {faces[out[0]].tolist()}, out of range "
+                f"for {len(vertices)} vertices ({len(out)} such faces)")
+    return ""
+
+
+def degenerate_faces(vertices, faces) -> np.ndarray:
+    """Ids of zero-area triangles.
+
+    A triangle is degenerate when twice its area is at most 1e-12 times the
+    squared diagonal of the vertices' bounding box (repeated corners included).
+
+    Parameters
+    ----------
+    vertices : array_like of shape (N, 3)
+    faces : array_like of shape (F, 3), int
+
+    Returns
+    -------
+    ndarray of int64, sorted face ids
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    doubled = np.linalg.norm(_face_cross(vertices, np.asarray(faces, np.int64)), axis=-1)
+    diag2 = float(np.sum(np.ptp(vertices, axis=0) ** 2))
+    return np.flatnonzero(doubled <= _DEGENERATE_REL_AREA * diag2)
+
+
+def _warn_degenerate(vertices, faces, where) -> None:
+    bad = degenerate_faces(vertices, faces)
+    if len(bad):
+        warnings.warn(f"{where}: {len(bad)} degenerate (zero-area) triangles, first "
+                      f"{bad[:5].tolist()}; kept, but marker binding never projects onto them",
+                      stacklevel=3)
+
+
+def _fan(corners: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fan-triangulate polygons: faces (F, 3) and the polygon of each face."""
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    face_polygon = np.repeat(np.arange(len(sizes)), sizes - 2)
+    k = np.arange(len(face_polygon)) - np.repeat(np.cumsum(sizes - 2) - (sizes - 2), sizes - 2)
+    base = starts[face_polygon]
+    faces = np.stack([corners[base], corners[base + k + 1], corners[base + k + 2]], axis=1)
+    return faces, face_polygon
+
+
+def _read_obj(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices (N, 3), flat 0-based polygon corners, polygon sizes of an OBJ file.
+
+    Only ``v`` and ``f`` lines are read; ``f v/vt/vn`` and negative (relative)
+    indices are understood. Plain files (``v x y z``, ``f a b c ...`` with single
+    spaces, positive indices) are parsed in one C call per block; anything else
+    goes through a line-by-line parser that names the faulty line.
+    """
+    try:
+        data = Path(path).read_bytes().replace(b"\r\n", b"\n")
+    except OSError as exc:
+        raise FileFormatError(path, f"cannot read mesh: {exc.strerror}") from None
+    vertices = _fast_block(_block(data, b"v"), np.float64)
+    faces = _fast_block(_block(data, b"f"), np.int64)
+    if vertices is not None and faces is not None and np.all(vertices[1] == 3) \
+            and np.all(faces[1] >= 3) and np.all(faces[0] >= 1):
+        vertices = vertices[0].reshape(-1, 3)
+        if np.all(faces[0] <= len(vertices)):
+            return vertices, faces[0] - 1, faces[1]
+    return _read_obj_lines(path, data.splitlines())
+
+
+def _block(data: bytes, key: bytes) -> bytes | None:
+    """The ``key`` lines of an OBJ without their keyword, newline separated.
+
+    None when a line starts with ``key`` and a tab (left to the careful parser).
+    """
+    chars = np.frombuffer(data, dtype=np.uint8)
+    starts = np.concatenate([[0], np.flatnonzero(chars[:-1] == 10) + 1])
+    starts = starts[starts < len(data) - 1]
+    ours = chars[starts] == key[0]
+    if np.any(ours & (chars[starts + 1] == 9)):
+        return None
+    rows = np.flatnonzero(ours & (chars[starts + 1] == 32))
+    if len(rows) == 0:
+        return b""
+    if rows[-1] - rows[0] + 1 == len(rows):  # one contiguous run: slice it out
+        end = starts[rows[-1] + 1] - 1 if rows[-1] + 1 < len(starts) else len(data)
+        return data[starts[rows[0]] + 2:end].rstrip(b"\n").replace(b"\n" + key + b" ", b"\n")
+    lines = data.splitlines()
+    return b"\n".join(lines[i][2:] for i in rows)
+
+
+def _fast_block(text: bytes | None, dtype):
+    """All numbers of single-space separated rows and the count per row, or None."""
+    if text is None:
+        return None
+    if not text:
+        return np.zeros(0, dtype), np.zeros(0, np.int64)
+    if b"  " in text or b"\t" in text or b"/" in text or b" \n" in text \
+            or text.endswith(b" "):
+        return None
+    chars = np.frombuffer(text, dtype=np.uint8)
+    ends = np.concatenate([np.flatnonzero(chars == 10), [len(chars)]])
+    counts = np.diff(np.searchsorted(np.flatnonzero(chars == 32), ends), prepend=0) + 1
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            values = np.fromstring(text.decode("ascii"), dtype=dtype, sep=" ")
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return (values, counts) if len(values) == counts.sum() else None
+
+
+def _read_obj_lines(path, lines: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The careful OBJ parser: errors name their line."""
+    kind = np.array([line[:2] for line in lines] or [b""])
+    v_idx = np.flatnonzero((kind == b"v ") | (kind == b"v\t"))
+    f_idx = np.flatnonzero((kind == b"f ") | (kind == b"f\t"))
+    vertices = _slow_vertices(path, [lines[i][2:] for i in v_idx], v_idx)
+    raw, sizes = _slow_faces(path, [lines[i][2:] for i in f_idx], f_idx)
+    if np.any(sizes < 3):
+        row = int(np.argmax(sizes < 3))
+        raise FileFormatError(path, f"face has {sizes[row]} corners; a polygon needs 3 or more",
+                              line=int(f_idx[row]) + 1)
+    polygon = np.repeat(np.arange(len(f_idx)), sizes)
+    defined_before = np.searchsorted(v_idx, f_idx)[polygon]  # for negative indices
+    corners = np.where(raw < 0, defined_before + raw, raw - 1)
+    bad = np.flatnonzero((raw == 0) | (corners < 0) | (corners >= len(vertices)))
+    if len(bad):
+        raise FileFormatError(path, f"face indexes vertex {raw[bad[0]]}, out of range for "
+                                    f"{len(vertices)} vertices (OBJ indices are 1-based)",
+                              line=int(f_idx[polygon[bad[0]]]) + 1)
+    return vertices, corners, sizes
+
+
+def _slow_vertices(path, v_lines, v_idx) -> np.ndarray:
+    rows = [line.split() for line in v_lines]
+    short = [n for n, r in enumerate(rows) if len(r) < 3]
+    if short:
+        raise FileFormatError(path, "vertex line needs 3 coordinates",
+                              line=int(v_idx[short[0]]) + 1)
+    try:
+        return np.array([r[:3] for r in rows], dtype=np.float64).reshape(-1, 3)
+    except ValueError:
+        row = next(n for n, r in enumerate(rows) if not _all_numbers(r[:3], float))
+        raise FileFormatError(path, "vertex coordinates are not numbers",
+                              line=int(v_idx[row]) + 1) from None
+
+
+def _slow_faces(path, f_lines, f_idx) -> tuple[np.ndarray, np.ndarray]:
+    rows = [[tok.split(b"/", 1)[0] for tok in line.split()] for line in f_lines]
+    sizes = np.array([len(r) for r in rows], dtype=np.int64)
+    try:
+        return np.array([t for r in rows for t in r], dtype=np.int64), sizes
+    except ValueError:
+        row = next(n for n, r in enumerate(rows) if not _all_numbers(r, int))
+        raise FileFormatError(path, "face indices are not integers",
+                              line=int(f_idx[row]) + 1) from None
+
+
+def _all_numbers(tokens, kind) -> bool:
+    try:
+        [kind(t) for t in tokens]
+    except ValueError:
+        return False
+    return True
+
+
+def load_mesh(path, *, units: str | None = None) -> Mesh:
+    """Read a face mesh, keeping its vertex order.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An OBJ (triangles, quads or larger polygons: fan-triangulated, see the
+        module docstring), PLY, glTF or GLB file (read with trimesh,
+        ``process=False``; their polygons count as triangles).
+    units : str, optional
+        Length unit of the file (``"cm"`` for the ICT face); None if unknown.
+
+    Returns
+    -------
+    Mesh
+
+    Raises
+    ------
+    FileFormatError
+        Unknown extension, unreadable or malformed file, empty mesh, NaN or
+        infinite coordinates, faces indexing vertices out of range.
+
+    Warns
+    -----
+    UserWarning
+        Degenerate (zero-area) triangles: legal, kept, but suspicious.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in MESH_FORMATS:
+        raise FileFormatError(path, f"unknown mesh format {suffix!r}; expected one of "
+                                    f"{', '.join(MESH_FORMATS)}")
+    if units is not None:
+        mm_per_unit(units, where="units")
+    if suffix == ".obj":
+        vertices, corners, sizes = _read_obj(path)
+        faces, face_polygon = _fan(corners, sizes)
+    else:
+        vertices, faces = _read_trimesh(path)
+        face_polygon, sizes = None, None
+    message = _topology_problem(vertices, faces)
+    if message:
+        raise FileFormatError(path, message)
+    _warn_degenerate(vertices, faces, path)
+    return Mesh(vertices, faces, face_polygon, sizes, units=units, path=str(path))
+
+
+def _read_trimesh(path) -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    try:
+        loaded = trimesh.load(path, process=False, maintain_order=True, force="mesh")
+    except Exception as exc:  # trimesh raises many types on corrupt files
+        raise FileFormatError(path, f"cannot read mesh: {exc}") from None
+    if not hasattr(loaded, "faces"):
+        raise FileFormatError(path, "empty mesh: the file holds no triangle geometry")
+    return np.asarray(loaded.vertices, dtype=np.float64), np.asarray(loaded.faces, np.int64)
+
+
+def save_obj(mesh, path, *, faces=None, inputs=()) -> None:
+    """Write a mesh to an OBJ file atomically.
+
+    Parameters
+    ----------
+    mesh : Mesh or array_like of shape (N, 3)
+        A Mesh (its file polygons are written back, e.g. quads) or vertices.
+    path : str or os.PathLike
+        Output file; written to a temporary file, then renamed.
+    faces : array_like of shape (F, 3), optional
+        Triangles (0-based) when `mesh` is a vertex array.
+    inputs : iterable of path, optional
+        Files this output must never replace.
+    """
+    if not isinstance(mesh, Mesh):
+        if faces is None:
+            raise InputError("save_obj needs faces when given a vertex array")
+        mesh = Mesh(mesh, faces)
+    elif faces is not None:
+        raise InputError("save_obj takes faces only with a vertex array, not with a Mesh")
+    corners = mesh.polygon_corners + 1
+    sizes = mesh.polygon_sizes
+    with atomic_path(path, inputs=inputs) as tmp:
+        with open(tmp, "w", encoding="ascii") as fh:
+            if mesh.units:
+                fh.write(f"# units: {mesh.units}\n")
+            np.savetxt(fh, mesh.vertices, fmt="v %.10g %.10g %.10g")
+            if np.all(sizes == sizes[0]):
+                k = int(sizes[0])
+                np.savetxt(fh, corners.reshape(-1, k), fmt="f" + " %d" * k)
+            else:
+                for poly in np.split(corners, np.cumsum(sizes)[:-1]):
+                    fh.write("f " + " ".join(map(str, poly)) + "\n")
+
+
+def _face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unnormalized face normals (…, F, 3): twice the area times the unit normal."""
+    a = vertices[..., faces[:, 0], :]
+    return np.cross(vertices[..., faces[:, 1], :] - a, vertices[..., faces[:, 2], :] - a)
+
+
+def face_normals(vertices, faces) -> np.ndarray:
+    """Unit face normals, right-handed from the corner order.
+
+    Parameters
+    ----------
+    vertices : array_like of shape (..., N, 3)
+        One mesh or many frames of one topology.
+    faces : array_like of shape (F, 3), int
+
+    Returns
+    -------
+    ndarray of shape (..., F, 3)
+        Zero for degenerate faces. NaN vertices give NaN normals.
+    """
+    vertices = as_float_array(vertices, "vertices")
+    cross = _face_cross(vertices, np.asarray(faces, dtype=np.int64))
+    norm = np.linalg.norm(cross, axis=-1, keepdims=True)
+    return np.divide(cross, norm, out=np.zeros_like(cross), where=norm > 0)
+
+
+def vertex_normals(vertices, faces) -> np.ndarray:
+    """Area-weighted unit vertex normals, for one mesh or many frames at once.
+
+    Parameters
+    ----------
+    vertices : array_like of shape (..., N, 3)
+    faces : array_like of shape (F, 3), int
+
+    Returns
+    -------
+    ndarray of shape (..., N, 3)
+        Zero for vertices that no face uses. NaN vertices propagate NaN to the
+        normals of their neighbours.
+    """
+    vertices = as_float_array(vertices, "vertices")
+    if vertices.ndim < 2 or vertices.shape[-1] != 3:
+        raise InputError(f"vertices must have shape (..., N, 3), got {vertices.shape}")
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    n = vertices.shape[-2]
+    if len(faces) == 0:
+        return np.zeros_like(vertices)
+    incidence = sp.csr_matrix((np.ones(faces.size), (faces.ravel(),
+                                                     np.repeat(np.arange(len(faces)), 3))),
+                              shape=(n, len(faces)))
+    cross = _face_cross(vertices, faces)                       # (..., F, 3)
+    batch = cross.shape[:-2]
+    flat = np.moveaxis(cross.reshape(-1, len(faces), 3), 1, 0).reshape(len(faces), -1)
+    summed = np.asarray(incidence @ flat).reshape(n, -1, 3)
+    summed = np.moveaxis(summed, 1, 0).reshape(batch + (n, 3))
+    norm = np.linalg.norm(summed, axis=-1, keepdims=True)
+    return np.divide(summed, norm, out=np.zeros_like(summed), where=norm > 0)
+
+
+def boundary_loops(mesh_or_faces) -> list[np.ndarray]:
+    """The closed boundary loops of a mesh, longest first.
+
+    Parameters
+    ----------
+    mesh_or_faces : Mesh or array_like of shape (F, 3), int
+
+    Returns
+    -------
+    list of ndarray of int
+        Vertex ids of each loop in the faces' orientation. The ICT face has 4:
+        the outer rim, the two eye holes and the mouth opening.
+    """
+    faces = mesh_or_faces.faces if isinstance(mesh_or_faces, Mesh) else \
+        np.asarray(mesh_or_faces, dtype=np.int64)
+    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    undirected = np.sort(directed, axis=1)
+    _, inverse, counts = np.unique(undirected, axis=0, return_inverse=True,
+                                   return_counts=True)
+    edges = directed[counts[inverse.ravel()] == 1]
+    following: dict[int, list[int]] = {}
+    for a, b in edges.tolist():
+        following.setdefault(a, []).append(b)
+    loops = []
+    while following:
+        start = next(iter(following))
+        loop, current = [start], start
+        while True:
+            nexts = following[current]
+            nxt = nexts.pop()
+            if not nexts:
+                del following[current]
+            if nxt == start or nxt not in following:
+                break
+            loop.append(nxt)
+            current = nxt
+        loops.append(np.array(loop, dtype=np.int64))
+    return sorted(loops, key=len, reverse=True)

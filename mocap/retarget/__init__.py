@@ -1,0 +1,1 @@
+"""Retargeting: marker displacements drive a face mesh through an RBF operator."""

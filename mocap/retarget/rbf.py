@@ -1,0 +1,482 @@
+"""RBF retargeting as a linear operator: marker displacements -> vertex displacements.
+
+The RBF interpolant of data ``d`` given at M centers (markers on the neutral
+mesh), evaluated at N points (mesh vertices), is linear in ``d``. Solving the
+system once for the identity gives ``W`` (N, M), the same for x, y and z, so a
+whole take costs one matrix product per chunk of frames: ``Xi(t) = W D(t)``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+import scipy.sparse.linalg
+from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
+
+from mocap.retarget import _kernels as _k
+from mocap.retarget._kernels import COMPACT_KERNELS, KERNELS
+from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
+from mocap.errors import InputError
+from mocap.mesh.geodesic import HeatGeodesics
+from mocap.mesh import regions as _regions
+from mocap.mesh.regions import RegionWeights, as_region_markers, painted_region_weights
+
+__all__ = ["RBFOperator", "RBFSolveInfo", "build_rbf_operator", "KERNELS", "DISTANCES"]
+
+#: Distances the kernels may be evaluated on.
+DISTANCES = ("euclidean", "geodesic")
+
+#: When a kernel matrix must be regularized, its smallest eigenvalue (on the
+#: polynomial null space) is raised to this fraction of its largest.
+_PD_FLOOR = 1e-8
+#: Compact-kernel operators are stored sparse up to this fraction of nonzeros
+#: (denser, a sparse product is slower than the dense GEMM).
+_SPARSE_DENSITY = 0.25
+#: Scratch memory per matrix product when `chunk_frames` is not given, bytes.
+_CHUNK_BYTES = 64 * 2 ** 20
+
+
+@dataclass(frozen=True)
+class RBFSolveInfo:
+    """Diagnostics of one solved RBF system (one per region).
+
+    Attributes
+    ----------
+    region : str
+        Region name, or ``"all"`` without regions.
+    n_centers : int
+        Centers in the system (the region's markers plus support markers).
+    condition : float
+        2-norm condition number of the system matrix that was solved.
+    min_eigenvalue : float
+        Smallest eigenvalue of the kernel matrix (smoothing included, shift
+        not) restricted to the null space of the polynomial block, i.e. the
+        quantity that must be positive for a unique interpolant.
+    shift : float
+        Diagonal shift added to make it positive definite (0 if none was needed).
+    """
+
+    region: str
+    n_centers: int
+    condition: float
+    min_eigenvalue: float
+    shift: float
+
+
+@dataclass(frozen=True)
+class RBFOperator:
+    """A built RBF retargeting operator ``W`` (N, M); see :func:`build_rbf_operator`.
+
+    Attributes
+    ----------
+    matrix : ndarray or scipy.sparse.csr_array of shape (n_points, n_centers)
+        Vertex displacement = ``matrix @`` marker displacement, per coordinate.
+        Sparse (exact zeros dropped) for compact kernels when at most a
+        quarter of its entries are nonzero.
+    kernel, distance : str
+        Options used.
+    epsilon : float
+        Shape parameter (support radius ``1/epsilon`` for compact kernels), 1/mesh units.
+    degree : int
+        Degree of the polynomial tail (-1: none).
+    smoothing : ndarray of shape (n_centers,)
+        Smoothing added to the kernel matrix diagonal.
+    labels : tuple of str or None
+        Marker labels, used in error messages.
+    regions : dict of str to ndarray of int, or None
+        Marker indices of each region.
+    region_weights : RegionWeights or None
+        Per-vertex region weights the region operators were blended with.
+    diagnostics : tuple of RBFSolveInfo
+        One per solved system.
+    """
+
+    matrix: np.ndarray | sp.csr_array
+    kernel: str
+    epsilon: float
+    degree: int
+    smoothing: np.ndarray
+    distance: str
+    labels: tuple[str, ...] | None
+    regions: dict[str, np.ndarray] | None
+    region_weights: RegionWeights | None
+    diagnostics: tuple[RBFSolveInfo, ...]
+
+    @property
+    def n_points(self) -> int:
+        """Number of evaluation points (vertices), N."""
+        return self.matrix.shape[0]
+
+    @property
+    def n_centers(self) -> int:
+        """Number of centers (markers), M."""
+        return self.matrix.shape[1]
+
+    def apply(self, displacements, *, chunk_frames: int | None = None,
+              dtype=np.float32, out: np.ndarray | None = None) -> np.ndarray:
+        """Vertex displacements of every frame, one matrix product per chunk of frames.
+
+        Parameters
+        ----------
+        displacements : array_like of shape (n_frames, n_centers, 3)
+            Marker displacements from the neutral pose, any length unit. NaN
+            is rejected (fill gaps first).
+        chunk_frames : int, optional
+            Frames per product; the scratch memory is about
+            ``3 * n_points * chunk_frames`` values (default: 64 MiB of them).
+        dtype : float32 or float64
+            Precision of the product and of the result.
+        out : ndarray of shape (n_frames, n_points, 3), optional
+            C-contiguous array of `dtype` to write into.
+
+        Returns
+        -------
+        ndarray of shape (n_frames, n_points, 3)
+            Vertex displacements, in the unit of `displacements`.
+
+        Raises
+        ------
+        InputError
+            Wrong shape, NaN (naming the marker and frame), bad `out` or `dtype`.
+        """
+        d, chunk, dtype = self._prepare(displacements, chunk_frames, dtype)
+        shape = (len(d), self.n_points, 3)
+        if out is None:
+            out = np.empty(shape, dtype)
+        elif (not isinstance(out, np.ndarray) or out.shape != shape or out.dtype != dtype
+              or not out.flags.c_contiguous or not out.flags.writeable):
+            raise InputError(f"out must be a writeable C-contiguous {dtype} array of "
+                             f"shape {shape}")
+        for _ in self._blocks(d, chunk, dtype, out):
+            pass
+        return out
+
+    def iter_chunks(self, displacements, *, chunk_frames: int | None = None,
+                    dtype=np.float32) -> Iterator[tuple[slice, np.ndarray]]:
+        """Iterate over ``(frames, block)``: a slice of frames and its (c, n_points, 3) result.
+
+        For streaming a take to disk without holding it whole: each block is a
+        new array. Parameters and errors as :meth:`apply`; the input is
+        validated when this is called, before the first block.
+        """
+        d, chunk, dtype = self._prepare(displacements, chunk_frames, dtype)
+        return self._blocks(d, chunk, dtype, None)
+
+    def _prepare(self, displacements, chunk_frames, dtype):
+        d = as_float_array(displacements, "displacements", shape=(None, self.n_centers, 3))
+        missing = np.isnan(d).any(axis=2)
+        if missing.any():
+            frame, marker = (int(i) for i in np.argwhere(missing)[0])
+            name = (f"{self.labels[marker]!r} (index {marker})" if self.labels
+                    else f"{marker}")
+            raise InputError(f"displacements: marker {name} is NaN in frame {frame} "
+                             f"({int(missing.sum())} missing marker-frames); fill gaps "
+                             "before retargeting")
+        dtype = np.dtype(dtype)
+        if dtype not in (np.float32, np.float64):
+            raise InputError(f"dtype must be float32 or float64, got {dtype}")
+        chunk = None if chunk_frames is None else as_int(chunk_frames, "chunk_frames",
+                                                         minimum=1)
+        return d, chunk, dtype
+
+    def _blocks(self, d, chunk, dtype, out):
+        matrix = self.matrix.astype(dtype)
+        n_points, n_centers = matrix.shape
+        if chunk is None:
+            chunk = max(1, _CHUNK_BYTES // (3 * n_points * dtype.itemsize))
+        scratch = None
+        for start in range(0, len(d), chunk):
+            frames = slice(start, min(start + chunk, len(d)))
+            c = frames.stop - frames.start
+            # One GEMM per chunk: rows (coordinate, frame) of D times W^T,
+            # (3c, M) @ (M, N) -> (3c, N), i.e. (W @ D_chunk)^T with D_chunk (M, 3c).
+            lhs = np.empty((3, c, n_centers), dtype)
+            lhs[...] = d[frames].transpose(2, 0, 1)
+            lhs = lhs.reshape(3 * c, n_centers)
+            if sp.issparse(matrix):
+                prod = np.ascontiguousarray((matrix @ lhs.T).T)
+            else:
+                if scratch is None or scratch.shape[0] != 3 * c:
+                    scratch = np.empty((3 * c, n_points), dtype)
+                prod = np.matmul(lhs, matrix.T, out=scratch)
+            block = out[frames] if out is not None else np.empty((c, n_points, 3), dtype)
+            for axis, rows in enumerate(prod.reshape(3, c, n_points)):
+                block[:, :, axis] = rows
+            yield frames, block
+
+
+def _polynomial(centers, points, degree):
+    """Polynomial blocks at centers and points, on the centers' box scaled to [-1, 1]."""
+    powers = (_k.monomial_powers(3, degree) if degree >= 0
+              else np.zeros((0, 3), dtype=np.int64))
+    lo, hi = centers.min(axis=0), centers.max(axis=0)
+    shift, scale = (hi + lo) / 2, (hi - lo) / 2
+    scale = np.where(scale == 0.0, 1.0, scale)
+    return (_k.polynomial_matrix((centers - shift) / scale, powers),
+            _k.polynomial_matrix((points - shift) / scale, powers))
+
+
+def _solve(region, kcc, kxc, pc, px, smoothing, degree, regularize):
+    """Solve the system for the identity: W (N, M) and its diagnostics."""
+    m, n_mono = pc.shape
+    where = "" if region == "all" else f"region {region!r}: "
+    if n_mono > m:
+        raise InputError(f"{where}{m} centers, but a degree-{degree} "
+                         f"polynomial needs at least {n_mono}")
+    u, sv, _ = np.linalg.svd(pc, full_matrices=True)
+    rank = int(np.sum(sv > sv[0] * max(pc.shape) * np.finfo(float).eps)) if n_mono else 0
+    if rank < n_mono:
+        raise InputError(f"{where}the centers lie on a low-dimensional set: the "
+                         f"polynomial block has rank {rank} < {n_mono}; lower `degree`")
+    dense_k = (kcc.toarray() if sp.issparse(kcc) else kcc) + np.diag(smoothing)
+    null = u[:, n_mono:]
+    eig = np.linalg.eigvalsh(null.T @ dense_k @ null) if m > n_mono else np.array([np.nan])
+    lam_min, lam_max = float(eig[0]), float(np.nanmax(np.abs(eig), initial=0.0))
+    shift = 0.0
+    if regularize and lam_min <= m * np.finfo(float).eps * lam_max:
+        shift = _PD_FLOOR * lam_max - 2.0 * lam_min
+        warnings.warn(f"{where}the kernel matrix is not positive definite (smallest "
+                      f"eigenvalue {lam_min:.3g}, largest {lam_max:.3g}): a diagonal "
+                      f"shift of {shift:.3g} was added, which smooths the data; a "
+                      "compact or narrower kernel avoids it", stacklevel=4)
+    diag = smoothing + shift
+    try:
+        if sp.issparse(kcc):
+            system = (kcc + sp.diags_array(diag)).tocsc()
+            z = scipy.sparse.linalg.splu(system).solve(np.eye(m))
+            w = kxc @ z
+            condition = np.linalg.cond(system.toarray())
+        else:
+            system = np.block([[kcc + np.diag(diag), pc], [pc.T, np.zeros((n_mono, n_mono))]])
+            z = scipy.linalg.solve(system, np.eye(m + n_mono, m))
+            w = kxc @ z[:m] + px @ z[m:]
+            condition = np.linalg.cond(system)
+    except (np.linalg.LinAlgError, RuntimeError) as exc:
+        raise InputError(f"{where}the RBF system is singular ({exc}): coincident "
+                         "centers? add smoothing") from None
+    info = RBFSolveInfo(region, m, float(condition), lam_min, float(shift))
+    return np.asarray(w), info
+
+
+def _check_options(kernel, epsilon, degree, smoothing, n_centers):
+    kernel = as_choice(kernel, "kernel", KERNELS)
+    if epsilon is None:
+        if kernel not in _k.SCALE_INVARIANT:
+            raise InputError(f"epsilon is required for kernel {kernel!r}"
+                             + (" (support radius = 1/epsilon, mesh units)"
+                                if kernel in COMPACT_KERNELS else ""))
+        epsilon = 1.0
+    epsilon = as_positive_float(epsilon, "epsilon")
+    min_degree = _k.MIN_DEGREE.get(kernel, -1)
+    if degree is None:
+        degree = -1 if kernel in COMPACT_KERNELS else max(min_degree, 0)
+    degree = as_int(degree, "degree", minimum=-1)
+    if kernel in COMPACT_KERNELS and degree != -1:
+        raise InputError(f"kernel {kernel!r} is used without a polynomial term "
+                         f"(its support would be infinite): degree must be -1, got {degree}")
+    if -1 < degree < min_degree:
+        warnings.warn(f"degree {degree} is below the minimum {min_degree} of kernel "
+                      f"{kernel!r}: the interpolant may not be unique", stacklevel=3)
+    smoothing = as_float_array(smoothing, "smoothing", allow_nan=False)
+    if smoothing.ndim == 0:
+        smoothing = np.full(n_centers, float(smoothing))
+    if smoothing.shape != (n_centers,) or (smoothing < 0).any():
+        raise InputError(f"smoothing must be a scalar or an array of shape ({n_centers},), "
+                         f">= 0, got {smoothing.tolist() if smoothing.size < 8 else smoothing.shape}")
+    return kernel, epsilon, degree, smoothing
+
+
+def _geodesic_setup(centers, points, mesh, center_faces, center_bary):
+    """Fields (M, N) from each center and symmetric center distances (M, M)."""
+    if mesh is None:
+        raise InputError("distance='geodesic' needs mesh=(vertices, faces)")
+    if not isinstance(mesh, Sequence) or len(mesh) != 2:
+        raise InputError("mesh must be a pair (vertices (N, 3), faces (F, 3))")
+    geo = HeatGeodesics(*mesh)
+    if geo.vertices.shape != points.shape or not np.allclose(geo.vertices, points):
+        raise InputError("with distance='geodesic', points must be the mesh vertices "
+                         f"({geo.n_vertices} of them)")
+    if (center_faces is None) != (center_bary is None):
+        raise InputError("give both center_faces and center_bary, or neither")
+    if center_faces is None:
+        center_faces, center_bary = geo.locate(centers)
+    fields = geo.from_surface_points(center_faces, center_bary, symmetric=True)
+    faces = np.asarray(center_faces, dtype=np.int64)
+    on_mesh = np.einsum("pk,pkd->pd", np.asarray(center_bary, dtype=np.float64),
+                        geo.vertices[geo.faces[faces]])
+    gap = np.linalg.norm(on_mesh - centers, axis=1)
+    tol = 1e-4 * np.linalg.norm(np.ptp(geo.vertices, axis=0))
+    if (gap > tol).any():
+        bad = int(np.argmax(gap > tol))
+        raise InputError(f"center {bad} is {gap[bad]:.4g} from its surface point "
+                         f"(face {faces[bad]}); center_faces/center_bary must locate "
+                         "the centers on the mesh")
+    between = geo.at_surface_points(fields, faces, center_bary)
+    # the heat method can return -1e-16 at a source; a distance is never negative
+    # (and the thin-plate kernel takes its logarithm)
+    return np.maximum(fields, 0.0), np.maximum(0.5 * (between + between.T), 0.0)
+
+
+def build_rbf_operator(centers, points, *, kernel: str = "thin_plate_spline",
+                       epsilon: float | None = None, degree: int | None = None,
+                       smoothing=0.0, distance: str = "euclidean", mesh=None,
+                       center_faces=None, center_bary=None,
+                       regions: Mapping[str, Sequence] | None = None,
+                       region_weights=None, region_width: float | None = None,
+                       support_region: str | None = "other",
+                       labels: Sequence[str] | None = None) -> RBFOperator:
+    """Build the RBF operator from marker displacements to vertex displacements.
+
+    Parameters
+    ----------
+    centers : array_like of shape (n_centers, 3)
+        Marker positions on the neutral mesh, mesh units. No NaN.
+    points : array_like of shape (n_points, 3)
+        Evaluation points (mesh vertices), mesh units. No NaN.
+    kernel : str
+        One of :data:`KERNELS`. The scipy kernels match
+        ``scipy.interpolate.RBFInterpolator`` with the same epsilon, degree and
+        smoothing; ``wendland_c2`` and ``bspline_bell`` (the compact cubic
+        B-spline of Ju & Lee 2008) have support radius ``1/epsilon`` and no
+        polynomial term.
+    epsilon : float, optional
+        Shape parameter, 1/mesh units. Default 1 for the scale-invariant
+        kernels, required for the others.
+    degree : int, optional
+        Polynomial degree (-1: none). Default: the kernel's minimum
+        (scipy's rule), -1 for compact kernels.
+    smoothing : float or array_like of shape (n_centers,)
+        Added to the kernel matrix diagonal, as in scipy (noisy markers).
+    distance : {"euclidean", "geodesic"}
+        Geodesic: heat-method distances on `mesh`; `points` must be its vertices.
+    mesh : (vertices (n_points, 3), faces (n_faces, 3)), optional
+        Triangle mesh for geodesic distances and region weights.
+    center_faces, center_bary : array_like of shape (n_centers,) and (n_centers, 3), optional
+        Surface location of each center (default: closest point).
+    regions : mapping of str to sequence of int or str, optional
+        Region name -> marker indices (or labels): a partition of the markers.
+        The markers of a region drive only that region's vertices.
+    region_weights : RegionWeights or array_like of shape (n_points, n_regions), optional
+        Per-vertex region weights (e.g. painted), columns in `regions` order.
+        Default: :func:`mocap.mesh.regions.region_weights` on the same distance.
+    region_width : float, optional
+        Blend width of the default region weights, mesh units. Default: the
+        median distance from a center to its nearest other center.
+    support_region : str or None
+        Region whose markers also support every other region's system
+        (ignored when absent from `regions`).
+    labels : sequence of str, optional
+        Marker labels, for error messages.
+
+    Returns
+    -------
+    RBFOperator
+
+    Raises
+    ------
+    InputError
+        Bad shapes or options, too few centers for the polynomial, a singular
+        system, or an inconsistent mesh or region map.
+
+    Notes
+    -----
+    With kernel matrix ``K`` (M, M), smoothing ``S``, polynomial blocks ``P``
+    (centers) and ``P_x`` (points) and ``K_x`` (N, M), the system
+    ``[[K + S, P], [P^T, 0]] Z = [[I], [0]]`` is solved once and
+    ``W = K_x Z_a + P_x Z_b``. With regions, ``W = sum_r diag(w_r) W_r`` where
+    ``W_r`` is built from region ``r``'s markers (plus the support markers).
+    Geodesic distances and the B-spline bell give no positive-definiteness
+    guarantee: the kernel matrix is checked on the polynomial null space and,
+    when not positive definite, the diagonal is shifted just enough to lift
+    its smallest eigenvalue to 1e-8 of its largest (reported in
+    ``diagnostics``). Euclidean scipy kernels are solved as scipy does.
+    """
+    centers = as_float_array(centers, "centers", shape=(None, 3), allow_nan=False)
+    points = as_float_array(points, "points", shape=(None, 3), allow_nan=False)
+    m = len(centers)
+    kernel, epsilon, degree, smoothing = _check_options(kernel, epsilon, degree,
+                                                        smoothing, m)
+    distance = as_choice(distance, "distance", DISTANCES)
+    if labels is not None:
+        labels = tuple(str(label) for label in labels)
+        if len(labels) != m:
+            raise InputError(f"labels must name the {m} centers, got {len(labels)}")
+    if distance == "euclidean" and not smoothing.any():
+        pairs = cKDTree(centers).query_pairs(0.0, output_type="ndarray")
+        if len(pairs):
+            i, j = (repr(labels[p]) if labels else int(p) for p in pairs[0])
+            raise InputError(f"centers {i} and {j} coincide: the RBF system is singular "
+                             "(merge them or add smoothing)")
+    compact = kernel in COMPACT_KERNELS
+    if distance == "geodesic":
+        fields, dcc = _geodesic_setup(centers, points, mesh, center_faces, center_bary)
+        kcc, kxc = _k.evaluate(kernel, epsilon * dcc), _k.evaluate(kernel, epsilon * fields.T)
+        if compact:
+            kcc, kxc = sp.csr_array(kcc), sp.csr_array(kxc)
+    elif compact:
+        kcc = _k.compact_kernel_matrix(kernel, centers, centers, epsilon)
+        kxc = _k.compact_kernel_matrix(kernel, points, centers, epsilon)
+    else:
+        kcc = _k.evaluate(kernel, epsilon * cdist(centers, centers))
+        kxc = _k.evaluate(kernel, epsilon * cdist(points, centers))
+    regularize = distance == "geodesic" or kernel == "bspline_bell"
+
+    def solve(name, subset):
+        pc, px = _polynomial(centers[subset], points, degree)
+        sub_kcc = kcc[subset][:, subset] if compact else kcc[np.ix_(subset, subset)]
+        return _solve(name, sub_kcc, kxc[:, subset], pc, px, smoothing[subset], degree,
+                      regularize)
+
+    weights = None
+    if regions is None:
+        matrix, info = solve("all", np.arange(m))
+        diagnostics = (info,)
+    else:
+        members = as_region_markers(regions, m, labels=labels)
+        if distance == "geodesic":
+            to_points, between = fields, dcc
+        else:
+            to_points, between = cdist(centers, points), cdist(centers, centers)
+        weights = _as_region_weights(region_weights, members, to_points, between,
+                                     region_width, labels)
+        support = members.get(support_region, np.zeros(0, dtype=np.int64))
+        matrix = np.zeros((len(points), m))
+        diagnostics = []
+        for col, (name, idx) in enumerate(members.items()):
+            if len(idx) == 0:
+                if weights.weights[:, col].any():
+                    raise InputError(f"region {name!r} has no markers but positive "
+                                     "region weights: nothing would drive those vertices")
+                continue
+            subset = np.union1d(idx, support)
+            w_r, info = solve(name, subset)
+            matrix[:, subset] += weights.weights[:, col, None] * w_r
+            diagnostics.append(info)
+        diagnostics = tuple(diagnostics)
+    if compact and np.count_nonzero(matrix) <= _SPARSE_DENSITY * matrix.size:
+        matrix = sp.csr_array(matrix)
+    return RBFOperator(matrix, kernel, epsilon, degree, smoothing, distance, labels,
+                       None if regions is None else members, weights, diagnostics)
+
+
+def _as_region_weights(given, members, to_points, between, width, labels) -> RegionWeights:
+    names = tuple(members)
+    n_points = to_points.shape[1]
+    if given is None:
+        if width is None:
+            spacing = between + np.diag(np.full(len(between), np.inf))
+            width = float(np.median(spacing.min(axis=1)))
+        return _regions.region_weights(to_points, members, width=width, labels=labels)
+    if not isinstance(given, RegionWeights):
+        given = painted_region_weights(given, names)
+    if given.names != names or given.weights.shape != (n_points, len(names)):
+        raise InputError(f"region_weights must have regions {list(names)} in that order "
+                         f"and {n_points} rows, got {list(given.names)} and shape "
+                         f"{given.weights.shape}")
+    return given

@@ -1,0 +1,494 @@
+"""Retargeting stage: a stabilized take, bound to a face mesh, drives the mesh.
+
+The glue between the correspondence stage (:class:`mocap.bind.Binding`) and
+the RBF operator (:mod:`mocap.retarget.rbf`): face-marker displacements from a neutral
+frame, in mesh units, become vertex displacements ``Xi(t) = W D(t)``, applied
+chunk by chunk and streamed to a ``.npz`` archive or an OBJ sequence. The
+library behind ``mocap2mesh retarget`` and the retargeting step of
+``mocap2mesh run``.
+
+NaN policy: :func:`marker_displacements` propagates NaN; :func:`retarget`
+rejects it (fill gaps first, e.g. :func:`mocap.clean.ingest.ingest`, which the CLI
+runs) and names the first missing marker and frame.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mocap.util.atomic import atomic_path, refuse_overwrite
+from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
+from mocap.bind import PICKED_FRAMES, Binding, resolve_neutral_frame
+from mocap.errors import InputError, MarkerError
+from mocap.markerset import MarkerSet
+from mocap.mesh.mesh import Mesh, face_normals, save_obj
+from mocap.retarget.rbf import DISTANCES, KERNELS, RBFOperator, build_rbf_operator
+from mocap.rigid import fit_rigid
+from mocap.take import Take
+
+__all__ = ["RetargetOptions", "Retargeting", "marker_displacements", "neutral_pose",
+           "align_head_frame",
+           "build_retarget_operator", "retarget", "save_npz", "save_obj_sequence",
+           "KERNELS", "DISTANCES", "CONTENTS"]
+
+#: What a ``.npz`` output holds per frame: vertex positions or displacements from the neutral.
+CONTENTS = ("vertices", "displacements")
+
+
+@dataclass(frozen=True)
+class RetargetOptions:
+    """Options of the retargeting stage (see :func:`mocap.retarget.rbf.build_rbf_operator`).
+
+    Attributes
+    ----------
+    kernel : str
+        One of :data:`KERNELS`.
+    epsilon : float or None
+        Shape parameter, 1/mesh units (compact kernels: support radius
+        ``1/epsilon``); None for the scale-invariant kernels' default.
+    degree : int or None
+        Polynomial degree (-1: none); None for the kernel's default.
+    smoothing : float
+        Added to the kernel matrix diagonal (noisy markers), >= 0.
+    distance : str
+        One of :data:`DISTANCES`.
+    use_regions : bool
+        Region masks: the markers of each region in `split_regions` drive only
+        that region's vertices (soft region weights), so that the upper lip
+        never drives the lower lip; every other face marker forms the
+        ``"other"`` group, which drives its own vertices and supports every
+        split region's system.
+    split_regions : tuple of str
+        Marker-set regions given their own system with `use_regions`
+        (default the two lips). Each needs enough markers for the kernel's
+        polynomial (4 with degree 1, with the support markers).
+    region_width : float or None
+        Blend width of the region weights, mesh units (default: the median
+        marker spacing).
+    chunk_frames : int or None
+        Frames per matrix product (default: a 64 MiB budget).
+    """
+
+    kernel: str = "thin_plate_spline"
+    epsilon: float | None = None
+    degree: int | None = None
+    smoothing: float = 0.0
+    distance: str = "euclidean"
+    use_regions: bool = False
+    split_regions: tuple = ("upper_lip", "lower_lip")
+    region_width: float | None = None
+    chunk_frames: int | None = None
+
+    def __post_init__(self):
+        as_choice(self.kernel, "kernel", KERNELS)
+        as_choice(self.distance, "distance", DISTANCES)
+        if self.epsilon is not None:
+            as_positive_float(self.epsilon, "epsilon")
+        if self.degree is not None:
+            as_int(self.degree, "degree", minimum=-1)
+        smoothing = as_float_array(self.smoothing, "smoothing", ndim=0, allow_nan=False)
+        if smoothing < 0:
+            raise InputError(f"smoothing must be >= 0, got {float(smoothing)}")
+        if isinstance(self.split_regions, str) or not all(
+                isinstance(r, str) for r in self.split_regions):
+            raise InputError(f"split_regions must be a tuple of region names, "
+                             f"got {self.split_regions!r}")
+        if "other" in self.split_regions:
+            raise InputError('split_regions cannot name "other": it is the group of the '
+                             "markers outside the split regions")
+        object.__setattr__(self, "split_regions", tuple(self.split_regions))
+        if self.region_width is not None:
+            as_positive_float(self.region_width, "region_width")
+        if self.chunk_frames is not None:
+            as_int(self.chunk_frames, "chunk_frames", minimum=1)
+
+
+def _check_take(take) -> Take:
+    if not isinstance(take, Take):
+        raise InputError(f"take must be a mocap.Take, got {type(take).__name__}")
+    return take
+
+
+def _check_frame(take: Take, neutral_frame) -> int:
+    frame = as_int(neutral_frame, "neutral_frame", minimum=0)
+    if frame >= take.n_frames:
+        raise InputError(f"neutral_frame {frame} is beyond the take's {take.n_frames} frames")
+    missing = np.flatnonzero(np.isnan(take.positions[frame]).any(axis=1))
+    if len(missing):
+        raise MarkerError(take.labels[missing[0]],
+                          f"is missing (NaN) in the neutral frame {take.first_frame + frame} "
+                          f"(index {frame}): displacements need every marker there")
+    return frame
+
+
+def _binding_rows(binding: Binding, labels) -> np.ndarray:
+    lookup = {label: i for i, label in enumerate(binding.labels)}
+    absent = [label for label in labels if label not in lookup]
+    if absent:
+        raise MarkerError(absent[0], f"is not in the binding ({len(absent)} markers "
+                                     f"absent: {', '.join(absent[:10])})")
+    return np.array([lookup[label] for label in labels], dtype=np.int64)
+
+
+def neutral_pose(positions, frame: int, window: int = 1) -> np.ndarray:
+    """The rest pose: the mean of the marker positions over a window around a frame.
+
+    Averaging a neutral hold takes the noise of a single frame out of the
+    reference every displacement is measured from (it would otherwise be a
+    bias of every frame).
+
+    Parameters
+    ----------
+    positions : array_like of shape (n_frames, n_markers, 3), mm
+        Marker positions; NaN propagates (a marker missing in one frame of
+        the window is NaN in the rest pose).
+    frame : int
+        0-based index of the window's centre.
+    window : int, default 1
+        Frames averaged, centred on `frame` and cut at the ends of the take
+        (1: the frame itself).
+
+    Returns
+    -------
+    ndarray of shape (n_markers, 3), mm
+
+    Raises
+    ------
+    InputError
+        `positions` not of that shape, `frame` beyond the take, `window` below 1.
+    """
+    positions = np.asarray(positions, dtype=np.float64)      # no copy of a whole take
+    if positions.ndim != 3 or positions.shape[2] != 3:
+        raise InputError(f"positions must have shape (n_frames, n_markers, 3), got "
+                         f"{positions.shape}")
+    frame = as_int(frame, "neutral frame", minimum=0)
+    if frame >= len(positions):
+        raise InputError(f"neutral frame {frame} is beyond the take's {len(positions)} frames")
+    window = as_int(window, "neutral_window", minimum=1)
+    return positions[max(0, frame - window // 2):frame + window // 2 + 1].mean(axis=0)
+
+
+def marker_displacements(take: Take, binding: Binding, *, neutral_frame: int,
+                         rotation=None, neutral_window: int = 1) -> np.ndarray:
+    """Marker displacements from the neutral frame, in mesh units and mesh axes.
+
+    Parameters
+    ----------
+    take : Take
+        Head-stabilized take (positions (T, M, 3), mm); every marker must be bound.
+    binding : Binding
+    neutral_frame : int
+        0-based index of the rest frame; every marker must be visible there.
+    rotation : array_like of shape (3, 3), optional
+        Head frame to the capture frame the binding was fitted in
+        (:func:`align_head_frame`); default identity (the binding was made
+        from the stabilized take, ``mocap2mesh bind --stabilize``).
+    neutral_window : int, default 1
+        Frames around `neutral_frame` whose mean is the rest pose p₀
+        (:func:`neutral_pose`); every marker must be visible in them.
+
+    Returns
+    -------
+    ndarray of shape (T, M, 3), mesh units
+        ``scale * R_b @ rotation @ (p(t) - p₀)`` per marker, in the take's
+        marker order. NaN where the take is NaN.
+
+    Raises
+    ------
+    MarkerError
+        A marker absent from the binding, or missing in the neutral frame
+        (or its window).
+    InputError
+        A frame index beyond the take, a bad rotation, a window below 1.
+    """
+    take = _check_take(take)
+    _binding_rows(binding, take.labels)
+    frame = _check_frame(take, neutral_frame)
+    rotation = np.eye(3) if rotation is None else as_float_array(
+        rotation, "rotation", shape=(3, 3), allow_nan=False)
+    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-9) \
+            or np.linalg.det(rotation) <= 0:
+        raise InputError("rotation must be a proper rotation matrix (orthonormal, det +1)")
+    rest = neutral_pose(take.positions, frame, neutral_window)
+    missing = np.flatnonzero(np.isnan(rest).any(axis=1))
+    if len(missing):
+        raise MarkerError(take.labels[missing[0]],
+                          f"is missing (NaN) in the {neutral_window} frames around the neutral "
+                          f"frame {take.first_frame + frame} (index {frame}): the rest pose is "
+                          "their mean")
+    delta = take.positions - rest
+    return binding.scale * delta @ (binding.rotation @ rotation).T
+
+
+def align_head_frame(take: Take, binding: Binding, mesh: Mesh, *,
+                     neutral_frame: int) -> np.ndarray:
+    """Rotation (3, 3) from the head frame of `take` to the binding's capture frame.
+
+    A binding fitted on a raw capture frame lives in that frame's world axes,
+    not in the head frame. This fits the rigid motion taking the neutral
+    frame's markers (mm, head frame) to the bound surface points mapped back
+    to capture mm and lifted by the binding's skin offset along the face
+    normals; for a binding made from the stabilized take it is the identity
+    up to noise.
+
+    Parameters
+    ----------
+    take : Take
+        Head-stabilized take; its markers must be bound (at least 3).
+    binding : Binding
+    mesh : Mesh
+        The neutral mesh the binding was made on.
+    neutral_frame : int
+        A frame where every marker is visible (ideally the one bound).
+
+    Returns
+    -------
+    ndarray of shape (3, 3)
+
+    Raises
+    ------
+    MarkerError, InputError
+        As :func:`marker_displacements`; collinear markers.
+    """
+    take = _check_take(take)
+    rows = _binding_rows(binding, take.labels)
+    frame = _check_frame(take, neutral_frame)
+    on_mesh = binding.marker_points(mesh.vertices)[rows]
+    normals = face_normals(mesh.vertices, mesh.faces)[binding.face_ids[rows]]
+    lifted = on_mesh + binding.skin_offset * binding.scale * normals
+    fit = fit_rigid(take.positions[frame], binding.to_capture(lifted))
+    if not fit.valid:
+        raise InputError("the neutral-frame markers are collinear: no head-frame alignment")
+    return np.asarray(fit.rotation)
+
+
+def build_retarget_operator(binding: Binding, mesh: Mesh, markerset: MarkerSet,
+                            labels: Sequence[str] | None = None,
+                            options: RetargetOptions = RetargetOptions()) -> RBFOperator:
+    """The RBF operator (N, M) from face-marker displacements to vertex displacements.
+
+    Parameters
+    ----------
+    binding : Binding
+        Markers bound to `mesh`'s topology.
+    mesh : Mesh
+        Neutral mesh, N vertices, mesh units.
+    markerset : MarkerSet
+        Marker roles: head markers never drive the face; regions for
+        ``options.use_regions`` (see :class:`RetargetOptions`).
+    labels : sequence of str, optional
+        Face markers to use, in the column order of the displacements
+        (default: ``markerset.face_markers``).
+    options : RetargetOptions
+
+    Returns
+    -------
+    RBFOperator
+        Centers: the bound points on the neutral mesh (with their faces and
+        barycentric coordinates for geodesic distances).
+
+    Raises
+    ------
+    MarkerError
+        A head marker, a marker outside the set, or an unbound marker in `labels`.
+    InputError
+        Bad options or a singular system (from :func:`mocap.retarget.rbf.build_rbf_operator`).
+    """
+    if not isinstance(mesh, Mesh):
+        raise InputError(f"mesh must be a mocap.mesh.mesh.Mesh, got {type(mesh).__name__}")
+    if not isinstance(options, RetargetOptions):
+        raise InputError(f"options must be a RetargetOptions, got {type(options).__name__}")
+    labels = tuple(markerset.face_markers if labels is None else labels)
+    for label in labels:
+        if markerset.region_of(label) == "head":
+            raise MarkerError(label, "is a head marker: only face markers drive the face")
+    rows = _binding_rows(binding, labels)
+    centers = binding.marker_points(mesh.vertices)[rows]
+    regions = None
+    if options.use_regions:
+        unknown = [r for r in options.split_regions if r not in markerset.regions]
+        if unknown:
+            raise InputError(f"split_regions: marker set {markerset.name!r} has no region "
+                             f"{unknown[0]!r} (regions: {', '.join(markerset.regions)})")
+        regions = {name: [x for x in labels if markerset.region_of(x) == name]
+                   for name in options.split_regions}
+        split = {x for members in regions.values() for x in members}
+        regions["other"] = [x for x in labels if x not in split]
+    geodesic = options.distance == "geodesic"
+    return build_rbf_operator(
+        centers, mesh.vertices, kernel=options.kernel, epsilon=options.epsilon,
+        degree=options.degree, smoothing=options.smoothing, distance=options.distance,
+        mesh=(mesh.vertices, mesh.faces) if geodesic else None,
+        center_faces=binding.face_ids[rows] if geodesic else None,
+        center_bary=binding.barycentric[rows] if geodesic else None,
+        regions=regions, region_width=options.region_width, labels=labels)
+
+
+@dataclass(frozen=True, eq=False)
+class Retargeting:
+    """A take retargeted onto a mesh; vertex displacements are made on demand.
+
+    Attributes
+    ----------
+    operator : RBFOperator
+        W (N, M).
+    displacements : ndarray of shape (T, M, 3), mesh units
+        Face-marker displacements from the neutral frame (no NaN).
+    labels : tuple of str
+        The M face markers, in column order.
+    mesh : Mesh
+        The neutral mesh (N vertices).
+    neutral_frame : int
+        0-based index of the rest frame of the take.
+    rotation : ndarray of shape (3, 3)
+        Head frame to the binding's capture frame (see :func:`align_head_frame`).
+    rate : float, Hz
+    first_frame : int
+        Frame number of the take's first frame.
+    chunk_frames : int or None
+    """
+
+    operator: RBFOperator
+    displacements: np.ndarray
+    labels: tuple
+    mesh: Mesh
+    neutral_frame: int
+    rotation: np.ndarray
+    rate: float
+    first_frame: int
+    chunk_frames: int | None = None
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames T."""
+        return len(self.displacements)
+
+    def vertex_displacements(self, *, dtype=np.float32) -> np.ndarray:
+        """All vertex displacements (T, N, 3), mesh units (held in memory)."""
+        return self.operator.apply(self.displacements, chunk_frames=self.chunk_frames,
+                                   dtype=dtype)
+
+    def iter_chunks(self, *, dtype=np.float32) -> Iterator[tuple[slice, np.ndarray]]:
+        """``(frames, block)`` pairs: vertex displacements (c, N, 3) of a slice of frames."""
+        return self.operator.iter_chunks(self.displacements, chunk_frames=self.chunk_frames,
+                                         dtype=dtype)
+
+
+def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
+             options: RetargetOptions = RetargetOptions(), neutral_frame="auto",
+             neutral_window: int = 1, align: bool = True) -> Retargeting:
+    """Retarget a head-stabilized take onto a face mesh.
+
+    Parameters
+    ----------
+    take : Take
+        Head-stabilized (``mocap.clean.ingest.ingest(..., IngestOptions(stabilize=True)).take``),
+        gap-filled take, mm; head markers and markers outside the set are ignored.
+    binding : Binding
+        Every face marker of `markerset` bound to `mesh`.
+    mesh : Mesh
+        Neutral mesh the binding was made on.
+    markerset : MarkerSet
+    options : RetargetOptions
+    neutral_frame : int, "auto" or "hold"
+        0-based rest frame, or picked: :func:`mocap.bind.resolve_neutral_frame`.
+    neutral_window : int, default 1
+        Frames around the rest frame averaged into the rest pose
+        (:func:`marker_displacements`).
+    align : bool, default True
+        Fit the head-to-binding rotation (:func:`align_head_frame`); False
+        trusts that the binding was made from the stabilized take.
+
+    Returns
+    -------
+    Retargeting
+
+    Raises
+    ------
+    MarkerError
+        A face marker absent from the take or the binding, or missing (NaN)
+        in some frame: the message names the first marker and frame (fill gaps first).
+    InputError
+        Bad options, a frame beyond the take, a singular RBF system.
+    """
+    take = _check_take(take)
+    markerset.check_labels(take.labels, source=take.source.path or "the take")
+    labels = markerset.face_markers
+    face = take.select(labels)
+    missing = np.isnan(face.positions).any(axis=2)
+    if missing.any():
+        t, m = (int(i) for i in np.argwhere(missing)[0])
+        raise MarkerError(labels[m], f"is missing (NaN) in frame {take.first_frame + t} "
+                                     f"(index {t}; {int(missing.sum())} missing marker-frames "
+                                     "in all): fill gaps before retargeting")
+    frame = (resolve_neutral_frame(face.positions, neutral_frame, rate=face.rate)
+             if neutral_frame in PICKED_FRAMES else _check_frame(face, neutral_frame))
+    rotation = align_head_frame(face, binding, mesh, neutral_frame=frame) if align \
+        else np.eye(3)
+    displacements = marker_displacements(face, binding, neutral_frame=frame, rotation=rotation,
+                                         neutral_window=neutral_window)
+    operator = build_retarget_operator(binding, mesh, markerset, labels, options)
+    return Retargeting(operator, displacements, labels, mesh, frame, rotation, take.rate,
+                       take.first_frame, options.chunk_frames)
+
+
+def save_npz(result: Retargeting, path, *, content: str = "vertices", inputs=()) -> None:
+    """Stream a retargeted take to an uncompressed ``.npz``, chunk by chunk, atomically.
+
+    Arrays: ``vertices`` or ``displacements`` (T, N, 3) float32 mesh units
+    (by `content`), ``neutral`` (N, 3) float32, ``faces`` (F, 3) int64,
+    ``rate`` (Hz), ``first_frame``, ``labels`` (M,) and ``marker_displacements``
+    (T, M, 3) float32. Only one chunk of frames is in memory at a time: the
+    big array is written straight into the archive member.
+    """
+    content = as_choice(content, "content", CONTENTS)
+    neutral = result.mesh.vertices.astype(np.float32)
+    shape = (result.n_frames, result.mesh.n_vertices, 3)
+    header = {"descr": np.lib.format.dtype_to_descr(np.dtype("<f4")),
+              "fortran_order": False, "shape": shape}
+    small = {"neutral": neutral, "faces": result.mesh.faces.astype(np.int64),
+             "rate": np.array(result.rate), "first_frame": np.array(result.first_frame),
+             "labels": np.array(result.labels, dtype=str),
+             "marker_displacements": result.displacements.astype(np.float32)}
+    with atomic_path(path, inputs=inputs) as tmp:
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED) as archive:
+            with archive.open(f"{content}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array_header_2_0(member, header)
+                for _, block in result.iter_chunks(dtype=np.float32):
+                    if content == "vertices":
+                        block += neutral
+                    member.write(np.ascontiguousarray(block, dtype="<f4").data)
+            for name, arr in small.items():
+                with archive.open(f"{name}.npy", "w") as member:
+                    np.lib.format.write_array(member, arr, allow_pickle=False)
+
+
+def save_obj_sequence(result: Retargeting, directory, *, stem: str = "frame",
+                      inputs=()) -> list[Path]:
+    """Write one OBJ per frame into `directory` (created if needed), atomically per file.
+
+    Files are ``{stem}_{frame number:0Nd}.obj`` with the take's frame numbers,
+    zero-padded to the widest; faces as in the neutral mesh's file (quads kept).
+    Returns the paths written, in frame order.
+    """
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise InputError(f"{directory}: exists and is not a directory (an OBJ sequence "
+                         "is written into a directory)")
+    refuse_overwrite(directory, inputs)
+    directory.mkdir(parents=True, exist_ok=True)
+    last = result.first_frame + result.n_frames - 1
+    width = max(4, len(str(last)))
+    neutral = result.mesh.vertices
+    paths = []
+    for frames, block in result.iter_chunks(dtype=np.float64):
+        for offset, disp in enumerate(block):         # one file per frame: I/O bound
+            path = directory / f"{stem}_{result.first_frame + frames.start + offset:0{width}d}.obj"
+            save_obj(result.mesh.with_vertices(neutral + disp), path, inputs=inputs)
+            paths.append(path)
+    return paths

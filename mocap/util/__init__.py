@@ -1,0 +1,1 @@
+"""Helpers every stage uses: input validation, atomic writes, TOML, read-only arrays."""

@@ -1,0 +1,1 @@
+"""Pictures: shaded mesh renders, the rasterizer behind them, and matplotlib figures."""
