@@ -169,7 +169,7 @@ def sing_clip(data):
     """The facial-sing capture analysed on the ICT basis (see the module docstring)."""
     import mocap
     from basis.artist import load_artist_basis
-    from fit.cli.commands.bind import bind_capture
+    from mocap.bind import bind_take
     from fit.gestures.reference import clip_from_capture
     from mocap.markerset import load_markerset
     from mocap.mesh.mesh import load_mesh
@@ -182,7 +182,7 @@ def sing_clip(data):
         warnings.simplefilter("ignore")
         mesh = load_mesh(data / "ict-face" / "generic_neutral_mesh.obj", units="cm")
         landmarks = load_mesh_landmarks(TESTS / "ict_landmarks.toml", mesh)
-        binding, _ = bind_capture(take, markerset, mesh, landmarks, stabilized=True)
+        binding = bind_take(take, markerset, mesh, landmarks, head_frame=True).binding
         basis = load_artist_basis(mesh, data / "ict-face" / "expressions")
         made = clip_from_capture(take, markerset, binding, basis, name="sing", rate=RATE)
     return made.clip, made.message, binding

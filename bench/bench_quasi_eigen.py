@@ -29,7 +29,7 @@ from basis.artist import load_artist_basis
 from basis.comparison import comparison_sheet, move_table, save_move_table
 from basis.pca import pca_from_operator
 from basis.quasi_eigen import quasi_eigen
-from fit.cli.commands.bind import bind_capture
+from mocap.bind import bind_take
 from mocap.clean.ingest import IngestOptions, ingest
 from fit.report.plots import plot_coverage
 from mocap.retarget.retargeting import RetargetOptions, retarget
@@ -52,7 +52,8 @@ def real_experiment(root: Path, options: RetargetOptions = RetargetOptions()):
                                                                        stabilize=True))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        binding, frame = bind_capture(ingested.cleaned, markerset, artist.neutral, landmarks)
+        bound = bind_take(ingested.cleaned, markerset, artist.neutral, landmarks)
+        binding, frame = bound.binding, bound.frame
     for w in caught:
         print(f"  bind warning: {str(w.message)[:150]}")
     retargeted = retarget(ingested.take, binding, artist.neutral, markerset,

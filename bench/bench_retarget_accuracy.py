@@ -6,7 +6,7 @@ The ICT face (cm) is driven by the real ARKit performance ``alex_rom_3.csv``
 head motion (15 deg, 30 mm), no gaps. Two sources of marker displacements:
 
 * ``pipeline``: the whole chain as a user runs it: head stabilization
-  (:func:`mocap.clean.ingest.ingest`), binding of the neutral frame (:func:`fit.cli.commands.bind.bind_capture`,
+  (:func:`mocap.clean.ingest.ingest`), binding of the neutral frame (:func:`mocap.bind.bind_take`,
   landmarks + ICP, 2 mm skin offset), :func:`mocap.retarget.retargeting.retarget` (head frame aligned);
 * ``truth``: the layout's own surface points as centers and the noise-free
   head-frame markers (:attr:`CaptureTruth.markers_head`) as data: the error of
@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import REPO, shared_data  # noqa: E402
 
 from basis.artist import load_artist_basis  # noqa: E402
-from fit.cli.commands.bind import bind_capture  # noqa: E402
+from mocap.bind import bind_take  # noqa: E402
 from mocap.clean.ingest import IngestOptions, ingest  # noqa: E402
 from mocap.retarget.retargeting import (RetargetOptions, build_retarget_operator,  # noqa: E402
                           marker_displacements, retarget)
@@ -150,8 +150,8 @@ def main() -> None:
         take = ingest(sim.take, markerset=markerset,
                       options=IngestOptions(fill="none", stabilize=True)).take
         landmarks = load_mesh_landmarks(TESTS / "ict_landmarks.toml", mesh)
-        binding, _ = bind_capture(take, markerset, mesh, landmarks, frame=neutral,
-                                  skin_offset=2.0)
+        binding = bind_take(take, markerset, mesh, landmarks, frame=neutral,
+                            skin_offset=2.0).binding
         first = retarget(take, binding, mesh, markerset, neutral_frame=neutral)
         displacements, binding_face = first.displacements, binding
         print(f"binding: {binding.message}, rms {binding.rms:.2f} mm; head-frame "

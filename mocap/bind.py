@@ -20,17 +20,18 @@ import igl
 import numpy as np
 
 from mocap.util.atomic import atomic_path
-from mocap.util.validation import as_float_array, as_int, as_positive_float
+from mocap.util.validation import as_float_array, as_int, as_positive_float, as_take
 from mocap.anatomy import ANATOMICAL_POINTS
 from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.mesh.layout import MarkerLayout
 from mocap.mesh.mesh import Mesh, degenerate_faces, face_normals
 from mocap.mesh.landmarks import check_mesh_landmarks
-from mocap.rigid import fit_rigid
+from mocap.neutral import PICKED_FRAMES, find_neutral, hold_window, neutral_pose
+from mocap.rigid import apply_transform, fit_rigid
+from mocap.stabilize import stabilize as stabilize_take
 
-__all__ = ["Binding", "bind_markers", "load_binding", "closest_surface_points",
-           "resolve_neutral_frame", "hold_window", "NEUTRAL_METHODS", "PICKED_FRAMES", "HOLD_S",
-           "pick_neutral_frame"]
+__all__ = ["Binding", "bind_markers", "load_binding", "closest_surface_points", "BoundTake",
+           "bind_take", "BIND_STABILIZATIONS"]
 
 _FORMAT = "mocap2mesh-binding-1"
 
@@ -416,151 +417,100 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
                    converged=converged, message=message)
 
 
-#: How :func:`pick_neutral_frame` finds the rest frame.
-NEUTRAL_METHODS = ("median", "hold")
-#: The neutral-frame options besides a frame index (:func:`resolve_neutral_frame`).
-PICKED_FRAMES = ("auto", "hold")
-#: Window of the stillness of a frame, and shortest neutral hold, s.
-HOLD_S = 0.5
+#: How :func:`bind_take` finds the head frame of a take: its marker set's head
+#: markers, or none (the take is in the head frame already).
+BIND_STABILIZATIONS = ("head", "none")
 
 
-def pick_neutral_frame(positions, *, method: str = "median", rate: float | None = None) -> int:
-    """The frame of a take closest to its rest pose.
+@dataclass(frozen=True, eq=False)
+class BoundTake:
+    """The binding of a take's markers and the neutral frame it was made from.
 
-    Parameters
+    ``window`` frames centred on ``frame`` (1, or a neutral hold's
+    :func:`mocap.neutral.hold_window`) average into the rest pose that was
+    bound and that displacements are measured from.
+
+    Attributes
     ----------
-    positions : array_like of shape (n_frames, n_markers, 3), mm
-        Head-stabilized marker positions (stabilize first: head motion would
-        otherwise dominate), NaN where missing.
-    method : {"median", "hold"}, default "median"
-        "median": for takes that spend most of their time near rest (see
-        Notes). "hold": for sessions that start with a neutral hold of at
-        least ``HOLD_S`` seconds.
-    rate : float, Hz
-        Frame rate; needed by "hold".
-
-    Returns
-    -------
-    int
-        Among the frames where every marker is visible: "median", the one of
-        smallest root-mean-square distance to the rest pose, the per-marker
-        median over every frame in which that marker is visible; "hold", the
-        middle frame of the take's first still window (below).
-
-    Raises
-    ------
-    InputError
-        No frame has every marker visible; an unknown method; "hold" without
-        a rate, on a take shorter than a hold, or with no hold-long run of
-        complete frames.
-
-    Notes
-    -----
-    A face spends most of a take near rest, so the per-marker median
-    approximates the rest pose, robust to expressions that last less than half
-    the take. The median is taken over all visible samples of each marker, not
-    only over complete frames: gaps come more often with expressions (lips
-    hidden by a smile, eyelids in a blink), so complete frames lean away from rest.
-
-    A performer who never rests (a range-of-motion take) defeats the median;
-    capture sessions start with a neutral hold for that. The stillness of a
-    frame is the RMS distance of the marker samples in the ``HOLD_S`` window
-    centred on it to their means over the window; windows up to twice the
-    take's smallest stillness (the noise floor) are still. Only the start of
-    the first run of still windows is sure to be the hold: a slow, small blend
-    out of it can keep the windows still on into the performance.
+    binding : Binding
+    frame : int
+        0-based index of the neutral frame.
+    window : int
     """
-    positions = as_float_array(positions, "positions", shape=(None, None, 3))
-    if method not in NEUTRAL_METHODS:
-        raise InputError(f"method must be one of {NEUTRAL_METHODS}, got {method!r}")
-    complete = np.flatnonzero(~np.isnan(positions).any(axis=(1, 2)))
-    if len(complete) == 0:
-        raise InputError("no frame has every marker visible; fill gaps first or select "
-                         "markers")
-    if method == "hold":
-        return _first_hold(positions, rate)
-    rest = np.nanmedian(positions, axis=0)
-    frames = positions[complete]
-    rms = np.sqrt(np.mean(np.sum((frames - rest) ** 2, axis=-1), axis=-1))
-    return int(complete[np.argmin(rms)])
+
+    binding: Binding
+    frame: int
+    window: int = 1
+
+    def neutral_pose(self, positions) -> np.ndarray:
+        """The rest pose (M, 3) of `positions` (T, M, 3) (:func:`mocap.neutral.neutral_pose`)."""
+        return neutral_pose(positions, self.frame, self.window)
 
 
-def resolve_neutral_frame(positions, frame, *, rate: float | None = None) -> int:
-    """A neutral-frame option (``--frame``, ``bind.frame``) as a frame index.
+def bind_take(take, markerset, mesh: Mesh, mesh_landmarks: Mapping[str, int], *,
+              frame="auto", stabilize: str = "head", head_frame: bool = False,
+              icp: bool = True, skin_offset: float = 0.0,
+              max_distance_warn: float = 3.0) -> BoundTake:
+    """Bind the markers of a take's neutral frame to a face mesh.
 
     Parameters
     ----------
-    positions : array_like of shape (n_frames, n_markers, 3), mm
-        As in :func:`pick_neutral_frame`: the frames the index counts. Only
-        read for ``"auto"`` and ``"hold"``.
+    take : Take
+        Positions (n_frames, n_markers, 3), mm; markers outside the marker
+        set are ignored.
+    markerset : MarkerSet
+        The markers to bind (every marker of the set: landmarks may name head
+        markers) and the head markers.
+    mesh : Mesh
+    mesh_landmarks : mapping of str to int
     frame : int, "auto" or "hold"
-        An index (returned as it is, without a check against `positions`),
-        ``"auto"`` (:func:`pick_neutral_frame`, method "median") or
-        ``"hold"`` (method "hold").
-    rate : float, Hz, optional
-        Frame rate of `positions`; needed by "hold".
+        0-based index of the neutral frame, or picked on the face markers in
+        the head frame (:func:`mocap.neutral.find_neutral`). With "hold" the
+        bound pose is the mean over the hold's window, taken in the head
+        frame (the head may move during the hold): one frame's noise is not
+        bound into every displacement.
+    stabilize : {"head", "none"}
+        How the head frame is found: from the marker set's head markers
+        (:func:`mocap.stabilize.stabilize`), or "none": `take` is in the head
+        frame already (a stabilized take, as the chain binds).
+    head_frame : bool, default False
+        Bind the pose in the head frame; otherwise in the capture frame of the
+        neutral frame (the head-frame mean carried there by that frame's head
+        pose). Either is the same with ``stabilize = "none"``.
+    icp, skin_offset, max_distance_warn
+        As in :func:`bind_markers` (skin_offset in mm).
 
     Returns
     -------
-    int
-        0-based frame index.
+    BoundTake
 
     Raises
     ------
+    MarkerError
+        A marker of the set absent from the take, or missing in the neutral
+        frame (or the hold's window).
     InputError
-        An index below 0 or not an integer; the errors of :func:`pick_neutral_frame`.
+        A frame index beyond the take; the errors of :func:`bind_markers`.
     """
-    if frame == "auto":
-        return pick_neutral_frame(positions, rate=rate)
-    if frame == "hold":
-        return pick_neutral_frame(positions, method="hold", rate=rate)
-    return as_int(frame, "frame", minimum=0)
-
-
-def hold_window(rate: float) -> int:
-    """Frames of a neutral hold's window: ``HOLD_S`` seconds at `rate`, odd, at least 3.
-
-    Parameters
-    ----------
-    rate : float, Hz
-        Frame rate of the take.
-
-    Returns
-    -------
-    int
-        The window length in frames, centred on a frame.
-
-    Raises
-    ------
-    InputError
-        `rate` not a positive finite number.
-    """
-    return max(3, int(round(HOLD_S * as_positive_float(rate, "rate"))) | 1)
-
-
-def _first_hold(positions, rate) -> int:
-    """The middle frame of the first still window (see :func:`pick_neutral_frame`)."""
-    if rate is None:
-        raise InputError("method 'hold' needs the take's frame rate")
-    window = hold_window(rate)
-    if len(positions) < window:
-        raise InputError(f"a neutral hold is {HOLD_S} s ({window} frames); the take has "
-                         f"only {len(positions)}")
-    # spread of every coordinate over the window centred on each frame, by
-    # cumulative sums (about the median pose, for accuracy); windows with an
-    # incomplete frame in them do not count
-    flat = (positions - np.nanmedian(positions, axis=0)).reshape(len(positions), -1)
-    flat = np.nan_to_num(flat)
-    first = np.cumsum(np.r_[np.zeros((1, flat.shape[1])), flat], axis=0)
-    second = np.cumsum(np.r_[np.zeros((1, flat.shape[1])), flat ** 2], axis=0)
-    mean = (first[window:] - first[:-window]) / window
-    var = (second[window:] - second[:-window]) / window - mean ** 2
-    stillness = np.sqrt(np.maximum(var, 0.0).reshape(len(var), -1, 3).sum(axis=-1).mean(axis=-1))
-    gaps = np.cumsum(np.r_[0, np.isnan(positions).any(axis=(1, 2))])
-    stillness[gaps[window:] > gaps[:-window]] = np.nan
-    centre = np.arange(window // 2, len(positions) - window // 2)
-    if np.isnan(stillness).all():
-        raise InputError(f"no {window} consecutive frames have every marker visible: "
-                         "fill gaps before looking for a neutral hold")
-    still = stillness <= 2.0 * np.nanmin(stillness)
-    return int(centre[np.argmax(still)])
+    take = as_take(take)
+    if stabilize not in BIND_STABILIZATIONS:
+        raise InputError(f"stabilize must be one of {BIND_STABILIZATIONS}, got {stabilize!r}")
+    markerset.check_labels(take.labels, source=take.source.path or "the take")
+    take = take.select(markerset.markers)
+    picked = frame in PICKED_FRAMES
+    if not picked:
+        frame = as_int(frame, "frame", minimum=0)
+    head = None
+    if stabilize == "head" and (picked or head_frame):
+        head = stabilize_take(take, markerset.head)
+    in_head = take if head is None else head.take
+    index = find_neutral(in_head.select(markerset.face_markers), frame).frame
+    neutral = find_neutral(in_head, index, window=hold_window(take.rate) if frame == "hold"
+                           else 1)
+    pose = neutral.pose
+    if head is not None and not head_frame:
+        pose = (take.positions[index] if neutral.window == 1 else
+                apply_transform(head.rotation[index], head.translation[index], pose))
+    binding = bind_markers(pose, take.labels, markerset.landmarks, mesh, mesh_landmarks,
+                           icp=icp, skin_offset=skin_offset, max_distance_warn=max_distance_warn)
+    return BoundTake(binding=binding, frame=neutral.frame, window=neutral.window)

@@ -13,7 +13,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from mocap.util.arrays import read_only
-from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
+from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float, as_take
 from mocap.errors import InputError, MarkerError
 from mocap.gaps import find_gaps
 from mocap.rigid import apply_inverse_transform, apply_transform, fit_frames_last, frames_last
@@ -255,8 +255,7 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
     >>> np.allclose(st.take.positions[1], head), np.allclose(st.rotation[1], rz)
     (True, True)
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a mocap.Take, got {type(take).__name__}")
+    take = as_take(take)
     labels = _head_labels(take, head_markers)
     reference = as_choice(reference, "reference", REFERENCES)
     invalid = as_choice(invalid, "invalid", INVALID_POLICIES)

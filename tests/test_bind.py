@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocap.bind import (Binding, bind_markers, closest_surface_points, load_binding,
-                        pick_neutral_frame, resolve_neutral_frame)
+from mocap.bind import Binding, bind_markers, closest_surface_points, load_binding
+from mocap.neutral import pick_neutral_frame, resolve_neutral_frame
 from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.mesh.layout import MarkerLayout, load_marker_layout, make_layout, save_marker_layout
 from mocap.markerset import REQUIRED_REGIONS, load_markerset

@@ -253,9 +253,8 @@ def test_bind_hold_binds_the_mean_pose_of_the_hold(ict, tmp_path):
     a rigid motion (a binding fits its own placement). The mean of the
     window's N frames has the noise of one frame divided by sqrt(N).
     """
-    from fit.cli.commands.bind import _hold_pose
-    from mocap.bind import hold_window
-    from mocap.rigid import fit_rigid
+    from mocap.neutral import find_neutral, hold_window
+    from mocap.rigid import apply_transform, fit_rigid
     from mocap.stabilize import stabilize
 
     capture, truth_path = tmp_path / "led.c3d", tmp_path / "led.npz"
@@ -277,17 +276,17 @@ def test_bind_hold_binds_the_mean_pose_of_the_hold(ict, tmp_path):
         fit = fit_rigid(points, exact)
         return float(np.sqrt(np.mean(np.sum((fit.apply(points) - exact) ** 2, axis=1))))
     expected = noise * np.sqrt(3 / window)
-    pose = _hold_pose(take, head, frame, carry=True)
+    in_head = find_neutral(head.take, frame, window=window).pose
+    pose = apply_transform(head.rotation[frame], head.translation[frame], in_head)
     assert shape_rms(pose) < 1.5 * expected < 0.3 * shape_rms(take.positions[frame])
     # carried to the capture frame by the centre frame's head pose
-    in_head = _hold_pose(take, head, frame, carry=False)
     np.testing.assert_allclose(head.to_head(np.broadcast_to(pose, take.positions.shape))[frame],
                                in_head, atol=1e-9)
     # a marker missing in one frame of the window: named, with the window's frame
     positions = take.positions.copy()
     positions[frame + 3, take.labels.index("chin")] = np.nan
     holed = take.replace(positions=positions)
-    with pytest.raises(MarkerError, match=rf"'chin'.*missing in the {window} frames of the "
-                                          rf"neutral hold around frame {take.first_frame + frame} "
+    with pytest.raises(MarkerError, match=rf"'chin'.*missing in the {window} frames around the "
+                                          rf"neutral frame {take.first_frame + frame} "
                                           rf"\(index {frame}\) of .*led.c3d"):
-        _hold_pose(holed, stabilize(holed, markerset.head), frame, carry=True)
+        find_neutral(stabilize(holed, markerset.head).take, frame, window=window)

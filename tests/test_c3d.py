@@ -384,7 +384,7 @@ def test_writer_never_overwrites_an_input(tmp_path):
     with pytest.raises(InputError, match="refusing to overwrite an input"):
         write_c3d(_take(seed=1), path, inputs=[path])
     assert path.read_bytes() == before
-    with pytest.raises(InputError, match="take must be a Take"):
+    with pytest.raises(InputError, match="take must be a mocap.Take"):
         write_c3d("not a take", tmp_path / "x.c3d")
 
 

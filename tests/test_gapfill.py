@@ -300,7 +300,7 @@ def test_fill_gaps_errors(kwargs, error, match):
 
 
 def test_fill_gaps_rejects_arrays():
-    with pytest.raises(InputError, match="take must be a Take, got ndarray"):
+    with pytest.raises(InputError, match="take must be a mocap.Take, got ndarray"):
         fill_gaps(np.zeros((3, 1, 3)))
 
 

@@ -194,7 +194,7 @@ def test_facial_sing_analyze_states_its_stand_in_and_synthesizes(shared_data, si
     (["-o", "{capture}"], 1, "a clip is written as .npz"),
     (["--analog", "MIC"], 1, "the take has no analog channels"),
     (["--opening", "nose-tip,nope"], 1, "'nope'"),
-    (["--neutral-frame", "5000"], 1, "neutral frame index 5000 is beyond the 181 frames"),
+    (["--neutral-frame", "5000"], 1, "neutral frame index 5000 is beyond the take's 181 frames"),
 ])
 def test_analyze_errors(simulated, capsys, extra, code, match):
     extra = [x.format(**simulated) for x in extra]
@@ -277,10 +277,9 @@ def test_clip_from_capture_takes_n_as_the_mean_of_the_hold(simulated, shared_dat
     Oracle: the simulation's noise-free head-frame markers during the hold,
     up to the rigid motion between the two head frames.
     """
-    import mocap
     from basis.artist import load_artist_basis
     from fit.gestures.reference import clip_from_capture
-    from mocap.bind import hold_window
+    from mocap.neutral import hold_window
     from mocap.mesh.layout import load_marker_layout
     from mocap.markerset import load_markerset
     from mocap.synth.performance import read_performance

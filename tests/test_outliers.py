@@ -182,7 +182,7 @@ def test_find_rejects_bad_options(kwargs, match):
 def test_find_rejects_a_missing_head_marker_and_a_non_take():
     with pytest.raises(MarkerError, match="nose"):
         find_implausible_samples(smooth_take(), head=("m0", "m3", "nose"))
-    with pytest.raises(InputError, match="take must be a Take"):
+    with pytest.raises(InputError, match="take must be a mocap.Take"):
         find_implausible_samples(np.zeros((10, 2, 3)))
 
 

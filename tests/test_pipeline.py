@@ -18,7 +18,7 @@ from fit.pipeline.stages import (BASES, SPACES, BasisOptions, BindOptions, FitOp
                           retarget_stage, solve_mesh_space)
 from fit.solve.sampling_estimator import estimate_weights_by_sampling
 from fit.solve.weights import solve_weights
-from mocap.bind import hold_window
+from mocap.neutral import hold_window
 from mocap.errors import InputError, MarkerError
 from mocap.mesh.layout import MarkerLayout
 from mocap.markerset import load_markerset
@@ -329,7 +329,7 @@ def test_bind_hold_averages_the_hold_into_the_rest_pose(chain):
 
 def test_bind_frame_beyond_take(chain):
     take = chain["take"]
-    with pytest.raises(InputError, match="bind.frame = .* is beyond the take"):
+    with pytest.raises(InputError, match="neutral frame index .* is beyond the take"):
         bind_stage(take, chain["markerset"], chain["mesh"], {},
                    options=BindOptions(frame=take.n_frames))
 

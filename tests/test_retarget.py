@@ -13,11 +13,13 @@ from scipy.spatial.transform import Rotation
 import mocap
 from basis.artist import load_artist_basis
 from fit.cli.main import main
-from fit.cli.commands.bind import bind_capture
+from mocap.bind import bind_take
+from mocap.neutral import neutral_pose
 from mocap.retarget.retargeting import (CONTENTS, RetargetOptions, align_head_frame,
-                          build_retarget_operator, marker_displacements, neutral_pose, retarget,
+                          build_retarget_operator, marker_displacements, retarget,
                           save_npz, save_obj_sequence)
-from mocap.bind import Binding, hold_window
+from mocap.bind import Binding
+from mocap.neutral import hold_window
 from mocap.errors import InputError, MarkerError
 from mocap.mesh.layout import load_marker_layout
 from mocap.markerset import MarkerSet, load_markerset
@@ -271,9 +273,9 @@ def ict_capture(shared_data, tmp_path_factory):
     mocap.write(sim.take, capture)
     with warnings.catch_warnings():    # an expressive clip: some markers sit off the mesh
         warnings.simplefilter("ignore")
-        binding, _ = bind_capture(mocap.read(capture), markerset, basis.neutral,
-                                  load_mesh_landmarks(ICT_LANDMARKS, basis.neutral),
-                                  skin_offset=2.0, stabilized=True)
+        binding = bind_take(mocap.read(capture), markerset, basis.neutral,
+                            load_mesh_landmarks(ICT_LANDMARKS, basis.neutral),
+                            skin_offset=2.0, head_frame=True).binding
     binding.save(binding_path)
     return basis, sim, capture, binding_path, ict / "generic_neutral_mesh.obj"
 
@@ -323,7 +325,7 @@ def test_cli_fails_on_gaps_without_filling(ict_capture, tmp_path, capsys):
 def test_cli_fails_on_a_neutral_frame_beyond_the_take(ict_capture, tmp_path, capsys):
     assert main(_retarget_args(ict_capture, tmp_path / "x.npz", "--neutral-frame",
                                "100000")) == 1
-    assert "neutral_frame 100000 is beyond" in capsys.readouterr().err
+    assert "neutral frame index 100000 is beyond" in capsys.readouterr().err
 
 
 def test_cli_fails_on_a_binding_without_a_face_marker(ict_capture, tmp_path, capsys):
@@ -349,7 +351,7 @@ def test_neutral_pose_is_the_window_mean_and_checks_its_arguments():
     np.testing.assert_allclose(neutral_pose(positions, 10, 5), positions[8:13].mean(axis=0))
     np.testing.assert_allclose(neutral_pose(positions, 1, 5), positions[0:4].mean(axis=0))
     np.testing.assert_array_equal(neutral_pose(positions, 19), positions[19])
-    with pytest.raises(InputError, match=r"neutral frame 20 is beyond the take's 20 frames"):
+    with pytest.raises(InputError, match=r"neutral frame index 20 is beyond the take's 20 frames"):
         neutral_pose(positions, 20)
     with pytest.raises(InputError, match=r"neutral_window must be at least 1, got 0"):
         neutral_pose(positions, 3, 0)
@@ -361,8 +363,8 @@ def test_neutral_pose_is_the_window_mean_and_checks_its_arguments():
 def test_bind_capture_names_a_frame_of_no_kind(ict_capture):
     basis, sim = ict_capture[:2]
     with pytest.raises(InputError, match=r"frame must be an integer, got 'still'"):
-        bind_capture(sim.take, load_markerset(ICT_MARKERSET), basis.neutral,
-                     load_mesh_landmarks(ICT_LANDMARKS, basis.neutral), frame="still")
+        bind_take(sim.take, load_markerset(ICT_MARKERSET), basis.neutral,
+                  load_mesh_landmarks(ICT_LANDMARKS, basis.neutral), frame="still")
 
 
 def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, shared_data,

@@ -144,12 +144,12 @@ def test_find_rejects_bad_options(kwargs, match):
 
 
 def test_find_rejects_a_non_take():
-    with pytest.raises(InputError, match="take must be a Take"):
+    with pytest.raises(InputError, match="take must be a mocap.Take"):
         find_label_swaps(np.zeros((10, 2, 3)))
 
 
 def test_fix_rejects_a_non_take():
-    with pytest.raises(InputError, match="take must be a Take"):
+    with pytest.raises(InputError, match="take must be a mocap.Take"):
         fix_label_swaps(np.zeros((10, 2, 3)), ())
 
 

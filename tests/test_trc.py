@@ -180,7 +180,7 @@ def test_writer_errors(tmp_path):
     take = Take(("a\tb",), np.zeros((2, 1, 3)), rate=50)
     with pytest.raises(MarkerError, match="cannot be written to a TRC file"):
         write_trc(take, tmp_path / "x.trc")
-    with pytest.raises(InputError, match="take must be a Take, got tuple"):
+    with pytest.raises(InputError, match="take must be a mocap.Take, got tuple"):
         write_trc((1, 2), tmp_path / "x.trc")
     assert not list(tmp_path.iterdir())
 

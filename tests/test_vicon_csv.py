@@ -250,7 +250,7 @@ def test_writer_rejects_labels_it_cannot_write(tmp_path, label):
 
 
 def test_writer_rejects_bad_arguments(tmp_path):
-    with pytest.raises(InputError, match="take must be a Take, got ndarray"):
+    with pytest.raises(InputError, match="take must be a mocap.Take, got ndarray"):
         write_vicon_csv(np.zeros((2, 1, 3)), tmp_path / "x.csv")
     take = Take(("a",), np.zeros((2, 1, 3)), rate=50)
     with pytest.raises(InputError, match="decimals must be at least 0"):

@@ -239,7 +239,7 @@ def marker_basis(binding: Binding, displacements, labels, *, mesh=None) -> np.nd
     ----------
     binding : Binding
         The capture's markers bound to the mesh (in the head frame for takes
-        analysed after stabilization: ``bind_capture(..., stabilized=True)``).
+        analysed after stabilization: ``bind_take(..., head_frame=True)``).
     displacements : array_like of shape (n_shapes, N, 3), mesh units
         Shape displacements from the neutral mesh (``ArtistBasis.displacements``). No NaN.
     labels : sequence of str

@@ -14,16 +14,15 @@ import dataclasses
 import warnings
 from dataclasses import dataclass
 
-import numpy as np
 
 from basis.artist import ArtistBasis
-from mocap.bind import Binding, hold_window, resolve_neutral_frame
+from mocap.bind import Binding
+from mocap.neutral import find_neutral
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.take import Take
 
 from mocap.clean.ingest import IngestOptions, ingest
-from mocap.retarget.retargeting import neutral_pose
 from fit.gestures.analysis import GestureAnalysis, analyze_gestures, marker_basis
 from fit.gestures.clip import GestureClip, clip_from_analysis
 from fit.gestures.speech import (DEFAULT_WINDOW_S, OPENING_WINDOW_S, analog_intensity, opening_intensity,
@@ -128,8 +127,8 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
     neutral_frame : int, "auto" or "hold"
         Frame index at `rate` of the neutral N, or picked on the stabilized
         region markers: the frame closest to their median pose, or the neutral
-        hold the take starts with (:func:`mocap.bind.resolve_neutral_frame`),
-        whose window's mean pose (:func:`mocap.bind.hold_window`) is then N.
+        hold the take starts with (:func:`mocap.neutral.resolve_neutral_frame`),
+        whose window's mean pose (:func:`mocap.neutral.find_neutral`) is then N.
     epsilon, window, estimator, seed
         Of :func:`analyze_gestures`.
 
@@ -161,20 +160,8 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
     ingested = ingest(take, markerset=markerset, options=options)
     stab = ingested.stabilization
     labels = tuple(x for members in markerset.regions.values() for x in members)
-    positions = stab.take.positions[:, stab.take.indices(labels)]
-    held = hold_window(stab.take.rate) if neutral_frame == "hold" else 1
-    neutral_frame = resolve_neutral_frame(positions, neutral_frame, rate=stab.take.rate)
-    if neutral_frame >= stab.take.n_frames:
-        raise InputError(f"{take.source.path or 'the take'}: neutral frame index "
-                         f"{neutral_frame} is beyond the {stab.take.n_frames} frames at "
-                         f"{rate:g} Hz")
-    neutral = neutral_pose(positions, neutral_frame, held)
-    if np.isnan(neutral).any():
-        missing = labels[int(np.argwhere(np.isnan(neutral[:, 0]))[0, 0])]
-        where = f"the neutral frame {neutral_frame}" if held == 1 else \
-            f"the {held} frames of the neutral hold around frame {neutral_frame}"
-        raise InputError(f"marker {missing!r} is missing in {where}: "
-                         "fill gaps or choose another frame")
+    found = find_neutral(stab.take, neutral_frame, labels=labels)
+    neutral, neutral_frame = found.pose, found.frame
     intensity, source = _intensity(markerset, ingested.cleaned, stab.take, wav, analog,
                                    opening, intensity_window)
     if source.startswith("stand-in"):

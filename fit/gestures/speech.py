@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import scipy.io.wavfile
 
-from mocap.util.validation import as_float_array, as_int, as_positive_float
+from mocap.util.validation import as_float_array, as_int, as_positive_float, as_take
 from mocap.errors import FileFormatError, InputError
 from mocap.take import Take
 
@@ -164,8 +164,7 @@ def analog_intensity(take: Take, channel: str, *, window: float = DEFAULT_WINDOW
     InputError
         No analog data, an unknown channel, NaN samples.
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a mocap.Take, got {type(take).__name__}")
+    take = as_take(take)
     if take.analog is None:
         raise InputError("the take has no analog channels to read speech from")
     return speech_intensity(take.analog.channel(channel), take.analog.rate,
@@ -199,8 +198,7 @@ def opening_intensity(take: Take, upper: str, lower: str, *,
     InputError
         Both markers never seen together.
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a mocap.Take, got {type(take).__name__}")
+    take = as_take(take)
     pair = take.positions[:, take.indices([upper, lower])]
     gap = np.linalg.norm(pair[:, 0] - pair[:, 1], axis=1)
     seen = np.isfinite(gap)

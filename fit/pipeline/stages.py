@@ -21,8 +21,8 @@ from basis.artist import ArtistBasis
 from basis.pca import PCAModel, pca_from_operator
 from basis.quasi_eigen import MISSING_POLICIES, QuasiEigenBasis, quasi_eigen
 from mocap.util.validation import as_choice, as_int, as_positive_float
-from mocap.bind import (PICKED_FRAMES, Binding, bind_markers, hold_window,
-                        resolve_neutral_frame)
+from mocap.bind import Binding, BoundTake, bind_take
+from mocap.neutral import PICKED_FRAMES
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh
@@ -30,12 +30,12 @@ from mocap.take import Take
 
 from mocap.clean.ingest import IngestOptions, IngestResult, ingest
 from fit.solve.marker_centres import solve_at_marker_centres
-from mocap.retarget.retargeting import RetargetOptions, Retargeting, neutral_pose, retarget
+from mocap.retarget.retargeting import RetargetOptions, Retargeting, retarget
 from fit.solve.sampling_estimator import estimate_weights_by_sampling
 from fit.solve.weights import WeightSolution, as_smoothness, solve_weights
 from fit.solve.temporal import moving_average
 
-__all__ = ["BASES", "SPACES", "BindOptions", "BasisOptions", "FitOptions", "BindResult", "complete_span",
+__all__ = ["BASES", "SPACES", "BindOptions", "BasisOptions", "FitOptions", "complete_span",
            "NamedBasis", "BasisResult", "FitResult", "ingest_stage",
            "bind_stage", "retarget_stage", "basis_stage", "fit_stage", "marker_basis",
            "solve_mesh_space", "H_SOLVERS", "CENTRE_MODELS"]
@@ -62,7 +62,7 @@ class BindOptions:
     frame : int, "auto" or "hold"
         Neutral frame index (0-based), ``"auto"`` (the frame nearest the median
         pose) or ``"hold"`` (the take starts with a neutral hold): see
-        :func:`mocap.bind.pick_neutral_frame`. With "hold" the rest pose is
+        :func:`mocap.neutral.pick_neutral_frame`. With "hold" the rest pose is
         the mean of the hold's window around that frame.
     icp : bool
     skin_offset : float, mm
@@ -182,24 +182,6 @@ class FitOptions:
 
 
 @dataclass(frozen=True, eq=False)
-class BindResult:
-    """The binding of the take's face markers and the neutral frame it used.
-
-    ``window`` frames centred on ``frame`` (1, or a neutral hold's
-    :func:`mocap.bind.hold_window` for ``frame = "hold"``) average into the
-    rest pose that was bound and that displacements are measured from.
-    """
-
-    binding: Binding
-    frame: int
-    window: int = 1
-
-    def neutral_pose(self, positions) -> np.ndarray:
-        """The rest pose (M, 3) of `positions` (T, M, 3) (:func:`mocap.retarget.retargeting.neutral_pose`)."""
-        return neutral_pose(positions, self.frame, self.window)
-
-
-@dataclass(frozen=True, eq=False)
 class NamedBasis:
     """A basis as the fit and the exports see it.
 
@@ -296,10 +278,11 @@ def complete_span(take: Take, labels) -> Take:
 
 
 def bind_stage(take: Take, markerset: MarkerSet, mesh: Mesh, mesh_landmarks, *,
-               options: BindOptions = BindOptions()) -> BindResult:
+               options: BindOptions = BindOptions()) -> BoundTake:
     """Bind the markers of the neutral frame of a head-stabilized take to `mesh`.
 
-    Every marker of the set is bound (landmarks may name head markers); the
+    :func:`mocap.bind.bind_take` of the take as it is (in the head frame):
+    every marker of the set is bound (landmarks may name head markers); the
     neutral frame is picked on the face markers.
 
     Parameters
@@ -313,27 +296,21 @@ def bind_stage(take: Take, markerset: MarkerSet, mesh: Mesh, mesh_landmarks, *,
 
     Returns
     -------
-    BindResult
+    BoundTake
 
     Raises
     ------
     InputError
-        The neutral frame is beyond the take or has a face marker missing.
+        The neutral frame is beyond the take.
+    MarkerError
+        A marker missing in the neutral frame (or its hold window).
     """
-    frame = resolve_neutral_frame(take.select(markerset.face_markers).positions,
-                                  options.frame, rate=take.rate)
-    if frame >= take.n_frames:
-        raise InputError(f"bind.frame = {frame} is beyond the take's {take.n_frames} frames")
-    window = hold_window(take.rate) if options.frame == "hold" else 1
-    bound = take.select(markerset.markers)
-    binding = bind_markers(neutral_pose(bound.positions, frame, window), bound.labels,
-                           markerset.landmarks, mesh, mesh_landmarks, icp=options.icp,
-                           skin_offset=options.skin_offset,
-                           max_distance_warn=options.max_distance_warn)
-    return BindResult(binding=binding, frame=int(frame), window=window)
+    return bind_take(take, markerset, mesh, mesh_landmarks, frame=options.frame,
+                     stabilize="none", icp=options.icp, skin_offset=options.skin_offset,
+                     max_distance_warn=options.max_distance_warn)
 
 
-def retarget_stage(take: Take, bound: BindResult, mesh: Mesh, markerset: MarkerSet,
+def retarget_stage(take: Take, bound: BoundTake, mesh: Mesh, markerset: MarkerSet,
                    options: RetargetOptions = RetargetOptions()) -> Retargeting:
     """Face-marker displacements (mesh units) and the RBF operator W (:func:`mocap.retarget.retargeting.retarget`).
 
@@ -341,7 +318,7 @@ def retarget_stage(take: Take, bound: BindResult, mesh: Mesh, markerset: MarkerS
     ----------
     take : Take
         Head-stabilized, gap-free positions, mm (the take `bound` was made from).
-    bound : BindResult
+    bound : BoundTake
     mesh : Mesh
     markerset : MarkerSet
     options : RetargetOptions
@@ -503,7 +480,7 @@ def solve_mesh_space(displacements, operator, marker_disp, *, offset=None, lower
     return replace(sol, cost=sol.cost + 0.5 * np.maximum(norm2 - (y ** 2).sum(axis=1), 0.0))
 
 
-def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: BasisResult, *,
+def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: BasisResult, *,
               options: FitOptions = FitOptions()) -> FitResult:
     """Weights of every basis, frame by frame, and the face markers they reconstruct.
 
@@ -527,7 +504,7 @@ def fit_stage(take: Take, bound: BindResult, retargeted: Retargeting, bases: Bas
     :func:`solve_mesh_space`. With ``moving_average`` the displacements are
     averaged over time first (the reconstruction is then compared with the
     captured, unaveraged markers). Reconstructed markers are the bound rest
-    pose (:meth:`BindResult.neutral_pose`) plus B w_t taken back to capture
+    pose (:meth:`BoundTake.neutral_pose`) plus B w_t taken back to capture
     millimetres.
     """
     binding, labels = bound.binding, retargeted.labels

@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from mocap.util.validation import as_int, as_positive_float
+from mocap.util.validation import as_int, as_positive_float, as_take
 from mocap.errors import InputError
 from mocap.take import Take
 from mocap.clean._segments import visible_segments
@@ -70,8 +70,7 @@ def lowpass(take: Take, cutoff_hz: float, *, order: int = 4) -> Take:
     >>> bool(np.abs(smooth.positions[20:-20, 0, 0] - pos[20:-20, 0, 0]).max() < 1e-3)
     True
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a Take, got {type(take).__name__}")
+    take = as_take(take)
     cutoff_hz = as_positive_float(cutoff_hz, "cutoff_hz")
     order = as_int(order, "order", minimum=1)
     nyquist = take.rate / 2

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from mocap.util.validation import as_choice, as_int
+from mocap.util.validation import as_choice, as_int, as_take
 from mocap.errors import InputError
 from mocap.gaps import find_gaps
 from mocap.take import Take, fill_code
@@ -197,8 +197,7 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
     >>> result.gaps[["marker", "start", "stop", "method"]].values.tolist()
     [['a', 8, 12, 'spline']]
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a Take, got {type(take).__name__}")
+    take = as_take(take)
     method = as_choice(method, "method", FILL_OPTIONS)
     if max_gap is not None:
         max_gap = as_int(max_gap, "max_gap", minimum=0)

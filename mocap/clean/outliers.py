@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocap.util.arrays import read_only
-from mocap.util.validation import as_int, as_positive_float
+from mocap.util.validation import as_int, as_positive_float, as_take
 from mocap.errors import InputError
 from mocap.gaps import find_gaps
 from mocap.stabilize import stabilize
@@ -260,8 +260,7 @@ def find_implausible_samples(take: Take, *, head=None, off_rest: float = 25.0,
     >>> [(r.marker, r.start, r.stop, r.reason) for r in found.runs]
     [('a', 50, 55, 'duplicate')]
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a Take, got {type(take).__name__}")
+    take = as_take(take)
     if isinstance(head, str):
         raise InputError(f"head must be a sequence of marker labels, got the string {head!r}")
     off_rest = as_positive_float(off_rest, "off_rest")
@@ -336,8 +335,7 @@ def remove_implausible_samples(take: Take, found: ImplausibleSamples) -> Take:
     -----
     NaN policy: adds NaN; samples already missing stay missing.
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a Take, got {type(take).__name__}")
+    take = as_take(take)
     if not isinstance(found, ImplausibleSamples):
         raise InputError(f"found must be an ImplausibleSamples, got {type(found).__name__}")
     if tuple(found.labels) != take.labels or found.mask.shape != take.positions.shape[:2]:

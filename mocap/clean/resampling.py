@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from mocap.util.validation import as_int, as_positive_float
-from mocap.errors import InputError
+from mocap.util.validation import as_int, as_positive_float, as_take
 from mocap.take import Take
 from mocap.clean._segments import visible_segments
 from mocap.clean.filtering import lowpass
@@ -66,8 +65,7 @@ def resample(take: Take, rate: float, *, cutoff_hz: float | None = None,
     >>> resample(Take(("a",), pos, rate=100.0), 200.0).positions[:, 0, 0].tolist()
     [0.0, 1.5, 3.0, 4.5, 6.0, 7.5, 9.0]
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a Take, got {type(take).__name__}")
+    take = as_take(take)
     rate = as_positive_float(rate, "rate")
     order = as_int(order, "order", minimum=1)
     if cutoff_hz is None and rate < take.rate:

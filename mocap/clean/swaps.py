@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.validation import as_int, as_positive_float
+from mocap.util.validation import as_int, as_positive_float, as_take
 from mocap.errors import InputError, MarkerError
 from mocap.gaps import find_gaps
 from mocap.take import Take
@@ -244,8 +244,7 @@ def find_label_swaps(take: Take, *, neighbours: int = 4, threshold: float = 10.0
     ...  for s in find_label_swaps(Take(("a", "b"), pos, rate=100.0))]
     [('a', 'b', 10, 20)]
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a Take, got {type(take).__name__}")
+    take = as_take(take)
     neighbours = as_int(neighbours, "neighbours", minimum=1)
     threshold = as_positive_float(threshold, "threshold")
     max_ratio = as_positive_float(max_ratio, "max_ratio")
@@ -313,8 +312,7 @@ def fix_label_swaps(take: Take, swaps) -> Take:
     NaN policy: NaNs move with their samples (a missing sample of one label
     becomes a missing sample of the other).
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a Take, got {type(take).__name__}")
+    take = as_take(take)
     swaps = tuple(swaps)
     plan = []
     for swap in swaps:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_take
 from mocap.io._c3d_data import decode_frames, plan_layout
 from mocap.io._c3d_header import BLOCK, locate_parameters, parse_header
 from mocap.io._c3d_params import Parameters, parse_parameters
@@ -267,8 +268,7 @@ def write_c3d(take: Take, path, *, inputs=()) -> None:
         than 255 bytes, analog sampled at a rate that is not a whole multiple of
         the frame rate, or more than 255 analog channels.
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a Take, got {type(take).__name__}")
+    take = as_take(take)
     blob = encode_c3d(take)
     with atomic_path(_as_path(path), inputs=inputs) as tmp:
         tmp.write_bytes(blob)

@@ -24,7 +24,7 @@ import numpy as np
 from mocap.io._text_table import (BLANK_LINES, NOT_BLANK, cells, check_labels, data_end, format_number,
                           format_rows, frames_and_positions, line_number, text_lines, numeric_block,
                           read_bytes, write_text)
-from mocap.util.validation import as_int
+from mocap.util.validation import as_int, as_take
 from mocap.errors import FileFormatError, InputError
 from mocap.take import SourceInfo, Take
 from mocap.units import mm_per_unit
@@ -151,8 +151,7 @@ def write_trc(take: Take, path, *, inputs=(), decimals: int = 5) -> None:
     MarkerError
         A label is empty or holds a tab, a line break or surrounding blanks.
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a Take, got {type(take).__name__}")
+    take = as_take(take)
     decimals = as_int(decimals, "decimals", minimum=0)
     check_labels(take.labels, "\t", "TRC")
     rate, n, m = format_number(take.rate), take.n_frames, take.n_markers

@@ -26,7 +26,7 @@ import numpy as np
 from mocap.io._text_table import (NOT_BLANK, cells, check_labels, data_end, format_number,
                           format_rows, frames_and_positions, line_number, numeric_block,
                           read_bytes, text_lines, write_text)
-from mocap.util.validation import as_int
+from mocap.util.validation import as_int, as_take
 from mocap.errors import FileFormatError, InputError
 from mocap.take import SourceInfo, Take
 from mocap.units import mm_per_unit
@@ -180,8 +180,7 @@ def write_vicon_csv(take: Take, path, *, inputs=(), decimals: int = 5) -> None:
     MarkerError
         A label is empty or holds a comma, a line break or surrounding blanks.
     """
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a Take, got {type(take).__name__}")
+    take = as_take(take)
     decimals = as_int(decimals, "decimals", minimum=0)
     check_labels(take.labels, ",", "Vicon CSV")
     width = 2 + 3 * take.n_markers

@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from mocap.util.atomic import atomic_path, refuse_overwrite
-from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
-from mocap.bind import PICKED_FRAMES, Binding, resolve_neutral_frame
+from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float, as_take
+from mocap.bind import Binding
+from mocap.neutral import find_neutral
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh, face_normals, save_obj
@@ -108,24 +109,6 @@ class RetargetOptions:
             as_int(self.chunk_frames, "chunk_frames", minimum=1)
 
 
-def _check_take(take) -> Take:
-    if not isinstance(take, Take):
-        raise InputError(f"take must be a mocap.Take, got {type(take).__name__}")
-    return take
-
-
-def _check_frame(take: Take, neutral_frame) -> int:
-    frame = as_int(neutral_frame, "neutral_frame", minimum=0)
-    if frame >= take.n_frames:
-        raise InputError(f"neutral_frame {frame} is beyond the take's {take.n_frames} frames")
-    missing = np.flatnonzero(np.isnan(take.positions[frame]).any(axis=1))
-    if len(missing):
-        raise MarkerError(take.labels[missing[0]],
-                          f"is missing (NaN) in the neutral frame {take.first_frame + frame} "
-                          f"(index {frame}): displacements need every marker there")
-    return frame
-
-
 def _binding_rows(binding: Binding, labels) -> np.ndarray:
     lookup = {label: i for i, label in enumerate(binding.labels)}
     absent = [label for label in labels if label not in lookup]
@@ -135,46 +118,8 @@ def _binding_rows(binding: Binding, labels) -> np.ndarray:
     return np.array([lookup[label] for label in labels], dtype=np.int64)
 
 
-def neutral_pose(positions, frame: int, window: int = 1) -> np.ndarray:
-    """The rest pose: the mean of the marker positions over a window around a frame.
-
-    Averaging a neutral hold takes the noise of a single frame out of the
-    reference every displacement is measured from (it would otherwise be a
-    bias of every frame).
-
-    Parameters
-    ----------
-    positions : array_like of shape (n_frames, n_markers, 3), mm
-        Marker positions; NaN propagates (a marker missing in one frame of
-        the window is NaN in the rest pose).
-    frame : int
-        0-based index of the window's centre.
-    window : int, default 1
-        Frames averaged, centred on `frame` and cut at the ends of the take
-        (1: the frame itself).
-
-    Returns
-    -------
-    ndarray of shape (n_markers, 3), mm
-
-    Raises
-    ------
-    InputError
-        `positions` not of that shape, `frame` beyond the take, `window` below 1.
-    """
-    positions = np.asarray(positions, dtype=np.float64)      # no copy of a whole take
-    if positions.ndim != 3 or positions.shape[2] != 3:
-        raise InputError(f"positions must have shape (n_frames, n_markers, 3), got "
-                         f"{positions.shape}")
-    frame = as_int(frame, "neutral frame", minimum=0)
-    if frame >= len(positions):
-        raise InputError(f"neutral frame {frame} is beyond the take's {len(positions)} frames")
-    window = as_int(window, "neutral_window", minimum=1)
-    return positions[max(0, frame - window // 2):frame + window // 2 + 1].mean(axis=0)
-
-
-def marker_displacements(take: Take, binding: Binding, *, neutral_frame: int,
-                         rotation=None, neutral_window: int = 1) -> np.ndarray:
+def marker_displacements(take: Take, binding: Binding, *, neutral_frame,
+                         rotation=None, neutral_window: int | None = None) -> np.ndarray:
     """Marker displacements from the neutral frame, in mesh units and mesh axes.
 
     Parameters
@@ -182,15 +127,17 @@ def marker_displacements(take: Take, binding: Binding, *, neutral_frame: int,
     take : Take
         Head-stabilized take (positions (T, M, 3), mm); every marker must be bound.
     binding : Binding
-    neutral_frame : int
-        0-based index of the rest frame; every marker must be visible there.
+    neutral_frame : int, "auto" or "hold"
+        0-based index of the rest frame, or picked
+        (:func:`mocap.neutral.find_neutral`); every marker must be visible there.
     rotation : array_like of shape (3, 3), optional
         Head frame to the capture frame the binding was fitted in
         (:func:`align_head_frame`); default identity (the binding was made
         from the stabilized take, ``mocap2mesh bind --stabilize``).
-    neutral_window : int, default 1
+    neutral_window : int, optional
         Frames around `neutral_frame` whose mean is the rest pose p₀
-        (:func:`neutral_pose`); every marker must be visible in them.
+        (:func:`mocap.neutral.neutral_pose`; default the hold's window for
+        "hold", else 1); every marker must be visible in them.
 
     Returns
     -------
@@ -206,21 +153,14 @@ def marker_displacements(take: Take, binding: Binding, *, neutral_frame: int,
     InputError
         A frame index beyond the take, a bad rotation, a window below 1.
     """
-    take = _check_take(take)
+    take = as_take(take)
     _binding_rows(binding, take.labels)
-    frame = _check_frame(take, neutral_frame)
+    rest = find_neutral(take, neutral_frame, window=neutral_window).pose
     rotation = np.eye(3) if rotation is None else as_float_array(
         rotation, "rotation", shape=(3, 3), allow_nan=False)
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-9) \
             or np.linalg.det(rotation) <= 0:
         raise InputError("rotation must be a proper rotation matrix (orthonormal, det +1)")
-    rest = neutral_pose(take.positions, frame, neutral_window)
-    missing = np.flatnonzero(np.isnan(rest).any(axis=1))
-    if len(missing):
-        raise MarkerError(take.labels[missing[0]],
-                          f"is missing (NaN) in the {neutral_window} frames around the neutral "
-                          f"frame {take.first_frame + frame} (index {frame}): the rest pose is "
-                          "their mean")
     delta = take.positions - rest
     return binding.scale * delta @ (binding.rotation @ rotation).T
 
@@ -255,13 +195,13 @@ def align_head_frame(take: Take, binding: Binding, mesh: Mesh, *,
     MarkerError, InputError
         As :func:`marker_displacements`; collinear markers.
     """
-    take = _check_take(take)
+    take = as_take(take)
     rows = _binding_rows(binding, take.labels)
-    frame = _check_frame(take, neutral_frame)
+    neutral = find_neutral(take, neutral_frame)
     on_mesh = binding.marker_points(mesh.vertices)[rows]
     normals = face_normals(mesh.vertices, mesh.faces)[binding.face_ids[rows]]
     lifted = on_mesh + binding.skin_offset * binding.scale * normals
-    fit = fit_rigid(take.positions[frame], binding.to_capture(lifted))
+    fit = fit_rigid(neutral.pose, binding.to_capture(lifted))
     if not fit.valid:
         raise InputError("the neutral-frame markers are collinear: no head-frame alignment")
     return np.asarray(fit.rotation)
@@ -381,7 +321,7 @@ class Retargeting:
 
 def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
              options: RetargetOptions = RetargetOptions(), neutral_frame="auto",
-             neutral_window: int = 1, align: bool = True) -> Retargeting:
+             neutral_window: int | None = None, align: bool = True) -> Retargeting:
     """Retarget a head-stabilized take onto a face mesh.
 
     Parameters
@@ -396,8 +336,8 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
     markerset : MarkerSet
     options : RetargetOptions
     neutral_frame : int, "auto" or "hold"
-        0-based rest frame, or picked: :func:`mocap.bind.resolve_neutral_frame`.
-    neutral_window : int, default 1
+        0-based rest frame, or picked: :func:`mocap.neutral.resolve_neutral_frame`.
+    neutral_window : int, optional
         Frames around the rest frame averaged into the rest pose
         (:func:`marker_displacements`).
     align : bool, default True
@@ -416,7 +356,7 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
     InputError
         Bad options, a frame beyond the take, a singular RBF system.
     """
-    take = _check_take(take)
+    take = as_take(take)
     markerset.check_labels(take.labels, source=take.source.path or "the take")
     labels = markerset.face_markers
     face = take.select(labels)
@@ -426,12 +366,12 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
         raise MarkerError(labels[m], f"is missing (NaN) in frame {take.first_frame + t} "
                                      f"(index {t}; {int(missing.sum())} missing marker-frames "
                                      "in all): fill gaps before retargeting")
-    frame = (resolve_neutral_frame(face.positions, neutral_frame, rate=face.rate)
-             if neutral_frame in PICKED_FRAMES else _check_frame(face, neutral_frame))
+    neutral = find_neutral(face, neutral_frame, window=neutral_window)
+    frame = neutral.frame
     rotation = align_head_frame(face, binding, mesh, neutral_frame=frame) if align \
         else np.eye(3)
     displacements = marker_displacements(face, binding, neutral_frame=frame, rotation=rotation,
-                                         neutral_window=neutral_window)
+                                         neutral_window=neutral.window)
     operator = build_retarget_operator(binding, mesh, markerset, labels, options)
     return Retargeting(operator, displacements, labels, mesh, frame, rotation, take.rate,
                        take.first_frame, options.chunk_frames)

@@ -14,8 +14,8 @@ import numpy as np
 
 from mocap.errors import InputError
 
-__all__ = ["as_positions", "as_float_array", "as_positive_float", "as_int",
-           "as_choice"]
+__all__ = ["as_positions", "as_float_array", "as_positive_float", "as_nonnegative_float", "as_int",
+           "as_choice", "as_take"]
 
 
 def as_float_array(value, name: str, *, ndim: int | None = None,
@@ -72,4 +72,23 @@ def as_choice(value, name: str, choices) -> str:
     """One of a module-level set of string options."""
     if value not in choices:
         raise InputError(f"{name} must be one of {sorted(choices)}, got {value!r}")
+    return value
+
+
+def as_nonnegative_float(value, name: str) -> float:
+    """A finite float >= 0 (an offset, a smoothing weight, a tolerance)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise InputError(f"{name} must be a number, got {value!r}")
+    value = float(value)
+    if not np.isfinite(value) or value < 0:
+        raise InputError(f"{name} must be a finite number >= 0, got {value}")
+    return value
+
+
+def as_take(value, name: str = "take"):
+    """`value` itself, checked to be a :class:`mocap.take.Take`."""
+    from mocap.take import Take      # mocap.take validates its fields with this module
+
+    if not isinstance(value, Take):
+        raise InputError(f"{name} must be a mocap.Take, got {type(value).__name__}")
     return value

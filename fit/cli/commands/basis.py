@@ -19,10 +19,10 @@ from mocap.errors import FileFormatError, InputError
 from mocap.markerset import load_markerset
 from mocap.viz.render import save_png
 
-from mocap.clean.ingest import FILL_CHOICES, IngestOptions, ingest
+from mocap.clean.ingest import IngestOptions, ingest
 from fit.report.plots import plot_coverage
 from mocap.retarget.retargeting import DISTANCES, KERNELS, RetargetOptions, retarget
-from fit.cli.commands.bind import parse_frame
+from fit.cli.arguments import add_binding, add_fill, add_markerset, add_neutral_frame, add_units
 
 __all__ = ["add_parser", "run", "pca_of_retargeted", "pca_of_captures", "write_outputs",
            "COVERAGE_MARKS"]
@@ -54,7 +54,7 @@ def add_parser(sub) -> None:
     p.add_argument("--neutral", required=True, type=Path, help="neutral face mesh")
     p.add_argument("--shapes", required=True, type=Path,
                    help="artist shapes: a directory of OBJ files or a glTF/GLB file")
-    p.add_argument("--units", help="units of the neutral mesh file (e.g. cm)")
+    add_units(p, help="units of the neutral mesh file (e.g. cm)")
     p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
     size = p.add_mutually_exclusive_group()
     size.add_argument("--coverage", type=float, default=0.995, metavar="FRACTION",
@@ -70,12 +70,11 @@ def add_parser(sub) -> None:
     p.add_argument("--images", default="all", metavar="all|none|NAME,...",
                    help="artist shapes to draw in comparison/ (default all)")
     capture = p.add_argument_group("captures (implicit path)")
-    capture.add_argument("--binding", type=Path, help="binding .json (mocap2mesh bind)")
-    capture.add_argument("--markerset", type=Path, help="marker-set TOML")
-    capture.add_argument("--fill", choices=FILL_CHOICES, default="auto",
-                         help="gap-filling method (default auto)")
-    capture.add_argument("--frame", type=parse_frame, default="auto", metavar="N|auto",
-                         help="neutral frame of every capture (default auto)")
+    add_binding(capture, required=False)
+    add_markerset(capture, required=False)
+    add_fill(capture, max_gap=False)
+    add_neutral_frame(capture, help="neutral frame of every capture: an index, 'auto' "
+                                    "(default) or 'hold'")
     capture.add_argument("--kernel", choices=KERNELS, default="thin_plate_spline")
     capture.add_argument("--distance", choices=DISTANCES, default="euclidean")
     capture.add_argument("--regions", action="store_true",

@@ -24,8 +24,8 @@ from mocap.errors import InputError
 from mocap.synth.performance import read_performance
 
 from fit.gestures.analysis import ESTIMATORS
-from mocap.clean.ingest import FILL_CHOICES
-from fit.cli.commands.bind import parse_frame
+from fit.cli.arguments import (add_binding, add_capture, add_fill, add_markerset, add_mesh,
+                               add_neutral_frame, add_units)
 
 __all__ = ["add_parser", "run_analyze", "run_synthesize", "load_palette"]
 
@@ -59,17 +59,15 @@ def _add_analyze(actions) -> None:
                     "speech intensity S(t) from --speech, --analog or, without audio, the "
                     "loudness of the lip opening (stated in a warning and in the clip). "
                     "Writes OUT.npz, read by 'gestures synthesize --palette'.")
-    p.add_argument("capture", type=Path, help="C3D, Vicon Nexus CSV, TRC or .npz take")
-    p.add_argument("--markerset", required=True, type=Path,
-                   help="marker-set TOML (head markers, regions, landmarks)")
-    p.add_argument("--binding", required=True, type=Path,
-                   help="binding .json of the capture to --mesh, in the head frame "
+    add_capture(p)
+    add_markerset(p)
+    add_binding(p, help="binding .json of the capture to --mesh, in the head frame "
                         "('mocap2mesh bind --stabilize')")
-    p.add_argument("--mesh", required=True, type=Path, help="neutral face mesh of the binding")
+    add_mesh(p, help="neutral face mesh of the binding")
     p.add_argument("--shapes", required=True, type=Path,
                    help="expression shapes (OBJ directory or glTF/GLB, e.g. a basis written "
                         "by 'mocap2mesh basis')")
-    p.add_argument("--units", help="units of the mesh (e.g. cm)")
+    add_units(p)
     p.add_argument("-o", "--output", required=True, type=Path, help="clip .npz")
     p.add_argument("--name", help="style name of the clip (default: the output's stem)")
     speech = p.add_mutually_exclusive_group()
@@ -89,13 +87,11 @@ def _add_analyze(actions) -> None:
     p.add_argument("--epsilon", type=float, default=0.1, help="weight bounds (default 0.1)")
     p.add_argument("--estimator", choices=ESTIMATORS, default="exact",
                    help="bounded least squares (default), or the paper's sampling estimator")
-    p.add_argument("--neutral-frame", type=parse_frame, default="auto", metavar="N|auto|hold",
-                   help="0-based frame index at RATE of the neutral, 'auto' (default): "
-                        "the frame closest to the median pose, or 'hold': the mean pose of "
-                        "the neutral hold the take starts with")
-    p.add_argument("--fill", choices=FILL_CHOICES, default="auto",
-                   help="gap filling (default auto)")
-    p.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")
+    add_neutral_frame(p, "--neutral-frame",
+                      help="0-based frame index at RATE of the neutral, 'auto' (default): the "
+                           "frame closest to the median pose, or 'hold': the mean pose of the "
+                           "neutral hold the take starts with")
+    add_fill(p)
     p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
     p.add_argument("--seed", type=int, default=0, help="seed of the sampling estimator")
     p.set_defaults(run=run_analyze)
@@ -131,12 +127,12 @@ def _add_synthesize(actions) -> None:
     p.add_argument("--one-chain", action="store_true",
                    help="blinks and brows in the chain of the other weights (default: their own)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--mesh", type=Path, help="target neutral mesh")
+    add_mesh(p, required=False, help="target neutral mesh")
     p.add_argument("--shapes", type=Path, help="target expression shapes (OBJ dir or glTF)")
-    p.add_argument("--units", help="units of the mesh (e.g. cm)")
-    p.add_argument("--binding", type=Path,
-                   help="binding .json of the reference capture to --mesh (head frame): "
-                        "places the details and the head motion on the mesh")
+    add_units(p)
+    add_binding(p, required=False,
+                help="binding .json of the reference capture to --mesh (head frame): places "
+                     "the details and the head motion on the mesh")
     p.add_argument("--support", type=float, help="RBF support radius, mesh units")
     p.set_defaults(run=run_synthesize)
 

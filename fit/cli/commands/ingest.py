@@ -7,10 +7,10 @@ from pathlib import Path
 from tqdm import tqdm
 
 import mocap
-from mocap.markerset import load_markerset
-
-from mocap.clean.ingest import FILL_CHOICES, IngestOptions, ingest, save_head_motion
+from fit.cli.arguments import add_fill, add_markerset
 from fit.report.ingest_plots import plot_gaps, plot_head_residuals
+from mocap.clean.ingest import IngestOptions, ingest, save_head_motion
+from mocap.markerset import load_markerset
 
 __all__ = ["add_parser", "run", "ingest_file"]
 
@@ -23,14 +23,13 @@ def add_parser(sub) -> None:
     p.add_argument("file", help="input C3D, Vicon Nexus CSV, TRC or .npz take")
     p.add_argument("-o", "--output", required=True, type=Path,
                    help="output .c3d, .csv or .npz (never one of the inputs)")
-    p.add_argument("--markerset", type=Path, help="marker-set TOML (head markers, regions)")
+    add_markerset(p, required=False, help="marker-set TOML (head markers, regions)")
     p.add_argument("--fix-swaps", action="store_true",
                    help="find and undo label swaps between neighbouring markers first")
     p.add_argument("--reject-implausible", action="store_true",
                    help="remove teleports, doubly labelled markers and ghost slides before "
                         "filling (in the head frame with --markerset)")
-    p.add_argument("--fill", choices=FILL_CHOICES, default="auto", help="gap-filling method")
-    p.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")
+    add_fill(p)
     p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
     p.add_argument("--resample", type=float, metavar="HZ", help="new frame rate")
     p.add_argument("--stabilize", action="store_true",

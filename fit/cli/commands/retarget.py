@@ -5,14 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import mocap
-from mocap.bind import HOLD_S, hold_window, load_binding
+from fit.cli.arguments import (add_binding, add_capture, add_fill, add_markerset, add_mesh,
+                               add_neutral_frame)
+from mocap.bind import load_binding
+from mocap.clean.ingest import IngestOptions, ingest
 from mocap.markerset import load_markerset
-from mocap.mesh.mesh import load_mesh
-
-from mocap.clean.ingest import FILL_CHOICES, IngestOptions, ingest
-from mocap.retarget.retargeting import (CONTENTS, DISTANCES, KERNELS, RetargetOptions, retarget, save_npz,
-                        save_obj_sequence)
-from fit.cli.commands.bind import parse_frame
+from mocap.mesh import load_mesh
+from mocap.retarget.retargeting import (CONTENTS, DISTANCES, KERNELS, RetargetOptions, retarget,
+                                        save_npz, save_obj_sequence)
 
 __all__ = ["add_parser", "run"]
 
@@ -26,12 +26,10 @@ def add_parser(sub) -> None:
                     "functions. Writes OUT.npz (float32 vertex positions or displacements, "
                     "neutral, faces; streamed chunk by chunk) or, for any other OUT, a "
                     "directory with one OBJ per frame.")
-    p.add_argument("capture", type=Path, help="C3D, Vicon Nexus CSV, TRC or .npz take")
-    p.add_argument("--markerset", required=True, type=Path,
-                   help="marker-set TOML (head markers, regions)")
-    p.add_argument("--mesh", required=True, type=Path, help="neutral face mesh")
-    p.add_argument("--binding", required=True, type=Path,
-                   help="binding .json from 'mocap2mesh bind' (same mesh)")
+    add_capture(p)
+    add_markerset(p, help="marker-set TOML (head markers, regions)")
+    add_mesh(p)
+    add_binding(p)
     p.add_argument("-o", "--output", required=True, type=Path,
                    help="OUT.npz, or a directory for an OBJ sequence")
     p.add_argument("--kernel", choices=KERNELS, default="thin_plate_spline",
@@ -51,14 +49,8 @@ def add_parser(sub) -> None:
     p.add_argument("--region-width", type=float, metavar="UNITS",
                    help="blend width of the region weights, mesh units (default: the "
                         "median marker spacing)")
-    p.add_argument("--neutral-frame", type=parse_frame, default="auto",
-                   metavar="N|auto|hold",
-                   help="0-based index of the rest frame, 'auto' (default): the frame "
-                        "closest to the median pose, or 'hold': the mean pose of the first "
-                        f"still {HOLD_S:g} s of the neutral hold the take starts with")
-    p.add_argument("--fill", choices=FILL_CHOICES, default="auto",
-                   help="gap filling before retargeting (default auto; 'none' fails on gaps)")
-    p.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")
+    add_neutral_frame(p, "--neutral-frame")
+    add_fill(p, help="gap filling before retargeting (default auto; 'none' fails on gaps)")
     p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
     p.add_argument("--content", choices=CONTENTS, default="vertices",
                    help=".npz output: vertex positions (default) or displacements")
@@ -76,9 +68,8 @@ def run(args) -> int:
     take = mocap.read(args.capture)
     ingested = ingest(take, markerset=markerset, options=IngestOptions(
         fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass, stabilize=True))
-    window = hold_window(ingested.take.rate) if args.neutral_frame == "hold" else 1
     result = retarget(ingested.take, binding, mesh, markerset, options=options,
-                      neutral_frame=args.neutral_frame, neutral_window=window)
+                      neutral_frame=args.neutral_frame)
     if args.output.suffix.lower() == ".npz":
         save_npz(result, args.output, content=args.content, inputs=inputs)
     else:

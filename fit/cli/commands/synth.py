@@ -19,6 +19,7 @@ if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
+from fit.cli.arguments import add_markerset, add_mesh, add_units
 
 __all__ = ["add_parser", "run", "parse_head_motion"]
 
@@ -41,15 +42,14 @@ def add_parser(sub) -> None:
                     "place the markers of a layout on it, move the head, add noise and "
                     "occlusion gaps, and write the capture (.c3d or .csv) and, with --truth, "
                     "the ground truth (.npz: weights, head motion, true markers).")
-    p.add_argument("--mesh", required=True, type=Path, help="neutral mesh (OBJ, PLY, glTF)")
-    p.add_argument("--units", help="units of the mesh (default: the layout file's 'units')")
+    add_mesh(p, help="neutral mesh (OBJ, PLY, glTF)")
+    add_units(p, help="units of the mesh (default: the layout file's 'units')")
     p.add_argument("--shapes", required=True, type=Path,
                    help="directory of expression OBJs (or a glTF/GLB with morph targets)")
     p.add_argument("--performance", required=True, type=Path,
                    help="weight performance CSV (time or Timecode column, one per shape)")
     p.add_argument("--layout", required=True, type=Path, help="marker layout TOML")
-    p.add_argument("--markerset", required=True, type=Path,
-                   help="marker-set TOML of the layout (its head markers stay rigid)")
+    add_markerset(p, help="marker-set TOML of the layout (its head markers stay rigid)")
     p.add_argument("-o", "--output", required=True, type=Path, help="capture .c3d or .csv")
     p.add_argument("--truth", type=Path, help="ground truth .npz")
     p.add_argument("--rate", type=float, default=100.0, metavar="HZ",
