@@ -112,6 +112,30 @@ class PCAModel:
                              f"{cov[-1]:.6f} < {threshold}; keep more components")
         return int(reached[0]) + 1
 
+    def shapes(self) -> tuple[tuple, np.ndarray]:
+        """The model as an expression basis: the mean, then each axis scaled to one SD.
+
+        ``v = neutral + 1·μ + Σ_j w_j √λ_j e_j``: a weight is a coefficient in
+        standard deviations of the frames the model was fitted to (most of
+        them within ±3), the mean's weight is 1.
+
+        Returns
+        -------
+        names : tuple of str, length m + 1
+            ``"pca_mean"``, then ``"pc_00"``, ``"pc_01"``, ...
+        displacements : ndarray, shape (m + 1, N, 3), mesh units
+
+        Examples
+        --------
+        >>> model = PCAModel(np.zeros((1, 3)), np.eye(3)[:2, None], [4.0, 1.0], 5.0, 10)
+        >>> names, shapes = model.shapes()
+        >>> names, shapes[1:, 0].tolist()
+        (('pca_mean', 'pc_00', 'pc_01'), [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+        """
+        sd = np.sqrt(np.maximum(self.eigenvalues, 0.0))
+        names = ("pca_mean",) + tuple(f"pc_{j:02d}" for j in range(self.n_components))
+        return names, np.concatenate([self.mean[None], self.components * sd[:, None, None]])
+
     def truncate(self, n_components: int) -> "PCAModel":
         """The model with its first `n_components` components (same total variance)."""
         n_components = as_int(n_components, "n_components", minimum=1)

@@ -8,7 +8,7 @@ what each factor contributes to the error instead of tuning anything on it.
 
 Table 1, the markers alone (no chain): the true head-frame markers, the
 linear marker-space basis (the tangent of each shape's marker motion at the
-neutral, as :func:`fit.pipeline.stages.marker_basis` takes it), bounds [0, 1].
+neutral, as :func:`fit.solve.marker_basis.marker_basis` takes it), bounds [0, 1].
 Columns: the condition number of that basis and its smallest singular value (mm per unit weight); the unbounded least-squares RMSE that
 0.2 mm of noise alone predicts, σ·sqrt(tr((BᵀB)⁻¹)/n); then measured RMSEs:
 markers on the skin without noise (the linear model is exact there: 0 up to

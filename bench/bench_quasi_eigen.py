@@ -31,7 +31,7 @@ from basis.pca import pca_from_operator
 from basis.quasi_eigen import quasi_eigen
 from mocap.bind import bind_take
 from mocap.clean.ingest import IngestOptions, ingest
-from fit.report.plots import plot_coverage
+from basis.coverage import plot_coverage
 from mocap.retarget.retargeting import RetargetOptions, retarget
 from mocap.markerset import load_markerset
 from mocap.mesh.landmarks import load_mesh_landmarks

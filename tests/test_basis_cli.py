@@ -15,7 +15,8 @@ from basis.basis_io import load_basis
 from basis.comparison import MOVE_COLUMNS
 from basis.quasi_eigen import MISSING_POLICIES
 from fit.cli.main import main
-from mocap.retarget.retargeting import CONTENTS, Retargeting, save_npz
+from mocap.retarget.archive import CONTENTS, save_npz
+from mocap.retarget.retargeting import Retargeting
 from mocap.mesh.mesh import Mesh, save_obj
 from mocap.retarget.rbf import build_rbf_operator
 from tolerances import BASIS_CLI_REL

@@ -15,10 +15,11 @@ from scipy.spatial.transform import Rotation
 
 from fit.cli.main import main
 from fit.gestures import (ESTIMATORS, FEATURES, GestureClip, analyze_gestures,
-                          candidate_distances, clip_from_analysis, load_clip, marker_basis,
+                          candidate_distances, clip_from_analysis, load_clip,
                           parse_timeline, pick_candidate, save_clip, synthesize_gestures,
                           wav_intensity, weight_columns)
 from fit.gestures.transfer import SUPPORT_SPACINGS, build_detail_transfer
+from fit.solve.marker_basis import marker_basis
 from mocap.bind import Binding
 from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.mesh.mesh import Mesh
@@ -654,7 +655,7 @@ def test_marker_basis_is_the_shape_motion_of_the_bound_points_in_capture_mm():
     binding = dataclasses.replace(binding, translation=np.array([1.0, -2.0, 0.5]))
     shapes = np.random.default_rng(9).normal(0, 0.3, (2,) + mesh.vertices.shape)
     labels = ("m3", "m0")
-    got = marker_basis(binding, shapes, labels)
+    got = marker_basis(binding, shapes, labels, units="mm")
     rows = [binding.labels.index(x) for x in labels]
     for i, shape in enumerate(shapes):           # through the affine map, shape by shape
         moved = binding.to_capture(binding.marker_points(mesh.vertices + shape)[rows])

@@ -11,11 +11,11 @@ from scipy.optimize import lsq_linear
 import mocap
 from basis.basis_io import load_basis
 from fit.demo import make_demo_session
-from fit.gestures import marker_basis as gesture_marker_basis
 from mocap.clean.ingest import IngestOptions
 from fit.pipeline.stages import (BASES, SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
-                          bind_stage, complete_span, fit_stage, ingest_stage, marker_basis,
-                          retarget_stage, solve_mesh_space)
+                          bind_stage, complete_span, fit_stage, ingest_stage, retarget_stage)
+from fit.solve.marker_basis import marker_basis
+from fit.solve.mesh_space import solve_mesh_space
 from fit.solve.sampling_estimator import estimate_weights_by_sampling
 from fit.solve.weights import solve_weights
 from mocap.neutral import hold_window
@@ -193,14 +193,14 @@ def test_gesture_marker_basis_lifts_the_centres_too_in_capture_mm(chain):
     centre = mesh.vertices.mean(axis=0)
     fields = np.cross(omega, mesh.vertices - centre)[None]
     labels = binding.labels[::-1]
-    got = gesture_marker_basis(binding, fields, labels, mesh=mesh)
+    got = marker_basis(binding, fields, labels, mesh=mesh, units="mm")
     lifted = MarkerLayout(binding.labels, binding.vertex_ids, binding.barycentric,
                           binding.face_ids, np.full(len(binding.labels),
                                                     binding.skin_offset * binding.scale),
                           mesh.faces, mesh.n_vertices).positions(mesh.vertices)[::-1]
     want = np.cross(omega, lifted - centre) @ np.asarray(binding.rotation) / binding.scale
     np.testing.assert_allclose(got[0], want, atol=1e-7 / binding.scale)
-    skin = gesture_marker_basis(binding, fields, labels)
+    skin = marker_basis(binding, fields, labels, units="mm")
     assert np.abs(got - skin).max() > 1e-3 * np.abs(skin).max()
 
 

@@ -15,7 +15,8 @@ from basis.pca import pca_streaming
 from fit.metrics import reconstruction_errors
 from fit.report import build_report
 from fit.report.html import render_report
-from fit.report.plots import plot_coverage, region_groups
+from basis.coverage import plot_coverage
+from fit.report.plots import region_groups
 from fit.report.video import write_overlay_video
 from fit.report.views import (CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_views,
                               view_axes)

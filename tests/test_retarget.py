@@ -15,9 +15,9 @@ from basis.artist import load_artist_basis
 from fit.cli.main import main
 from mocap.bind import bind_take
 from mocap.neutral import neutral_pose
-from mocap.retarget.retargeting import (CONTENTS, RetargetOptions, align_head_frame,
-                          build_retarget_operator, marker_displacements, retarget,
-                          save_npz, save_obj_sequence)
+from mocap.retarget.archive import CONTENTS, save_npz, save_obj_sequence
+from mocap.retarget.retargeting import (RetargetOptions, align_head_frame,
+                                        build_retarget_operator, marker_displacements, retarget)
 from mocap.bind import Binding
 from mocap.neutral import hold_window
 from mocap.errors import InputError, MarkerError

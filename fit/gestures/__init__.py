@@ -10,8 +10,10 @@
 - :mod:`.transfer`: details moved to a target face by compact RBFs, mesh outputs.
 """
 
-from fit.gestures.analysis import (DETAIL_GROUPS, ESTIMATORS, LIP_REGIONS, GestureAnalysis, analyze_gestures,
-                       marker_basis)
+import functools
+
+from fit.gestures.analysis import (DETAIL_GROUPS, ESTIMATORS, LIP_REGIONS, GestureAnalysis,
+                                   analyze_gestures)
 from fit.gestures.clip import GestureClip, clip_from_analysis, clip_from_performance, load_clip, save_clip
 from fit.gestures.mrf import GestureSynthesis, candidate_distances, pick_candidate, synthesize_gestures
 from fit.gestures.reference import CaptureClip, clip_from_capture
@@ -20,8 +22,9 @@ from fit.gestures.speech import (analog_intensity, opening_intensity, read_wav, 
 from fit.gestures.features import (DETAIL_FEATURES, FEATURES, WEIGHT_FEATURES, WEIGHT_PATTERNS,
                        weight_columns)
 from fit.gestures.timeline import Segment, Timeline, load_timeline, parse_timeline
+from mocap.util.deprecation import moved_names
 
-__all__ = ["GestureAnalysis", "analyze_gestures", "marker_basis", "DETAIL_GROUPS",
+__all__ = ["GestureAnalysis", "analyze_gestures", "DETAIL_GROUPS",
            "LIP_REGIONS", "ESTIMATORS",
            "GestureClip", "clip_from_analysis", "clip_from_performance", "load_clip", "save_clip",
            "CaptureClip", "clip_from_capture",
@@ -30,3 +33,15 @@ __all__ = ["GestureAnalysis", "analyze_gestures", "marker_basis", "DETAIL_GROUPS
            "opening_intensity",
            "FEATURES", "WEIGHT_FEATURES", "DETAIL_FEATURES", "WEIGHT_PATTERNS", "weight_columns",
            "Segment", "Timeline", "load_timeline", "parse_timeline"]
+
+
+
+def _marker_basis_in_mm():
+    from fit.solve.marker_basis import marker_basis
+
+    return functools.partial(marker_basis, units="mm")
+
+
+__getattr__ = moved_names(__name__, {
+    "marker_basis": ("fit.solve.marker_basis:marker_basis(..., units='mm')",
+                     _marker_basis_in_mm)})

@@ -16,17 +16,15 @@ import numpy as np
 
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_choice, as_float_array, as_int
-from mocap.bind import Binding
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.stabilize import Stabilization
 
-from fit.pipeline.stages import marker_basis as _mesh_marker_basis
 from fit.solve.sampling_estimator import estimate_weights_by_sampling
 from fit.solve.weights import solve_weights
 from fit.solve.temporal import moving_average
 
-__all__ = ["GestureAnalysis", "analyze_gestures", "marker_basis", "DETAIL_GROUPS",
+__all__ = ["GestureAnalysis", "analyze_gestures", "DETAIL_GROUPS",
            "LIP_REGIONS", "ESTIMATORS"]
 
 #: Marker-set regions whose residuals are the independent features D_j.
@@ -230,44 +228,6 @@ def analyze_gestures(stabilization: Stabilization, neutral, basis, regions, *, l
         details=parts, rest=rest, groups=groups, labels=labels, neutral=read_only(neutral),
         basis=read_only(basis), names=names, rate=take.rate,
         cost=read_only(cost, copy=True), estimator=estimator, message=message)
-
-
-def marker_basis(binding: Binding, displacements, labels, *, mesh=None) -> np.ndarray:
-    """Mesh shapes sampled at the bound markers, in capture mm: the marker-space basis B_i.
-
-    Parameters
-    ----------
-    binding : Binding
-        The capture's markers bound to the mesh (in the head frame for takes
-        analysed after stabilization: ``bind_take(..., head_frame=True)``).
-    displacements : array_like of shape (n_shapes, N, 3), mesh units
-        Shape displacements from the neutral mesh (``ArtistBasis.displacements``). No NaN.
-    labels : sequence of str
-        The M markers to sample, in the order of the analysis.
-    mesh : Mesh, optional
-        The binding's neutral mesh: with a binding made with a skin offset,
-        the marker centres off the skin are sampled, not the surface points
-        (:func:`fit.pipeline.stages.marker_basis`).
-
-    Returns
-    -------
-    ndarray of shape (n_shapes, M, 3), mm
-        Each shape's displacement at the bound markers brought to the capture
-        frame: ``d_mm = Rᵀ d_mesh / scale``.
-
-    Raises
-    ------
-    InputError
-        `binding` not a Binding, `displacements` not (n, N, 3) or with NaN.
-    MarkerError
-        A label not in the binding.
-    """
-    if not isinstance(binding, Binding):
-        raise InputError(f"binding must be a Binding, got {type(binding).__name__}")
-    displacements = as_float_array(displacements, "displacements", shape=(None, None, 3),
-                                   allow_nan=False)
-    points = _mesh_marker_basis(binding, displacements, list(labels), mesh=mesh)
-    return points @ np.asarray(binding.rotation) / binding.scale
 
 
 def _blend_weights(basis, averaged, epsilon, estimator, n_samples, n_neighbors, seed):

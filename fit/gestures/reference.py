@@ -2,7 +2,7 @@
 
 What ``mocap2mesh gestures analyze`` runs: the capture is gap-filled, resampled
 to the synthesis rate and head-stabilized (:func:`mocap.clean.ingest.ingest`); the
-expression shapes are sampled at the bound markers (:func:`marker_basis`); the
+expression shapes are sampled at the bound markers (:func:`fit.solve.marker_basis.marker_basis`); the
 take is decomposed (:func:`analyze_gestures`); S(t) comes from a WAV file
 recorded with the take, from one of its analog channels, or, failing both,
 from a stand-in: the loudness of the lip opening.
@@ -23,7 +23,8 @@ from mocap.markerset import MarkerSet
 from mocap.take import Take
 
 from mocap.clean.ingest import IngestOptions, ingest
-from fit.gestures.analysis import GestureAnalysis, analyze_gestures, marker_basis
+from fit.gestures.analysis import GestureAnalysis, analyze_gestures
+from fit.solve.marker_basis import marker_basis
 from fit.gestures.clip import GestureClip, clip_from_analysis
 from fit.gestures.speech import (DEFAULT_WINDOW_S, OPENING_WINDOW_S, analog_intensity, opening_intensity,
                      wav_intensity)
@@ -166,7 +167,7 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
                                    opening, intensity_window)
     if source.startswith("stand-in"):
         warnings.warn(f"S(t) is a {source}", stacklevel=2)
-    shapes = marker_basis(binding, basis.displacements, labels, mesh=basis.neutral)
+    shapes = marker_basis(binding, basis.displacements, labels, mesh=basis.neutral, units="mm")
     analysis = analyze_gestures(stab, neutral, shapes, markerset, labels=labels,
                                 names=basis.names, epsilon=epsilon, window=window,
                                 estimator=estimator, seed=seed)

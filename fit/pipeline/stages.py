@@ -21,31 +21,30 @@ from basis.artist import ArtistBasis
 from basis.pca import PCAModel, pca_from_operator
 from basis.quasi_eigen import MISSING_POLICIES, QuasiEigenBasis, quasi_eigen
 from mocap.util.validation import as_choice, as_int, as_positive_float
-from mocap.bind import Binding, BoundTake, bind_take
+from mocap.bind import BoundTake, bind_take
 from mocap.neutral import PICKED_FRAMES
-from mocap.errors import InputError, MarkerError
+from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh
 from mocap.take import Take
 
 from mocap.clean.ingest import IngestOptions, IngestResult, ingest
+from fit.solve.marker_basis import marker_basis
 from fit.solve.marker_centres import solve_at_marker_centres
+from fit.solve.mesh_space import solve_mesh_space
 from mocap.retarget.retargeting import RetargetOptions, Retargeting, retarget
 from fit.solve.sampling_estimator import estimate_weights_by_sampling
-from fit.solve.weights import WeightSolution, as_smoothness, solve_weights
+from fit.solve.weights import as_smoothness, solve_weights
 from fit.solve.temporal import moving_average
 
 __all__ = ["BASES", "SPACES", "BindOptions", "BasisOptions", "FitOptions", "complete_span",
            "NamedBasis", "BasisResult", "FitResult", "ingest_stage",
-           "bind_stage", "retarget_stage", "basis_stage", "fit_stage", "marker_basis",
-           "solve_mesh_space", "H_SOLVERS", "CENTRE_MODELS"]
+           "bind_stage", "retarget_stage", "basis_stage", "fit_stage", "H_SOLVERS", "CENTRE_MODELS"]
 
 #: The bases every take is fitted with: hand-made (artist), quasi-eigen, PCA.
 BASES = ("H", "QE", "PCA")
 #: Where the weights are fitted: at the bound marker points, or on every vertex through W.
 SPACES = ("marker", "mesh")
-#: Largest vertex move of the central differences of :func:`marker_basis`, over the mesh size.
-_NORMAL_STEP = 1e-4
 #: How the H weights are found: exactly, or by the gestures paper's sampling estimator.
 H_SOLVERS = ("exact", "sampling")
 #: How the artist shapes move the marker centres in a marker-space fit
@@ -132,7 +131,7 @@ class FitOptions:
         λ of :func:`fit.solve.weights.solve_weights` (0: frames independent), or
         "gcv": chosen per basis by generalized cross-validation
         (:func:`fit.solve.gcv.gcv_smoothness`; in mesh space, of the projected
-        n-row problem of :func:`solve_mesh_space`). The λ used is each
+        n-row problem of :func:`fit.solve.mesh_space.solve_mesh_space`). The λ used is each
         solution's ``smoothness``.
     moving_average : int
         Odd window (frames) of the centred moving average of the marker
@@ -150,7 +149,7 @@ class FitOptions:
         marker space with a binding made with a skin offset: "exact" (default)
         fits the centres as they move, off the turning skin
         (:func:`fit.solve.marker_centres.solve_at_marker_centres`); "linear" fits
-        their tangent at the neutral (:func:`marker_basis`) only, which is off
+        their tangent at the neutral (:func:`fit.solve.marker_basis.marker_basis`) only, which is off
         by up to 0.25 in weight at full expressions on the ICT face with 2 mm
         markers.
     """
@@ -183,7 +182,7 @@ class FitOptions:
 
 @dataclass(frozen=True, eq=False)
 class NamedBasis:
-    """A basis as the fit and the exports see it.
+    """A basis as the fit and the exports see it, with how it is fitted.
 
     ``v = neutral + Σ_i w_i e_i``; `fixed` shapes (the PCA mean) have weight 1
     in every frame and are not solved for.
@@ -193,9 +192,19 @@ class NamedBasis:
     names : tuple of str, length n
     displacements : ndarray, shape (n, N, 3), mesh units
     lower, upper : float
-        Bounds of the solved weights.
+        Bounds of the solved weights; finite bounds are widened by
+        :attr:`FitOptions.h_epsilon`.
     n_fixed : int
         The first `n_fixed` shapes have weight 1.
+    on_skin : bool
+        Shapes sculpted on the skin (an artist's): sampled at the marker
+        centres off the skin, and fitted with :attr:`FitOptions.h_solver`
+        and :attr:`FitOptions.marker_centres`. Bases made from W·D (PCA,
+        quasi-eigen) already hold the centres' motion at the bound points.
+    rank_deficient : bool
+        May have rank below n by construction (the quasi-eigen faces: rank
+        ≤ m + 1, below n when m < n − 1): the solver's rank warning is not
+        passed on.
     """
 
     names: tuple
@@ -203,6 +212,8 @@ class NamedBasis:
     lower: float = -np.inf
     upper: float = np.inf
     n_fixed: int = 0
+    on_skin: bool = False
+    rank_deficient: bool = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -357,127 +368,10 @@ def basis_stage(retargeted: Retargeting, artist: ArtistBasis, *,
     model = pca.truncate(m)
     qe = quasi_eigen(model, artist.displacements, names=artist.names,
                      missing=options.qe_missing, missing_eps=options.missing_eps)
-    pcs = tuple(f"pc_{j:02d}" for j in range(m))
-    bases = {"H": NamedBasis(artist.names, artist.displacements, 0.0, 1.0),
-             "QE": NamedBasis(qe.names, qe.displacements),
-             "PCA": NamedBasis(("pca_mean",) + pcs,
-                               np.concatenate([model.mean[None], model.components]),
-                               n_fixed=1)}
+    bases = {"H": NamedBasis(artist.names, artist.displacements, 0.0, 1.0, on_skin=True),
+             "QE": NamedBasis(qe.names, qe.displacements, rank_deficient=True),
+             "PCA": NamedBasis(*model.shapes(), n_fixed=1)}
     return BasisResult(bases=bases, pca=pca, n_components=m, qe=qe)
-
-
-def marker_basis(binding: Binding, displacements, labels=None, *,
-                 mesh: Mesh | None = None) -> np.ndarray:
-    """A mesh basis sampled at the bound markers, in mesh units and mesh axes.
-
-    Parameters
-    ----------
-    binding : Binding
-        The markers bound to the mesh.
-    displacements : array_like of shape (n, N, 3), mesh units
-        Shape displacements from the neutral mesh. No NaN.
-    labels : sequence of str, optional
-        The M markers to sample, in this order; default every bound marker.
-    mesh : Mesh, optional
-        The neutral mesh of the binding; with a binding made with
-        ``skin_offset`` > 0, the marker centres are sampled instead of the
-        surface points (Notes).
-
-    Returns
-    -------
-    ndarray of shape (n, M, 3), mesh units
-
-    Raises
-    ------
-    MarkerError
-        A label not in the binding.
-
-    Notes
-    -----
-    Without `mesh` (or with a binding of no skin offset), the motion of the
-    bound surface points. With the neutral `mesh` and a binding made with
-    ``skin_offset`` > 0, the motion of the marker centres that far off the
-    skin along the normal, to first order: markers sit on the skin and their
-    centres turn with it. The normal is the one of
-    :meth:`mocap.mesh.layout.MarkerLayout.positions` (area-weighted vertex normals,
-    interpolated); its change along each shape is a central difference.
-    """
-    absent = [x for x in (labels or ()) if x not in binding.labels]
-    if absent:
-        raise MarkerError(absent[0], "is not in the binding")
-    if mesh is None or binding.skin_offset == 0:
-        points = binding.marker_points(displacements)
-    else:
-        layout = binding.centre_layout(mesh)
-        displacements = np.asarray(displacements, dtype=np.float64)
-        size = np.ptp(mesh.vertices, axis=0).max()
-        largest = np.abs(displacements).reshape(len(displacements), -1).max(axis=1)
-        h = (_NORMAL_STEP * size / np.maximum(largest, np.finfo(float).tiny))[:, None, None]
-        points = (layout.positions(mesh.vertices + h * displacements)
-                  - layout.positions(mesh.vertices - h * displacements)) / (2 * h)
-    if labels is None:
-        return points
-    return points[:, [binding.labels.index(label) for label in labels]]
-
-
-def solve_mesh_space(displacements, operator, marker_disp, *, offset=None, lower=-np.inf,
-                     upper=np.inf, smoothness: float | str = 0.0) -> WeightSolution:
-    """Per frame ``min ½‖E w − (W d_t − o)‖²`` over every vertex, without forming W·D(t).
-
-    Parameters
-    ----------
-    displacements : array_like, shape (n, N, 3), mesh units
-        The basis E.
-    operator : array_like, shape (N, M)
-        W, applied to x, y and z alike.
-    marker_disp : array_like, shape (T, M, 3), mesh units
-        d_t. No NaN.
-    offset : array_like, shape (N, 3), mesh units, optional
-        o, subtracted from every frame's target (the fixed part of a basis,
-        e.g. the PCA mean); default 0.
-    lower, upper, smoothness
-        As in :func:`fit.solve.weights.solve_weights`.
-
-    Returns
-    -------
-    WeightSolution
-        ``cost`` is the mesh-space ½‖E w − (W d_t − o)‖² (mesh units²).
-
-    Notes
-    -----
-    With G = EᵀE = V Λ Vᵀ and c_t = Eᵀ W d_t = (WᵀE)ᵀ d_t, the objective is
-    ½‖R w − y_t‖² + ½(‖W d_t‖² − ‖y_t‖²) with R = Λ^½ Vᵀ and y_t = Λ^-½ Vᵀ c_t
-    (directions with λ = 0 dropped: c_t has no component there). So the n × n
-    problem (R, y) is handed to :func:`fit.solve.weights.solve_weights` and the constant
-    added back; ‖W d_t‖² = Σ_c d_tcᵀ (WᵀW) d_tc needs only the M × M matrix WᵀW,
-    and an offset adds −Eᵀo to c_t and ‖o‖² − 2 (Wᵀo)·d_t to ‖W d_t‖².
-    Cost O(n N M + n² N + T M n), memory O(n N + T n).
-    """
-    E = np.asarray(displacements, dtype=np.float64)
-    W = np.asarray(operator.toarray() if hasattr(operator, "toarray") else operator,
-                   dtype=np.float64)
-    D = np.asarray(marker_disp, dtype=np.float64)
-    n, n_vertices, _ = E.shape
-    if W.shape[0] != n_vertices or D.ndim != 3 or D.shape[1:] != (W.shape[1], 3):
-        raise InputError(f"mesh-space fit: basis {E.shape}, operator {W.shape} and marker "
-                         f"displacements {D.shape} do not match (n, N, 3), (N, M), (T, M, 3)")
-    flat = E.reshape(n, -1)
-    gram = flat @ flat.T
-    # P_i = Wᵀ e_i (M, 3): c_t = Σ P_i · d_t
-    proj = (W.T @ E.transpose(1, 0, 2).reshape(n_vertices, -1)).reshape(-1, n, 3)
-    C = D.reshape(len(D), -1) @ proj.transpose(0, 2, 1).reshape(-1, n)
-    norm2 = np.einsum("tmc,mk,tkc->t", D, W.T @ W, D)
-    if offset is not None:
-        o = np.asarray(offset, dtype=np.float64).reshape(n_vertices, 3)
-        C = C - flat @ o.ravel()
-        norm2 = norm2 + (o ** 2).sum() - 2 * np.einsum("tmc,mc->t", D, W.T @ o)
-    lam, V = np.linalg.eigh(gram)
-    keep = lam > lam.max() * n * np.finfo(float).eps
-    root = np.sqrt(lam[keep])
-    R = root[:, None] * V[:, keep].T
-    y = (C @ V[:, keep]) / root
-    sol = solve_weights(R, y, lower=lower, upper=upper, smoothness=smoothness)
-    return replace(sol, cost=sol.cost + 0.5 * np.maximum(norm2 - (y ** 2).sum(axis=1), 0.0))
 
 
 def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: BasisResult, *,
@@ -498,10 +392,10 @@ def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: Basi
 
     Notes
     -----
-    Marker space: B = basis sampled at the bound markers (:func:`marker_basis`:
+    Marker space: B = basis sampled at the bound markers (:func:`fit.solve.marker_basis.marker_basis`:
     binding face ids and barycentric coordinates; for H, lifted by the
     binding's skin offset), d_t = marker displacements; mesh space: see
-    :func:`solve_mesh_space`. With ``moving_average`` the displacements are
+    :func:`fit.solve.mesh_space.solve_mesh_space`. With ``moving_average`` the displacements are
     averaged over time first (the reconstruction is then compared with the
     captured, unaveraged markers). Reconstructed markers are the bound rest
     pose (:meth:`BoundTake.neutral_pose`) plus B w_t taken back to capture
@@ -515,19 +409,15 @@ def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: Basi
     solutions, weights, reconstructed = {}, {}, {}
     for name, basis in bases.bases.items():
         k, centres = basis.n_fixed, None
-        # the artist's shapes move the skin: lift them to the marker centres; the
-        # PCA and QE bases come from W·D, which already holds the centres' motion
-        # at the bound points
         at_markers = marker_basis(binding, basis.displacements, labels,
-                                  mesh=retargeted.mesh if name == "H" else None)
+                                  mesh=retargeted.mesh if basis.on_skin else None)
         data = D - at_markers[:k].sum(axis=0)
-        lower, upper = basis.lower, basis.upper
-        if name == "H":
-            lower, upper = -options.h_epsilon, 1.0 + options.h_epsilon
+        lower, upper = (b + sign * options.h_epsilon if np.isfinite(b) else b
+                        for b, sign in ((basis.lower, -1), (basis.upper, 1)))
         with warnings.catch_warnings():
-            if name == "QE":        # rank ≤ m + 1 < n by construction when m < n - 1
+            if basis.rank_deficient:
                 warnings.filterwarnings("ignore", "the basis has rank", RuntimeWarning)
-            if name == "H" and options.h_solver == "sampling":
+            if basis.on_skin and options.h_solver == "sampling":
                 sol = estimate_weights_by_sampling(at_markers[k:], data, lower=lower,
                                                    upper=upper, n_samples=options.n_samples,
                                                    n_neighbors=options.n_neighbors)
@@ -536,7 +426,7 @@ def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: Basi
                                        offset=basis.displacements[:k].sum(axis=0),
                                        lower=lower, upper=upper,
                                        smoothness=options.smoothness)
-            elif name == "H" and options.marker_centres == "exact" and binding.skin_offset:
+            elif basis.on_skin and options.marker_centres == "exact" and binding.skin_offset:
                 centres = solve_at_marker_centres(
                     binding.centre_layout(retargeted.mesh, labels),
                     retargeted.mesh.vertices, basis.displacements, at_markers, data,

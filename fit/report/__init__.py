@@ -14,7 +14,8 @@ from mocap.errors import InputError
 
 from fit.metrics import reconstruction_errors
 from fit.report.html import ingest_stats, write_report
-from fit.report.plots import plot_alpha, plot_coverage, plot_error_heatmap, plot_marker_errors
+from basis.coverage import plot_coverage
+from fit.report.plots import plot_alpha, plot_error_heatmap, plot_marker_errors
 from fit.report.video import write_overlay_video
 from fit.report.views import plot_frame_views
 

@@ -1,5 +1,5 @@
 """QA charts of reconstruction errors (PNG): α over time, marker × time heatmap,
-per-marker errors by region, PCA coverage."""
+per-marker errors by region."""
 
 from __future__ import annotations
 
@@ -8,15 +8,13 @@ from typing import Mapping
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.patches import Patch
-from matplotlib.ticker import FuncFormatter, LogLocator
 
 from mocap.errors import InputError
 
-from mocap.viz.figures import new_figure, save_figure
+from mocap.viz.figures import distinct_colours, new_figure, save_figure
 from fit.metrics import ReconstructionErrors
 
-__all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "plot_coverage",
-           "region_groups", "distinct_colours"]
+__all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "region_groups"]
 
 
 def region_groups(labels, markerset=None) -> tuple[np.ndarray, list]:
@@ -54,12 +52,6 @@ def region_groups(labels, markerset=None) -> tuple[np.ndarray, list]:
         groups.append(("unassigned", len(order), len(order) + len(rest)))
         order += rest
     return np.array(order, dtype=np.intp), groups
-
-
-def distinct_colours(n: int) -> list:
-    """`n` well-separated colours: tab10, then Dark2, then repeating."""
-    palette = list(colormaps["tab10"].colors) + list(colormaps["Dark2"].colors)
-    return [palette[i % len(palette)] for i in range(n)]
 
 
 def _as_results(results) -> dict:
@@ -238,54 +230,4 @@ def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
     ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker "
                           f"(mean {errors.totals['mean_mm']:.2f} mm, "
                           f"95th percentile {errors.totals['p95_mm']:.2f} mm)")
-    save_figure(fig, path)
-
-
-def plot_coverage(model, path, *, thresholds=(0.99, 0.995), title: str | None = None) -> None:
-    """Cumulative PCA coverage against the number of components m (PNG).
-
-    Parameters
-    ----------
-    model : basis.pca.PCAModel
-        Its ``coverage()`` (fraction of the total variance, shape (m,)).
-    path : str or os.PathLike
-    thresholds : sequence of float in (0, 1]
-        Drawn as horizontal lines, with the smallest m reaching each marked
-        (or "not reached with the m kept").
-    """
-    cov = np.asarray(model.coverage(), dtype=float)
-    thresholds = [float(t) for t in thresholds]
-    if not all(0 < t <= 1 for t in thresholds):
-        raise InputError(f"thresholds must be in (0, 1], got {thresholds}")
-    m = np.arange(1, len(cov) + 1)
-    fig = new_figure(12, 4.5)
-    covered, uncovered = fig.subplots(1, 2)
-    covered.plot(m, 100 * cov, "o-", ms=3, lw=1, color="black")
-    rest = 100 * (1 - cov)
-    shown = rest > 1e-9 * rest[0]        # the last components can cover "all" to rounding
-    uncovered.semilogy(m[shown], rest[shown], "o-", ms=3, lw=1, color="black")
-    for threshold, colour in zip(thresholds, distinct_colours(len(thresholds) + 1)[1:]):
-        reached = np.nonzero(cov >= threshold * (1 - 1e-12))[0]
-        covered.axhline(100 * threshold, color=colour, lw=0.8, ls="--")
-        uncovered.axhline(100 * (1 - threshold), color=colour, lw=0.8, ls="--")
-        if reached.size:
-            k = int(reached[0]) + 1
-            label = f"{100 * threshold:g} % reached at m = {k}"
-            for ax, y in ((covered, 100 * cov[k - 1]), (uncovered, rest[k - 1])):
-                ax.axvline(k, color=colour, lw=0.8, ls=":")
-                ax.plot(k, y, "o", color=colour, ms=7)
-        else:
-            label = f"{100 * threshold:g} % not reached with m = {len(cov)}"
-        covered.plot([], [], "o--", color=colour, label=label)
-    covered.set_ylim(top=100.5)
-    covered.set_ylabel("variance covered (%)")
-    uncovered.set_ylabel("variance not covered, 100 − coverage (%)")
-    uncovered.yaxis.set_major_locator(LogLocator(numticks=12))
-    uncovered.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    covered.legend(loc="lower right", fontsize=8)
-    for ax in (covered, uncovered):
-        ax.set_xlim(0.5, len(cov) + 0.5)
-        ax.set_xlabel("number of components m")
-        ax.grid(alpha=0.3, which="both")
-    fig.suptitle(title or f"PCA coverage ({len(cov)} components kept)")
     save_figure(fig, path)

@@ -2,7 +2,7 @@
 
 A marker's centre sits a skin offset h off the surface, along the normal:
 ``c(w) = s(w) + h n(w)``, with the skin point s linear in the weights and the
-unit normal n not. The marker-space basis B of :func:`fit.pipeline.stages.marker_basis`
+unit normal n not. The marker-space basis B of :func:`fit.solve.marker_basis.marker_basis`
 is the tangent of c at the neutral, so ``B w`` misses the part
 ``r(w) = c(w) − c(0) − B w`` that comes from the normals turning (eyes wide,
 lids, brows: up to 0.25 in weight at full expressions on the ICT face with
@@ -83,7 +83,7 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     displacements : array_like of shape (n, N, 3), mesh units
         The shapes e_i.
     basis : array_like of shape (n, M, 3), mesh units
-        The tangent of the centres at the neutral (:func:`fit.pipeline.stages.marker_basis`).
+        The tangent of the centres at the neutral (:func:`fit.solve.marker_basis.marker_basis`).
     data : array_like of shape (T, M, 3), mesh units
         Marker-centre displacements from the rest pose, no NaN.
     lower, upper, smoothness

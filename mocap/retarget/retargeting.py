@@ -14,31 +14,25 @@ runs) and names the first missing marker and frame.
 
 from __future__ import annotations
 
-import zipfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from mocap.util.atomic import atomic_path, refuse_overwrite
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float, as_take
 from mocap.bind import Binding
 from mocap.neutral import find_neutral
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
-from mocap.mesh.mesh import Mesh, face_normals, save_obj
+from mocap.mesh.mesh import Mesh, face_normals
 from mocap.retarget.rbf import DISTANCES, KERNELS, RBFOperator, build_rbf_operator
 from mocap.rigid import fit_rigid
 from mocap.take import Take
 
 __all__ = ["RetargetOptions", "Retargeting", "marker_displacements", "neutral_pose",
            "align_head_frame",
-           "build_retarget_operator", "retarget", "save_npz", "save_obj_sequence",
-           "KERNELS", "DISTANCES", "CONTENTS"]
+           "build_retarget_operator", "retarget", "KERNELS", "DISTANCES"]
 
-#: What a ``.npz`` output holds per frame: vertex positions or displacements from the neutral.
-CONTENTS = ("vertices", "displacements")
 
 
 @dataclass(frozen=True)
@@ -375,60 +369,3 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
     operator = build_retarget_operator(binding, mesh, markerset, labels, options)
     return Retargeting(operator, displacements, labels, mesh, frame, rotation, take.rate,
                        take.first_frame, options.chunk_frames)
-
-
-def save_npz(result: Retargeting, path, *, content: str = "vertices", inputs=()) -> None:
-    """Stream a retargeted take to an uncompressed ``.npz``, chunk by chunk, atomically.
-
-    Arrays: ``vertices`` or ``displacements`` (T, N, 3) float32 mesh units
-    (by `content`), ``neutral`` (N, 3) float32, ``faces`` (F, 3) int64,
-    ``rate`` (Hz), ``first_frame``, ``labels`` (M,) and ``marker_displacements``
-    (T, M, 3) float32. Only one chunk of frames is in memory at a time: the
-    big array is written straight into the archive member.
-    """
-    content = as_choice(content, "content", CONTENTS)
-    neutral = result.mesh.vertices.astype(np.float32)
-    shape = (result.n_frames, result.mesh.n_vertices, 3)
-    header = {"descr": np.lib.format.dtype_to_descr(np.dtype("<f4")),
-              "fortran_order": False, "shape": shape}
-    small = {"neutral": neutral, "faces": result.mesh.faces.astype(np.int64),
-             "rate": np.array(result.rate), "first_frame": np.array(result.first_frame),
-             "labels": np.array(result.labels, dtype=str),
-             "marker_displacements": result.displacements.astype(np.float32)}
-    with atomic_path(path, inputs=inputs) as tmp:
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED) as archive:
-            with archive.open(f"{content}.npy", "w", force_zip64=True) as member:
-                np.lib.format.write_array_header_2_0(member, header)
-                for _, block in result.iter_chunks(dtype=np.float32):
-                    if content == "vertices":
-                        block += neutral
-                    member.write(np.ascontiguousarray(block, dtype="<f4").data)
-            for name, arr in small.items():
-                with archive.open(f"{name}.npy", "w") as member:
-                    np.lib.format.write_array(member, arr, allow_pickle=False)
-
-
-def save_obj_sequence(result: Retargeting, directory, *, stem: str = "frame",
-                      inputs=()) -> list[Path]:
-    """Write one OBJ per frame into `directory` (created if needed), atomically per file.
-
-    Files are ``{stem}_{frame number:0Nd}.obj`` with the take's frame numbers,
-    zero-padded to the widest; faces as in the neutral mesh's file (quads kept).
-    Returns the paths written, in frame order.
-    """
-    directory = Path(directory)
-    if directory.exists() and not directory.is_dir():
-        raise InputError(f"{directory}: exists and is not a directory (an OBJ sequence "
-                         "is written into a directory)")
-    refuse_overwrite(directory, inputs)
-    directory.mkdir(parents=True, exist_ok=True)
-    last = result.first_frame + result.n_frames - 1
-    width = max(4, len(str(last)))
-    neutral = result.mesh.vertices
-    paths = []
-    for frames, block in result.iter_chunks(dtype=np.float64):
-        for offset, disp in enumerate(block):         # one file per frame: I/O bound
-            path = directory / f"{stem}_{result.first_frame + frames.start + offset:0{width}d}.obj"
-            save_obj(result.mesh.with_vertices(neutral + disp), path, inputs=inputs)
-            paths.append(path)
-    return paths

@@ -2,36 +2,23 @@
 
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-import mocap
 from basis.artist import ArtistBasis, load_artist_basis
-from basis.basis_io import save_basis, shape_file_stems
-from basis.comparison import comparison_image, move_table, save_move_table
-from basis.gltf import write_gltf
-from basis.pca import PCAModel, pca_from_operator, pca_streaming
+from basis.outputs import COVERAGE_MARKS, write_basis_outputs
+from basis.pca import PCAModel
 from basis.quasi_eigen import MISSING_POLICIES, QuasiEigenBasis, quasi_eigen
-from mocap.bind import load_binding
-from mocap.errors import FileFormatError, InputError
-from mocap.markerset import load_markerset
-from mocap.viz.render import save_png
-
-from mocap.clean.ingest import IngestOptions, ingest
-from fit.report.plots import plot_coverage
-from mocap.retarget.retargeting import DISTANCES, KERNELS, RetargetOptions, retarget
+from basis.take_pca import pca_of_captures, pca_of_retargeted
 from fit.cli.arguments import add_binding, add_fill, add_markerset, add_neutral_frame, add_units
+from mocap.bind import load_binding
+from mocap.errors import InputError
+from mocap.markerset import load_markerset
+from mocap.retarget.archive import is_retargeted_archive
+from mocap.retarget.retargeting import DISTANCES, KERNELS, RetargetOptions
 
-__all__ = ["add_parser", "run", "pca_of_retargeted", "pca_of_captures", "write_outputs",
-           "COVERAGE_MARKS"]
-
-#: Coverage thresholds marked on the coverage plot.
-COVERAGE_MARKS = (0.99, 0.995)
-#: Members of a ``mocap2mesh retarget`` archive (:func:`mocap.retarget.retargeting.save_npz`).
-_FRAME_KEYS = ("displacements", "vertices")
-_CHUNK_FRAMES = 512
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
@@ -84,139 +71,6 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
-def _is_retargeted(path: Path) -> bool:
-    if path.suffix.lower() != ".npz" or not zipfile.is_zipfile(path):
-        return False
-    with zipfile.ZipFile(path) as archive:
-        members = set(archive.namelist())
-    return "marker_displacements.npy" in members and \
-        any(f"{key}.npy" in members for key in _FRAME_KEYS)
-
-
-def _npy_header(member):
-    """(shape, fortran_order, dtype) of an open ``.npy`` stream, left at the data."""
-    version = np.lib.format.read_magic(member)
-    read = np.lib.format.read_array_header_1_0 if version == (1, 0) \
-        else np.lib.format.read_array_header_2_0
-    return read(member)
-
-
-class _RetargetedFrames:
-    """Vertex displacements (t, N, 3) float64 of retargeted archives, chunk by chunk.
-
-    Re-iterable (each pass reopens the files), as ``pca_streaming`` asks.
-    """
-
-    def __init__(self, paths, n_vertices: int, chunk_frames: int):
-        self.paths, self.chunk_frames = list(paths), chunk_frames
-        self.n_frames, self.n_markers = 0, 0
-        for path in self.paths:
-            key, shape, _ = self._header(path)
-            if shape[1:] != (n_vertices, 3):
-                raise FileFormatError(path, f"{key} has shape {shape}: the neutral mesh has "
-                                            f"{n_vertices} vertices (retargeted onto another "
-                                            "mesh?)")
-            with np.load(path) as archive:
-                self.n_markers = max(self.n_markers, archive["labels"].shape[0])
-            self.n_frames += shape[0]
-
-    @staticmethod
-    def _header(path: Path):
-        with zipfile.ZipFile(path) as archive:
-            key = next(k for k in _FRAME_KEYS if f"{k}.npy" in archive.namelist())
-            with archive.open(f"{key}.npy") as member:
-                shape, fortran, dtype = _npy_header(member)
-        if fortran or len(shape) != 3:
-            raise FileFormatError(path, f"{key}.npy must be a C-order (T, N, 3) array")
-        return key, shape, dtype
-
-    def __iter__(self):
-        for path in self.paths:
-            key, shape, dtype = self._header(path)
-            with np.load(path) as archive:
-                neutral = archive["neutral"].astype(np.float64) if key == "vertices" else 0.0
-            frame_bytes = dtype.itemsize * shape[1] * 3
-            with zipfile.ZipFile(path) as archive, archive.open(f"{key}.npy") as member:
-                _npy_header(member)
-                for start in range(0, shape[0], self.chunk_frames):
-                    count = min(self.chunk_frames, shape[0] - start)
-                    raw = member.read(count * frame_bytes)
-                    block = np.frombuffer(raw, dtype=dtype).reshape(count, shape[1], 3)
-                    yield block.astype(np.float64) - neutral
-
-
-def pca_of_retargeted(paths, n_vertices: int, *,
-                      chunk_frames: int = _CHUNK_FRAMES) -> PCAModel:
-    """PCA of the vertex displacements of ``mocap2mesh retarget`` archives, all frames pooled.
-
-    The mesh sequence of a retargeted take has rank at most 3M (M markers),
-    so a randomized PCA with 3M components is exact to rounding; the files
-    are read in chunks of `chunk_frames` frames, never whole.
-
-    Parameters
-    ----------
-    paths : sequence of path
-        ``.npz`` archives of :func:`mocap.retarget.retargeting.save_npz` (``vertices`` or
-        ``displacements``, (T, N, 3), mesh units).
-    n_vertices : int
-        N of the neutral mesh; an archive of another mesh is rejected.
-
-    Returns
-    -------
-    PCAModel
-        Method ``"randomized"``, min(3M, ΣT, 3N) components.
-
-    Raises
-    ------
-    FileFormatError
-        An archive of another vertex count (named).
-    """
-    frames = _RetargetedFrames(paths, n_vertices, chunk_frames)
-    n_components = min(3 * frames.n_markers, frames.n_frames, 3 * n_vertices)
-    return pca_streaming(frames, n_components=n_components, chunk_frames=chunk_frames)
-
-
-def pca_of_captures(paths, binding, neutral, markerset, *, fill: str = "auto",
-                    neutral_frame="auto", options: RetargetOptions = RetargetOptions()):
-    """Exact PCA of the mesh motion of captures, never forming the mesh sequence.
-
-    Each capture is gap-filled and head-stabilized (:func:`mocap.clean.ingest.ingest`),
-    retargeted (:func:`mocap.retarget.retargeting.retarget`: its face-marker displacements D
-    from its neutral frame, in mesh units, and the operator W), and the
-    displacements of all captures are pooled: Ξ = W·D is analysed by
-    :func:`basis.pca.pca_from_operator`.
-
-    Returns
-    -------
-    PCAModel
-        Method ``"implicit"``.
-
-    Raises
-    ------
-    MarkerError
-        A marker of the set absent from a capture or the binding, a gap that
-        filling left.
-    """
-    displacements, operator = [], None
-    for path in paths:
-        take = mocap.read(path)
-        result = ingest(take, markerset=markerset,
-                        options=IngestOptions(fill=fill, stabilize=True))
-        retargeted = retarget(result.take, binding, neutral, markerset, options=options,
-                              neutral_frame=neutral_frame)
-        displacements.append(retargeted.displacements)
-        operator = retargeted.operator.matrix if operator is None else operator
-    return pca_from_operator(operator, np.concatenate(displacements))
-
-
-def _pca_basis(pca: PCAModel, neutral) -> ArtistBasis:
-    """The mean, then each component scaled to one standard deviation."""
-    sd = np.sqrt(np.maximum(pca.eigenvalues, 0.0))
-    displacements = np.concatenate([pca.mean[None], pca.components * sd[:, None, None]])
-    names = ("pca_mean",) + tuple(f"pc_{j:02d}" for j in range(pca.n_components))
-    return ArtistBasis(names, neutral, displacements)
-
-
 def _image_names(spec: str, artist: ArtistBasis) -> tuple:
     if spec == "all":
         return artist.names
@@ -226,51 +80,6 @@ def _image_names(spec: str, artist: ArtistBasis) -> tuple:
     for name in names:
         artist.index(name)
     return names
-
-
-def write_outputs(folder, pca: PCAModel, full: PCAModel, qe: QuasiEigenBasis,
-                  artist: ArtistBasis, *, images=(), inputs=()) -> None:
-    """Write the bases, the coverage plot, the move table and the comparison images.
-
-    Parameters
-    ----------
-    folder : path
-        Output directory (created).
-    pca : PCAModel
-        The m components kept.
-    full : PCAModel
-        Every component fitted (the coverage plot).
-    qe : QuasiEigenBasis
-    artist : ArtistBasis
-        The shapes `qe` was made from.
-    images : sequence of str
-        Artist shapes to draw into ``comparison/``.
-    inputs : sequence of path
-        Files never to replace.
-    """
-    folder = Path(folder)
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder}: exists and is not a directory")
-    folder.mkdir(parents=True, exist_ok=True)
-    neutral = artist.neutral
-    bases = {"pca": _pca_basis(pca, neutral),
-             "qe": ArtistBasis(qe.names, neutral, qe.displacements)}
-    for stem, basis in bases.items():
-        save_basis(basis, folder / f"{stem}.npz", inputs=inputs)
-        save_basis(basis, folder / stem, inputs=inputs)
-        write_gltf(folder / f"{stem}.glb", neutral, basis.displacements, basis.names,
-                   name=stem, inputs=inputs)
-    plot_coverage(full, folder / "coverage.png", thresholds=COVERAGE_MARKS,
-                  title=f"PCA coverage of {full.n_frames} frames ({full.method}); "
-                        f"m = {pca.n_components} kept")
-    save_move_table(move_table(qe, pca), folder / "moves.csv", inputs=inputs)
-    if images:
-        pictures = folder / "comparison"
-        pictures.mkdir(exist_ok=True)
-        for name, stem in zip(images, shape_file_stems(images)):
-            i = artist.index(name)
-            save_png(comparison_image(neutral, artist.displacements[i], qe.displacements[i],
-                                      name=name), pictures / f"{stem}.png", inputs=inputs)
 
 
 def _summary(full: PCAModel, pca: PCAModel, qe: QuasiEigenBasis) -> None:
@@ -293,7 +102,7 @@ def _summary(full: PCAModel, pca: PCAModel, qe: QuasiEigenBasis) -> None:
 def run(args) -> int:
     artist = load_artist_basis(args.neutral, args.shapes, units=args.units)
     images = _image_names(args.images, artist)
-    kinds = [_is_retargeted(path) for path in args.takes]
+    kinds = [is_retargeted_archive(path) for path in args.takes]
     inputs = [*args.takes, args.neutral, args.shapes, args.binding, args.markerset]
     inputs = [x for x in inputs if x is not None]
     if all(kinds):
@@ -314,7 +123,7 @@ def run(args) -> int:
     pca = full.truncate(m)
     qe = quasi_eigen(pca, artist.displacements, names=artist.names,
                      missing_eps=args.missing_eps, missing=args.missing)
-    write_outputs(args.output, pca, full, qe, artist, images=images, inputs=inputs)
+    write_basis_outputs(args.output, pca, full, qe, artist, images=images, inputs=inputs)
     if args.verbose:
         _summary(full, pca, qe)
     return 0

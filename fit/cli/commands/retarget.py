@@ -11,8 +11,8 @@ from mocap.bind import load_binding
 from mocap.clean.ingest import IngestOptions, ingest
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
-from mocap.retarget.retargeting import (CONTENTS, DISTANCES, KERNELS, RetargetOptions, retarget,
-                                        save_npz, save_obj_sequence)
+from mocap.retarget.archive import CONTENTS, save_npz, save_obj_sequence
+from mocap.retarget.retargeting import DISTANCES, KERNELS, RetargetOptions, retarget
 
 __all__ = ["add_parser", "run"]
 
