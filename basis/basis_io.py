@@ -32,7 +32,7 @@ from mocap.mesh.mesh import Mesh, save_obj
 
 from basis.artist import ArtistBasis, load_artist_basis
 
-__all__ = ["BASIS_DTYPES", "save_basis", "load_basis", "shape_file_stems"]
+__all__ = ["BASIS_DTYPES", "save_basis", "load_basis", "load_any_basis", "shape_file_stems"]
 
 #: Floating types :func:`save_basis` stores displacements in (npz form).
 BASIS_DTYPES = ("float64", "float32")
@@ -268,3 +268,38 @@ def _load_dir(path: Path, units) -> ArtistBasis:
         raise FileFormatError(neutral_file, "a basis directory needs its neutral mesh")
     loaded = load_artist_basis(neutral_file, path, names=stems, units=units)
     return ArtistBasis(tuple(names), loaded.neutral, loaded.displacements)
+
+
+def load_any_basis(path, mesh: Mesh) -> ArtistBasis:
+    """A basis on `mesh`'s topology from any form it comes in.
+
+    Parameters
+    ----------
+    path : path
+        A :func:`save_basis` archive (``.npz``) or directory (with
+        ``basis.json``), a folder of OBJ shapes, or a glTF/GLB with morph
+        targets (:func:`basis.artist.load_artist_basis`).
+    mesh : Mesh
+        The neutral mesh the basis must share a topology with; an archive's
+        displacements are converted to its units.
+
+    Returns
+    -------
+    ArtistBasis
+
+    Raises
+    ------
+    InputError
+        The basis has another vertex count than `mesh`.
+    FileFormatError
+        An unreadable basis.
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".npz" or (path / "basis.json").is_file():
+        basis = load_basis(path, units=mesh.units)
+    else:
+        basis = load_artist_basis(mesh, path)
+    if basis.neutral.n_vertices != mesh.n_vertices:
+        raise InputError(f"{path}: the basis has {basis.neutral.n_vertices} vertices, the "
+                         f"mesh {mesh.n_vertices}: they must share a topology")
+    return basis

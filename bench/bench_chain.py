@@ -38,7 +38,7 @@ from basis.basis_io import save_basis
 from basis.gltf import write_gltf
 from fit.exports import write_mesh_sequence, write_weights_csv
 from mocap.clean.ingest import IngestOptions
-from fit.pipeline.stages import (BindOptions, basis_stage, bind_stage, complete_span, fit_stage,
+from fit.pipeline import (BindOptions, basis_stage, bind_stage, complete_span, fit_stage,
                           ingest_stage, retarget_stage)
 from fit.report import build_report
 from mocap.mesh.layout import load_marker_layout

@@ -64,7 +64,7 @@ from scipy.spatial import cKDTree  # noqa: E402
 
 from basis.artist import load_artist_basis  # noqa: E402
 from mocap.clean.ingest import IngestOptions  # noqa: E402
-from fit.pipeline.stages import (BasisResult, BindOptions, FitOptions, NamedBasis,  # noqa: E402
+from fit.pipeline import (BasisResult, BindOptions, FitOptions, NamedBasis,  # noqa: E402
                           bind_stage, complete_span, fit_stage, ingest_stage, retarget_stage)
 from fit.solve.weights import solve_weights  # noqa: E402
 from mocap.mesh.layout import MarkerLayout, load_marker_layout  # noqa: E402

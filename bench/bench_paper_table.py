@@ -24,7 +24,7 @@ import mocap
 from basis.artist import load_artist_basis
 from mocap.clean.ingest import IngestOptions
 from fit.metrics import reconstruction_errors
-from fit.pipeline.stages import (BasisOptions, FitOptions, basis_stage, bind_stage, complete_span,
+from fit.pipeline import (BasisOptions, FitOptions, basis_stage, bind_stage, complete_span,
                           fit_stage, ingest_stage, retarget_stage)
 from mocap.markerset import load_markerset
 from mocap.mesh.landmarks import load_mesh_landmarks

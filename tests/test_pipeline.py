@@ -12,7 +12,7 @@ import mocap
 from basis.basis_io import load_basis
 from fit.demo import make_demo_session
 from mocap.clean.ingest import IngestOptions
-from fit.pipeline.stages import (BASES, SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
+from fit.pipeline import (BASES, SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
                           bind_stage, complete_span, fit_stage, ingest_stage, retarget_stage)
 from fit.solve.marker_basis import marker_basis
 from fit.solve.mesh_space import solve_mesh_space

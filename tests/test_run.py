@@ -12,10 +12,10 @@ import pytest
 
 import mocap
 from fit.cli.main import main
-from fit.cli.commands.demo import demo_config_toml
-from fit.cli.commands.run import run_takes
+from fit.demo import demo_config_toml
+from fit.pipeline.session import run_takes
 from fit.demo import make_demo_session
-from fit.pipeline.stages import BASES
+from fit.pipeline import BASES
 from fit.pipeline.config import load_run_config
 from mocap.errors import FileFormatError, InputError
 
@@ -124,7 +124,7 @@ def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
         return {"status": "ok", "skipped": False, "error": None,
                 "files": [f"{capture.stem}/out.txt"]}
 
-    monkeypatch.setattr("fit.cli.commands.run._guarded", fake)
+    monkeypatch.setattr("fit.pipeline.session._guarded", fake)
     for name in ("a.c3d", "b.c3d"):
         shutil.copy(session_root / "session" / "capture.c3d", tmp_path / name)
     for name in ("markerset.toml", "neutral.obj", "landmarks.toml"):

@@ -1,4 +1,17 @@
-"""One take, or a session of takes, through the whole chain."""
+"""One take, or a session of takes, through the whole chain.
 
-from fit.pipeline.stages import *  # noqa: F401,F403
-from fit.pipeline.stages import __all__  # noqa: F401
+- :mod:`.options`: the options of each stage (the tables of ``run.toml``);
+- :mod:`.stages`: one function per stage, each returning a frozen result;
+- :mod:`.config`: ``run.toml`` read and validated;
+"""
+
+from fit.pipeline.config import RunConfig, load_run_config
+from fit.pipeline.options import (BASES, CENTRE_MODELS, H_SOLVERS, SPACES, BasisOptions,
+                                  BindOptions, FitOptions, ReportOptions)
+from fit.pipeline.stages import (BasisResult, FitResult, NamedBasis, basis_stage, bind_stage,
+                                 complete_span, fit_stage, ingest_stage, retarget_stage)
+
+__all__ = ["BASES", "SPACES", "H_SOLVERS", "CENTRE_MODELS", "BindOptions", "BasisOptions",
+           "FitOptions", "ReportOptions", "NamedBasis", "BasisResult", "FitResult",
+           "complete_span", "ingest_stage", "bind_stage", "retarget_stage", "basis_stage",
+           "fit_stage", "RunConfig", "load_run_config"]

@@ -30,51 +30,20 @@ Every error names the file and the key at fault (``run.toml: fit.space: ...``).
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from mocap.util.validation import as_int, as_positive_float
-from mocap.errors import FileFormatError, InputError
-
+from fit.pipeline.options import BasisOptions, BindOptions, FitOptions, ReportOptions
 from mocap.clean.ingest import IngestOptions
-from fit.pipeline.stages import BasisOptions, BindOptions, FitOptions
+from mocap.errors import InputError
 from mocap.retarget.retargeting import RetargetOptions
+from mocap.util.toml import read_toml
+from mocap.util.validation import as_int
 
-__all__ = ["RunConfig", "ReportOptions", "load_run_config", "CAPTURE_SUFFIXES",
-           "STAGE_TABLES"]
+__all__ = ["RunConfig", "load_run_config", "stage_options", "CAPTURE_SUFFIXES", "STAGE_TABLES"]
 
 #: Files of a session directory taken as captures.
 CAPTURE_SUFFIXES = (".c3d", ".csv", ".trc")
-
-
-@dataclass(frozen=True)
-class ReportOptions:
-    """Options of the QA report of each take.
-
-    Attributes
-    ----------
-    video : bool
-        Write the MP4 overlay video per basis.
-    video_step : int
-        Draw every n-th frame in the video.
-    n_worst : int
-        Worst frames shown and listed.
-    exaggerate : float
-        Error vectors drawn this many times longer.
-    """
-
-    video: bool = True
-    video_step: int = 1
-    n_worst: int = 5
-    exaggerate: float = 1.0
-
-    def __post_init__(self):
-        if not isinstance(self.video, bool):
-            raise InputError(f"video must be true or false, got {self.video!r}")
-        as_int(self.video_step, "video_step", minimum=1)
-        as_int(self.n_worst, "n_worst", minimum=1)
-        as_positive_float(self.exaggerate, "exaggerate")
 
 
 #: The option tables: TOML table name -> options class.
@@ -136,11 +105,11 @@ class RunConfig:
         return getattr(self, "basis_options" if table == "basis" else table)
 
 
-def _fail(path: Path, key: str, message: str):
+def _fail(path, key: str, message: str):
     raise InputError(f"{path}: {key}: {message}")
 
 
-def _unknown(path: Path, table: dict, known, prefix: str) -> None:
+def _unknown(path, table: dict, known, prefix: str) -> None:
     for key in table:
         if key not in known:
             _fail(path, f"{prefix}{key}", f"unknown key; expected one of {sorted(known)}")
@@ -183,21 +152,43 @@ def _captures(path: Path, inputs: dict) -> tuple:
     return files
 
 
-def _stage(path: Path, name: str, table) -> object:
+def stage_options(name: str, table, *, where="run configuration"):
+    """The options of stage table `name` (``"fit"``, ...) from a mapping of its keys.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`STAGE_TABLES`.
+    table : mapping
+        Option name -> value, as in the TOML table.
+    where : str or path
+        Named first in errors (the configuration file).
+
+    Raises
+    ------
+    InputError
+        An unknown key or a wrong value; the message names `where` and the
+        key (``fit.space: ...``).
+
+    Examples
+    --------
+    >>> stage_options("fit", {"smoothness": "gcv"}).smoothness
+    'gcv'
+    """
     cls = STAGE_TABLES[name]
     if not isinstance(table, dict):
-        _fail(path, name, f"expected a table, got {table!r}")
+        _fail(where, name, f"expected a table, got {table!r}")
     known = {f.name for f in dataclasses.fields(cls)} - _NOT_IN_CONFIG.get(name, set())
-    _unknown(path, table, known, f"{name}.")
+    _unknown(where, table, known, f"{name}.")
     for key, value in table.items():            # one key at a time: the error names it
         try:
             cls(**{key: value})
         except (InputError, TypeError, ValueError) as exc:
-            _fail(path, f"{name}.{key}", str(exc))
+            _fail(where, f"{name}.{key}", str(exc))
     try:
         return cls(**table)
     except (InputError, TypeError, ValueError) as exc:
-        _fail(path, name, str(exc))
+        _fail(where, name, str(exc))
 
 
 def load_run_config(path) -> RunConfig:
@@ -215,19 +206,13 @@ def load_run_config(path) -> RunConfig:
     Raises
     ------
     FileFormatError
-        The file is not valid TOML (with the line).
+        The file cannot be read, is not UTF-8 or not valid TOML (with the line).
     InputError
         A missing or unknown key, a wrong value, a path that does not exist:
         the message names the file and the key (``inputs.mesh``, ``fit.space``).
     """
     path = Path(path).resolve()
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the configuration: {exc.strerror or exc}") \
-            from None
-    except tomllib.TOMLDecodeError as exc:
-        raise FileFormatError(path, f"not valid TOML: {exc}") from None
+    doc = read_toml(path, "run configuration")
     _unknown(path, doc, _TOP, "")
     inputs = doc.get("inputs")
     if not isinstance(inputs, dict):
@@ -253,7 +238,8 @@ def load_run_config(path) -> RunConfig:
         workers = as_int(workers, "workers", minimum=1)
     except InputError as exc:
         _fail(path, "output.workers", str(exc))
-    stages = {name: _stage(path, name, doc.get(name, {})) for name in STAGE_TABLES}
+    stages = {name: stage_options(name, doc.get(name, {}), where=path)
+              for name in STAGE_TABLES}
     return RunConfig(
         path=path, captures=captures,
         markerset=_file(path, inputs["markerset"], "inputs.markerset"),

@@ -3,22 +3,18 @@
 from __future__ import annotations
 
 import argparse
-import sys
 import warnings
 from pathlib import Path
 
 import mocap
-from mocap.errors import InputError
+from mocap.errors import FileFormatError, InputError
 from mocap.mesh.layout import load_marker_layout
 from mocap.markerset import load_markerset
 from mocap.mesh.mesh import load_mesh
 from mocap.synth.performance import match_shape_names, read_performance
 from mocap.synth.capture import simulate_capture
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from mocap.util.toml import read_toml
 from fit.cli.arguments import add_markerset, add_mesh, add_units
 
 __all__ = ["add_parser", "run", "parse_head_motion"]
@@ -74,8 +70,8 @@ def add_parser(sub) -> None:
 def _layout_units(path: Path) -> str | None:
     """The ``units`` key of a layout file, None if absent or unreadable (the loader reports)."""
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8")).get("units")
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return read_toml(path, "marker layout").get("units")
+    except FileFormatError:
         return None
 
 
