@@ -4,5 +4,7 @@ from mocap.errors import FileFormatError, InputError, MarkerError, Mocap2MeshErr
 from mocap.io import read, write
 from mocap.take import FILL_METHODS, Analog, SourceInfo, Take
 
+import mocap._moved  # noqa: F401,E402 - old import paths, until 0.3
+
 __all__ = ["Take", "SourceInfo", "Analog", "FILL_METHODS", "read", "write",
            "Mocap2MeshError", "FileFormatError", "MarkerError", "InputError"]

@@ -20,15 +20,18 @@ import igl
 import numpy as np
 
 from mocap.util.atomic import atomic_path
-from mocap.util.validation import as_float_array, as_int, as_positive_float, as_take
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 from mocap.anatomy import ANATOMICAL_POINTS
 from mocap.errors import FileFormatError, InputError, MarkerError
+from mocap.take import as_take
 from mocap.mesh.layout import MarkerLayout
 from mocap.mesh.mesh import Mesh, degenerate_faces, face_normals
 from mocap.mesh.landmarks import check_mesh_landmarks
-from mocap.neutral import PICKED_FRAMES, find_neutral, hold_window, neutral_pose
+import mocap.neutral as neutrals
 from mocap.rigid import apply_transform, fit_rigid
 from mocap.stabilize import stabilize as stabilize_take
+from mocap.util.deprecation import moved_names
+from mocap._moved import BIND_NAMES
 
 __all__ = ["Binding", "bind_markers", "load_binding", "closest_surface_points", "BoundTake",
            "bind_take", "BIND_STABILIZATIONS"]
@@ -444,7 +447,7 @@ class BoundTake:
 
     def neutral_pose(self, positions) -> np.ndarray:
         """The rest pose (M, 3) of `positions` (T, M, 3) (:func:`mocap.neutral.neutral_pose`)."""
-        return neutral_pose(positions, self.frame, self.window)
+        return neutrals.neutral_pose(positions, self.frame, self.window)
 
 
 def bind_take(take, markerset, mesh: Mesh, mesh_landmarks: Mapping[str, int], *,
@@ -497,16 +500,16 @@ def bind_take(take, markerset, mesh: Mesh, mesh_landmarks: Mapping[str, int], *,
         raise InputError(f"stabilize must be one of {BIND_STABILIZATIONS}, got {stabilize!r}")
     markerset.check_labels(take.labels, source=take.source.path or "the take")
     take = take.select(markerset.markers)
-    picked = frame in PICKED_FRAMES
+    picked = frame in neutrals.PICKED_FRAMES
     if not picked:
         frame = as_int(frame, "frame", minimum=0)
     head = None
     if stabilize == "head" and (picked or head_frame):
         head = stabilize_take(take, markerset.head)
     in_head = take if head is None else head.take
-    index = find_neutral(in_head.select(markerset.face_markers), frame).frame
-    neutral = find_neutral(in_head, index, window=hold_window(take.rate) if frame == "hold"
-                           else 1)
+    on_face = neutrals.find_neutral(in_head.select(markerset.face_markers), frame)
+    index = on_face.frame
+    neutral = neutrals.find_neutral(in_head, index, window=on_face.window)
     pose = neutral.pose
     if head is not None and not head_frame:
         pose = (take.positions[index] if neutral.window == 1 else
@@ -514,3 +517,6 @@ def bind_take(take, markerset, mesh: Mesh, mesh_landmarks: Mapping[str, int], *,
     binding = bind_markers(pose, take.labels, markerset.landmarks, mesh, mesh_landmarks,
                            icp=icp, skin_offset=skin_offset, max_distance_warn=max_distance_warn)
     return BoundTake(binding=binding, frame=neutral.frame, window=neutral.window)
+
+
+__getattr__ = moved_names(__name__, BIND_NAMES)

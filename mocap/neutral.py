@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocap.errors import InputError, MarkerError
-from mocap.take import Take
+from mocap.take import Take, as_take
 from mocap.util.arrays import read_only
-from mocap.util.validation import as_float_array, as_int, as_positive_float, as_take
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["Neutral", "find_neutral", "neutral_pose", "pick_neutral_frame",
            "resolve_neutral_frame", "hold_window", "NEUTRAL_METHODS", "PICKED_FRAMES", "HOLD_S"]

@@ -12,7 +12,7 @@ from mocap.util.arrays import read_only
 from mocap.util.validation import as_float_array, as_int, as_positions, as_positive_float
 from mocap.errors import InputError, MarkerError
 
-__all__ = ["Take", "SourceInfo", "Analog", "FILL_METHODS", "fill_code"]
+__all__ = ["Take", "SourceInfo", "Analog", "FILL_METHODS", "fill_code", "as_take"]
 
 #: Gap-filling methods a sample can have been filled by. ``Take.filled`` holds
 #: 0 for a sample that was captured (or is still missing) and ``i + 1`` for a
@@ -238,3 +238,10 @@ class Take:
     def replace(self, **changes) -> "Take":
         """A new take with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
+
+
+def as_take(value, name: str = "take") -> Take:
+    """`value` itself, checked to be a :class:`Take` (validation at a public boundary)."""
+    if not isinstance(value, Take):
+        raise InputError(f"{name} must be a mocap.Take, got {type(value).__name__}")
+    return value

@@ -49,7 +49,7 @@ from mocap.rigid import fit_rigid
 from basis.maskle._geometry import TriangleIndex, triangles_intersect
 from basis.maskle.mask import Mask
 
-__all__ = ["MaskFit", "FIT_STATUSES", "fit_mask", "landmark_points"]
+__all__ = ["MaskFit", "FIT_STATUSES", "fit_mask", "landmark_points", "neighbour_mean"]
 
 #: How a shrinking run ended.
 FIT_STATUSES = ("all_frozen", "iteration_limit")
@@ -127,7 +127,7 @@ def landmark_points(mesh: Mesh, landmarks: Mapping) -> np.ndarray:
     return mesh.vertices[[marks[p] for p in MASKLE_POINTS]]
 
 
-def _neighbour_mean(mask: Mask, *, welded: bool = False) -> sp.csr_matrix:
+def neighbour_mean(mask: Mask, *, welded: bool = False) -> sp.csr_matrix:
     """Row-stochastic (V, V) matrix averaging each vertex's edge neighbours.
 
     ``welded``: both vertices of a :attr:`~basis.maskle.mask.Mask.tongue_seam`
@@ -249,10 +249,10 @@ def fit_mask(mask: Mask, mesh: Mesh, landmarks: Mapping, *, a: float = 0.005,
     placed = x.copy()
     beta = rot @ (warped[mask.tongue_tip] - warped[mask.tongue_root]).mean(axis=0)
     push = b * s * beta / np.linalg.norm(beta)
-    average = _neighbour_mean(mask)
+    average = neighbour_mean(mask)
     seam = mask.tongue_seam
     seam_rows = seam.ravel()
-    seam_average = _neighbour_mean(mask, welded=True)[seam_rows]
+    seam_average = neighbour_mean(mask, welded=True)[seam_rows]
     frozen = np.zeros(mask.n_vertices, dtype=bool)
     status, it, n_far = FIT_STATUSES[1], 0, 0
     for it in range(1, max_iterations + 1):

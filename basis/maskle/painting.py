@@ -20,7 +20,7 @@ from mocap.util.validation import as_float_array, as_positive_float
 from mocap.errors import InputError
 from mocap.mesh.mesh import Mesh
 
-from basis.maskle.fitting import MaskFit, _neighbour_mean
+from basis.maskle.fitting import MaskFit, neighbour_mean
 from basis.maskle.mask import Mask
 from basis.maskle.transfer import transfer_operator
 
@@ -69,7 +69,7 @@ def paint_mask(mask: Mask, fit: MaskFit, mesh: Mesh, weights, channels, *, suppo
     rows = op.hit & ~np.isnan(weights).any(axis=1)
     t = op.matrix[rows]
     lam = regularization * float(t.multiply(t).sum()) / mask.n_vertices
-    lap = sp.identity(mask.n_vertices) - _neighbour_mean(mask)
+    lap = sp.identity(mask.n_vertices) - neighbour_mean(mask)
     system = sp.vstack([t, np.sqrt(lam) * lap]).toarray()
     out = mask.weights.copy()
     for k, name in enumerate(channels):

@@ -5,13 +5,17 @@
 - :mod:`.config`: ``run.toml`` read and validated;
 """
 
+from fit._moved import PIPELINE_NAMES
 from fit.pipeline.config import RunConfig, load_run_config
 from fit.pipeline.options import (BASES, CENTRE_MODELS, H_SOLVERS, SPACES, BasisOptions,
                                   BindOptions, FitOptions, ReportOptions)
 from fit.pipeline.stages import (BasisResult, FitResult, NamedBasis, basis_stage, bind_stage,
                                  complete_span, fit_stage, ingest_stage, retarget_stage)
+from mocap.util.deprecation import moved_names
 
 __all__ = ["BASES", "SPACES", "H_SOLVERS", "CENTRE_MODELS", "BindOptions", "BasisOptions",
            "FitOptions", "ReportOptions", "NamedBasis", "BasisResult", "FitResult",
            "complete_span", "ingest_stage", "bind_stage", "retarget_stage", "basis_stage",
            "fit_stage", "RunConfig", "load_run_config"]
+
+__getattr__ = moved_names(__name__, PIPELINE_NAMES)

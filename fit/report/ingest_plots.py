@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from matplotlib import colormaps
 from matplotlib.colors import ListedColormap
 from matplotlib.patches import Patch
 
@@ -93,79 +92,4 @@ def plot_head_residuals(stabilization, path) -> None:
                  f"{len(stabilization.slips)} slip(s), {int(invalid.sum())} frames without a fit)")
     ax.legend(loc="upper right", fontsize=8, ncol=min(len(stabilization.head_markers), 6))
     ax.set_ylim(bottom=0)
-    save_figure(fig, path)
-
-
-def _colours(n: int) -> list:
-    """`n` distinct colours (tab20, then repeating)."""
-    cmap = colormaps["tab20"]
-    return [cmap(i % 20) for i in range(n)]
-
-
-def _front_view_axes(points: np.ndarray, markerset) -> tuple[np.ndarray, np.ndarray]:
-    """Screen axes (right, up) of a front view of face markers (F, 3).
-
-    With landmarks: the subject's left is the direction from right-side to
-    left-side landmarks, up from chin / lower lip to the brows, made orthogonal.
-    Without: the principal axes of the markers (largest spread up, towards
-    world +z). The subject's left appears on the viewer's right.
-    """
-    labels = markerset.face_markers
-    lm = markerset.landmarks
-
-    def mean_of(names):
-        idx = [labels.index(lm[n]) for n in names if n in lm and lm[n] in labels]
-        return points[idx].mean(axis=0) if idx else None
-
-    left = mean_of([n for n in lm if n.endswith("_left")])
-    right = mean_of([n for n in lm if n.endswith("_right")])
-    top = mean_of(["brow_inner_left", "brow_inner_right", "nose_bridge", "forehead"])
-    bottom = mean_of(["chin", "lower_lip_bottom"])
-    if all(v is not None for v in (left, right, top, bottom)):
-        lateral = left - right
-        lateral /= np.linalg.norm(lateral)
-        up = top - bottom
-        up -= (up @ lateral) * lateral
-        return lateral, up / np.linalg.norm(up)
-    _, _, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
-    up = vt[0] if vt[0][2] >= 0 else -vt[0]
-    return vt[1], up
-
-
-def plot_marker_layout(take: Take, markerset, frame: int, path) -> None:
-    """Front and side views of one frame, markers coloured by region and labelled (PNG).
-
-    Parameters
-    ----------
-    take : Take
-    markerset : mocap.markerset.MarkerSet
-    frame : int
-        Frame index (0-based) to draw; markers missing there are left out.
-    path : str or os.PathLike
-    """
-    face_idx = take.indices(markerset.face_markers)
-    right, up = _front_view_axes(take.positions[frame, face_idx], markerset)
-    depth = np.cross(right, up)             # out of the face
-    fig = new_figure(13, 7.5)
-    front, side = fig.subplots(1, 2, width_ratios=[1.6, 1])
-    regions = ["head", *markerset.regions]
-    colours = dict(zip(regions, _colours(len(regions))))
-    for label in markerset.markers:
-        p = take.positions[frame, take.index(label)]
-        if np.isnan(p[0]):
-            continue
-        region = markerset.region_of(label)
-        for ax, h in ((front, right), (side, depth)):
-            ax.scatter(p @ h, p @ up, color=colours[region], s=25)
-        front.annotate(label, (p @ right, p @ up), fontsize=7, xytext=(3, 3),
-                       textcoords="offset points")
-    for region, colour in colours.items():
-        front.scatter([], [], color=colour, label=region)
-    front.legend(loc="upper left", fontsize=8, ncol=2)
-    front.set_title(f"{markerset.name}: frame {take.frames[frame]}, front view "
-                    "(subject's left on the right)")
-    side.set_title("side view (face towards the right)")
-    for ax in (front, side):
-        ax.set_aspect("equal")
-        ax.set_xlabel("mm")
     save_figure(fig, path)

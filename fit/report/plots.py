@@ -9,7 +9,9 @@ import numpy as np
 from matplotlib import colormaps
 from matplotlib.patches import Patch
 
+from fit._moved import PLOTS_NAMES
 from mocap.errors import InputError
+from mocap.util.deprecation import moved_names
 
 from mocap.viz.figures import distinct_colours, new_figure, save_figure
 from fit.metrics import ReconstructionErrors
@@ -231,3 +233,6 @@ def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
                           f"(mean {errors.totals['mean_mm']:.2f} mm, "
                           f"95th percentile {errors.totals['p95_mm']:.2f} mm)")
     save_figure(fig, path)
+
+
+__getattr__ = moved_names(__name__, PLOTS_NAMES)

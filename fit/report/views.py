@@ -10,7 +10,6 @@ from mocap.util.validation import as_float_array, as_positions
 from mocap.errors import InputError
 
 from mocap.viz.figures import new_figure, save_figure
-from fit.report.ingest_plots import _front_view_axes
 
 __all__ = ["view_axes", "plot_frame_views"]
 
@@ -50,6 +49,36 @@ def view_axes(neutral, labels, markerset=None) -> np.ndarray:
     finite = neutral[np.isfinite(neutral).all(axis=1)]
     right, up = _front_view_axes(finite, _NoLandmarks)
     return np.array([right, up, np.cross(right, up)])
+
+
+def _front_view_axes(points: np.ndarray, markerset) -> tuple[np.ndarray, np.ndarray]:
+    """Screen axes (right, up) of a front view of face markers (F, 3).
+
+    With landmarks: the subject's left is the direction from right-side to
+    left-side landmarks, up from chin / lower lip to the brows, made orthogonal.
+    Without: the principal axes of the markers (largest spread up, towards
+    world +z). The subject's left appears on the viewer's right.
+    """
+    labels = markerset.face_markers
+    lm = markerset.landmarks
+
+    def mean_of(names):
+        idx = [labels.index(lm[n]) for n in names if n in lm and lm[n] in labels]
+        return points[idx].mean(axis=0) if idx else None
+
+    left = mean_of([n for n in lm if n.endswith("_left")])
+    right = mean_of([n for n in lm if n.endswith("_right")])
+    top = mean_of(["brow_inner_left", "brow_inner_right", "nose_bridge", "forehead"])
+    bottom = mean_of(["chin", "lower_lip_bottom"])
+    if all(v is not None for v in (left, right, top, bottom)):
+        lateral = left - right
+        lateral /= np.linalg.norm(lateral)
+        up = top - bottom
+        up -= (up @ lateral) * lateral
+        return lateral, up / np.linalg.norm(up)
+    _, _, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+    up = vt[0] if vt[0][2] >= 0 else -vt[0]
+    return vt[1], up
 
 
 class _NoLandmarks:

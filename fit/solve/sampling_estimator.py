@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 from mocap.util.validation import as_int
 from mocap.errors import InputError
 
-from fit.solve.weights import _as_bounds, _as_problem
+from fit.solve._problem import as_bounds, as_problem
 
 __all__ = ["SamplingEstimate", "estimate_weights_by_sampling"]
 
@@ -85,9 +85,9 @@ def estimate_weights_by_sampling(basis, data, *, lower=0.0, upper=1.0,
     sample takes that sample's weights). The kd-tree query is exact
     (scipy.spatial.cKDTree), where the paper used approximate search (ANN).
     """
-    B, D, _ = _as_problem(basis, data, None)
+    B, D, _ = as_problem(basis, data, None)
     n = B.shape[1]
-    lo, hi = _as_bounds(lower, upper, n)
+    lo, hi = as_bounds(lower, upper, n)
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
         raise InputError("the sampling estimator needs finite lower and upper bounds "
                          "to draw samples from")

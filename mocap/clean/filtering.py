@@ -7,9 +7,9 @@ import warnings
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from mocap.util.validation import as_int, as_positive_float, as_take
+from mocap.util.validation import as_int, as_positive_float
 from mocap.errors import InputError
-from mocap.take import Take
+from mocap.take import Take, as_take
 from mocap.clean._segments import visible_segments
 
 __all__ = ["lowpass"]

@@ -17,13 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocap.util.arrays import read_only
-from mocap.util.validation import as_int, as_positive_float, as_take
+from mocap.util.validation import as_int, as_positive_float
 from mocap.errors import InputError
 from mocap.gaps import find_gaps
 from mocap.stabilize import stabilize
-from mocap.take import Take
-from mocap.clean.swaps import (_last_visible, _long_gap_starts, _median_pose, _nanmedian_or_nan,
-                    _typical_step)
+from mocap.take import Take, as_take
+from mocap.clean._tracks import (last_visible, long_gap_starts, median_pose, nanmedian_or_nan,
+                                typical_step)
 
 __all__ = ["REASONS", "ImplausibleRun", "ImplausibleSamples",
            "find_implausible_samples", "remove_implausible_samples"]
@@ -130,7 +130,7 @@ def _teleports(pos, misplaced, typical, *, factor, max_gap):
     marker's next gap longer than `max_gap`, the interval ends there.
     """
     n_frames, n_markers = pos.shape[:2]
-    prev, last = _last_visible(pos)
+    prev, last = last_visible(pos)
     frame = np.arange(1, n_frames)[:, None]
     with np.errstate(invalid="ignore"):
         jump = np.linalg.norm(pos[1:] - prev, axis=2) > factor * typical
@@ -139,7 +139,7 @@ def _teleports(pos, misplaced, typical, *, factor, max_gap):
     visible = ~np.isnan(pos[:, :, 0])
     out_t, out_m = np.nonzero(jump & misplaced)
     back = jump & visible & ~misplaced
-    long_gaps = _long_gap_starts(~visible, max_gap)
+    long_gaps = long_gap_starts(~visible, max_gap)
     flags = np.zeros((n_frames, n_markers), dtype=bool)
     for t0, m in zip(out_t, out_m):       # one iteration per event, not per frame
         ends = np.concatenate([np.flatnonzero(back[t0 + 1:, m]) + t0 + 1,
@@ -155,7 +155,7 @@ def _ghost_slides(pos, typical, anchored, *, speed, linear, min_frames):
     step = np.diff(pos, axis=0)
     vel = np.linalg.norm(step, axis=2)
     acc = np.linalg.norm(np.diff(step, axis=0), axis=2)
-    noise = 3.0 * np.nan_to_num(_nanmedian_or_nan(acc), nan=0.0)
+    noise = 3.0 * np.nan_to_num(nanmedian_or_nan(acc), nan=0.0)
     v_in, v_out = vel[:-1], vel[1:]
     with np.errstate(invalid="ignore"):
         line = ((np.fmin(v_in, v_out) > speed * typical)
@@ -279,11 +279,11 @@ def find_implausible_samples(take: Take, *, head=None, off_rest: float = 25.0,
     n_frames, n_markers = pos.shape[:2]
     codes = np.zeros((n_frames, n_markers), dtype=np.int8)
     if n_frames >= 3:
-        rest = _median_pose(pos)
+        rest = median_pose(pos)
         dist = np.linalg.norm(pos - rest, axis=2)
-        spread = np.fmax(np.nan_to_num(_nanmedian_or_nan(dist), nan=0.0), _MIN_SPREAD_MM)
+        spread = np.fmax(np.nan_to_num(nanmedian_or_nan(dist), nan=0.0), _MIN_SPREAD_MM)
         z = dist / spread
-        typical = _typical_step(pos)
+        typical = typical_step(pos)
         with np.errstate(invalid="ignore"):
             off = z > off_rest
         dup = _duplicates(pos, rest, z, near_mm=duplicate_mm, apart_mm=duplicate_apart_mm)

@@ -12,16 +12,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.validation import as_int, as_positive_float, as_take
+from mocap.util.validation import as_int, as_positive_float
 from mocap.errors import InputError, MarkerError
-from mocap.gaps import find_gaps
-from mocap.take import Take
+from mocap.clean._tracks import last_visible, long_gap_starts, median_pose, typical_step
+from mocap.take import Take, as_take
 
 __all__ = ["LabelSwap", "find_label_swaps", "fix_label_swaps"]
 
-#: Floor of a marker's typical frame-to-frame motion, mm: below any optical
-#: capture noise, so that noise-free data does not make every jump significant.
-_MIN_STEP_MM = 0.05
 
 
 @dataclass(frozen=True)
@@ -56,47 +53,11 @@ class LabelSwap:
     score: float
 
 
-def _last_visible(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each marker's last visible sample before each frame t = 1 .. n_frames - 1.
-
-    Returns ``prev`` of shape (n_frames - 1, n_markers, 3), its position (NaN
-    if none), and ``last`` of shape (n_frames - 1, n_markers), its frame index
-    (-1 if none).
-    """
-    n_frames, n_markers = positions.shape[:2]
-    visible = ~np.isnan(positions[:, :, 0])
-    index = np.where(visible, np.arange(n_frames)[:, None], -1)
-    last = np.maximum.accumulate(index, axis=0)[:-1]
-    prev = positions[np.maximum(last, 0), np.arange(n_markers)]
-    prev[last < 0] = np.nan
-    return prev, last
-
-
-def _typical_step(positions: np.ndarray) -> np.ndarray:
-    """Median frame-to-frame motion of each marker over visible pairs, mm, shape (M,)."""
-    step = np.linalg.norm(np.diff(positions, axis=0), axis=2)
-    typical = _nanmedian_or_nan(step)
-    return np.fmax(np.nan_to_num(typical, nan=_MIN_STEP_MM), _MIN_STEP_MM)
-
-
-def _nanmedian_or_nan(values: np.ndarray) -> np.ndarray:
-    """Column medians ignoring NaN; NaN for an all-NaN column, without a warning."""
-    out = np.full(values.shape[1], np.nan)
-    ok = np.isfinite(values).any(axis=0)
-    out[ok] = np.nanmedian(values[:, ok], axis=0)
-    return out
-
-
-def _median_pose(positions: np.ndarray) -> np.ndarray:
-    """Per-marker median of each coordinate over the visible frames, (M, 3); NaN if never seen."""
-    return np.stack([_nanmedian_or_nan(positions[:, :, c]) for c in range(3)], axis=1)
-
-
 def _candidate_pairs(positions: np.ndarray, neighbours: int) -> np.ndarray:
     """Pairs (i < j) where one marker is among the other's `neighbours` nearest
     in the median pose; shape (n_pairs, 2)."""
     n_markers = positions.shape[1]
-    median = _median_pose(positions)
+    median = median_pose(positions)
     dist = np.linalg.norm(median[:, None] - median[None], axis=2)
     dist[np.isnan(dist)] = np.inf
     np.fill_diagonal(dist, np.inf)
@@ -132,7 +93,7 @@ def _events(positions, pairs, typical, *, threshold, max_ratio, max_gap):
     pair row, summed own jump, summed jump after exchanging, gain in units of
     typical motion), vectorized over frames and pairs.
     """
-    prev, last = _last_visible(positions)
+    prev, last = last_visible(positions)
     cur = positions[1:]
     frame = np.arange(1, positions.shape[0])[:, None]
     a, b = pairs[:, 0], pairs[:, 1]
@@ -146,13 +107,6 @@ def _events(positions, pairs, typical, *, threshold, max_ratio, max_gap):
         event = fresh & (gain > threshold) & (cross < max_ratio * keep)
     t, k = np.nonzero(event)
     return t + 1, k, keep[t, k], cross[t, k], gain[t, k]
-
-
-def _long_gap_starts(missing: np.ndarray, max_gap: int) -> list[np.ndarray]:
-    """Per marker, the first frames of its gaps longer than `max_gap` frames."""
-    gaps = find_gaps(missing)
-    long = gaps.length > max_gap
-    return [gaps.start[long & (gaps.marker == m)] for m in range(missing.shape[1])]
 
 
 def _runs(t: np.ndarray, events: np.ndarray, breaks: np.ndarray, n_frames: int):
@@ -255,7 +209,7 @@ def find_label_swaps(take: Take, *, neighbours: int = 4, threshold: float = 10.0
     if take.n_frames < 2 or take.n_markers < 2:
         return ()
     pairs = _candidate_pairs(positions, neighbours)
-    typical = _typical_step(positions)
+    typical = typical_step(positions)
     t, k, keep, cross, gain = _events(positions, pairs, typical, threshold=threshold,
                                       max_ratio=max_ratio, max_gap=max_gap)
     # One event per marker and frame: the largest gain wins.
@@ -268,7 +222,7 @@ def find_label_swaps(take: Take, *, neighbours: int = 4, threshold: float = 10.0
         taken.update({(t[i], a), (t[i], b)})
         chosen.append(i)
     chosen = np.array(sorted(chosen, key=lambda i: (k[i], t[i])), dtype=np.intp)
-    long_gaps = _long_gap_starts(take.missing, max_gap)
+    long_gaps = long_gap_starts(take.missing, max_gap)
     swaps = []
     for pair in np.unique(k[chosen]):
         a, b = pairs[pair]

@@ -38,18 +38,29 @@ def _resolve(target: str):
     return getattr(obj, name) if name else obj
 
 
-def _warn(old: str, new: str) -> None:
-    # stacklevel 3 skips this helper and its caller; the import system's own
+def _warn(old: str, new: str, stacklevel: int = 3) -> None:
+    # the default skips this helper and its caller; the import system's own
     # frames are skipped by the warnings module itself
     warnings.warn(f"{old} moved to {new.replace(':', '.')}; the old path is removed in "
-                  f"mocap2mesh {REMOVED_IN}", FutureWarning, stacklevel=3)
+                  f"mocap2mesh {REMOVED_IN}", FutureWarning, stacklevel=stacklevel)
+
+
+def _moved(module: str, name: str, target, stacklevel: int):
+    """The object an old name `module.name` stands for, with its warning."""
+    if isinstance(target, tuple):
+        new, adapter = target
+        _warn(f"{module}.{name}", new, stacklevel + 1)
+        return adapter()
+    _warn(f"{module}.{name}", target, stacklevel + 1)
+    return _resolve(target)
 
 
 class _ModuleAliases(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """Finds old module paths and loads each as a proxy of its new module."""
+    """Finds old module paths and loads each as a proxy of where its names went."""
 
     def __init__(self, aliases: dict):
-        self.aliases = dict(aliases)
+        self.aliases = {old: (new,) if isinstance(new, (str, dict)) else tuple(new)
+                        for old, new in aliases.items()}
 
     def find_spec(self, fullname, path=None, target=None):
         if fullname in self.aliases:
@@ -60,21 +71,40 @@ class _ModuleAliases(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         return types.ModuleType(spec.name)
 
     def exec_module(self, module):
-        new = self.aliases[module.__name__]
-        _warn(module.__name__, new)
-        target = importlib.import_module(new)
-        module.__doc__ = f"Moved to :mod:`{new}` (this path goes in {REMOVED_IN})."
-        module.__all__ = list(getattr(target, "__all__", ()))
-        module.__getattr__ = lambda name: getattr(target, name)
-        module.__dir__ = lambda: dir(target)
-        if hasattr(target, "__path__"):          # a package: its submodules resolve too
+        old = module.__name__
+        sources = self.aliases[old]
+        modules = [s for s in sources if isinstance(s, str)]
+        names = {k: v for s in sources if isinstance(s, dict) for k, v in s.items()}
+        _warn(old, " and ".join(modules) or "new homes")
+        targets = [importlib.import_module(m) for m in modules]
+
+        def __getattr__(name):
+            if name.startswith("__"):             # the proxy's own dunders: never forwarded
+                raise AttributeError(name)
+            if name in names:
+                return _moved(old, name, names[name], stacklevel=3)
+            for target in targets:
+                if hasattr(target, name):
+                    return getattr(target, name)
+            raise AttributeError(f"module {old!r} has no attribute {name!r}")
+        module.__doc__ = f"Moved to {', '.join(modules)} (this path goes in {REMOVED_IN})."
+        module.__all__ = [n for t in targets for n in getattr(t, "__all__", ())] + list(names)
+        module.__getattr__ = __getattr__
+        module.__dir__ = lambda: sorted(set(module.__all__))
+        if any(hasattr(t, "__path__") for t in targets):   # a package: submodules resolve too
             module.__path__ = []
 
 
 def alias_modules(aliases: dict) -> None:
-    """Keep old module paths importable: `aliases` maps old path -> new path.
+    """Keep old module paths importable.
 
-    Old paths of submodules of an aliased package need their own entries.
+    Parameters
+    ----------
+    aliases : dict
+        Old module path -> where its names are now: a module path, a mapping
+        as :func:`moved_names` takes, or a sequence of those (searched in
+        order). Old paths of submodules of an aliased package need their own
+        entries.
     """
     sys.meta_path.insert(0, _ModuleAliases(aliases))
 
@@ -94,11 +124,5 @@ def moved_names(module: str, moved: dict):
     def __getattr__(name):
         if name not in moved:
             raise AttributeError(f"module {module!r} has no attribute {name!r}")
-        target = moved[name]
-        if isinstance(target, tuple):
-            new, adapter = target
-            _warn(f"{module}.{name}", new)
-            return adapter()
-        _warn(f"{module}.{name}", target)
-        return _resolve(target)
+        return _moved(module, name, moved[name], stacklevel=3)
     return __getattr__

@@ -15,7 +15,7 @@ import numpy as np
 from mocap.errors import InputError
 
 __all__ = ["as_positions", "as_float_array", "as_positive_float", "as_nonnegative_float", "as_int",
-           "as_choice", "as_take"]
+           "as_choice"]
 
 
 def as_float_array(value, name: str, *, ndim: int | None = None,
@@ -82,13 +82,4 @@ def as_nonnegative_float(value, name: str) -> float:
     value = float(value)
     if not np.isfinite(value) or value < 0:
         raise InputError(f"{name} must be a finite number >= 0, got {value}")
-    return value
-
-
-def as_take(value, name: str = "take"):
-    """`value` itself, checked to be a :class:`mocap.take.Take`."""
-    from mocap.take import Take      # mocap.take validates its fields with this module
-
-    if not isinstance(value, Take):
-        raise InputError(f"{name} must be a mocap.Take, got {type(value).__name__}")
     return value
