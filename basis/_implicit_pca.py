@@ -19,9 +19,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import solve_triangular
 
-from mocap.errors import InputError
-
 from basis._streaming_pca import Spectrum, frame_chunks
+from mocap.errors import InputError
 
 
 def marker_moments(displacements: np.ndarray, chunk_frames: int):

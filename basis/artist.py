@@ -13,10 +13,10 @@ from typing import Sequence
 
 import numpy as np
 
-from mocap.util.validation import as_float_array
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh, load_mesh
 from mocap.units import mm_per_unit
+from mocap.util.validation import as_float_array
 
 __all__ = ["ArtistBasis", "load_artist_basis"]
 

@@ -25,12 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.util.atomic import atomic_path
-from mocap.util.validation import as_choice
+from basis.artist import ArtistBasis, load_artist_basis
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh, save_obj
-
-from basis.artist import ArtistBasis, load_artist_basis
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_choice
 
 __all__ = ["BASIS_DTYPES", "save_basis", "load_basis", "load_any_basis", "shape_file_stems"]
 

@@ -22,14 +22,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mocap.util.atomic import atomic_path
-from mocap.util.validation import as_float_array
-from mocap.errors import InputError
-from mocap.mesh.mesh import Mesh
-from mocap.viz.render import Camera, colorbar, image_grid, render_mesh
-
 from basis.pca import PCAModel
 from basis.quasi_eigen import QuasiEigenBasis
+from mocap.errors import InputError
+from mocap.mesh.mesh import Mesh
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_float_array
+from mocap.viz.render import Camera, colorbar, image_grid, render_mesh
 
 __all__ = ["MOVE_COLUMNS", "ROW_KINDS", "move_table", "save_move_table", "comparison_image",
            "comparison_sheet"]

@@ -24,14 +24,12 @@ import numpy as np
 import pygltflib
 from scipy.spatial.transform import Rotation
 
-from mocap.util.validation import as_float_array, as_positive_float
+from basis.basis_io import as_shape_names
 from mocap.errors import InputError
 from mocap.mesh.mesh import Mesh, vertex_normals
 from mocap.units import mm_per_unit
-
 from mocap.util.atomic import atomic_path
-
-from basis.basis_io import as_shape_names
+from mocap.util.validation import as_float_array, as_positive_float
 
 __all__ = ["GLTF_FORMATS", "write_gltf"]
 

@@ -24,12 +24,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from mocap.util.arrays import read_only
-from mocap.util.validation import as_choice, as_float_array, as_int
-from mocap.errors import InputError
-
 from basis._implicit_pca import operator_pca
 from basis._streaming_pca import Spectrum, frame_chunks, incremental_pca, randomized_pca
+from mocap.errors import InputError
+from mocap.util.arrays import read_only
+from mocap.util.validation import as_choice, as_float_array, as_int
 
 __all__ = ["PCAModel", "PCA_METHODS", "pca_from_operator", "pca_streaming"]
 

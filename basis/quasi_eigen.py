@@ -12,10 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.validation import as_choice, as_float_array
-from mocap.errors import InputError
-
 from basis.pca import PCAModel
+from mocap.errors import InputError
+from mocap.util.validation import as_choice, as_float_array
 
 __all__ = ["QuasiEigenBasis", "MISSING_POLICIES", "quasi_eigen"]
 

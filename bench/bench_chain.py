@@ -37,15 +37,22 @@ from basis.artist import ArtistBasis, load_artist_basis
 from basis.basis_io import save_basis
 from basis.gltf import write_gltf
 from fit.exports import write_mesh_sequence, write_weights_csv
-from mocap.clean.ingest import IngestOptions
-from fit.pipeline import (BindOptions, basis_stage, bind_stage, complete_span, fit_stage,
-                          ingest_stage, retarget_stage)
+from fit.pipeline import (
+    BindOptions,
+    basis_stage,
+    bind_stage,
+    complete_span,
+    fit_stage,
+    ingest_stage,
+    retarget_stage,
+)
 from fit.report import build_report
-from mocap.mesh.layout import load_marker_layout
+from mocap.clean.ingest import IngestOptions
 from mocap.markerset import load_markerset
 from mocap.mesh.landmarks import load_mesh_landmarks
-from mocap.synth.performance import read_performance
+from mocap.mesh.layout import load_marker_layout
 from mocap.synth.capture import simulate_capture
+from mocap.synth.performance import read_performance
 
 
 def simulate(frames: int, path: Path):

@@ -25,7 +25,6 @@ import time
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-
 from _common import shared_data  # noqa: E402
 
 import mocap  # noqa: E402

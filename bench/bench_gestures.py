@@ -51,8 +51,8 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-
 from _common import shared_data
+
 from fit.gestures import clip_from_performance, speech_intensity, synthesize_gestures
 from fit.solve.temporal import moving_average
 from mocap.synth.performance import read_performance
@@ -169,11 +169,11 @@ def sing_clip(data):
     """The facial-sing capture analysed on the ICT basis (see the module docstring)."""
     import mocap
     from basis.artist import load_artist_basis
-    from mocap.bind import bind_take
     from fit.gestures.reference import clip_from_capture
+    from mocap.bind import bind_take
     from mocap.markerset import load_markerset
-    from mocap.mesh.mesh import load_mesh
     from mocap.mesh.landmarks import load_mesh_landmarks
+    from mocap.mesh.mesh import load_mesh
 
     take = mocap.read(data / "captures" / "facial-sing.c3d")
     assert take.analog is None, "facial-sing.c3d has an analog channel: use it for S(t)"

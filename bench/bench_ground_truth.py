@@ -63,15 +63,24 @@ from _common import REPO, shared_data  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 from basis.artist import load_artist_basis  # noqa: E402
-from mocap.clean.ingest import IngestOptions  # noqa: E402
-from fit.pipeline import (BasisResult, BindOptions, FitOptions, NamedBasis,  # noqa: E402
-                          bind_stage, complete_span, fit_stage, ingest_stage, retarget_stage)
+from fit.pipeline import (  # noqa: E402
+    BasisResult,
+    BindOptions,
+    FitOptions,
+    NamedBasis,
+    bind_stage,
+    complete_span,
+    fit_stage,
+    ingest_stage,
+    retarget_stage,
+)
 from fit.solve.weights import solve_weights  # noqa: E402
-from mocap.mesh.layout import MarkerLayout, load_marker_layout  # noqa: E402
+from mocap.clean.ingest import IngestOptions  # noqa: E402
 from mocap.markerset import MarkerSet, load_markerset  # noqa: E402
 from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
-from mocap.synth.performance import read_performance  # noqa: E402
+from mocap.mesh.layout import MarkerLayout, load_marker_layout  # noqa: E402
 from mocap.synth.capture import simulate_capture  # noqa: E402
+from mocap.synth.performance import read_performance  # noqa: E402
 
 MM_PER_CM = 10.0
 FACE_MM = 15.0

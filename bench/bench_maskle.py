@@ -38,15 +38,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import REPO, shared_data  # noqa: E402
 
 from basis.artist import load_artist_basis  # noqa: E402
-from basis.maskle import (calibrate_envelope, fit_mask,  # noqa: E402
-                          load_default_mask, paint_mask, transfer_operator)
+from basis.maskle import (  # noqa: E402
+    calibrate_envelope,
+    fit_mask,
+    load_default_mask,
+    paint_mask,
+    transfer_operator,
+)
 from basis.maskle.build_default import BONES  # noqa: E402
-from basis.maskle.gold import (DEMO_GOLD_SHAPES, GOLD_SHAPES, LIP_SIDES,  # noqa: E402
-                               gold_weights, mouth_sides)
+from basis.maskle.gold import DEMO_GOLD_SHAPES, GOLD_SHAPES, LIP_SIDES, gold_weights, mouth_sides  # noqa: E402
 from fit.demo.face import make_face  # noqa: E402
 from fit.demo.muscles import muscle_basis  # noqa: E402
-from mocap.mesh.mesh import load_mesh  # noqa: E402
 from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
+from mocap.mesh.mesh import load_mesh  # noqa: E402
 from mocap.viz.render import Camera, image_grid, render_mesh, save_png  # noqa: E402
 
 N_FACES, SIGMA, SEED = 8, 2.0, 1

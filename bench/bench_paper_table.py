@@ -22,10 +22,18 @@ from _common import REPO, shared_data
 
 import mocap
 from basis.artist import load_artist_basis
-from mocap.clean.ingest import IngestOptions
 from fit.metrics import reconstruction_errors
-from fit.pipeline import (BasisOptions, FitOptions, basis_stage, bind_stage, complete_span,
-                          fit_stage, ingest_stage, retarget_stage)
+from fit.pipeline import (
+    BasisOptions,
+    FitOptions,
+    basis_stage,
+    bind_stage,
+    complete_span,
+    fit_stage,
+    ingest_stage,
+    retarget_stage,
+)
+from mocap.clean.ingest import IngestOptions
 from mocap.markerset import load_markerset
 from mocap.mesh.landmarks import load_mesh_landmarks
 

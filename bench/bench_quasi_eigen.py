@@ -27,14 +27,14 @@ from scipy.linalg import svd
 import mocap
 from basis.artist import load_artist_basis
 from basis.comparison import comparison_sheet, move_table, save_move_table
+from basis.coverage import plot_coverage
 from basis.pca import pca_from_operator
 from basis.quasi_eigen import quasi_eigen
 from mocap.bind import bind_take
 from mocap.clean.ingest import IngestOptions, ingest
-from basis.coverage import plot_coverage
-from mocap.retarget.retargeting import RetargetOptions, retarget
 from mocap.markerset import load_markerset
 from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.retarget.retargeting import RetargetOptions, retarget
 from mocap.viz.render import save_png
 
 OUT = REPO / "bench" / "out"

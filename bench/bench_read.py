@@ -16,9 +16,8 @@ import warnings
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import best_time, peak_memory_mb, shared_data  # noqa: E402
-
 import ezc3d  # noqa: E402
+from _common import best_time, peak_memory_mb, shared_data  # noqa: E402
 
 from mocap.io.c3d import read_c3d  # noqa: E402
 

@@ -29,7 +29,6 @@ from _common import best_time, peak_memory_mb, shared_data  # noqa: E402
 from mocap.mesh.mesh import load_mesh  # noqa: E402
 from mocap.viz.render import render_mesh  # noqa: E402
 
-
 #: Zoom of the matplotlib 3-D axes so that the face fills the image as in render_mesh.
 TRISURF_ZOOM = 1.15
 

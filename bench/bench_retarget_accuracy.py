@@ -40,18 +40,24 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import REPO, shared_data  # noqa: E402
 
 from basis.artist import load_artist_basis  # noqa: E402
-from mocap.bind import bind_take  # noqa: E402
+from mocap.bind import (
+    Binding,  # noqa: E402
+    bind_take,  # noqa: E402
+)
 from mocap.clean.ingest import IngestOptions, ingest  # noqa: E402
-from mocap.retarget.retargeting import (RetargetOptions, build_retarget_operator,  # noqa: E402
-                          marker_displacements, retarget)
-from mocap.bind import Binding  # noqa: E402
-from mocap.mesh.layout import load_marker_layout  # noqa: E402
 from mocap.markerset import load_markerset  # noqa: E402
-from mocap.mesh.mesh import boundary_loops  # noqa: E402
 from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
+from mocap.mesh.layout import load_marker_layout  # noqa: E402
+from mocap.mesh.mesh import boundary_loops  # noqa: E402
+from mocap.retarget.retargeting import (  # noqa: E402
+    RetargetOptions,
+    build_retarget_operator,
+    marker_displacements,
+    retarget,
+)
+from mocap.synth.capture import simulate_capture  # noqa: E402
 from mocap.synth.performance import read_performance  # noqa: E402
 from mocap.viz.render import colorbar, image_grid, render_mesh, save_png  # noqa: E402
-from mocap.synth.capture import simulate_capture  # noqa: E402
 
 MM_PER_CM = 10.0
 FACE_MM = 15.0

@@ -19,9 +19,8 @@ import argparse
 import sys
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
 from _common import best_time, peak_memory_mb, shared_data
+from scipy.spatial.transform import Rotation
 
 import mocap
 from mocap.stabilize import stabilize

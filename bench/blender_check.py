@@ -81,7 +81,7 @@ def expected(doc: dict, binary: bytes) -> dict:
 
 def blender_view(path: Path, fps: int) -> dict:
     """What Blender imports from `path` into an empty scene at `fps`."""
-    import bpy                  # here, so that the file's side can be read without Blender
+    import bpy  # here, so that the file's side can be read without Blender
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.context.scene.render.fps = fps

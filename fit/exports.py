@@ -17,12 +17,11 @@ import numpy as np
 import pandas as pd
 
 from basis.basis_io import as_shape_names
-from mocap.util.atomic import atomic_path
-from mocap.util.validation import as_float_array, as_int, as_positive_float
+from fit.solve.weights import WeightSolution
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh
-
-from fit.solve.weights import WeightSolution
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["weights_frame", "write_weights_csv", "read_weights_csv", "MeshSequence",
            "write_mesh_sequence", "read_mesh_sequence"]

@@ -18,9 +18,9 @@ import numpy as np
 import pandas as pd
 from scipy.signal import find_peaks
 
+from mocap.errors import InputError, MarkerError
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positions
-from mocap.errors import InputError, MarkerError
 
 __all__ = ["ReconstructionErrors", "reconstruction_errors", "summary_frame",
            "FRAME_METRICS"]

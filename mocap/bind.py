@@ -19,19 +19,19 @@ from typing import Mapping, Sequence
 import igl
 import numpy as np
 
-from mocap.util.atomic import atomic_path
-from mocap.util.validation import as_float_array, as_int, as_positive_float
+import mocap.neutral as neutrals
+from mocap._moved import BIND_NAMES
 from mocap.anatomy import ANATOMICAL_POINTS
 from mocap.errors import FileFormatError, InputError, MarkerError
-from mocap.take import as_take
+from mocap.mesh.landmarks import check_mesh_landmarks
 from mocap.mesh.layout import MarkerLayout
 from mocap.mesh.mesh import Mesh, degenerate_faces, face_normals
-from mocap.mesh.landmarks import check_mesh_landmarks
-import mocap.neutral as neutrals
 from mocap.rigid import apply_transform, fit_rigid
 from mocap.stabilize import stabilize as stabilize_take
+from mocap.take import as_take
+from mocap.util.atomic import atomic_path
 from mocap.util.deprecation import moved_names
-from mocap._moved import BIND_NAMES
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["Binding", "bind_markers", "load_binding", "closest_surface_points", "BoundTake",
            "bind_take", "BIND_STABILIZATIONS"]

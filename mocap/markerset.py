@@ -30,10 +30,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
-from mocap.util.toml import read_toml
 from mocap.anatomy import ANATOMICAL_POINTS
 from mocap.errors import FileFormatError, MarkerError
-
+from mocap.util.toml import read_toml
 
 __all__ = ["MarkerSet", "load_markerset", "REQUIRED_REGIONS"]
 

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.validation import as_float_array
 from mocap.errors import InputError
+from mocap.util.validation import as_float_array
 
 __all__ = ["RigidFit", "fit_rigid"]
 

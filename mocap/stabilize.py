@@ -12,12 +12,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from mocap.util.arrays import read_only
-from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
 from mocap.errors import InputError, MarkerError
 from mocap.gaps import find_gaps
 from mocap.rigid import apply_inverse_transform, apply_transform, fit_frames_last, frames_last
 from mocap.take import Take, as_take
+from mocap.util.arrays import read_only
+from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
 
 __all__ = ["stabilize", "Stabilization", "Slip", "REFERENCES", "INVALID_POLICIES"]
 

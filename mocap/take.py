@@ -8,9 +8,9 @@ from typing import Mapping
 
 import numpy as np
 
+from mocap.errors import InputError, MarkerError
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_float_array, as_int, as_positions, as_positive_float
-from mocap.errors import InputError, MarkerError
 
 __all__ = ["Take", "SourceInfo", "Analog", "FILL_METHODS", "fill_code", "as_take"]
 

@@ -23,9 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.markerset import REQUIRED_REGIONS
-
 from basis.maskle.mask import DEFAULT_MASK_PATH, Mask, save_mask
+from mocap.markerset import REQUIRED_REGIONS
 
 __all__ = ["build_default_mask", "BONES"]
 

@@ -12,9 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.validation import as_float_array
-
 from basis.maskle.fitting import MaskFit
+from mocap.util.validation import as_float_array
 
 __all__ = ["Envelope", "envelope_weights", "calibrate_envelope"]
 

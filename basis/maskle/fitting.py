@@ -39,15 +39,14 @@ import scipy.sparse as sp
 from scipy.interpolate import RBFInterpolator
 from scipy.spatial import cKDTree
 
-from mocap.util.validation import as_int, as_positive_float
-from mocap.anatomy import MASKLE_POINTS
-from mocap.errors import InputError
-from mocap.mesh.mesh import Mesh
-from mocap.mesh.landmarks import check_mesh_landmarks
-from mocap.rigid import fit_rigid
-
 from basis.maskle._geometry import TriangleIndex, triangles_intersect
 from basis.maskle.mask import Mask
+from mocap.anatomy import MASKLE_POINTS
+from mocap.errors import InputError
+from mocap.mesh.landmarks import check_mesh_landmarks
+from mocap.mesh.mesh import Mesh
+from mocap.rigid import fit_rigid
+from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["MaskFit", "FIT_STATUSES", "fit_mask", "landmark_points", "neighbour_mean"]
 

@@ -28,8 +28,8 @@ from scipy.sparse.csgraph import dijkstra
 
 from basis.artist import ArtistBasis
 from mocap.errors import InputError
-from mocap.mesh.mesh import Mesh, boundary_loops
 from mocap.mesh.landmarks import check_mesh_landmarks
+from mocap.mesh.mesh import Mesh, boundary_loops
 
 __all__ = ["GOLD_SHAPES", "DEMO_GOLD_SHAPES", "LIP_SIDES", "SIDE_RAMP", "gold_weights",
            "mouth_sides"]

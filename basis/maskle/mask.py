@@ -26,11 +26,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from mocap.util.atomic import atomic_path
-from mocap.util.arrays import read_only
-from mocap.util.validation import as_float_array
 from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
+from mocap.util.arrays import read_only
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_float_array
 
 __all__ = ["Mask", "CHANNEL_KINDS", "load_mask", "save_mask", "load_default_mask",
            "DEFAULT_MASK_PATH"]

@@ -16,13 +16,12 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
-from mocap.util.validation import as_float_array, as_positive_float
-from mocap.errors import InputError
-from mocap.mesh.mesh import Mesh
-
 from basis.maskle.fitting import MaskFit, neighbour_mean
 from basis.maskle.mask import Mask
 from basis.maskle.transfer import transfer_operator
+from mocap.errors import InputError
+from mocap.mesh.mesh import Mesh
+from mocap.util.validation import as_float_array, as_positive_float
 
 __all__ = ["paint_mask"]
 

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.viz.figures import new_figure, save_figure
-from mocap.mesh.mesh import Mesh
-
 from basis.maskle.transfer import MaskleWeights
+from mocap.mesh.mesh import Mesh
+from mocap.viz.figures import new_figure, save_figure
 
 __all__ = ["save_weights_picture"]
 

@@ -20,14 +20,13 @@ from typing import Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from mocap.util.validation import as_float_array, as_int, as_positive_float
-from mocap.errors import InputError
-from mocap.markerset import REQUIRED_REGIONS
-from mocap.mesh.mesh import Mesh, vertex_normals
-
 from basis.maskle._geometry import TriangleIndex, nearest_ray_hits
 from basis.maskle.fitting import MaskFit, fit_mask
 from basis.maskle.mask import Mask
+from mocap.errors import InputError
+from mocap.markerset import REQUIRED_REGIONS
+from mocap.mesh.mesh import Mesh, vertex_normals
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["TransferOperator", "MaskleWeights", "transfer_operator", "shepard_coefficients",
            "smoothing_operator", "maskle_weights"]

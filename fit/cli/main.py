@@ -13,7 +13,6 @@ import sys
 import warnings
 
 from fit.cli import commands
-
 from mocap.errors import Mocap2MeshError
 
 __all__ = ["main", "COMMANDS"]

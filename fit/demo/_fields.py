@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.mesh.mesh import vertex_normals
-
 from fit.demo.face import MOUTH, mouth_line
+from mocap.mesh.mesh import vertex_normals
 
 
 def ramp(t) -> np.ndarray:

@@ -12,9 +12,8 @@ from __future__ import annotations
 import matplotlib.tri as mtri
 import numpy as np
 
-from mocap.mesh.layout import MarkerLayout, make_layout
-
 from fit.demo.face import EYES, MOUTH, FaceModel, mouth_line
+from mocap.mesh.layout import MarkerLayout, make_layout
 
 __all__ = ["HEAD_MARKERS", "MARKER_OFFSET_MM", "marker_regions", "demo_layout",
            "markerset_toml", "landmarks_toml"]

@@ -15,9 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from basis.artist import ArtistBasis
-
 from fit.demo._fields import Sculptor, above_mouth, radial, ramp, window
-from fit.demo.face import FaceModel, MOUTH, mouth_line
+from fit.demo.face import MOUTH, FaceModel, mouth_line
 
 __all__ = ["UPPER_FACE", "LOWER_FACE", "MUSCLES", "JAW", "muscle_basis"]
 

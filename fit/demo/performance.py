@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from basis.artist import ArtistBasis
-
-from fit.demo._fields import Sculptor, ramp, radial, slit_side
+from fit.demo._fields import Sculptor, radial, ramp, slit_side
 from fit.demo.face import EYES, FaceModel, eye_line
 from fit.demo.muscles import JAW, MUSCLES, jaw_rotation_parts
 

@@ -33,18 +33,22 @@ import numpy as np
 import mocap
 from basis.artist import ArtistBasis
 from basis.basis_io import save_basis
-from mocap.util.atomic import atomic_path
-from mocap.util.validation import as_int, as_positive_float
-from mocap.mesh.layout import MarkerLayout, save_marker_layout
-from mocap.mesh.mesh import save_obj
-from mocap.synth.performance import Performance
-from mocap.synth.capture import SimulatedCapture, simulate_capture
-
 from fit.demo.face import FaceModel, make_face
 from fit.demo.markers import HEAD_MARKERS, demo_layout, landmarks_toml, markerset_toml
 from fit.demo.muscles import muscle_basis
-from fit.demo.performance import (HIDDEN, TRUTH_SHAPES, DemoPerformance, make_performance,
-                          truth_basis)
+from fit.demo.performance import (
+    HIDDEN,
+    TRUTH_SHAPES,
+    DemoPerformance,
+    make_performance,
+    truth_basis,
+)
+from mocap.mesh.layout import MarkerLayout, save_marker_layout
+from mocap.mesh.mesh import save_obj
+from mocap.synth.capture import SimulatedCapture, simulate_capture
+from mocap.synth.performance import Performance
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["DemoSession", "make_demo_session", "SESSION_FILES"]
 

@@ -12,15 +12,41 @@
 
 import functools
 
-from fit.gestures.analysis import (DETAIL_GROUPS, ESTIMATORS, LIP_REGIONS, GestureAnalysis,
-                                   analyze_gestures)
-from fit.gestures.clip import GestureClip, clip_from_analysis, clip_from_performance, load_clip, save_clip
-from fit.gestures.mrf import GestureSynthesis, candidate_distances, pick_candidate, synthesize_gestures
+from fit.gestures.analysis import (
+    DETAIL_GROUPS,
+    ESTIMATORS,
+    LIP_REGIONS,
+    GestureAnalysis,
+    analyze_gestures,
+)
+from fit.gestures.clip import (
+    GestureClip,
+    clip_from_analysis,
+    clip_from_performance,
+    load_clip,
+    save_clip,
+)
+from fit.gestures.features import (
+    DETAIL_FEATURES,
+    FEATURES,
+    WEIGHT_FEATURES,
+    WEIGHT_PATTERNS,
+    weight_columns,
+)
+from fit.gestures.mrf import (
+    GestureSynthesis,
+    candidate_distances,
+    pick_candidate,
+    synthesize_gestures,
+)
 from fit.gestures.reference import CaptureClip, clip_from_capture
-from fit.gestures.speech import (analog_intensity, opening_intensity, read_wav, speech_intensity,
-                     wav_intensity)
-from fit.gestures.features import (DETAIL_FEATURES, FEATURES, WEIGHT_FEATURES, WEIGHT_PATTERNS,
-                       weight_columns)
+from fit.gestures.speech import (
+    analog_intensity,
+    opening_intensity,
+    read_wav,
+    speech_intensity,
+    wav_intensity,
+)
 from fit.gestures.timeline import Segment, Timeline, load_timeline, parse_timeline
 from mocap.util.deprecation import moved_names
 

@@ -14,15 +14,14 @@ from typing import Mapping
 
 import numpy as np
 
-from mocap.util.arrays import read_only
-from mocap.util.validation import as_choice, as_float_array, as_int
+from fit.solve.sampling_estimator import estimate_weights_by_sampling
+from fit.solve.temporal import moving_average
+from fit.solve.weights import solve_weights
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.stabilize import Stabilization
-
-from fit.solve.sampling_estimator import estimate_weights_by_sampling
-from fit.solve.weights import solve_weights
-from fit.solve.temporal import moving_average
+from mocap.util.arrays import read_only
+from mocap.util.validation import as_choice, as_float_array, as_int
 
 __all__ = ["GestureAnalysis", "analyze_gestures", "DETAIL_GROUPS",
            "LIP_REGIONS", "ESTIMATORS"]

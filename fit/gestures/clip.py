@@ -14,16 +14,14 @@ from typing import Mapping
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from fit.gestures.analysis import GestureAnalysis
+from fit.gestures.features import DETAIL_FEATURES, weight_columns
+from fit.gestures.speech import OPENING_WINDOW_S, speech_intensity
+from mocap.errors import FileFormatError, InputError
+from mocap.synth.performance import Performance, performance_weights, resample_performance
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
 from mocap.util.validation import as_float_array, as_positive_float
-from mocap.errors import FileFormatError, InputError
-
-from mocap.synth.performance import Performance, performance_weights, resample_performance
-
-from fit.gestures.analysis import GestureAnalysis
-from fit.gestures.speech import OPENING_WINDOW_S, speech_intensity
-from fit.gestures.features import DETAIL_FEATURES, weight_columns
 
 __all__ = ["GestureClip", "clip_from_analysis", "clip_from_performance", "save_clip",
            "load_clip", "ACTIVITY_COLUMNS"]

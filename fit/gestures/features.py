@@ -9,9 +9,8 @@ simulating the style of subject B"). Here the features are:
 - ``blinks`` and ``brows``: the blend weights of the eyelid and brow shapes,
   taken out of c(t) so that each follows its own chain. Blinks are short,
   fast events of one or two shapes among ~50: matched together with the
-  whole expression, a chain cuts and merges them (on an ARKit performance,
-  ``bench/bench_gestures.py``: 0.69 of the reference's blink rate in one
-  chain, 0.93 on their own; brow activity 0.79 against 0.93);
+  whole expression, a chain cuts and merges them (``bench/bench_gestures.py``
+  compares the blink and brow rates of both settings with the reference's);
 - ``head``: the rigid head motion R(t), T(t);
 - the detail groups D_j(t) (:data:`fit.gestures.analysis.DETAIL_GROUPS`).
 """
@@ -22,9 +21,8 @@ from typing import Mapping
 
 import numpy as np
 
-from mocap.errors import InputError
-
 from fit.gestures.analysis import DETAIL_GROUPS
+from mocap.errors import InputError
 
 __all__ = ["FEATURES", "WEIGHT_FEATURES", "DETAIL_FEATURES", "WEIGHT_PATTERNS",
            "weight_columns"]

@@ -17,13 +17,12 @@ from typing import Mapping, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocap.util.validation import as_float_array, as_int, as_positive_float
-from mocap.errors import InputError
-
 from fit.gestures import _mrf
 from fit.gestures.clip import GestureClip
 from fit.gestures.features import DETAIL_FEATURES, FEATURES, weight_columns
 from fit.gestures.timeline import Timeline
+from mocap.errors import InputError
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["GestureSynthesis", "synthesize_gestures", "candidate_distances",
            "pick_candidate"]
@@ -160,23 +159,18 @@ def synthesize_gestures(intensity, palette: Sequence[GestureClip], *, rate: floa
         style blocks, faster, fewer decisions).
     blend : int, default 4
         Frames over which the offset of a jump is faded out (0: none, every
-        output frame a reference frame). On a real performance 4 frames leave
-        fewer large frame-to-frame jumps than the reference has, 0 about 1.5
-        times as many (``bench/bench_gestures.py``).
+        output frame a reference frame, and every jump between two reference
+        frames shows; ``bench/bench_gestures.py`` counts the large jumps).
     time_warps : bool, default True
         True (the paper): every local minimum of dist is a candidate, also the
         frames next to the continuation, whose copy stalls, replays or skips
         the stretch being copied. False: the candidates of a step are the
         continuation and the local minima at least h frames from it (motion-graph
         style: continue, or transition). Time warps are how the chain holds
-        a reference moment the speech asks for longer than the reference does:
-        on facial-sing (30 s of 41-frame-averaged weights) driven by another
-        performance's intensity 70 % of the output frames are time warps and
-        the brows move at 0.46 of the reference's speed; without them at 1.07,
-        but that reference has few smooth transitions and the frames with
-        jumps above its 99th percentile go from 1.4 % to 7.7 %. On an ARKit
-        performance either setting keeps both within the aims
-        (``bench/bench_gestures.py``).
+        a reference moment the speech asks for longer than the reference does,
+        at the price of slowed motion; without them motion keeps its speed,
+        but a reference with few smooth transitions jumps more often
+        (``bench/bench_gestures.py`` measures both).
     weight_groups : mapping of str to sequence of str, optional
         Shapes of the ``blinks`` and ``brows`` features
         (:func:`fit.gestures.features.weight_columns`); default: by name;

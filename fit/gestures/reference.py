@@ -14,20 +14,23 @@ import dataclasses
 import warnings
 from dataclasses import dataclass
 
-
 from basis.artist import ArtistBasis
+from fit.gestures.analysis import GestureAnalysis, analyze_gestures
+from fit.gestures.clip import GestureClip, clip_from_analysis
+from fit.gestures.speech import (
+    DEFAULT_WINDOW_S,
+    OPENING_WINDOW_S,
+    analog_intensity,
+    opening_intensity,
+    wav_intensity,
+)
+from fit.solve.marker_basis import marker_basis
 from mocap.bind import Binding
-from mocap.neutral import find_neutral
+from mocap.clean.ingest import IngestOptions, ingest
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
+from mocap.neutral import find_neutral
 from mocap.take import Take
-
-from mocap.clean.ingest import IngestOptions, ingest
-from fit.gestures.analysis import GestureAnalysis, analyze_gestures
-from fit.solve.marker_basis import marker_basis
-from fit.gestures.clip import GestureClip, clip_from_analysis
-from fit.gestures.speech import (DEFAULT_WINDOW_S, OPENING_WINDOW_S, analog_intensity, opening_intensity,
-                     wav_intensity)
 
 __all__ = ["CaptureClip", "clip_from_capture", "OPENING_LANDMARKS"]
 

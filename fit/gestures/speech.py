@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import scipy.io.wavfile
 
-from mocap.util.validation import as_float_array, as_int, as_positive_float
 from mocap.errors import FileFormatError, InputError
 from mocap.take import Take, as_take
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["speech_intensity", "read_wav", "wav_intensity", "analog_intensity",
            "opening_intensity", "DEFAULT_WINDOW_S", "OPENING_WINDOW_S", "FLOOR_DB"]

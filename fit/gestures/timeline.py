@@ -25,11 +25,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
-from mocap.util.toml import read_toml
-from mocap.errors import FileFormatError, InputError
-from mocap.util.validation import as_positive_float, as_int
-
 from fit.gestures.features import FEATURES
+from mocap.errors import FileFormatError, InputError
+from mocap.util.toml import read_toml
+from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["Segment", "Timeline", "load_timeline", "parse_timeline", "FEATURES"]
 

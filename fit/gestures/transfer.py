@@ -18,11 +18,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from mocap.util.validation import as_float_array, as_positive_float
 from mocap.bind import Binding
 from mocap.errors import InputError, MarkerError
 from mocap.mesh.mesh import Mesh
 from mocap.retarget.rbf import build_rbf_operator
+from mocap.util.validation import as_float_array, as_positive_float
 
 __all__ = ["DetailTransfer", "build_detail_transfer", "head_motion_on_mesh"]
 

@@ -8,14 +8,14 @@ capture through ingest → bind → retarget → bases → fit and returns a
 :class:`ReconstructionResult`: weights per basis as DataFrames indexed by the
 capture's frame numbers, errors, the binding, mesh sequences evaluated on
 demand, and :meth:`~ReconstructionResult.save` /
-:meth:`~ReconstructionResult.report` for the files ``mocap2mesh run`` writes.
+:meth:`~ReconstructionResult.report` for the files ``mocap2mesh run`` writes::
 
-Examples
---------
->>> recon = Reconstruction.from_config("run.toml")             # doctest: +SKIP
->>> result = recon.process("take1.c3d")                         # doctest: +SKIP
->>> result.weights["H"].loc[120, "jawOpen"]                     # doctest: +SKIP
->>> result.save("out/take1")                                    # doctest: +SKIP
+    recon = Reconstruction.from_config("run.toml")
+    result = recon.process("take1.c3d")
+    result.weights["H"].loc[120, "jawOpen"]     # frame 120 of the capture
+    result.save("out/take1")
+
+The README's Python section is a complete script (run as a test).
 """
 
 from __future__ import annotations
@@ -36,8 +36,16 @@ from fit.exports import MeshSequence, weights_frame, write_mesh_sequence, write_
 from fit.metrics import reconstruction_errors
 from fit.pipeline.config import STAGE_TABLES, RunConfig, load_run_config, stage_options
 from fit.pipeline.options import BasisOptions, BindOptions, FitOptions, ReportOptions
-from fit.pipeline.stages import (BasisResult, FitResult, basis_stage, bind_stage, complete_span,
-                                 fit_stage, ingest_stage, retarget_stage)
+from fit.pipeline.stages import (
+    BasisResult,
+    FitResult,
+    basis_stage,
+    bind_stage,
+    complete_span,
+    fit_stage,
+    ingest_stage,
+    retarget_stage,
+)
 from fit.report import build_report
 from fit.report.ingest_plots import plot_gaps, plot_head_residuals
 from mocap.bind import Binding, BoundTake
@@ -46,7 +54,7 @@ from mocap.errors import InputError
 from mocap.markerset import MarkerSet, load_markerset
 from mocap.mesh import Mesh, load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
-from mocap.retarget.retargeting import RetargetOptions, Retargeting
+from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
 
 __all__ = ["Reconstruction", "ReconstructionResult"]
@@ -91,9 +99,11 @@ class Reconstruction:
 
     Examples
     --------
-    >>> recon = Reconstruction(markerset="markerset.toml", mesh="neutral.obj",
-    ...                        landmarks="landmarks.toml", basis="shapes/",
-    ...                        fit={"smoothness": "gcv"})          # doctest: +SKIP
+    From files, with one option changed::
+
+        Reconstruction(markerset="markerset.toml", mesh="neutral.obj",
+                       landmarks="landmarks.toml", basis="shapes/",
+                       fit={"smoothness": "gcv"})
     """
 
     markerset: MarkerSet

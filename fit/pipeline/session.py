@@ -21,8 +21,15 @@ from pathlib import Path
 from tqdm import tqdm
 
 from fit.pipeline.config import RunConfig
-from fit.pipeline.manifest import (MANIFEST_NAME, load_manifest, package_versions,
-                                   reusable_record, sha256_path, take_key, write_manifest)
+from fit.pipeline.manifest import (
+    MANIFEST_NAME,
+    load_manifest,
+    package_versions,
+    reusable_record,
+    sha256_path,
+    take_key,
+    write_manifest,
+)
 from fit.pipeline.reconstruction import Reconstruction
 from mocap.errors import InputError, Mocap2MeshError
 

@@ -21,21 +21,20 @@ import numpy as np
 from basis.artist import ArtistBasis
 from basis.pca import PCAModel, pca_from_operator
 from basis.quasi_eigen import QuasiEigenBasis, quasi_eigen
-from mocap.bind import BoundTake, bind_take
-from mocap.errors import InputError
-from mocap.markerset import MarkerSet
-from mocap.mesh.mesh import Mesh
-from mocap.take import Take
-
-from mocap.clean.ingest import IngestOptions, IngestResult, ingest
+from fit.pipeline.options import BasisOptions, BindOptions, FitOptions
 from fit.solve.marker_basis import marker_basis
 from fit.solve.marker_centres import solve_at_marker_centres
 from fit.solve.mesh_space import solve_mesh_space
-from mocap.retarget.retargeting import RetargetOptions, Retargeting, retarget
 from fit.solve.sampling_estimator import estimate_weights_by_sampling
-from fit.pipeline.options import BasisOptions, BindOptions, FitOptions
-from fit.solve.weights import solve_weights
 from fit.solve.temporal import moving_average
+from fit.solve.weights import solve_weights
+from mocap.bind import BoundTake, bind_take
+from mocap.clean.ingest import IngestOptions, IngestResult, ingest
+from mocap.errors import InputError
+from mocap.markerset import MarkerSet
+from mocap.mesh.mesh import Mesh
+from mocap.retarget.retargeting import Retargeting, RetargetOptions, retarget
+from mocap.take import Take
 
 __all__ = ["complete_span", "NamedBasis", "BasisResult", "FitResult", "ingest_stage",
            "bind_stage", "retarget_stage", "basis_stage", "fit_stage"]

@@ -10,14 +10,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
-from mocap.errors import InputError
-
+from basis.coverage import plot_coverage
 from fit.metrics import reconstruction_errors
 from fit.report.html import ingest_stats, write_report
-from basis.coverage import plot_coverage
 from fit.report.plots import plot_alpha, plot_error_heatmap, plot_marker_errors
 from fit.report.video import write_overlay_video
 from fit.report.views import plot_frame_views
+from mocap.errors import InputError
 
 __all__ = ["build_report"]
 

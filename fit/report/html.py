@@ -16,10 +16,9 @@ from typing import Mapping
 
 import numpy as np
 
-from mocap.util.atomic import atomic_path
-from mocap.errors import InputError
-
 from fit.metrics import ReconstructionErrors
+from mocap.errors import InputError
+from mocap.util.atomic import atomic_path
 
 __all__ = ["render_report", "write_report", "ingest_stats"]
 

@@ -7,7 +7,6 @@ from matplotlib.colors import ListedColormap
 from matplotlib.patches import Patch
 
 from mocap.take import FILL_METHODS, Take
-
 from mocap.viz.figures import new_figure, save_figure
 
 __all__ = ["plot_gaps", "plot_head_residuals"]

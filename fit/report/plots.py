@@ -10,11 +10,10 @@ from matplotlib import colormaps
 from matplotlib.patches import Patch
 
 from fit._moved import PLOTS_NAMES
+from fit.metrics import ReconstructionErrors
 from mocap.errors import InputError
 from mocap.util.deprecation import moved_names
-
 from mocap.viz.figures import distinct_colours, new_figure, save_figure
-from fit.metrics import ReconstructionErrors
 
 __all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "region_groups"]
 

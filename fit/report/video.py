@@ -8,11 +8,10 @@ import os
 import cv2
 import numpy as np
 
+from fit.report.views import view_axes
+from mocap.errors import InputError
 from mocap.util.atomic import atomic_path
 from mocap.util.validation import as_int, as_positions, as_positive_float
-from mocap.errors import InputError
-
-from fit.report.views import view_axes
 
 __all__ = ["write_overlay_video"]
 

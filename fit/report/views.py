@@ -6,9 +6,8 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.collections import LineCollection
 
-from mocap.util.validation import as_float_array, as_positions
 from mocap.errors import InputError
-
+from mocap.util.validation import as_float_array, as_positions
 from mocap.viz.figures import new_figure, save_figure
 
 __all__ = ["view_axes", "plot_frame_views"]

@@ -28,16 +28,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from fit.solve._reduced import (RANK_RTOL, BoxQP, ReducedSystems, dot, gradient_of, reduced_solve,
-                       schur_weights)
+from fit.solve._reduced import (
+    RANK_RTOL,
+    BoxQP,
+    ReducedSystems,
+    dot,
+    gradient_of,
+    reduced_solve,
+    schur_weights,
+)
 
 __all__ = ["RANK_RTOL", "BoxQP", "kkt_residual", "reduced_solve", "residual", "solve_box_qp",
            "start_state"]
 
 #: Frames solved together (working set of the iterations).
 _BLOCK = 16384
-#: Iterations of the primal-dual phase before the monotone fallback takes over
-#: (2: fastest on the ARKit bench; 1 took 17 % longer, 3 took 2 % longer).
+#: Iterations of the primal-dual phase before the monotone fallback takes over:
+#: most frames settle in two; the rest cycle or creep, and the monotone phase
+#: finishes them with a guarantee of progress.
 _PDAS_ITER = 2
 
 

@@ -33,14 +33,14 @@ _CHUNK = 2048
 #: Fewest frames of a batch whose size is padded up to the next batch's. Each
 #: column of a batch's factorization costs a few NumPy calls whatever its
 #: frames, and a call costs as much as ~10,000 flops: few, big batches beat
-#: tight padding (the ARKit bench ~7 % faster than with batches of at least
-#: 64 and at most 512 frames).
+#: tight padding.
 _MIN_BATCH = 512
 #: ... but when G is singular, a pseudo-inverse (SVD) per frame costs m³ flops
 #: whatever the batch: there padding is what costs.
 _MIN_BATCH_SINGULAR = 64
-#: Rows of the products with G and G⁻¹ (see :func:`dot`): 256 took 0.63 ms for
-#: 7,000 × 53 @ 53 × 53 on one thread, 64 rows 0.78 ms, 1,024 rows 0.96 ms.
+#: Rows of the products with G and G⁻¹ (see :func:`dot`): a block of rows and
+#: its result stay in the core's cache, and each call's overhead is paid once
+#: per block, not per row.
 _DOT_ROWS = 256
 #: An eigenvalue of G below this fraction of the largest one counts as zero.
 RANK_RTOL = 1e3 * np.finfo(float).eps
@@ -315,8 +315,8 @@ def dot(a, mat):
     are busy, threaded products of skinny matrices mostly wait.
     """
     out = np.empty((len(a), mat.shape[1]))
-    # one product per slice, written in place: 2.6x faster than a stacked
-    # (T / rows, rows, n) matmul, which copies its result
+    # one product per slice, written in place: a stacked (T / rows, rows, n)
+    # matmul would copy its result
     for first in range(0, len(a), _DOT_ROWS):
         np.matmul(a[first:first + _DOT_ROWS], mat, out=out[first:first + _DOT_ROWS])
     return out

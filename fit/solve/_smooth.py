@@ -22,10 +22,9 @@ weights). Two things keep the number of those global solves small:
   only then does the whole sequence get solved again. Changes travel from
   frame to frame, one global step per frame without this.
 
-On the ICT H problem of ``bench/bench_smooth.py`` (3,870 frames, 53 shapes,
-cm) the whole-sequence iteration from the frames' own optima took 16, 30,
-61, 87 and 238 global steps at λ = 0.1, 1, 10, 100, 1000; this takes 8, 8,
-9, 18 and 15 (at λ = 100 without the local phase: 74).
+The global steps grow with λ for a whole-sequence iteration from the
+frames' own optima (changes travel one frame a step); the local phase keeps
+them nearly flat (``bench/bench_smooth.py`` counts both).
 
 Only the global solve of a state decides convergence: the KKT conditions of
 every frame of the whole sequence objective, to ``tol``. The local phase only

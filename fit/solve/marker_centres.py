@@ -26,12 +26,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.validation import as_float_array, as_int, as_positive_float
-from mocap.errors import InputError
-from mocap.mesh.layout import MarkerLayout
-
 from fit.solve.gcv import SMOOTHNESS_RULES, gcv_smoothness
 from fit.solve.weights import WeightSolution, as_smoothness, solve_weights
+from mocap.errors import InputError
+from mocap.mesh.layout import MarkerLayout
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["MarkerCentreFit", "solve_at_marker_centres"]
 

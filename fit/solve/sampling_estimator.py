@@ -14,10 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mocap.util.validation import as_int
-from mocap.errors import InputError
-
 from fit.solve._problem import as_bounds, as_problem
+from mocap.errors import InputError
+from mocap.util.validation import as_int
 
 __all__ = ["SamplingEstimate", "estimate_weights_by_sampling"]
 

@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.util.validation import as_choice, as_float_array, as_int
-from mocap.errors import InputError
-
 from fit.solve._active_set import BoxQP, kkt_residual
 from fit.solve._smooth import Spectrum, bounded, gradient, unbounded
+from mocap.errors import InputError
+from mocap.util.validation import as_choice, as_float_array, as_int
 
 __all__ = ["moving_average", "solve_smooth", "EDGE_MODES"]
 

@@ -12,13 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.validation import as_float_array, as_int
-from mocap.errors import InputError
-
 from fit.solve._active_set import BoxQP, solve_box_qp
 from fit.solve._problem import as_bounds, as_problem
 from fit.solve.gcv import SMOOTHNESS_RULES, gcv_smoothness
 from fit.solve.temporal import solve_smooth
+from mocap.errors import InputError
+from mocap.util.validation import as_float_array, as_int
 
 __all__ = ["WeightSolution", "solve_weights", "as_smoothness"]
 

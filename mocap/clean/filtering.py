@@ -7,10 +7,10 @@ import warnings
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from mocap.util.validation import as_int, as_positive_float
+from mocap.clean._segments import visible_segments
 from mocap.errors import InputError
 from mocap.take import Take, as_take
-from mocap.clean._segments import visible_segments
+from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["lowpass"]
 

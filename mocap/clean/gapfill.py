@@ -8,14 +8,14 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from mocap.util.validation import as_choice, as_int
-from mocap.errors import InputError
-from mocap.gaps import find_gaps
-from mocap.take import Take, as_take, fill_code
 from mocap.clean import _pca_fill, _rigid_fill
 from mocap.clean._pca_fill import fill_pca, pca_donors
 from mocap.clean._rigid_fill import fill_rigid
 from mocap.clean._spline_fill import fill_spline
+from mocap.errors import InputError
+from mocap.gaps import find_gaps
+from mocap.take import Take, as_take, fill_code
+from mocap.util.validation import as_choice, as_int
 
 __all__ = ["FILL_OPTIONS", "FillResult", "fill_gaps"]
 

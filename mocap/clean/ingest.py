@@ -8,15 +8,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from mocap.util.validation import as_choice, as_int, as_positive_float
 from mocap.clean import FILL_OPTIONS as FILL_CHOICES
-from mocap.clean import (FillResult, ImplausibleSamples, LabelSwap, fill_gaps,
-                         find_implausible_samples, find_label_swaps, fix_label_swaps, lowpass,
-                         remove_implausible_samples, resample)
+from mocap.clean import (
+    FillResult,
+    ImplausibleSamples,
+    LabelSwap,
+    fill_gaps,
+    find_implausible_samples,
+    find_label_swaps,
+    fix_label_swaps,
+    lowpass,
+    remove_implausible_samples,
+    resample,
+)
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.stabilize import Stabilization, stabilize
 from mocap.take import Take
+from mocap.util.validation import as_choice, as_int, as_positive_float
 
 __all__ = ["IngestOptions", "IngestResult", "ingest", "FILL_CHOICES"]
 

@@ -16,14 +16,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.arrays import read_only
-from mocap.util.validation import as_int, as_positive_float
+from mocap.clean._tracks import (
+    last_visible,
+    long_gap_starts,
+    median_pose,
+    nanmedian_or_nan,
+    typical_step,
+)
 from mocap.errors import InputError
 from mocap.gaps import find_gaps
 from mocap.stabilize import stabilize
 from mocap.take import Take, as_take
-from mocap.clean._tracks import (last_visible, long_gap_starts, median_pose, nanmedian_or_nan,
-                                typical_step)
+from mocap.util.arrays import read_only
+from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["REASONS", "ImplausibleRun", "ImplausibleSamples",
            "find_implausible_samples", "remove_implausible_samples"]

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from mocap.util.validation import as_int, as_positive_float
-from mocap.take import Take, as_take
 from mocap.clean._segments import visible_segments
 from mocap.clean.filtering import lowpass
+from mocap.take import Take, as_take
+from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["resample"]
 

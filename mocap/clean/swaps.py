@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.validation import as_int, as_positive_float
-from mocap.errors import InputError, MarkerError
 from mocap.clean._tracks import last_visible, long_gap_starts, median_pose, typical_step
+from mocap.errors import InputError, MarkerError
 from mocap.take import Take, as_take
+from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["LabelSwap", "find_label_swaps", "fix_label_swaps"]
 

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocap.errors import FileFormatError
 from mocap.io._c3d_header import BLOCK, Header
 from mocap.io._c3d_numbers import float32, int16
 from mocap.io._c3d_params import Parameters
-from mocap.errors import FileFormatError
 
 __all__ = ["Layout", "plan_layout", "decode_frames"]
 

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.io._c3d_numbers import PROCESSORS, float32, uint16
 from mocap.errors import FileFormatError
+from mocap.io._c3d_numbers import PROCESSORS, float32, uint16
 
 __all__ = ["BLOCK", "KEY", "Header", "locate_parameters", "parse_header"]
 

@@ -6,8 +6,8 @@ import struct
 
 import numpy as np
 
-from mocap.io._c3d_header import BLOCK, KEY
 from mocap.errors import InputError
+from mocap.io._c3d_header import BLOCK, KEY
 from mocap.take import Take
 
 __all__ = ["encode_c3d"]

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mocap.util.atomic import atomic_path
 from mocap.errors import FileFormatError, InputError, MarkerError
+from mocap.util.atomic import atomic_path
 
 BLANK_LINES = re.compile(rb"(?:[ \t,]*\r?\n)*")
 NOT_BLANK = re.compile(rb"[^ \t\r\n,]")

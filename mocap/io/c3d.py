@@ -13,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.util.atomic import atomic_path
+from mocap.errors import FileFormatError, InputError
 from mocap.io._c3d_data import decode_frames, plan_layout
 from mocap.io._c3d_header import BLOCK, locate_parameters, parse_header
 from mocap.io._c3d_params import Parameters, parse_parameters
 from mocap.io._c3d_write import encode_c3d
-from mocap.errors import FileFormatError, InputError
 from mocap.take import Analog, SourceInfo, Take, as_take
 from mocap.units import mm_per_unit
+from mocap.util.atomic import atomic_path
 
 __all__ = ["read_c3d", "read_c3d_parameters", "write_c3d"]
 

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.util.atomic import atomic_path
 from mocap.errors import FileFormatError
 from mocap.take import Analog, SourceInfo, Take
+from mocap.util.atomic import atomic_path
 
 __all__ = ["read_take_npz", "write_take_npz"]
 

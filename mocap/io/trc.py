@@ -21,13 +21,25 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io._text_table import (BLANK_LINES, NOT_BLANK, cells, check_labels, data_end, format_number,
-                          format_rows, frames_and_positions, line_number, text_lines, numeric_block,
-                          read_bytes, write_text)
-from mocap.util.validation import as_int
 from mocap.errors import FileFormatError, InputError
+from mocap.io._text_table import (
+    BLANK_LINES,
+    NOT_BLANK,
+    cells,
+    check_labels,
+    data_end,
+    format_number,
+    format_rows,
+    frames_and_positions,
+    line_number,
+    numeric_block,
+    read_bytes,
+    text_lines,
+    write_text,
+)
 from mocap.take import SourceInfo, Take, as_take
 from mocap.units import mm_per_unit
+from mocap.util.validation import as_int
 
 __all__ = ["read_trc", "write_trc"]
 

@@ -23,13 +23,24 @@ import re
 
 import numpy as np
 
-from mocap.io._text_table import (NOT_BLANK, cells, check_labels, data_end, format_number,
-                          format_rows, frames_and_positions, line_number, numeric_block,
-                          read_bytes, text_lines, write_text)
-from mocap.util.validation import as_int
 from mocap.errors import FileFormatError, InputError
+from mocap.io._text_table import (
+    NOT_BLANK,
+    cells,
+    check_labels,
+    data_end,
+    format_number,
+    format_rows,
+    frames_and_positions,
+    line_number,
+    numeric_block,
+    read_bytes,
+    text_lines,
+    write_text,
+)
 from mocap.take import SourceInfo, Take, as_take
 from mocap.units import mm_per_unit
+from mocap.util.validation import as_int
 
 __all__ = ["read_vicon_csv", "write_vicon_csv"]
 

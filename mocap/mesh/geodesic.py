@@ -13,8 +13,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from mocap.util.validation import as_float_array, as_positive_float
 from mocap.errors import InputError
+from mocap.util.validation import as_float_array, as_positive_float
 
 __all__ = ["HeatGeodesics"]
 

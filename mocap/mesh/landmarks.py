@@ -19,11 +19,10 @@ import numbers
 from pathlib import Path
 from typing import Mapping
 
-from mocap.util.toml import read_toml
 from mocap.anatomy import ANATOMICAL_POINTS
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh
-
+from mocap.util.toml import read_toml
 
 __all__ = ["load_mesh_landmarks", "check_mesh_landmarks"]
 

@@ -25,13 +25,12 @@ from typing import Mapping
 import numpy as np
 import scipy.sparse as sp
 
+from mocap.errors import FileFormatError, InputError, MarkerError
+from mocap.mesh.mesh import Mesh
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
 from mocap.util.toml import read_toml
 from mocap.util.validation import as_float_array
-from mocap.errors import FileFormatError, InputError, MarkerError
-from mocap.mesh.mesh import Mesh
-
 
 __all__ = ["MarkerLayout", "make_layout", "load_marker_layout", "save_marker_layout"]
 

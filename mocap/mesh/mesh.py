@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from mocap.errors import FileFormatError, InputError
+from mocap.units import mm_per_unit
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
 from mocap.util.validation import as_float_array
-from mocap.errors import FileFormatError, InputError
-from mocap.units import mm_per_unit
 
 __all__ = ["Mesh", "MESH_FORMATS", "load_mesh", "save_obj", "vertex_normals",
            "face_normals", "boundary_loops", "degenerate_faces"]

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.validation import as_float_array, as_positive_float
 from mocap.errors import InputError
+from mocap.util.validation import as_float_array, as_positive_float
 
 __all__ = ["RegionWeights", "region_weights", "painted_region_weights",
            "as_region_markers"]

@@ -19,13 +19,13 @@ import scipy.sparse.linalg
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
+from mocap.errors import InputError
+from mocap.mesh import regions as _regions
+from mocap.mesh.geodesic import HeatGeodesics
+from mocap.mesh.regions import RegionWeights, as_region_markers, painted_region_weights
 from mocap.retarget import _kernels as _k
 from mocap.retarget._kernels import COMPACT_KERNELS, KERNELS
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
-from mocap.errors import InputError
-from mocap.mesh.geodesic import HeatGeodesics
-from mocap.mesh import regions as _regions
-from mocap.mesh.regions import RegionWeights, as_region_markers, painted_region_weights
 
 __all__ = ["RBFOperator", "RBFSolveInfo", "build_rbf_operator", "KERNELS", "DISTANCES"]
 

@@ -19,15 +19,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
 from mocap.bind import Binding
-from mocap.neutral import find_neutral
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh, face_normals
+from mocap.neutral import find_neutral
 from mocap.retarget.rbf import DISTANCES, KERNELS, RBFOperator, build_rbf_operator
 from mocap.rigid import fit_rigid
 from mocap.take import Take, as_take
+from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
 
 __all__ = ["RetargetOptions", "Retargeting", "marker_displacements", "neutral_pose",
            "align_head_frame",

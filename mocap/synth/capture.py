@@ -16,14 +16,14 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocap.util.arrays import read_only
-from mocap.util.atomic import atomic_path
-from mocap.util.validation import as_float_array, as_int, as_positive_float
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.layout import MarkerLayout
 from mocap.synth.performance import Performance, performance_weights, resample_performance
 from mocap.take import SourceInfo, Take
 from mocap.units import mm_per_unit as _mm_per_unit
+from mocap.util.arrays import read_only
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["CaptureTruth", "SimulatedCapture", "simulate_capture", "load_capture_truth"]
 

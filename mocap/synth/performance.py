@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap.errors import FileFormatError, InputError
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_float_array, as_positive_float
-from mocap.errors import FileFormatError, InputError
 
 __all__ = ["Performance", "read_performance", "resample_performance", "match_shape_names",
            "performance_weights", "TIME_COLUMNS", "NON_WEIGHT_COLUMNS"]

@@ -1,4 +1,4 @@
-"""Shaded pictures of face meshes: a small, fast, dependency-free renderer.
+"""Shaded pictures of face meshes: a small, fast software renderer (NumPy, no GPU).
 
 :func:`render_mesh` draws a triangle mesh with an orthographic :class:`Camera`,
 a z-buffer, per-pixel interpolated vertex normals, Lambert + ambient +
@@ -34,11 +34,11 @@ import cv2
 import matplotlib
 import numpy as np
 
-from mocap.viz import _raster
-from mocap.util.atomic import atomic_path
-from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
 from mocap.errors import InputError
 from mocap.mesh.mesh import vertex_normals
+from mocap.util.atomic import atomic_path
+from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
+from mocap.viz import _raster
 
 __all__ = ["VIEWS", "HIDDEN_POINTS", "Camera", "Lighting", "render_mesh", "colorbar",
            "image_grid", "save_png"]

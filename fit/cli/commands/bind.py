@@ -5,8 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import mocap
-from fit.cli.arguments import (add_capture, add_landmarks, add_markerset, add_mesh,
-                               add_neutral_frame)
+from fit.cli.arguments import add_capture, add_landmarks, add_markerset, add_mesh, add_neutral_frame
 from mocap.bind import bind_take
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh

@@ -20,12 +20,18 @@ from pathlib import Path
 
 import numpy as np
 
+from fit.cli.arguments import (
+    add_binding,
+    add_capture,
+    add_fill,
+    add_markerset,
+    add_mesh,
+    add_neutral_frame,
+    add_units,
+)
+from fit.gestures.analysis import ESTIMATORS
 from mocap.errors import InputError
 from mocap.synth.performance import read_performance
-
-from fit.gestures.analysis import ESTIMATORS
-from fit.cli.arguments import (add_binding, add_capture, add_fill, add_markerset, add_mesh,
-                               add_neutral_frame, add_units)
 
 __all__ = ["add_parser", "run_analyze", "run_synthesize", "load_palette"]
 
@@ -142,10 +148,10 @@ def run_analyze(args) -> int:
     from basis.artist import load_artist_basis
     from fit.gestures import save_clip
     from fit.gestures.reference import clip_from_capture
-    from mocap.clean.ingest import IngestOptions
-    from mocap.util.atomic import refuse_overwrite
     from mocap.bind import load_binding
+    from mocap.clean.ingest import IngestOptions
     from mocap.markerset import load_markerset
+    from mocap.util.atomic import refuse_overwrite
 
     if args.output.suffix.lower() != ".npz":
         raise InputError(f"{args.output}: a clip is written as .npz")
@@ -199,8 +205,8 @@ def run_synthesize(args) -> int:
     from basis.artist import load_artist_basis
     from fit.exports import write_weights_csv
     from fit.gestures import load_timeline, synthesize_gestures, wav_intensity
-    from mocap.util.atomic import atomic_path
     from mocap.bind import load_binding
+    from mocap.util.atomic import atomic_path
 
     if (args.mesh is None) != (args.shapes is None):
         raise InputError("--mesh and --shapes go together")

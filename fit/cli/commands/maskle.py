@@ -6,10 +6,10 @@ import numpy as np
 
 from basis.maskle import load_default_mask, load_mask, maskle_weights
 from basis.maskle.picture import save_weights_picture
-from mocap.util.atomic import atomic_path
 from mocap.errors import InputError
-from mocap.mesh.mesh import load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.mesh.mesh import load_mesh
+from mocap.util.atomic import atomic_path
 
 __all__ = ["add_parser", "run"]
 

@@ -5,8 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import mocap
-from fit.cli.arguments import (add_binding, add_capture, add_fill, add_markerset, add_mesh,
-                               add_neutral_frame)
+from fit.cli.arguments import (
+    add_binding,
+    add_capture,
+    add_fill,
+    add_markerset,
+    add_mesh,
+    add_neutral_frame,
+)
 from mocap.bind import load_binding
 from mocap.clean.ingest import IngestOptions, ingest
 from mocap.markerset import load_markerset

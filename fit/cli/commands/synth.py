@@ -7,15 +7,14 @@ import warnings
 from pathlib import Path
 
 import mocap
-from mocap.errors import FileFormatError, InputError
-from mocap.mesh.layout import load_marker_layout
-from mocap.markerset import load_markerset
-from mocap.mesh.mesh import load_mesh
-from mocap.synth.performance import match_shape_names, read_performance
-from mocap.synth.capture import simulate_capture
-
-from mocap.util.toml import read_toml
 from fit.cli.arguments import add_markerset, add_mesh, add_units
+from mocap.errors import FileFormatError, InputError
+from mocap.markerset import load_markerset
+from mocap.mesh.layout import load_marker_layout
+from mocap.mesh.mesh import load_mesh
+from mocap.synth.capture import simulate_capture
+from mocap.synth.performance import match_shape_names, read_performance
+from mocap.util.toml import read_toml
 
 __all__ = ["add_parser", "run", "parse_head_motion"]
 
