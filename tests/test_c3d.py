@@ -9,7 +9,7 @@ import ezc3d
 import numpy as np
 import pytest
 
-from mocap import Take, read
+from mocap import Take
 from mocap.io._c3d_numbers import BYTE_ORDERS
 from mocap.io.c3d import read_c3d, read_c3d_parameters, write_c3d
 from mocap.errors import FileFormatError, InputError
@@ -163,8 +163,8 @@ def test_facial_sing_facts(shared_data):
     assert not (take.positions == 0).all(axis=2).any()  # residual -1 with xyz 0 is NaN
 
 
-def test_vicon_nexus_facts(shared_data):
-    take = read(shared_data / "vicon-nexus/markers.c3d")
+def test_vicon_nexus_facts(vicon_nexus_take):
+    take = vicon_nexus_take
     assert (take.n_markers, take.n_frames, int(take.missing.sum())) == (51, 580, 305)
     assert take.analog.values.shape == (580 * 20, 38) and take.analog.rate == 2000.0
     assert take.source.producer.startswith("Vicon Nexus")

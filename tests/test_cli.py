@@ -9,6 +9,7 @@ import pytest
 import mocap
 from fit.cli.main import main
 from fit.demo import make_demo_session
+from helpers import FACIAL_SING_MARKERSET_TOML
 
 
 @pytest.fixture(scope="module")
@@ -120,12 +121,12 @@ def test_ingest_fix_swaps_undoes_an_injected_label_swap(session_files, tmp_path)
     np.testing.assert_array_equal(mocap.read(out).positions, take.positions)
 
 
-def test_ingest_reject_implausible_refills_the_facial_sing_mislabel(shared_data, tmp_path):
+def test_ingest_reject_implausible_refills_the_facial_sing_mislabel(facial_sing_path, tmp_path):
     """The section3-1 label leaves its marker for ~70 mm in frames 819-863; with
     --reject-implausible the written take moves smoothly there, and no captured
     sample elsewhere changes (gap fills may: they learn from the repaired markers)."""
-    src = shared_data / "captures" / "facial-sing.c3d"
-    markerset = Path(__file__).resolve().parent / "facial_sing_markerset.toml"
+    src = facial_sing_path
+    markerset = FACIAL_SING_MARKERSET_TOML
     plain, clean = tmp_path / "plain.npz", tmp_path / "clean.npz"
     common = ["--markerset", str(markerset), "--fill", "auto"]
     assert main(["ingest", str(src), "-o", str(plain), *common]) == 0

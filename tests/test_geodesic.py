@@ -105,8 +105,8 @@ def test_locate_recovers_surface_points():
     np.testing.assert_allclose(got_bary, bary, atol=1e-9)
 
 
-def test_ict_mouth_is_open(shared_data):
-    mesh = trimesh.load(shared_data / "ict-face" / "generic_neutral_mesh.obj", process=False)
+def test_ict_mouth_is_open(ict_neutral_path):
+    mesh = trimesh.load(ict_neutral_path, process=False)
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)   # quads split by trimesh
     assert f.shape == (2 * 9230, 3)
     upper_inner, lower_inner = 5533, 5517       # Multi-PIE landmarks 62 and 66

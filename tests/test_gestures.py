@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,7 +30,6 @@ REGIONS = {"upper_lip": ["UL1", "UL2"], "lower_lip": ["LL1", "LL2"],
 FACE = [x for members in REGIONS.values() for x in members]
 HEAD = ["H1", "H2", "H3", "H4"]
 N_FRAMES, N_SHAPES, RATE = 120, 4, 30.0
-HERE = Path(__file__).resolve().parent
 
 
 def _smooth(rng, n, d, lo=0.0, hi=1.0):
@@ -597,17 +595,15 @@ def test_weights_need_every_group():
         transfer.weights({"left_brow": np.zeros((1, 2, 3))})
 
 
-def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_path):
+def test_cli_transfers_details_onto_the_ict_face(ict_mesh, ict_layout, ict_neutral_path,
+                                                  ict_expressions_dir, cli_files, tmp_path):
     """``gestures --mesh --shapes --binding``: details as extra shapes of the real ICT face."""
     from fit.exports import read_mesh_sequence
-    from mocap.mesh.layout import load_marker_layout
-    from mocap.mesh.mesh import load_mesh
     from mocap.retarget.rbf import build_rbf_operator
 
     wav, _, out = cli_files
-    ict = shared_data / "ict-face"
-    neutral = load_mesh(ict / "generic_neutral_mesh.obj", units="cm")
-    layout = load_marker_layout(HERE / "ict_marker_layout.toml", neutral)
+    neutral = ict_mesh
+    layout = ict_layout
     binding = Binding(labels=layout.labels, scale=0.1, rotation=np.eye(3),
                       translation=np.zeros(3), face_ids=layout.face_ids,
                       vertex_ids=layout.vertex_ids, barycentric=layout.weights,
@@ -617,7 +613,7 @@ def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_pat
     shapes = tmp_path / "shapes"
     shapes.mkdir()
     for name in ("eyeBlink_L", "jawOpen"):
-        (shapes / f"{name}.obj").symlink_to(ict / "expressions" / f"{name}.obj")
+        (shapes / f"{name}.obj").symlink_to(ict_expressions_dir / f"{name}.obj")
     rng = np.random.default_rng(8)
     groups = {"left_brow": ("brow-L1", "brow-L2", "brow-L3"), "left_eye": ("eye-L-upper",)}
     clip = GestureClip("ict", RATE, np.cumsum(rng.normal(0, 1, 200)),
@@ -627,7 +623,7 @@ def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_pat
     save_clip(tmp_path / "ict.npz", clip)
     assert main(["gestures", "synthesize", str(wav), "--palette", str(tmp_path / "ict.npz"),
                  "-o", str(out),
-                 "--mesh", str(ict / "generic_neutral_mesh.obj"), "--shapes", str(shapes),
+                 "--mesh", str(ict_neutral_path), "--shapes", str(shapes),
                  "--units", "cm", "--binding", str(tmp_path / "binding.json")]) == 0
     seq = read_mesh_sequence(out / "mesh.npz")
     assert seq.names[:2] == ("eyeBlink_L", "jawOpen") and len(seq.names) == 2 + 3 * 4

@@ -71,34 +71,35 @@ def _grid(units: str | None, n: int = 5) -> Mesh:
 
 
 @pytest.fixture(scope="module")
-def ict(shared_data):
-    folder = shared_data / "ict-face"
-    return load_artist_basis(folder / "generic_neutral_mesh.obj", folder / "expressions",
+def ict_subset(ict_neutral_path, ict_expressions_dir):
+    """The ArtistBasis of four ICT expressions (cm)."""
+    return load_artist_basis(ict_neutral_path, ict_expressions_dir,
                              names=["jawOpen", "mouthSmile_L", "eyeBlink_R", "browInnerUp_L"],
                              units="cm")
 
 
-def test_ict_face_as_animated_morph_targets(ict, tmp_path):
+def test_ict_face_as_animated_morph_targets(ict_subset, tmp_path):
     rng = np.random.default_rng(0)
-    weights = rng.random((24, ict.n_shapes))
+    weights = rng.random((24, ict_subset.n_shapes))
     path = tmp_path / "face.glb"
-    write_gltf(path, ict.neutral, ict.displacements, ict.names, weights=weights, rate=60.0)
+    write_gltf(path, ict_subset.neutral, ict_subset.displacements, ict_subset.names,
+               weights=weights, rate=60.0)
 
     gltf = pygltflib.GLTF2().load(str(path))
     _check_accessors(gltf)
     (mesh,), (prim,) = gltf.meshes, gltf.meshes[0].primitives
-    assert mesh.extras["targetNames"] == list(ict.names) and mesh.weights == [0.0] * 4
-    assert gltf.accessors[prim.attributes.POSITION].count == ict.neutral.n_vertices
+    assert mesh.extras["targetNames"] == list(ict_subset.names) and mesh.weights == [0.0] * 4
+    assert gltf.accessors[prim.attributes.POSITION].count == ict_subset.neutral.n_vertices
     indices = _read(gltf, prim.indices).reshape(-1, 3)
-    np.testing.assert_array_equal(indices, ict.neutral.faces)
+    np.testing.assert_array_equal(indices, ict_subset.neutral.faces)
     np.testing.assert_allclose(_read(gltf, prim.attributes.POSITION) / _METRES["cm"],
-                               ict.neutral.vertices, rtol=0, atol=GLTF_FLOAT32_CM)
+                               ict_subset.neutral.vertices, rtol=0, atol=GLTF_FLOAT32_CM)
     normals = _read(gltf, prim.attributes.NORMAL)
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
     # the face looks along +Z: normals at the nose tip point forward
-    assert normals[np.argmax(ict.neutral.vertices[:, 2]), 2] > 0.9
-    assert len(prim.targets) == ict.n_shapes
-    for target, disp in zip(prim.targets, ict.displacements):
+    assert normals[np.argmax(ict_subset.neutral.vertices[:, 2]), 2] > 0.9
+    assert len(prim.targets) == ict_subset.n_shapes
+    for target, disp in zip(prim.targets, ict_subset.displacements):
         np.testing.assert_allclose(_read(gltf, target["POSITION"]) / _METRES["cm"], disp,
                                    rtol=0, atol=GLTF_FLOAT32_CM)
 
@@ -109,22 +110,22 @@ def test_ict_face_as_animated_morph_targets(ict, tmp_path):
     assert gltf.nodes[channel.target.node].mesh == 0
     times = _read(gltf, sampler.input)[:, 0]
     np.testing.assert_allclose(times, np.arange(24) / 60.0, rtol=EXPORT_FLOAT32_REL)
-    np.testing.assert_allclose(_read(gltf, sampler.output).reshape(24, ict.n_shapes), weights,
-                               rtol=0, atol=EXPORT_FLOAT32_REL)
+    np.testing.assert_allclose(_read(gltf, sampler.output).reshape(24, ict_subset.n_shapes),
+                               weights, rtol=0, atol=EXPORT_FLOAT32_REL)
 
     # an independent reader (another engineer's): the basis comes back in the
     # neutral's units, from metres in the file
-    for neutral, per_cm in ((ict.neutral, 1.0),
-                            (Mesh(ict.neutral.vertices * _METRES["cm"], ict.neutral.faces,
-                                  units="m"), _METRES["cm"])):
+    for neutral, per_cm in ((ict_subset.neutral, 1.0),
+                            (Mesh(ict_subset.neutral.vertices * _METRES["cm"],
+                                  ict_subset.neutral.faces, units="m"), _METRES["cm"])):
         back = load_artist_basis(neutral, path)
-        assert back.names == ict.names
-        np.testing.assert_allclose(back.displacements / per_cm, ict.displacements,
+        assert back.names == ict_subset.names
+        np.testing.assert_allclose(back.displacements / per_cm, ict_subset.displacements,
                                    rtol=0, atol=GLTF_FLOAT32_CM)
     loaded = trimesh.load(path, process=False)
     geometry = loaded.to_geometry() if isinstance(loaded, trimesh.Scene) else loaded
-    assert len(geometry.vertices) == ict.neutral.n_vertices
-    assert len(geometry.faces) == ict.neutral.n_faces
+    assert len(geometry.vertices) == ict_subset.neutral.n_vertices
+    assert len(geometry.faces) == ict_subset.neutral.n_faces
 
 
 @pytest.mark.parametrize("suffix", GLTF_FORMATS)

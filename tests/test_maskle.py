@@ -14,21 +14,11 @@ from basis.maskle._geometry import TriangleIndex, nearest_ray_hits, triangles_in
 from basis.maskle.build_default import BONES, build_default_mask
 from basis.maskle.gold import LIP_SIDES, mouth_sides
 from fit.cli.main import main
-from fit.demo.face import make_face
 from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
 from mocap.markerset import REQUIRED_REGIONS
-from mocap.mesh.mesh import load_mesh
-from mocap.mesh.landmarks import load_mesh_landmarks
+from helpers import ICT_LANDMARKS_TOML
 from tolerances import MESH_EXACT
-
-LANDMARKS = "tests/ict_landmarks.toml"
-
-
-@pytest.fixture(scope="module")
-def ict(shared_data):
-    mesh = load_mesh(shared_data / "ict-face" / "generic_neutral_mesh.obj")
-    return mesh, load_mesh_landmarks(LANDMARKS, mesh)
 
 
 @pytest.fixture(scope="module")
@@ -114,9 +104,9 @@ def test_tongue_seam_pairs_the_strips_column_by_column(mask):
     np.testing.assert_array_equal(np.sort(seam.ravel()), tongue)
 
 
-def test_paint_reproduces_weights_the_mask_can_carry(ict, mask):
+def test_paint_reproduces_weights_the_mask_can_carry(ict_mesh, ict_landmarks, mask):
     """Face weights made by transferring a band-limited mask channel are painted back."""
-    mesh, marks = ict
+    mesh, marks = ict_mesh, ict_landmarks
     fit = fit_mask(mask, mesh, marks)
     upper, lower = mask.lip_bands
     k = mask.channel_names.index("upper_lip_left")
@@ -240,8 +230,8 @@ def test_smoothing_keeps_unit_interval_and_constants():
 
 # --- fitting and transfer on the ICT face --------------------------------------------
 
-def test_placement_maps_landmarks_on_a_scaled_face(ict, mask):
-    mesh, marks = ict
+def test_placement_maps_landmarks_on_a_scaled_face(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     fit = fit_mask(mask, mesh, marks, max_iterations=1)
     copy = mesh.with_vertices(mesh.vertices * 2.5 + [3.0, -1.0, 7.0])
     fit2 = fit_mask(mask, copy, marks, max_iterations=1)
@@ -256,8 +246,8 @@ def test_placement_maps_landmarks_on_a_scaled_face(ict, mask):
     assert np.abs(sideways[others]).max() < 0.2 * fit.scale
 
 
-def test_fit_freezes_every_vertex(ict, mask):
-    mesh, marks = ict
+def test_fit_freezes_every_vertex(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     fit = fit_mask(mask, mesh, marks)
     assert fit.status in FIT_STATUSES
     assert fit.status == "all_frozen" and fit.frozen.all()
@@ -265,9 +255,9 @@ def test_fit_freezes_every_vertex(ict, mask):
     assert np.all((fit.vertices - fit.placed) @ fit.forward <= 1e-12)
 
 
-def test_tongue_enters_the_closed_mouth(ict, mask):
+def test_tongue_enters_the_closed_mouth(ict_mesh, ict_landmarks, mask):
     """ICT's lips touch; the tongue slides between them, the lip row reaches the lips."""
-    mesh, marks = ict
+    mesh, marks = ict_mesh, ict_landmarks
     fit = fit_mask(mask, mesh, marks)
     contact = (mesh.vertices[marks["upper_lip_bottom"]]
                + mesh.vertices[marks["lower_lip_top"]]) / 2
@@ -277,7 +267,7 @@ def test_tongue_enters_the_closed_mouth(ict, mask):
         < 0.8
 
 
-def test_demo_face_lips_keep_their_bones(mask):
+def test_demo_face_lips_keep_their_bones(demo_face, mask):
     """The demo face's mouth is a slit with touching corners (its own topology, mm).
 
     Reference sides from its mouth loop (:func:`basis.maskle.gold.mouth_sides`,
@@ -287,7 +277,7 @@ def test_demo_face_lips_keep_their_bones(mask):
     band through the parting and read the upper strip: 9 crossings with this
     analytic paint, 3 with the bench's painted mask.
     """
-    demo = make_face()
+    demo = demo_face
     fit = fit_mask(mask, demo.mesh, demo.landmarks)
     seam = mask.tongue_seam
     to_template = (fit.vertices - fit.translation) @ fit.rotation / fit.scale
@@ -304,8 +294,8 @@ def test_demo_face_lips_keep_their_bones(mask):
     assert w[lower][:, lip["upper"]].max() <= 0.1
 
 
-def test_transfer_is_invariant_to_similarity(ict, mask):
-    mesh, marks = ict
+def test_transfer_is_invariant_to_similarity(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     rng = np.random.default_rng(8)
     rot = _random_rotation(rng)
     moved = mesh.with_vertices(3.0 * mesh.vertices @ rot.T + [10.0, 2.0, -5.0])
@@ -322,22 +312,22 @@ def test_transfer_is_invariant_to_similarity(ict, mask):
     assert np.all((a.weights[a.hit] >= 0) & (a.weights[a.hit] <= 1))
 
 
-def test_missing_landmark_is_an_error(ict, mask):
-    mesh, marks = ict
+def test_missing_landmark_is_an_error(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     partial = {k: v for k, v in marks.items() if k != "mouth_corner_left"}
     with pytest.raises(InputError, match="face landmarks lack mouth_corner_left"):
         fit_mask(mask, mesh, partial)
 
 
-def test_coincident_landmarks_are_an_error(ict, mask):
-    mesh, marks = ict
+def test_coincident_landmarks_are_an_error(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     same = {p: marks["nose_tip"] for p in MASKLE_POINTS}
     with pytest.raises(InputError, match="collinear or coincident"):
         fit_mask(mask, mesh, same)
 
 
-def test_bad_option_is_an_error(ict, mask):
-    mesh, marks = ict
+def test_bad_option_is_an_error(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     with pytest.raises(InputError, match="b must be positive"):
         fit_mask(mask, mesh, marks, b=0.0)
     fit = fit_mask(mask, mesh, marks, max_iterations=1)
@@ -357,31 +347,31 @@ def test_region_masks_need_regions(mask):
 
 # --- command line ----------------------------------------------------------------------
 
-def test_cli_writes_weights(ict, shared_data, tmp_path, capsys):
+def test_cli_writes_weights(ict_mesh, ict_neutral_path, tmp_path, capsys):
     out, csv, png = tmp_path / "w.npz", tmp_path / "w.csv", tmp_path / "w.png"
-    mesh_path = str(shared_data / "ict-face" / "generic_neutral_mesh.obj")
-    assert main(["maskle", mesh_path, "--landmarks", LANDMARKS, "-o", str(out),
+    mesh_path = str(ict_neutral_path)
+    assert main(["maskle", mesh_path, "--landmarks", str(ICT_LANDMARKS_TOML), "-o", str(out),
                  "--csv", str(csv), "--picture", str(png)]) == 0
     with np.load(out) as doc:
         weights, hit, regions = doc["weights"], doc["hit"], doc["region_masks"]
-    assert weights.shape == (ict[0].n_vertices, len(load_default_mask().channel_names))
+    assert weights.shape == (ict_mesh.n_vertices, len(load_default_mask().channel_names))
     assert np.isnan(weights[~hit]).all() and not np.isnan(weights[hit]).any()
     np.testing.assert_allclose(regions[hit].sum(axis=1), 1.0, atol=1e-12)
     rows = csv.read_text().splitlines()
-    assert len(rows) == ict[0].n_vertices + 1 and png.stat().st_size > 0
+    assert len(rows) == ict_mesh.n_vertices + 1 and png.stat().st_size > 0
 
 
-def test_cli_bad_landmarks_exit_1(shared_data, tmp_path, capsys):
+def test_cli_bad_landmarks_exit_1(ict_neutral_path, tmp_path, capsys):
     bad = tmp_path / "l.toml"
     bad.write_text("[landmarks]\nnose_tip = 4857\n")
-    mesh_path = str(shared_data / "ict-face" / "generic_neutral_mesh.obj")
+    mesh_path = str(ict_neutral_path)
     assert main(["maskle", mesh_path, "--landmarks", str(bad), "-o",
                  str(tmp_path / "o.npz")]) == 1
     assert "face landmarks lack" in capsys.readouterr().err
 
 
-def test_cli_output_must_be_npz(shared_data, tmp_path, capsys):
-    mesh_path = str(shared_data / "ict-face" / "generic_neutral_mesh.obj")
-    assert main(["maskle", mesh_path, "--landmarks", LANDMARKS, "-o",
+def test_cli_output_must_be_npz(ict_neutral_path, tmp_path, capsys):
+    mesh_path = str(ict_neutral_path)
+    assert main(["maskle", mesh_path, "--landmarks", str(ICT_LANDMARKS_TOML), "-o",
                  str(tmp_path / "o.txt")]) == 1
     assert "must be an .npz file" in capsys.readouterr().err

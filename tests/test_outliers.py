@@ -2,20 +2,15 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-import mocap
 from mocap.clean import fill_gaps
 from mocap.clean.outliers import (REASONS, ImplausibleSamples, find_implausible_samples,
                                   remove_implausible_samples)
 from mocap.errors import InputError, MarkerError
-from mocap.markerset import load_markerset
 from mocap.take import Take
 
-HERE = Path(__file__).resolve().parent
 N_FRAMES = 400
 #: A 4 x 3 grid of markers 15 mm apart, so that every marker has neighbours to refill it.
 GRID = np.array([[x, y, 0.0] for y in (0, 15, 30) for x in (0, 15, 30, 45)])
@@ -198,12 +193,13 @@ def test_remove_rejects_a_result_of_another_take():
 
 # -- real data ------------------------------------------------------------------
 
-def test_facial_sing_mislabel_is_the_only_implausible_event(shared_data):
+def test_facial_sing_mislabel_is_the_only_implausible_event(facial_sing_take,
+                                                            facial_sing_markerset):
     """facial-sing frames 819-863: the section3-1/3-2 labels leave their markers
     (jumps of ~70 mm, ghost samples interpolated between). Everything else in the
     3000 frames, slips of the head markers included, is plausible."""
-    take = mocap.read(shared_data / "captures" / "facial-sing.c3d")
-    head = load_markerset(HERE / "facial_sing_markerset.toml").head
+    take = facial_sing_take
+    head = facial_sing_markerset.head
     found = find_implausible_samples(take, head=head)
     frames = np.flatnonzero(found.mask.any(axis=1))
     assert frames.min() >= 819 and frames.max() <= 863

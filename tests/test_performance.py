@@ -55,8 +55,8 @@ def test_timecodes_by_hand(tmp_path):
     assert read_performance(wrap30, timecode_rate=30.0).duration == pytest.approx(2 / 30)
 
 
-def test_live_link_face_file_against_a_hand_parse(shared_data):
-    path = shared_data / "arkit-performances" / "alex_rom_3.csv"
+def test_live_link_face_file_against_a_hand_parse(arkit_performance_path):
+    path = arkit_performance_path
     with open(path, newline="", encoding="utf-8") as fh:
         rows = list(csv.reader(fh))
     header, body = rows[0], rows[1:]

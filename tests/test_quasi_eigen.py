@@ -123,12 +123,11 @@ def test_training_frames_are_unchanged_with_real_pca():
     np.testing.assert_allclose(qe.displacements, frames, atol=1e-10)
 
 
-def test_ict_expressions_in_capture_span_are_unchanged(shared_data):
+def test_ict_expressions_in_capture_span_are_unchanged(ict_neutral_path, ict_expressions_dir):
     """Real shapes: a capture blending 4 ICT expressions; those stay, a 5th one moves."""
     import trimesh
-    root = shared_data / "ict-face"
-    neutral = trimesh.load(root / "generic_neutral_mesh.obj", process=False).vertices
-    shapes = np.stack([trimesh.load(root / "expressions" / f"{name}.obj",
+    neutral = trimesh.load(ict_neutral_path, process=False).vertices
+    shapes = np.stack([trimesh.load(ict_expressions_dir / f"{name}.obj",
                                     process=False).vertices - neutral
                        for name in ("jawOpen", "mouthSmile_L", "browInnerUp_L",
                                     "eyeBlink_R", "mouthPucker")])

@@ -301,7 +301,7 @@ def test_painted_mask_errors():
         painted_region_weights([[1.0, 0.0]], ["a", "a"])
 
 
-def test_geodesic_thin_plate_spline_on_the_ict_face(shared_data):
+def test_geodesic_thin_plate_spline_on_the_ict_face(ict_neutral_path):
     """Heat-method distances of ~-1e-16 at a source must not turn the TPS log into NaN.
 
     The geodesic TPS kernel is indefinite on this mesh, so it is shifted (and no
@@ -310,7 +310,7 @@ def test_geodesic_thin_plate_spline_on_the_ict_face(shared_data):
     """
     import trimesh
 
-    mesh = trimesh.load(shared_data / "ict-face" / "generic_neutral_mesh.obj", process=False)
+    mesh = trimesh.load(ict_neutral_path, process=False)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     idx = np.random.default_rng(0).choice(len(vertices), 30, replace=False)
     with pytest.warns(UserWarning, match="positive definite"):

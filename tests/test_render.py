@@ -345,14 +345,13 @@ def test_save_png_refuses_a_missing_directory(tmp_path):
 # ---------------------------------------------------------------- real face
 
 @pytest.fixture(scope="module")
-def ict(shared_data):
-    root = shared_data / "ict-face"
-    return (load_mesh(root / "generic_neutral_mesh.obj"),
-            load_mesh(root / "expressions" / "mouthSmile_L.obj"))
+def ict_smile(ict_expressions_dir):
+    """The ICT mouthSmile_L expression as a Mesh (cm)."""
+    return load_mesh(ict_expressions_dir / "mouthSmile_L.obj", units="cm")
 
 
-def test_ict_face_front_view_has_no_holes_and_faces_the_viewer(ict):
-    neutral, _ = ict
+def test_ict_face_front_view_has_no_holes_and_faces_the_viewer(ict_mesh):
+    neutral = ict_mesh
     cam = Camera.fit(neutral.vertices, size=(300, 300)).zoomed(1)
     proj = cam.project(neutral.vertices)
     frags = _raster.rasterize(proj[:, :2], proj[:, 2], neutral.faces, 300, 300)
@@ -367,8 +366,8 @@ def test_ict_face_front_view_has_no_holes_and_faces_the_viewer(ict):
     assert frags.front[frags.face].mean() > 0.97
 
 
-def test_ict_left_smile_is_on_the_viewer_right(ict):
-    neutral, smile = ict
+def test_ict_left_smile_is_on_the_viewer_right(ict_mesh, ict_smile):
+    neutral, smile = ict_mesh, ict_smile
     error = np.linalg.norm(smile.vertices - neutral.vertices, axis=1)
     image = render_mesh(smile.vertices, smile.faces, size=(200, 200), colors=error,
                         cmap="gray", vmin=0.0, vmax=error.max(), lighting=FLAT)

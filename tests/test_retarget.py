@@ -11,7 +11,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import mocap
-from basis.artist import load_artist_basis
 from fit.cli.main import main
 from fit.cli.commands.bind import bind_capture
 from mocap.retarget.retargeting import (CONTENTS, RetargetOptions, align_head_frame,
@@ -19,19 +18,13 @@ from mocap.retarget.retargeting import (CONTENTS, RetargetOptions, align_head_fr
                           save_npz, save_obj_sequence)
 from mocap.bind import Binding, hold_window
 from mocap.errors import InputError, MarkerError
-from mocap.mesh.layout import load_marker_layout
-from mocap.markerset import MarkerSet, load_markerset
+from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh, load_mesh
-from mocap.mesh.landmarks import load_mesh_landmarks
-from mocap.synth.performance import read_performance
 from mocap.synth.capture import simulate_capture
 from mocap.take import Take
+from helpers import ICT_MARKERSET_TOML
 from tolerances import EXPORT_FLOAT32_REL, RETARGET_CLI_SIM_REL, RETARGET_EXACT
 
-HERE = Path(__file__).resolve().parent
-ICT_MARKERSET = HERE / "ict_markerset.toml"
-ICT_LANDMARKS = HERE / "ict_landmarks.toml"
-LAYOUT = HERE / "ict_marker_layout.toml"
 MM_PER_CM = 10.0
 
 
@@ -254,13 +247,11 @@ def test_options_validate_choices():
 # -- the command line on a simulated ICT capture -------------------------------------------
 
 @pytest.fixture(scope="module")
-def ict_capture(shared_data, tmp_path_factory):
+def ict_capture(ict_basis, ict_markerset, ict_layout, ict_landmarks, ict_neutral_path,
+                arkit_performance, tmp_path_factory):
     """A 1.2 s simulated capture (30 Hz, 0.2 mm noise, head motion, gaps) and its binding."""
-    ict = shared_data / "ict-face"
-    basis = load_artist_basis(ict / "generic_neutral_mesh.obj", ict / "expressions", units="cm")
-    markerset = load_markerset(ICT_MARKERSET)
-    layout = load_marker_layout(LAYOUT, basis.neutral)
-    full = read_performance(shared_data / "arkit-performances" / "alex_rom_3.csv")
+    basis, markerset, layout = ict_basis, ict_markerset, ict_layout
+    full = arkit_performance
     peak = full.times[np.argmax(full.weights[:, full.names.index("JawOpen")])]
     with pytest.warns(UserWarning, match="match no shape"):
         sim = simulate_capture(basis, full, layout, markerset.head, rate=30.0,
@@ -272,26 +263,25 @@ def ict_capture(shared_data, tmp_path_factory):
     with warnings.catch_warnings():    # an expressive clip: some markers sit off the mesh
         warnings.simplefilter("ignore")
         binding, _ = bind_capture(mocap.read(capture), markerset, basis.neutral,
-                                  load_mesh_landmarks(ICT_LANDMARKS, basis.neutral),
-                                  skin_offset=2.0, stabilized=True)
+                                  ict_landmarks, skin_offset=2.0, stabilized=True)
     binding.save(binding_path)
-    return basis, sim, capture, binding_path, ict / "generic_neutral_mesh.obj"
+    return basis, sim, capture, binding_path, ict_neutral_path
 
 
 def _retarget_args(ict_capture, output, *extra, binding=None):
     _, _, capture, binding_path, mesh = ict_capture
-    return ["retarget", str(capture), "--markerset", str(ICT_MARKERSET), "--mesh", str(mesh),
+    return ["retarget", str(capture), "--markerset", str(ICT_MARKERSET_TOML), "--mesh", str(mesh),
             "--binding", str(binding or binding_path), "-o", str(output), *extra]
 
 
-def test_cli_retargets_a_simulated_capture(ict_capture, tmp_path):
+def test_cli_retargets_a_simulated_capture(ict_capture, ict_layout, ict_markerset, tmp_path):
     basis, sim, *_ = ict_capture
     output = tmp_path / "face.npz"
     assert main(_retarget_args(ict_capture, output, "--neutral-frame", "0")) == 0
     with np.load(output) as data:
         moved = data["vertices"].astype(np.float64) - basis.neutral.vertices
-    layout = load_marker_layout(LAYOUT, basis.neutral)
-    face = [layout.index(x) for x in load_markerset(ICT_MARKERSET).face_markers]
+    layout = ict_layout
+    face = [layout.index(x) for x in ict_markerset.face_markers]
     # the marker points (on the skin) of the retargeted and of the true mesh, frame 0 as rest
     truth = layout.positions(basis.evaluate(sim.truth.weights), offset=False)[:, face]
     truth -= truth[0]
@@ -358,14 +348,14 @@ def test_neutral_pose_is_the_window_mean_and_checks_its_arguments():
         neutral_pose(positions.reshape(20, 12), 3)
 
 
-def test_bind_capture_names_a_frame_of_no_kind(ict_capture):
+def test_bind_capture_names_a_frame_of_no_kind(ict_capture, ict_markerset, ict_landmarks):
     basis, sim = ict_capture[:2]
     with pytest.raises(InputError, match=r"frame must be an integer, got 'still'"):
-        bind_capture(sim.take, load_markerset(ICT_MARKERSET), basis.neutral,
-                     load_mesh_landmarks(ICT_LANDMARKS, basis.neutral), frame="still")
+        bind_capture(sim.take, ict_markerset, basis.neutral, ict_landmarks, frame="still")
 
 
-def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, shared_data,
+def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, ict_markerset,
+                                                                   ict_layout, arkit_performance,
                                                                    tmp_path):
     """``--neutral-frame hold``: the rest pose is the mean of the hold window, not one frame.
 
@@ -374,16 +364,15 @@ def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, 
     frame as the rest pose, that frame's displacements would be exactly 0).
     """
     basis, _, _, binding_path, mesh = ict_capture
-    markerset = load_markerset(ICT_MARKERSET)
-    layout = load_marker_layout(LAYOUT, basis.neutral)
-    full = read_performance(shared_data / "arkit-performances" / "alex_rom_3.csv")
+    markerset, layout = ict_markerset, ict_layout
+    full = arkit_performance
     with pytest.warns(UserWarning, match="match no shape"):
         sim = simulate_capture(basis, full, layout, markerset.head, rate=30.0, duration=0.6,
                                noise_mm=0.2, n_gaps=0, neutral_lead_s=1.0, seed=7)
     capture = tmp_path / "held.c3d"
     mocap.write(sim.take, capture)
     output = tmp_path / "held.npz"
-    assert main(["retarget", str(capture), "--markerset", str(ICT_MARKERSET), "--mesh",
+    assert main(["retarget", str(capture), "--markerset", str(ICT_MARKERSET_TOML), "--mesh",
                  str(mesh), "--binding", str(binding_path), "-o", str(output),
                  "--neutral-frame", "hold", "--content", "displacements"]) == 0
     with np.load(output) as data:

@@ -207,12 +207,11 @@ def test_bad_input_raises(change, message):
 
 
 @pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
-def test_real_basis_against_bvls(shared_data):
+def test_real_basis_against_bvls(ict_neutral_path, ict_expressions_dir):
     """The 53 ICT shapes at 30 vertices (mm), sparse weights in [0, 1]."""
     import trimesh
-    face = shared_data / "ict-face"
-    paths = sorted((face / "expressions").glob("*.obj"))
-    neutral = trimesh.load(face / "generic_neutral_mesh.obj", process=False).vertices
+    paths = sorted(ict_expressions_dir.glob("*.obj"))
+    neutral = trimesh.load(ict_neutral_path, process=False).vertices
     rng = np.random.default_rng(10)
     picked = rng.choice(len(neutral), 30, replace=False)
     basis = 10.0 * np.stack([trimesh.load(p, process=False).vertices[picked] - neutral[picked]
@@ -393,13 +392,12 @@ def test_fixed_weights_against_bvls_on_the_rest():
 
 
 @pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
-def test_many_real_frames_against_bvls(shared_data):
+def test_many_real_frames_against_bvls(ict_neutral_path, ict_expressions_dir):
     """The 53 ICT shapes at 66 vertices, 300 noisy frames of sparse weights: most
     frames go through the monotone phase (factored and updated systems)."""
     import trimesh
-    face = shared_data / "ict-face"
-    paths = sorted((face / "expressions").glob("*.obj"))
-    neutral = trimesh.load(face / "generic_neutral_mesh.obj", process=False).vertices
+    paths = sorted(ict_expressions_dir.glob("*.obj"))
+    neutral = trimesh.load(ict_neutral_path, process=False).vertices
     rng = np.random.default_rng(18)
     picked = rng.choice(len(neutral), 66, replace=False)
     flat = 10.0 * np.stack([(trimesh.load(p, process=False).vertices[picked]

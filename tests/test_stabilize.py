@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-import mocap
 from mocap import InputError, MarkerError, Take
 from mocap.stabilize import INVALID_POLICIES, REFERENCES, stabilize
 
@@ -256,8 +255,8 @@ def test_take_must_be_a_take_and_points_must_fit():
         st.to_world(np.zeros((19, 2, 3)))
 
 
-def test_real_capture_head_residuals(shared_data):
-    take = mocap.read(shared_data / "captures" / "facial-sing.c3d")
+def test_real_capture_head_residuals(facial_sing_take):
+    take = facial_sing_take
     st = stabilize(take, HEAD)
     assert st.valid.all() and st.converged
     assert np.nanmedian(st.head_residuals) < 1.0             # head markers ~ rigid

@@ -3,7 +3,6 @@ written here from ezc3d's reading of markers.c3d, every error message, and the w
 
 import csv
 
-import ezc3d
 import numpy as np
 import pytest
 
@@ -41,9 +40,9 @@ def write_bytes(tmp_path, text, name="take.trc"):
 
 
 @pytest.fixture(scope="module")
-def c3d(shared_data):
+def c3d(vicon_nexus_ezc3d):
     """Labels, positions (n_frames, n_markers, 3) and first frame of markers.c3d via ezc3d."""
-    c = ezc3d.c3d(str(shared_data / "vicon-nexus" / "markers.c3d"))
+    c = vicon_nexus_ezc3d
     return (tuple(c["parameters"]["POINT"]["LABELS"]["value"]),
             c["data"]["points"][:3].transpose(2, 1, 0),
             int(c["parameters"]["TRIAL"]["ACTUAL_START_FIELD"]["value"][0]))
@@ -51,8 +50,8 @@ def c3d(shared_data):
 
 # -- the real file -----------------------------------------------------------
 @pytest.fixture(scope="module")
-def real_trc(shared_data):
-    path = shared_data / "vicon-nexus" / "markers.trc"
+def real_trc(vicon_nexus_dir):
+    path = vicon_nexus_dir / "markers.trc"
     with pytest.warns(UserWarning, match="the header says NumFrames 652 but 93 data rows"):
         return path, read_trc(path)
 

@@ -3,7 +3,6 @@ edge-case files written here by a plain loop, every error message, and the write
 
 import csv
 
-import ezc3d
 import numpy as np
 import pytest
 
@@ -60,9 +59,9 @@ def write_bytes(tmp_path, text, name="take.csv"):
 
 # -- the real export against ezc3d ------------------------------------------
 @pytest.fixture(scope="module")
-def nexus(shared_data):
-    folder = shared_data / "vicon-nexus"
-    return read_vicon_csv(folder / "markers.csv"), ezc3d.c3d(str(folder / "markers.c3d"))
+def nexus(vicon_nexus_dir, vicon_nexus_ezc3d):
+    """markers.csv read by our reader, and the same trial's markers.c3d read by ezc3d."""
+    return read_vicon_csv(vicon_nexus_dir / "markers.csv"), vicon_nexus_ezc3d
 
 
 def test_real_csv_agrees_with_ezc3d(nexus):
@@ -85,8 +84,8 @@ def test_real_csv_source_and_subjects(nexus):
             take.source.storage) == ("vicon-csv", "mm", "Vicon Nexus", "text")
 
 
-def test_io_read_dispatches_to_the_csv_reader(shared_data, nexus):
-    take = mocap.io.read(shared_data / "vicon-nexus" / "markers.csv")
+def test_io_read_dispatches_to_the_csv_reader(vicon_nexus_dir, nexus):
+    take = mocap.io.read(vicon_nexus_dir / "markers.csv")
     np.testing.assert_array_equal(take.positions, nexus[0].positions)
 
 
