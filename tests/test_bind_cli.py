@@ -14,8 +14,7 @@ from fit.cli.main import main
 from mocap.bind import load_binding
 from mocap.errors import MarkerError
 from mocap.synth.capture import load_capture_truth
-from helpers import (FACIAL_SING_MARKERSET_TOML, ICT_LANDMARKS_TOML, ICT_LAYOUT_TOML,
-                     ICT_MARKERSET_TOML)
+from helpers import FACIAL_SING_MARKERSET_TOML, bind_argv, rigid_shape_rms, synth_argv
 from tolerances import BIND_CLI_SIM_MAX_MM, BIND_CLI_SIM_MEAN_MM
 
 MM_PER_CM = 10.0
@@ -34,17 +33,12 @@ def _performance_csv(path: Path) -> Path:
 
 
 def _synth_args(ict_dir, performance, output, *extra):
-    return ["synth", "--mesh", str(ict_dir / "generic_neutral_mesh.obj"), "--shapes",
-            str(ict_dir / "expressions"), "--performance", str(performance), "--layout",
-            str(ICT_LAYOUT_TOML), "--markerset", str(ICT_MARKERSET_TOML), "-o", str(output),
-            *extra]
+    return synth_argv(ict_dir / "generic_neutral_mesh.obj", ict_dir / "expressions", performance,
+                      output, *extra)
 
 
-def _bind_args(ict_dir, capture, output, *extra, markerset=ICT_MARKERSET_TOML,
-               landmarks=ICT_LANDMARKS_TOML):
-    return ["bind", str(capture), "--markerset", str(markerset), "--mesh",
-            str(ict_dir / "generic_neutral_mesh.obj"), "--landmarks", str(landmarks),
-            "-o", str(output), *extra]
+def _bind_args(ict_dir, capture, output, *extra, **files):
+    return bind_argv(capture, ict_dir / "generic_neutral_mesh.obj", output, *extra, **files)
 
 
 @pytest.fixture(scope="module", params=[".c3d", ".csv"])
@@ -249,7 +243,6 @@ def test_bind_hold_binds_the_mean_pose_of_the_hold(ict_dir, ict_markerset, tmp_p
     """
     from fit.cli.commands.bind import _hold_pose
     from mocap.bind import hold_window
-    from mocap.rigid import fit_rigid
     from mocap.stabilize import stabilize
 
     capture, truth_path = tmp_path / "led.c3d", tmp_path / "led.npz"
@@ -266,13 +259,10 @@ def test_bind_hold_binds_the_mean_pose_of_the_hold(ict_dir, ict_markerset, tmp_p
     window = hold_window(take.rate)
     frame = window                                   # inside the 1 s hold, away from its ends
     exact = truth.markers_world[frame, [truth.labels.index(x) for x in take.labels]]
-
-    def shape_rms(points):
-        fit = fit_rigid(points, exact)
-        return float(np.sqrt(np.mean(np.sum((fit.apply(points) - exact) ** 2, axis=1))))
     expected = noise * np.sqrt(3 / window)
     pose = _hold_pose(take, head, frame, carry=True)
-    assert shape_rms(pose) < 1.5 * expected < 0.3 * shape_rms(take.positions[frame])
+    assert rigid_shape_rms(pose, exact) < 1.5 * expected \
+        < 0.3 * rigid_shape_rms(take.positions[frame], exact)
     # carried to the capture frame by the centre frame's head pose
     in_head = _hold_pose(take, head, frame, carry=False)
     np.testing.assert_allclose(head.to_head(np.broadcast_to(pose, take.positions.shape))[frame],

@@ -9,33 +9,8 @@ import trimesh
 
 from mocap import InputError
 from mocap.mesh.geodesic import HeatGeodesics
+from helpers import slit_grid
 from tolerances import GEODESIC_HEAT_MAX_REL, GEODESIC_HEAT_MEAN_REL
-
-
-def slit_grid(n: int = 25, slit: float = 0.6):
-    """Unit-square grid (criss-cross triangles) cut along y = 0.5 for x < `slit`.
-
-    Returns vertices (V, 3), triangles (F, 3), and the ids of the vertex rows
-    just above and just below the cut (sharing x), as (upper, lower).
-    """
-    xs = np.linspace(0.0, 1.0, n)
-    gx, gy = np.meshgrid(xs, xs, indexing="ij")
-    vertices = np.c_[gx.ravel(), gy.ravel(), np.zeros(n * n)]
-    ids = np.arange(n * n).reshape(n, n)
-    mid, tip = (n - 1) // 2, int(round(slit * (n - 1)))
-    faces = []
-    lower_ids = ids.copy()
-    if slit > 0:
-        # Duplicate the cut vertices (x < tip) for the cells below the cut.
-        dup = np.arange(n * n, n * n + tip)
-        vertices = np.r_[vertices, vertices[ids[:tip, mid]]]
-        lower_ids[:tip, mid] = dup
-    for i in range(n - 1):
-        for j in range(n - 1):
-            grid = lower_ids if j < mid else ids
-            a, b, c, d = grid[i, j], grid[i + 1, j], grid[i + 1, j + 1], grid[i, j + 1]
-            faces += [[a, b, c], [a, c, d]] if (i + j) % 2 else [[a, b, d], [b, c, d]]
-    return vertices, np.array(faces), ids[:, mid], lower_ids[:, mid]
 
 
 def test_flat_grid_matches_euclidean_and_exact():

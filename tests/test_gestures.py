@@ -23,6 +23,7 @@ from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.mesh.mesh import Mesh
 from mocap.stabilize import stabilize
 from mocap.take import Take
+from helpers import moving_average_oracle
 
 REGIONS = {"upper_lip": ["UL1", "UL2"], "lower_lip": ["LL1", "LL2"],
            "left_brow": ["LB1", "LB2"], "right_brow": ["RB1", "RB2"],
@@ -59,17 +60,11 @@ def capture():
     return stab, neutral, basis, c, face
 
 
-def _moving_average_oracle(x, window):
-    """Centred mean over the frames inside the take (explicit loop)."""
-    k = window // 2
-    return np.array([x[max(0, t - k):t + k + 1].mean(axis=0) for t in range(len(x))])
-
-
 @pytest.mark.parametrize("window", [1, 5, 41])
 def test_exact_analysis_recovers_the_averaged_weights(capture, window):
     stab, neutral, basis, c, _ = capture
     result = analyze_gestures(stab, neutral, basis, REGIONS, labels=FACE, window=window)
-    np.testing.assert_allclose(result.weights, _moving_average_oracle(c, window), atol=1e-8)
+    np.testing.assert_allclose(result.weights, moving_average_oracle(c, window), atol=1e-8)
     np.testing.assert_allclose(result.rotation, stab.rotation)
     if window == 1:
         np.testing.assert_allclose(result.residual(), 0.0, atol=1e-8)

@@ -13,8 +13,8 @@ from fit.gestures import load_clip
 from mocap.bind import load_binding
 from mocap.mesh.mesh import load_mesh
 from mocap.synth.capture import load_capture_truth
-from helpers import (FACIAL_SING_MARKERSET_TOML, ICT_LANDMARKS_TOML, ICT_LAYOUT_TOML,
-                     ICT_MARKERSET_TOML)
+from helpers import (FACIAL_SING_MARKERSET_TOML, ICT_LAYOUT_TOML, ICT_MARKERSET_TOML, bind_argv,
+                     moving_average_oracle, read_gltf_accessor, rigid_shape_rms, synth_argv)
 
 SHAPES = ("browInnerUp_L", "browInnerUp_R", "eyeBlink_L", "eyeBlink_R", "jawOpen",
           "mouthSmile_L")
@@ -43,24 +43,15 @@ def bound_capture(ict_neutral_path, ict_expressions_dir, arkit_performance_path,
     mesh = ict_neutral_path
     capture, truth, binding = folder / "cap.c3d", folder / "truth.npz", folder / "binding.json"
     with pytest.warns(UserWarning, match="match no shape"):
-        assert main(["synth", "--mesh", str(mesh), "--shapes", str(shapes), "--performance",
-                     str(arkit_performance_path), "--layout", str(ICT_LAYOUT_TOML),
-                     "--markerset", str(ICT_MARKERSET_TOML), "-o", str(capture), "--truth",
-                     str(truth), "--rate", "60", "--start", "20", "--duration", "6", "--gaps",
-                     "3", "--noise", "0.1", "--head-motion", "10,20"]) == 0
-    assert main(["bind", str(capture), "--markerset", str(ICT_MARKERSET_TOML),
-                 "--mesh", str(mesh), "--landmarks", str(ICT_LANDMARKS_TOML),
-                 "--stabilize", "-o", str(binding)]) == 0
+        assert main(synth_argv(mesh, shapes, arkit_performance_path, capture, "--truth",
+                               str(truth), "--rate", "60", "--start", "20", "--duration", "6",
+                               "--gaps", "3", "--noise", "0.1", "--head-motion", "10,20")) == 0
+    assert main(bind_argv(capture, mesh, binding, "--stabilize")) == 0
     wav = _speech(folder / "speech.wav", 6.0)
     common = ["--markerset", str(ICT_MARKERSET_TOML), "--binding", str(binding),
               "--mesh", str(mesh), "--shapes", str(shapes), "--units", "cm"]
     return dict(folder=folder, capture=capture, truth=truth, binding=binding, wav=wav,
                 mesh=mesh, shapes=shapes, common=common)
-
-
-def _moving_average(x, window):
-    k = window // 2
-    return np.array([x[max(0, t - k):t + k + 1].mean(axis=0) for t in range(len(x))])
 
 
 def test_analyze_recovers_the_simulated_weights_head_and_speech(bound_capture):
@@ -75,7 +66,7 @@ def test_analyze_recovers_the_simulated_weights_head_and_speech(bound_capture):
     assert str(bound_capture["wav"]) in clip.intensity_source
     # weights: the 41-frame average of the truth (at 30 Hz) minus the neutral frame's
     at30 = truth.weights[::2][:, [truth.shape_names.index(n) for n in SHAPES]]
-    want = np.clip(_moving_average(at30, 41) - at30[NEUTRAL], -0.1, 1.1)
+    want = np.clip(moving_average_oracle(at30, 41) - at30[NEUTRAL], -0.1, 1.1)
     lids = [SHAPES.index("eyeBlink_L"), SHAPES.index("eyeBlink_R")]
     rest = [i for i in range(len(SHAPES)) if i not in lids]
     np.testing.assert_allclose(clip.weights[:, rest], want[:, rest], atol=0.03)
@@ -119,15 +110,6 @@ def test_analyze_reads_speech_from_the_c3d_analog_channel(bound_capture, tmp_pat
     _bursts_are_read(clip)
 
 
-def _accessor(gltf, index):
-    acc = gltf.accessors[index]
-    view = gltf.bufferViews[acc.bufferView]
-    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[acc.type]
-    return np.frombuffer(gltf.binary_blob(), "<f4", count=width * acc.count,
-                         offset=view.byteOffset + (acc.byteOffset or 0)).reshape(acc.count,
-                                                                                 width)
-
-
 def _synthesize_and_check_the_glb(clip, bound_capture, out, wav):
     """Synthesize onto the ICT face; the glb's node motion is R~, T~ carried by the binding."""
     out.mkdir()
@@ -139,9 +121,9 @@ def _synthesize_and_check_the_glb(clip, bound_capture, out, wav):
     (anim,) = gltf.animations
     samplers = {c.target.path: anim.samplers[c.sampler] for c in anim.channels}
     assert all(c.target.node == 0 for c in anim.channels) and gltf.nodes[0].mesh == 0
-    quat = _accessor(gltf, samplers["rotation"].output).astype(float)
-    move = _accessor(gltf, samplers["translation"].output).astype(float) / 0.01   # m -> cm
-    times = _accessor(gltf, samplers["rotation"].input)[:, 0]
+    quat = read_gltf_accessor(gltf, samplers["rotation"].output).astype(float)
+    move = read_gltf_accessor(gltf, samplers["translation"].output).astype(float) / 0.01  # m->cm
+    times = read_gltf_accessor(gltf, samplers["rotation"].input)[:, 0]
     np.testing.assert_allclose(times, np.arange(len(head["rotation"])) / RATE, rtol=1e-6)
     binding = load_binding(bound_capture["binding"])
     points = binding.marker_points(load_mesh(bound_capture["mesh"], units="cm").vertices)
@@ -168,9 +150,7 @@ def test_facial_sing_analyze_states_its_stand_in_and_synthesizes(facial_sing_pat
     mesh = bound_capture["mesh"]
     binding = tmp_path / "sing-binding.json"
     with pytest.warns(UserWarning, match="off the expected"):    # head markers off the face
-        assert main(["bind", str(capture), "--markerset", str(markerset), "--mesh", str(mesh),
-                     "--landmarks", str(ICT_LANDMARKS_TOML), "--stabilize",
-                     "-o", str(binding)]) == 0
+        assert main(bind_argv(capture, mesh, binding, "--stabilize", markerset=markerset)) == 0
     clip = tmp_path / "sing.npz"
     with pytest.warns(UserWarning, match="stand-in .*lip opening section10-2-section13-2"):
         assert main(["gestures", "analyze", str(capture), "--markerset", str(markerset),
@@ -279,7 +259,6 @@ def test_clip_from_capture_takes_n_as_the_mean_of_the_hold(bound_capture, ict_ma
     from fit.gestures.reference import clip_from_capture
     from mocap.bind import hold_window
     from mocap.mesh.layout import load_marker_layout
-    from mocap.rigid import fit_rigid
     from mocap.synth.capture import simulate_capture
 
     basis = load_artist_basis(bound_capture["mesh"], bound_capture["shapes"], units="cm")
@@ -299,6 +278,5 @@ def test_clip_from_capture_takes_n_as_the_mean_of_the_hold(bound_capture, ict_ma
     neutral = made.analysis.neutral
     exact = sim.truth.markers_head[made.neutral_frame,
                                    [sim.truth.labels.index(x) for x in made.analysis.labels]]
-    fit = fit_rigid(neutral, exact)
-    shape_rms = np.sqrt(np.mean(np.sum((fit.apply(neutral) - exact) ** 2, axis=1)))
+    shape_rms = rigid_shape_rms(neutral, exact)
     assert shape_rms < 1.5 * noise * np.sqrt(3 / window) < 0.5 * noise * np.sqrt(3), shape_rms

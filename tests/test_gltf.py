@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import base64
 import importlib.util
 import struct
 from pathlib import Path
@@ -16,36 +15,16 @@ from basis.artist import load_artist_basis
 from basis.gltf import GLTF_FORMATS, write_gltf
 from mocap.errors import InputError
 from mocap.mesh.mesh import Mesh, load_mesh
+from helpers import read_gltf_accessor
 from tolerances import EXPORT_FLOAT32_REL, GLTF_FLOAT32_CM
 
 #: Metres per unit: the oracle of the unit conversion.
 _METRES = {"mm": 0.001, "cm": 0.01, "m": 1.0}
-_DTYPES = {pygltflib.FLOAT: "<f4", pygltflib.UNSIGNED_INT: "<u4",
-           pygltflib.UNSIGNED_SHORT: "<u2"}
-_WIDTH = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}
-
-
-def _buffer(gltf: pygltflib.GLTF2) -> bytes:
-    uri = gltf.buffers[0].uri
-    if uri is None:
-        return gltf.binary_blob()
-    assert uri.startswith("data:application/octet-stream;base64,")
-    return base64.b64decode(uri.split(",", 1)[1])
 
 
 def _read(gltf: pygltflib.GLTF2, index: int) -> np.ndarray:
-    """Decode an accessor (count, width) by hand from its view and buffer."""
-    acc = gltf.accessors[index]
-    view = gltf.bufferViews[acc.bufferView]
-    dtype = np.dtype(_DTYPES[acc.componentType])
-    width = _WIDTH[acc.type]
-    stride = view.byteStride or dtype.itemsize * width
-    data = _buffer(gltf)
-    start = view.byteOffset + (acc.byteOffset or 0)
-    assert start + stride * (acc.count - 1) + dtype.itemsize * width <= view.byteOffset \
-        + view.byteLength <= len(data)
-    return np.ndarray((acc.count, width), dtype=dtype, buffer=data, offset=start,
-                      strides=(stride, dtype.itemsize))
+    """Decode an accessor (count, width) by hand, checking that it lies in its buffer."""
+    return read_gltf_accessor(gltf, index, check_bounds=True)
 
 
 def _check_accessors(gltf: pygltflib.GLTF2) -> None:

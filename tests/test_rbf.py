@@ -14,7 +14,7 @@ from mocap import InputError
 from mocap.retarget._kernels import COMPACT_KERNELS, KERNELS, MIN_DEGREE, evaluate
 from mocap.retarget.rbf import build_rbf_operator
 from mocap.mesh.regions import painted_region_weights, region_weights
-from test_geodesic import slit_grid  # the grid-with-a-cut mesh builder
+from helpers import slit_grid
 from tolerances import RBF_VS_SCIPY_RTOL
 
 SCIPY_KERNELS = tuple(k for k in KERNELS if k not in COMPACT_KERNELS)

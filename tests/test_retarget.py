@@ -22,7 +22,7 @@ from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh, load_mesh
 from mocap.synth.capture import simulate_capture
 from mocap.take import Take
-from helpers import ICT_MARKERSET_TOML
+from helpers import ICT_MARKERSET_TOML, jaw_open_peak_time
 from tolerances import EXPORT_FLOAT32_REL, RETARGET_CLI_SIM_REL, RETARGET_EXACT
 
 MM_PER_CM = 10.0
@@ -252,7 +252,7 @@ def ict_capture(ict_basis, ict_markerset, ict_layout, ict_landmarks, ict_neutral
     """A 1.2 s simulated capture (30 Hz, 0.2 mm noise, head motion, gaps) and its binding."""
     basis, markerset, layout = ict_basis, ict_markerset, ict_layout
     full = arkit_performance
-    peak = full.times[np.argmax(full.weights[:, full.names.index("JawOpen")])]
+    peak = jaw_open_peak_time(full)
     with pytest.warns(UserWarning, match="match no shape"):
         sim = simulate_capture(basis, full, layout, markerset.head, rate=30.0,
                                start=peak - 1.0, duration=1.2, noise_mm=0.2, n_gaps=4,

@@ -16,7 +16,7 @@ from mocap.mesh.mesh import Mesh
 from mocap.synth.performance import Performance
 from mocap.stabilize import stabilize
 from mocap.synth.capture import CaptureTruth, load_capture_truth, simulate_capture
-from helpers import ICT_LAYOUT_TOML
+from helpers import ICT_LAYOUT_TOML, jaw_open_peak_time
 from tolerances import SYNTH_HEAD_EXACT, SYNTH_VS_DENSE_MM
 
 SHAPES = ["browInnerUp_L", "browInnerUp_R", "cheekPuff_L", "cheekPuff_R", "eyeBlink_L",
@@ -42,7 +42,7 @@ def performance(arkit_performance) -> Performance:
     """The columns of a real performance that drive SHAPES, 2 s around its widest jaw opening."""
     full = arkit_performance
     cols = [full.names.index(c) for c in COLUMNS]
-    peak = full.times[np.argmax(full.weights[:, full.names.index("JawOpen")])]
+    peak = jaw_open_peak_time(full)
     keep = np.abs(full.times - peak) <= 1.0
     return Performance(tuple(COLUMNS), full.times[keep], full.weights[keep][:, cols],
                        full.rate, path=full.path)

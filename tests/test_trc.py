@@ -2,6 +2,7 @@
 written here from ezc3d's reading of markers.c3d, every error message, and the writer."""
 
 import csv
+import functools
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ import pytest
 import mocap.io
 from mocap import FileFormatError, InputError, MarkerError, Take
 from mocap.io.trc import read_trc, write_trc
+from helpers import write_utf8
 from tolerances import TRC_BOX_VS_C3D_MM
 
 
@@ -33,10 +35,8 @@ def trc_text(labels, positions, *, rate=100.0, first_frame=1, units="mm", sep="\
     return "".join(sep.join(cells) + newline for cells in lines)
 
 
-def write_bytes(tmp_path, text, name="take.trc"):
-    path = tmp_path / name
-    path.write_bytes(text.encode("utf-8"))
-    return path
+#: A TRC file of the given text in tmp_path (newlines kept as written).
+write_bytes = functools.partial(write_utf8, name="take.trc")
 
 
 @pytest.fixture(scope="module")

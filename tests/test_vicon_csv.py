@@ -2,6 +2,7 @@
 edge-case files written here by a plain loop, every error message, and the writer."""
 
 import csv
+import functools
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ import mocap.io
 from mocap import FileFormatError, InputError, MarkerError, Take
 from mocap.units import UNITS_TO_MM
 from mocap.io.vicon_csv import read_vicon_csv, write_vicon_csv
+from helpers import write_utf8
 from tolerances import CSV_VS_C3D_MM
 
 DEVICES = ("Devices\n1000\n,,Force Plate 1 - Force,,\nFrame,Sub Frame,Fx,Fy,Fz\n"
@@ -51,10 +53,8 @@ def random_positions(n_frames, n_markers, seed=0):
     return pos
 
 
-def write_bytes(tmp_path, text, name="take.csv"):
-    path = tmp_path / name
-    path.write_bytes(text.encode("utf-8"))
-    return path
+#: A Vicon CSV file of the given text in tmp_path (newlines kept as written).
+write_bytes = functools.partial(write_utf8, name="take.csv")
 
 
 # -- the real export against ezc3d ------------------------------------------
