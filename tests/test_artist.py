@@ -14,7 +14,7 @@ import trimesh
 from basis.artist import load_artist_basis
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import save_obj
-from tolerances import GLTF_FLOAT32_CM, MESH_EXACT
+from tolerances import FLOAT32_FACE_CM, MESH_EXACT
 
 
 def test_ict_expressions_load_as_displacements(ict_basis, ict_dir):
@@ -138,9 +138,9 @@ def test_gltf_morph_targets(ict_basis, tmp_path, suffix):
                 ict_basis.neutral.faces)
     loaded = load_artist_basis(ict_basis.neutral, path)
     assert loaded.names == tuple(names)
-    np.testing.assert_allclose(loaded.displacements, np.stack(deltas), atol=GLTF_FLOAT32_CM)
+    np.testing.assert_allclose(loaded.displacements, np.stack(deltas), atol=FLOAT32_FACE_CM)
     picked = load_artist_basis(ict_basis.neutral, path, names=["browDown_R"])
-    np.testing.assert_allclose(picked.displacements[0], deltas[2], atol=GLTF_FLOAT32_CM)
+    np.testing.assert_allclose(picked.displacements[0], deltas[2], atol=FLOAT32_FACE_CM)
 
 
 def test_gltf_mismatches(ict_basis, tmp_path):

@@ -13,6 +13,7 @@ from basis.artist import ArtistBasis, load_artist_basis
 from basis.basis_io import BASIS_DTYPES, load_basis, save_basis, shape_file_stems
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh, load_mesh
+from tolerances import FLOAT32_REL
 
 #: Quads and one triangle: the polygon map must survive both forms.
 _OBJ = """v 0 0 0
@@ -197,4 +198,4 @@ def test_ict_expressions_round_trip(ict_neutral_path, ict_expressions_dir, tmp_p
         _same_mesh(back.neutral, small_basis.neutral)
         assert back.neutral.polygon_sizes.max() == 4
         np.testing.assert_allclose(back.displacements, small_basis.displacements, rtol=0,
-                                   atol=1e-6 * np.abs(small_basis.neutral.vertices).max())
+                                   atol=FLOAT32_REL * np.abs(small_basis.neutral.vertices).max())

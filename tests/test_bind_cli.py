@@ -15,7 +15,7 @@ from mocap.bind import load_binding
 from mocap.errors import MarkerError
 from mocap.synth.capture import load_capture_truth
 from helpers import FACIAL_SING_MARKERSET_TOML, bind_argv, rigid_shape_rms, synth_argv
-from tolerances import BIND_CLI_SIM_MAX_MM, BIND_CLI_SIM_MEAN_MM
+from tolerances import BIND_CLI_SIM_MAX_MM, BIND_CLI_SIM_MEAN_MM, EXACT_MM
 
 MM_PER_CM = 10.0
 NEUTRAL_S = 3.0        # the simulated performance rests this long, then makes faces
@@ -266,7 +266,7 @@ def test_bind_hold_binds_the_mean_pose_of_the_hold(ict_dir, ict_markerset, tmp_p
     # carried to the capture frame by the centre frame's head pose
     in_head = _hold_pose(take, head, frame, carry=False)
     np.testing.assert_allclose(head.to_head(np.broadcast_to(pose, take.positions.shape))[frame],
-                               in_head, atol=1e-9)
+                               in_head, atol=EXACT_MM)
     # a marker missing in one frame of the window: named, with the window's frame
     positions = take.positions.copy()
     positions[frame + 3, take.labels.index("chin")] = np.nan

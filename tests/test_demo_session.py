@@ -20,6 +20,7 @@ from mocap.mesh.layout import load_marker_layout
 from mocap.markerset import load_markerset
 from mocap.mesh.mesh import boundary_loops, degenerate_faces, face_normals, load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
+from tolerances import EXACT_FLOAT64, EXACT_MM, MESH_EXACT
 
 SECONDS, RATE, SEED = 4.0, 60.0, 3
 
@@ -125,11 +126,11 @@ def test_jaw_follows_a_true_rotation(session, lips):
         rot = Rotation.from_rotvec(np.deg2rad(JAW["degrees"]) * a * np.array(JAW["axis"]))
         pivot = np.array(JAW["pivot"])
         expected = rot.apply(session.face.mesh.vertices[lower] - pivot) + pivot
-        np.testing.assert_allclose(moved[lower], expected, atol=1e-9)
+        np.testing.assert_allclose(moved[lower], expected, atol=MESH_EXACT)
         if a == 1.0:   # full opening is the artist's shape
             np.testing.assert_allclose(moved - session.face.mesh.vertices,
                                        session.basis.displacements[MUSCLES.index("jaw_open")],
-                                       atol=1e-12)
+                                       atol=EXACT_FLOAT64)
 
 
 def _residual(basis_disp, displacements):
@@ -194,7 +195,7 @@ def test_files_load_with_the_project_readers(session):
         assert 0.1 < noise.std() < 0.3                              # 0.2 mm noise
         world = np.einsum("tij,tmj->tmi", truth["rotation"], truth["markers_head"]) \
             + truth["translation"][:, None]
-        np.testing.assert_allclose(world, truth["markers_world"], atol=1e-9)
+        np.testing.assert_allclose(world, truth["markers_world"], atol=EXACT_MM)
 
 
 def test_landmarks_sit_where_their_names_say(session, lips):

@@ -15,7 +15,7 @@ from mocap.clean import _pca_fill
 from mocap.clean._rigid_fill import donor_weights
 from mocap.rigid import fit_rigid
 from mocap.take import fill_code
-from tolerances import GAPFILL_LOW_RANK_MM, GAPFILL_RIGID_MM
+from tolerances import EXACT_FLOAT64, EXACT_MM, GAPFILL_LOW_RANK_MM, GAPFILL_RIGID_MM
 
 FILLING = tuple(m for m in FILL_OPTIONS if m != "none")
 RATE = 100.0
@@ -73,8 +73,8 @@ def test_rigid_fit_recovers_exact_transform_and_matches_scipy():
     src_nan = np.where(weights[..., None] > 0, src, np.nan)
     fit = fit_rigid(src_nan, dst, weights)
     r, t = fit.rotation, fit.translation
-    np.testing.assert_allclose(r, rot.as_matrix(), atol=1e-12)
-    np.testing.assert_allclose(t, trans, atol=1e-9)
+    np.testing.assert_allclose(r, rot.as_matrix(), atol=EXACT_FLOAT64)
+    np.testing.assert_allclose(t, trans, atol=EXACT_MM)
 
     noisy = dst + rng.normal(scale=2.0, size=dst.shape)
     w = weights * rng.uniform(0.5, 2.0, size=weights.shape)
@@ -175,7 +175,7 @@ def test_donor_weights_are_inverse_distance_variances_near_the_gap():
     near = np.r_[150:250, 300:400]               # RIGIDITY_FRAMES = 100 each side
     expect = [1 / (np.nanvar(np.linalg.norm(pos[near, d] - pos[near, 0], axis=1)) + 0.1 ** 2)
               for d in donors[:3]]
-    np.testing.assert_allclose(got, expect + [min(expect)], rtol=1e-12)
+    np.testing.assert_allclose(got, expect + [min(expect)], rtol=EXACT_FLOAT64)
 
 
 @pytest.mark.parametrize("path", ["complete", "iterative"])

@@ -24,6 +24,7 @@ from mocap.mesh.mesh import Mesh
 from mocap.stabilize import stabilize
 from mocap.take import Take
 from helpers import moving_average_oracle
+from tolerances import EXACT_FLOAT64, EXACT_MM, FLOAT32_FACE_CM, LOOP_ORACLE, MESH_EXACT
 
 REGIONS = {"upper_lip": ["UL1", "UL2"], "lower_lip": ["LL1", "LL2"],
            "left_brow": ["LB1", "LB2"], "right_brow": ["RB1", "RB2"],
@@ -76,7 +77,8 @@ def test_weights_respect_the_bounds(capture, estimator):
     eps = 0.05
     result = analyze_gestures(stab, neutral, 0.4 * basis, REGIONS, labels=FACE, epsilon=eps,
                               estimator=estimator, window=1, n_samples=300, n_neighbors=20)
-    assert np.all(result.weights >= -eps - 1e-12) and np.all(result.weights <= 1 + eps + 1e-12)
+    assert np.all(result.weights >= -eps - EXACT_FLOAT64) \
+        and np.all(result.weights <= 1 + eps + EXACT_FLOAT64)
     assert np.any(result.weights >= 1 + eps - 1e-9) == (estimator == "exact")
 
 
@@ -92,7 +94,7 @@ def test_groups_are_disjoint_and_sum_to_the_stabilized_markers(capture):
                                   "right_eye"}
     assert result.groups["lips"] == ("UL1", "UL2", "LL1", "LL2")
     total = neutral + result.blend() + result.residual()
-    np.testing.assert_allclose(total, moved[:, len(HEAD):], atol=1e-9)
+    np.testing.assert_allclose(total, moved[:, len(HEAD):], atol=EXACT_MM)
     assert np.abs(result.details["left_brow"]).max() > 1.0
 
 
@@ -139,7 +141,7 @@ def test_candidate_distances_match_a_brute_force_loop():
         speech = sum((s_hist[h - 1 - j] - s_ref[t - j]) ** 2 for j in range(h))
         feature = sum(np.sum((f_hist[h - j] - f_ref[t - j]) ** 2) for j in range(1, h + 1))
         want[t] = alpha * speech + feature
-    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(got, want, rtol=LOOP_ORACLE, atol=LOOP_ORACLE)
 
 
 @pytest.mark.parametrize("run", [1, 4])
@@ -219,7 +221,7 @@ def test_synthesis_is_deterministic_for_a_seed():
     np.testing.assert_array_equal(one.head_rotation, two.head_rotation)
     assert not np.array_equal(one.sources["weights"], other.sources["weights"])
     np.testing.assert_allclose(np.einsum("tij,tkj->tik", one.head_rotation, one.head_rotation),
-                               np.broadcast_to(np.eye(3), (200, 3, 3)), atol=1e-12)
+                               np.broadcast_to(np.eye(3), (200, 3, 3)), atol=EXACT_FLOAT64)
 
 
 def test_choice_among_the_best_k_follows_exp_minus_dist_over_sigma():
@@ -264,7 +266,7 @@ def test_clip_roundtrip(tmp_path, capture):
     moved = np.einsum("tij,mj->tmi", turn, neutral) + clip.head[:, None, 3:]
     world = np.einsum("ij,tmj->tmi", mean_rot, moved) + stab.translation.mean(axis=0)
     want = np.einsum("tij,mj->tmi", stab.rotation, neutral) + stab.translation[:, None]
-    np.testing.assert_allclose(world, want, atol=1e-9)
+    np.testing.assert_allclose(world, want, atol=EXACT_MM)
 
 
 @pytest.mark.parametrize("doc, match", [
@@ -370,7 +372,7 @@ def test_a_jump_fades_from_the_old_continuation_over_blend_frames(blend):
             if t + j < len(want):
                 want[t + j] += (1 - j / blend) * offset
     want = np.clip(want, ref.min(axis=0), ref.max(axis=0))
-    np.testing.assert_allclose(syn.weights[:, cols], want, atol=1e-12)
+    np.testing.assert_allclose(syn.weights[:, cols], want, atol=EXACT_FLOAT64)
 
 
 def test_timeline_paints_blinks_apart_from_the_weights():
@@ -520,7 +522,7 @@ def test_detail_transfer_matches_a_dense_bspline_interpolant():
                "left_eye": np.random.default_rng(2).normal(0, 2, (3, 3, 3))}
     marker_mm = np.concatenate([details["left_brow"], details["left_eye"]], axis=1)
     want = np.einsum("vm,tma->tva", w, binding.scale * marker_mm @ binding.rotation.T)
-    np.testing.assert_allclose(_mesh_motion(transfer, details), want, atol=1e-12)
+    np.testing.assert_allclose(_mesh_motion(transfer, details), want, atol=EXACT_FLOAT64)
     _, names = transfer.shapes()
     assert names[:4] == ("left_brow:m0:x", "left_brow:m0:y", "left_brow:m0:z", "left_brow:m1:x")
 
@@ -534,7 +536,7 @@ def test_markers_at_vertices_are_interpolated_exactly():
                groups.items()}
     moved = _mesh_motion(transfer, details)[:, binding.vertex_ids[:, 0]]
     marker_mm = np.concatenate([details[g] for g in groups], axis=1)
-    np.testing.assert_allclose(moved, 0.1 * marker_mm @ binding.rotation.T, atol=1e-9)
+    np.testing.assert_allclose(moved, 0.1 * marker_mm @ binding.rotation.T, atol=MESH_EXACT)
 
 
 def test_a_marker_moves_only_vertices_within_the_support_of_its_cluster():
@@ -560,7 +562,7 @@ def test_transfer_is_linear_in_the_details():
     mix = {g: 2.0 * a[g] - 0.5 * b[g] for g in groups}
     np.testing.assert_allclose(_mesh_motion(transfer, mix),
                                2.0 * _mesh_motion(transfer, a) - 0.5 * _mesh_motion(transfer, b),
-                               atol=1e-12)
+                               atol=EXACT_FLOAT64)
 
 
 def test_default_support_is_a_multiple_of_the_median_marker_spacing():
@@ -634,7 +636,7 @@ def test_cli_transfers_details_onto_the_ict_face(ict_mesh, ict_layout, ict_neutr
     want_details = np.einsum("vm,tma->tva", matrix, 0.1 * marker_mm)
     blend = np.tensordot(seq.weights[:, :2], seq.displacements[:2], axes=1)
     total = np.tensordot(seq.weights, seq.displacements, axes=1)
-    np.testing.assert_allclose(total - blend, want_details, atol=1e-5)
+    np.testing.assert_allclose(total - blend, want_details, atol=FLOAT32_FACE_CM)
     far = cdist(neutral.vertices, centers).min(axis=1) >= support
     assert far.sum() > 0.5 * len(far) and np.all(total[:, far] == blend[:, far])
     assert (out / "gestures.glb").stat().st_size > 0
@@ -650,6 +652,6 @@ def test_marker_basis_is_the_shape_motion_of_the_bound_points_in_capture_mm():
     for i, shape in enumerate(shapes):           # through the affine map, shape by shape
         moved = binding.to_capture(binding.marker_points(mesh.vertices + shape)[rows])
         rest = binding.to_capture(binding.marker_points(mesh.vertices)[rows])
-        np.testing.assert_allclose(got[i], moved - rest, atol=1e-9)
+        np.testing.assert_allclose(got[i], moved - rest, atol=EXACT_MM)
     with pytest.raises(MarkerError, match="'nope'.*is not in the binding"):
         marker_basis(binding, shapes, ("nope",))

@@ -15,6 +15,7 @@ from mocap.mesh.mesh import load_mesh
 from mocap.synth.capture import load_capture_truth
 from helpers import (FACIAL_SING_MARKERSET_TOML, ICT_LAYOUT_TOML, ICT_MARKERSET_TOML, bind_argv,
                      moving_average_oracle, read_gltf_accessor, rigid_shape_rms, synth_argv)
+from tolerances import FLOAT32_REL
 
 SHAPES = ("browInnerUp_L", "browInnerUp_R", "eyeBlink_L", "eyeBlink_R", "jawOpen",
           "mouthSmile_L")
@@ -124,7 +125,7 @@ def _synthesize_and_check_the_glb(clip, bound_capture, out, wav):
     quat = read_gltf_accessor(gltf, samplers["rotation"].output).astype(float)
     move = read_gltf_accessor(gltf, samplers["translation"].output).astype(float) / 0.01  # m->cm
     times = read_gltf_accessor(gltf, samplers["rotation"].input)[:, 0]
-    np.testing.assert_allclose(times, np.arange(len(head["rotation"])) / RATE, rtol=1e-6)
+    np.testing.assert_allclose(times, np.arange(len(head["rotation"])) / RATE, rtol=FLOAT32_REL)
     binding = load_binding(bound_capture["binding"])
     points = binding.marker_points(load_mesh(bound_capture["mesh"], units="cm").vertices)
     played = Rotation.from_quat(quat[:, None]).apply(points[None]) + move[:, None]

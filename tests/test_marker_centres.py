@@ -10,6 +10,7 @@ from fit.solve.marker_centres import solve_at_marker_centres
 from fit.solve.weights import solve_weights
 from mocap.errors import InputError
 from mocap.synth.performance import match_shape_names
+from tolerances import EXACT_FLOAT64
 
 N_FRAMES = 120
 
@@ -42,7 +43,7 @@ def test_positions_under_weights_are_the_positions_on_the_deformed_mesh(centres_
     basis, layout, truth, data, _ = centres_case
     got = layout.positions_under_weights(basis.neutral.vertices, basis.displacements, truth)
     np.testing.assert_allclose(got - layout.positions(basis.neutral.vertices), data,
-                               rtol=0, atol=1e-12)
+                               rtol=0, atol=EXACT_FLOAT64)
 
 
 def test_noise_free_centres_give_back_the_true_weights(centres_case):
@@ -75,7 +76,7 @@ def test_noisy_centres_reach_a_fixed_point_of_the_chord_step(centres_case):
                               lower=0.0, upper=1.0, smoothness=smoothness).weights
         assert fit.settled.all(), fit.solution.message
         np.testing.assert_allclose(again, w, rtol=0, atol=1e-7)
-        np.testing.assert_allclose(fit.displacements, moved, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fit.displacements, moved, rtol=0, atol=EXACT_FLOAT64)
 
 
 def test_gcv_smoothness_is_chosen_once_on_the_tangent_model(centres_case):

@@ -18,7 +18,7 @@ from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
 from mocap.markerset import REQUIRED_REGIONS
 from helpers import ICT_LANDMARKS_TOML
-from tolerances import MESH_EXACT
+from tolerances import EXACT_FLOAT64, FEW_ULPS, MESH_EXACT
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,7 @@ def test_default_mask_file_is_the_built_mask(mask):
     np.testing.assert_array_equal(shipped.weights, mask.weights)
     assert set(REQUIRED_REGIONS) <= set(shipped.channel_names)
     regions = shipped.weights[:, [shipped.channel_names.index(r) for r in REQUIRED_REGIONS]]
-    np.testing.assert_allclose(regions.sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(regions.sum(axis=1), 1.0, atol=EXACT_FLOAT64)
 
 
 def test_mask_round_trip(mask, tmp_path):
@@ -99,7 +99,7 @@ def test_tongue_seam_pairs_the_strips_column_by_column(mask):
     assert len(seam) == len(mask.tongue_root)              # each root and each tip paired once
     assert upper[seam[:, 0]].all() and lower[seam[:, 1]].all()
     gap = mask.vertices[seam[:, 0]] - mask.vertices[seam[:, 1]]
-    np.testing.assert_allclose(gap, np.tile([0.0, 0.04, 0.0], (len(seam), 1)), atol=1e-12)
+    np.testing.assert_allclose(gap, np.tile([0.0, 0.04, 0.0], (len(seam), 1)), atol=EXACT_FLOAT64)
     tongue = np.union1d(mask.tongue_root, mask.tongue_tip)
     np.testing.assert_array_equal(np.sort(seam.ravel()), tongue)
 
@@ -212,7 +212,7 @@ def test_shepard_reproduces_corners_and_constants():
     np.testing.assert_array_equal(coef, np.eye(4)[np.ones(50, int)])
     points = rng.random((50, 3))
     coef = shepard_coefficients(points, corners, valid)
-    np.testing.assert_allclose(coef @ np.ones(4), 1.0, atol=1e-14)
+    np.testing.assert_allclose(coef @ np.ones(4), 1.0, atol=FEW_ULPS)
     assert np.all(coef[~valid] == 0)
 
 
@@ -224,7 +224,7 @@ def test_smoothing_keeps_unit_interval_and_constants():
     w = rng.random(len(defined))
     out = op @ w
     assert out.min() >= 0 and out.max() <= 1
-    np.testing.assert_allclose(op @ np.ones(len(defined)), 1.0, atol=1e-12)
+    np.testing.assert_allclose(op @ np.ones(len(defined)), 1.0, atol=EXACT_FLOAT64)
     np.testing.assert_array_equal(out[~defined], w[~defined])   # undefined untouched
 
 
@@ -252,7 +252,7 @@ def test_fit_freezes_every_vertex(ict_mesh, ict_landmarks, mask):
     assert fit.status in FIT_STATUSES
     assert fit.status == "all_frozen" and fit.frozen.all()
     # the mask moved back towards the face and stays in front of the face's back
-    assert np.all((fit.vertices - fit.placed) @ fit.forward <= 1e-12)
+    assert np.all((fit.vertices - fit.placed) @ fit.forward <= EXACT_FLOAT64)
 
 
 def test_tongue_enters_the_closed_mouth(ict_mesh, ict_landmarks, mask):
@@ -307,7 +307,7 @@ def test_transfer_is_invariant_to_similarity(ict_mesh, ict_landmarks, mask):
     assert diff.mean() < 1e-3
     assert a.fit.n_iterations == b.fit.n_iterations
     regions = a.region_masks()
-    np.testing.assert_allclose(regions[a.hit].sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(regions[a.hit].sum(axis=1), 1.0, atol=EXACT_FLOAT64)
     assert np.isnan(regions[~a.hit]).all()
     assert np.all((a.weights[a.hit] >= 0) & (a.weights[a.hit] <= 1))
 
@@ -356,7 +356,7 @@ def test_cli_writes_weights(ict_mesh, ict_neutral_path, tmp_path, capsys):
         weights, hit, regions = doc["weights"], doc["hit"], doc["region_masks"]
     assert weights.shape == (ict_mesh.n_vertices, len(load_default_mask().channel_names))
     assert np.isnan(weights[~hit]).all() and not np.isnan(weights[hit]).any()
-    np.testing.assert_allclose(regions[hit].sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(regions[hit].sum(axis=1), 1.0, atol=EXACT_FLOAT64)
     rows = csv.read_text().splitlines()
     assert len(rows) == ict_mesh.n_vertices + 1 and png.stat().st_size > 0
 

@@ -16,7 +16,7 @@ from mocap.mesh.mesh import (MESH_FORMATS, Mesh, boundary_loops, degenerate_face
                         load_mesh, save_obj, vertex_normals)
 from mocap.mesh.landmarks import check_mesh_landmarks, load_mesh_landmarks
 from helpers import ICT_LANDMARKS_TOML
-from tolerances import GLTF_FLOAT32_CM, MESH_EXACT
+from tolerances import FLOAT32_FACE_CM, MESH_EXACT
 
 
 
@@ -121,7 +121,7 @@ def test_ply_and_gltf_keep_vertex_order(ict_mesh, tmp_path, suffix):
     trimesh.Trimesh(ict_mesh.vertices, ict_mesh.faces, process=False).export(path)
     mesh = load_mesh(path, units="cm")
     # trimesh writes float32 to both formats
-    np.testing.assert_allclose(mesh.vertices, ict_mesh.vertices, atol=GLTF_FLOAT32_CM, rtol=0)
+    np.testing.assert_allclose(mesh.vertices, ict_mesh.vertices, atol=FLOAT32_FACE_CM, rtol=0)
     np.testing.assert_array_equal(mesh.faces, ict_mesh.faces)
 
 

@@ -6,8 +6,8 @@ from scipy.linalg import subspace_angles, svd
 
 from basis.pca import PCA_METHODS, PCAModel, pca_from_operator, pca_streaming
 from mocap.errors import InputError
-from tolerances import (PCA_ANGLE_RAD, PCA_EIG_FLOOR, PCA_EXACT_RTOL, PCA_IMPLICIT_RTOL,
-                        PCA_STREAMING_RTOL)
+from tolerances import (EXACT_FLOAT64, PCA_ANGLE_RAD, PCA_EIG_FLOOR, PCA_EXACT_RTOL,
+                        PCA_IMPLICIT_RTOL, PCA_STREAMING_RTOL)
 
 METHODS = ("implicit",) + PCA_METHODS
 RTOL = {"implicit": PCA_IMPLICIT_RTOL, "randomized": PCA_STREAMING_RTOL,
@@ -58,9 +58,9 @@ def test_agrees_with_dense_svd(method, case):
     np.testing.assert_allclose(model.eigenvalues, evals[:k], rtol=RTOL[method])
     assert subspace_angles(model.components.reshape(k, -1).T, vt[:k].T).max() < PCA_ANGLE_RAD
     np.testing.assert_allclose(model.total_variance, total, rtol=PCA_EXACT_RTOL)
-    np.testing.assert_allclose(model.mean.ravel(), mean, rtol=PCA_EXACT_RTOL, atol=1e-12)
+    np.testing.assert_allclose(model.mean.ravel(), mean, rtol=PCA_EXACT_RTOL, atol=EXACT_FLOAT64)
     flat = model.components.reshape(k, -1)
-    np.testing.assert_allclose(flat @ flat.T, np.eye(k), atol=1e-12)
+    np.testing.assert_allclose(flat @ flat.T, np.eye(k), atol=EXACT_FLOAT64)
     # each component is ± the oracle's (distinct eigenvalues), sign fixed by its largest entry
     np.testing.assert_allclose(np.abs(np.sum(flat * vt[:k], axis=1)), 1, atol=1e-9)
     assert (flat[np.arange(k), np.abs(flat).argmax(axis=1)] > 0).all()
@@ -161,10 +161,10 @@ def test_memmap_input(tmp_path):
     mapped = np.load(tmp_path / "xi.npy", mmap_mode="r")
     want = pca_streaming(mapped.astype(np.float64), n_components=3)
     np.testing.assert_allclose(pca_streaming(mapped, n_components=3).eigenvalues,
-                               want.eigenvalues, rtol=1e-12)
+                               want.eigenvalues, rtol=EXACT_FLOAT64)
     implicit = pca_from_operator(operator, np.load(tmp_path / "d.npy", mmap_mode="r"))
     np.testing.assert_allclose(implicit.eigenvalues, pca_from_operator(operator, disp).eigenvalues,
-                               rtol=1e-12)
+                               rtol=EXACT_FLOAT64)
 
 
 def test_incremental_accepts_a_generator():

@@ -25,7 +25,7 @@ from mocap.markerset import load_markerset
 from mocap.mesh.mesh import load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
 from fit.solve.gcv import gcv_smoothness
-from tests.tolerances import SOLVE_OBJECTIVE_REL
+from tolerances import EXACT_FLOAT64, EXACT_MM, MESH_EXACT, SOLVE_OBJECTIVE_REL
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def test_h_weights_solve_marker_problem_like_lsq_linear(chain, fitted):
         ref = lsq_linear(B, D[t], bounds=(0, 1), method="bvls", max_iter=10_000)
         ours = 0.5 * np.sum((B @ sol.weights[t] - D[t]) ** 2)
         assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + 1e-15
-        assert sol.cost[t] == pytest.approx(ours, rel=1e-12)
+        assert sol.cost[t] == pytest.approx(ours, rel=EXACT_FLOAT64)
 
 
 def test_h_weights_at_the_exact_marker_centres_near_least_squares(chain, fitted):
@@ -104,7 +104,7 @@ def test_h_weights_at_the_exact_marker_centres_near_least_squares(chain, fitted)
                                bound.neutral_pose(chain["take"].select(labels).positions)
                                + np.stack([residual(w, t).reshape(-1, 3) + D[t] for t, w in
                                            enumerate(exact.weights)]) @ bound.binding.rotation
-                               / bound.binding.scale, rtol=0, atol=1e-9)
+                               / bound.binding.scale, rtol=0, atol=EXACT_MM)
 
 
 def test_moving_average_fit_solves_the_averaged_displacements(chain):
@@ -172,9 +172,9 @@ def test_marker_basis_moves_the_offset_marker_centres_with_the_skin(chain):
     got = marker_basis(binding, fields, mesh=mesh)
     skin = marker_basis(binding, fields)                       # no mesh: the surface points
     np.testing.assert_allclose(got[0], np.broadcast_to([0.3, -0.2, 0.1], got[0].shape),
-                               atol=1e-9)
+                               atol=MESH_EXACT)
     np.testing.assert_allclose(skin[1], np.cross(omega, binding.marker_points(mesh.vertices)
-                                                 - centre), atol=1e-12)
+                                                 - centre), atol=EXACT_FLOAT64)
     # the centres: the surface points lifted along their normals, which turn with the mesh
     lifted = MarkerLayout(binding.labels, binding.vertex_ids, binding.barycentric,
                           binding.face_ids, np.full(len(binding.labels),
@@ -232,7 +232,7 @@ def test_reconstruction_is_neutral_plus_basis_in_mm(chain, fitted, space):
     disp_mesh = np.einsum("tn,nmc->tmc", fit.weights["QE"], at)
     # back to capture mm through the binding's inverse similarity (independent path)
     expected = binding.to_capture(binding.to_mesh(neutral) + disp_mesh)
-    np.testing.assert_allclose(fit.reconstructed["QE"], expected, atol=1e-9)
+    np.testing.assert_allclose(fit.reconstructed["QE"], expected, atol=EXACT_MM)
 
 
 @pytest.mark.parametrize("bounds", [(-np.inf, np.inf), (0.0, 1.0), (-0.1, 1.1)])
@@ -320,11 +320,11 @@ def test_bind_hold_averages_the_hold_into_the_rest_pose(chain):
     face = take.select(markerset.face_markers).positions
     lo = max(0, bound.frame - window // 2)
     np.testing.assert_allclose(bound.neutral_pose(face), face[lo:bound.frame + window // 2 + 1]
-                               .mean(axis=0), rtol=0, atol=1e-12)
+                               .mean(axis=0), rtol=0, atol=EXACT_FLOAT64)
     retargeted = retarget_stage(take, bound, chain["mesh"], markerset)
     # displacements from that mean: they average to zero over the window
     np.testing.assert_allclose(retargeted.displacements[lo:bound.frame + window // 2 + 1]
-                               .mean(axis=0), 0.0, atol=1e-12)
+                               .mean(axis=0), 0.0, atol=EXACT_FLOAT64)
 
 
 def test_bind_frame_beyond_take(chain):

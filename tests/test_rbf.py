@@ -15,7 +15,7 @@ from mocap.retarget._kernels import COMPACT_KERNELS, KERNELS, MIN_DEGREE, evalua
 from mocap.retarget.rbf import build_rbf_operator
 from mocap.mesh.regions import painted_region_weights, region_weights
 from helpers import slit_grid
-from tolerances import RBF_VS_SCIPY_RTOL
+from tolerances import EXACT_FLOAT64, FEW_ULPS, RBF_VS_SCIPY_RTOL
 
 SCIPY_KERNELS = tuple(k for k in KERNELS if k not in COMPACT_KERNELS)
 RNG = np.random.default_rng(11)
@@ -108,7 +108,7 @@ def test_wendland_is_sparse_positive_definite_and_interpolates():
     np.testing.assert_allclose(op.diagnostics[0].min_eigenvalue, np.linalg.eigvalsh(k)[0])
     assert sp.issparse(op.matrix)
     data = RNG.normal(size=(len(CENTERS), 3))
-    np.testing.assert_allclose(op.matrix[:len(CENTERS)] @ data, data, atol=1e-12)
+    np.testing.assert_allclose(op.matrix[:len(CENTERS)] @ data, data, atol=EXACT_FLOAT64)
     far = np.min(cdist(POINTS, CENTERS), axis=1) >= 1 / epsilon
     assert far.any()
     assert op.matrix[len(CENTERS):][far].nnz == 0
@@ -118,14 +118,14 @@ def test_wendland_formula_is_c2_at_the_support_edge():
     r = np.array([0.0, 0.5, 1.0 - 1e-4, 1.0, 1.3])
     values = evaluate("wendland_c2", r)
     np.testing.assert_allclose(values[:2], [1.0, 0.5 ** 4 * 3.0])
-    assert values[2] < 1e-14 and values[3] == values[4] == 0.0
+    assert values[2] < FEW_ULPS and values[3] == values[4] == 0.0
 
 
 def test_bspline_bell_is_the_cubic_bspline_with_compact_support():
     r = np.linspace(0.0, 1.5, 301)
     bell = BSpline.basis_element([-2, -1, 0, 1, 2], extrapolate=False)   # oracle
     expected = np.nan_to_num(bell(2 * r)) / bell(0.0)
-    np.testing.assert_allclose(evaluate("bspline_bell", r), expected, atol=1e-14)
+    np.testing.assert_allclose(evaluate("bspline_bell", r), expected, atol=FEW_ULPS)
     assert np.all(evaluate("bspline_bell", r[r >= 1.0]) == 0.0)
     assert np.all(evaluate("bspline_bell", r[r < 1.0]) > 0.0)
 
@@ -167,7 +167,7 @@ def test_geodesic_operator_interpolates_and_respects_the_slit():
     op = build_rbf_operator(v[centers], v, kernel="wendland_c2", epsilon=1 / 0.15,
                             distance="geodesic", mesh=(v, f), **_surface(f, centers))
     data = RNG.normal(size=(len(centers), 3))
-    np.testing.assert_allclose(op.matrix[centers] @ data, data, atol=1e-12)
+    np.testing.assert_allclose(op.matrix[centers] @ data, data, atol=EXACT_FLOAT64)
     # Upper-lip centers do not reach across the cut (support 0.15 < the way around).
     below = np.abs(_dense(op.matrix)[lower[4], :4]).max()
     euclid = build_rbf_operator(v[centers], v, kernel="wendland_c2", epsilon=1 / 0.15)

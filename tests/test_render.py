@@ -13,7 +13,7 @@ from mocap.errors import InputError
 from mocap.mesh.mesh import load_mesh
 from mocap.viz.render import (HIDDEN_POINTS, VIEWS, Camera, Lighting, colorbar, image_grid,
                           render_mesh, save_png)
-from tolerances import RENDER_RGB_LEVELS, RENDER_SILHOUETTE_REL
+from tolerances import EXACT_FLOAT64, RENDER_RGB_LEVELS, RENDER_SILHOUETTE_REL
 
 WHITE = np.array([255, 255, 255])
 #: Shading that returns the base colour: no light direction dependence.
@@ -179,7 +179,7 @@ def test_camera_projection_formula():
     p = rng.normal(size=(20, 3))
     q = (p - [1.0, 2.0, 3.0]) @ rot.T
     expected = np.column_stack([160 + 7.5 * q[:, 0], 120 - 7.5 * q[:, 1], q[:, 2]])
-    np.testing.assert_allclose(cam.project(p), expected, atol=1e-12)
+    np.testing.assert_allclose(cam.project(p), expected, atol=EXACT_FLOAT64)
 
 
 @pytest.mark.parametrize("view", VIEWS)

@@ -20,6 +20,7 @@ from fit.report.views import (CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_
                               view_axes)
 from mocap.errors import InputError
 from mocap.stabilize import stabilize
+from tolerances import EXACT_FLOAT64
 
 N_FRAMES = 600
 
@@ -75,7 +76,7 @@ def test_region_groups_follow_the_markerset(sing_case):
 def test_front_view_puts_the_subjects_left_on_the_viewers_right(sing_case):
     ms, face, _, neutral = sing_case
     axes = view_axes(neutral, face.labels, ms)
-    np.testing.assert_allclose(axes @ axes.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(axes @ axes.T, np.eye(3), atol=EXACT_FLOAT64)
     screen = neutral @ axes.T
     col = {label: i for i, label in enumerate(face.labels)}
     for left, right in (("section1-1", "section2-1"), ("section11-1", "section12-1"),

@@ -23,7 +23,7 @@ from mocap.mesh.mesh import Mesh, load_mesh
 from mocap.synth.capture import simulate_capture
 from mocap.take import Take
 from helpers import ICT_MARKERSET_TOML, jaw_open_peak_time
-from tolerances import EXPORT_FLOAT32_REL, RETARGET_CLI_SIM_REL, RETARGET_EXACT
+from tolerances import EXACT_FLOAT64, FLOAT32_REL, RETARGET_CLI_SIM_REL, RETARGET_EXACT
 
 MM_PER_CM = 10.0
 
@@ -91,7 +91,7 @@ def test_marker_displacements_match_a_hand_computation():
     for t in range(6):                                   # brute force, marker by marker
         for m in range(4):
             expected[t, m] = SCALE * ROTATION @ extra @ (positions[t, m] - positions[1, m])
-    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=EXACT_FLOAT64)
     assert np.isnan(got[4, 2]).all() and np.isfinite(np.delete(got, 2, axis=1)).all()
     np.testing.assert_array_equal(take.positions, positions)        # input untouched
 
@@ -103,7 +103,8 @@ def test_marker_displacements_from_the_mean_of_a_neutral_window():
     for frame, window, frames in ((3, 5, [1, 2, 3, 4, 5]), (0, 5, [0, 1, 2]), (7, 3, [6, 7])):
         got = marker_displacements(take, BINDING, neutral_frame=frame, neutral_window=window)
         rest = positions[frames].mean(axis=0)                       # cut at the ends
-        np.testing.assert_allclose(got, SCALE * (positions - rest) @ ROTATION.T, atol=1e-12)
+        np.testing.assert_allclose(got, SCALE * (positions - rest) @ ROTATION.T,
+                                   atol=EXACT_FLOAT64)
     positions[5, 1] = np.nan
     with pytest.raises(MarkerError,
                        match=r"'m1'.*in the 5 frames around the neutral frame \d+ \(index 3\)"):
@@ -183,7 +184,7 @@ def test_retarget_reproduces_an_affine_field(distance, use_regions):
     xi = result.vertex_displacements(dtype=np.float64)[1:]
     np.testing.assert_allclose(xi, GRID.vertices @ a.transpose(0, 2, 1) + b, rtol=0,
                                atol=1e-9)
-    np.testing.assert_allclose(result.rotation, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(result.rotation, np.eye(3), atol=EXACT_FLOAT64)
 
 
 def test_retarget_names_the_first_missing_marker_and_frame():
@@ -216,9 +217,9 @@ def test_npz_output_reads_back(small_result, tmp_path, content):
     with np.load(path) as data:
         assert data[content].dtype == np.float32 and data[content].shape == expected.shape
         np.testing.assert_allclose(data[content], expected, rtol=0,
-                                   atol=EXPORT_FLOAT32_REL * np.abs(GRID.vertices).max())
+                                   atol=FLOAT32_REL * np.abs(GRID.vertices).max())
         np.testing.assert_array_equal(data["faces"], GRID.faces)
-        np.testing.assert_allclose(data["neutral"], GRID.vertices, rtol=EXPORT_FLOAT32_REL)
+        np.testing.assert_allclose(data["neutral"], GRID.vertices, rtol=FLOAT32_REL)
         assert float(data["rate"]) == 30.0 and int(data["first_frame"]) == 98
         assert tuple(data["labels"]) == FACE_LABELS
 
@@ -381,6 +382,6 @@ def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, 
     means = np.abs(np.stack([moved[s:s + window].mean(axis=0)
                              for s in range(len(moved) - window + 1)])).max(axis=(1, 2))
     start = int(np.argmin(means))
-    assert means[start] < 1e-6                            # float32 storage
+    assert means[start] < FLOAT32_REL                     # float32 storage
     assert start + window <= 30                           # inside the 1 s lead at 30 Hz
     assert np.abs(moved).max(axis=(1, 2)).min() > 1e-3    # no frame is the rest pose

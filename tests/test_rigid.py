@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from mocap import InputError
 from mocap.rigid import fit_rigid
-from tolerances import RIGID_EXACT_DEG, RIGID_EXACT_MM
+from tolerances import EXACT_FLOAT64, RIGID_EXACT_DEG, RIGID_EXACT_MM
 
 
 def svd_oracle(x, y, w, scale):
@@ -44,7 +44,7 @@ def test_batched_fit_matches_per_frame_svd(scale, shared):
         np.testing.assert_allclose(fit.translation[t], trans, atol=1e-7)
         np.testing.assert_allclose(fit.scale[t], s, rtol=1e-10)
     assert fit.valid.all()
-    np.testing.assert_allclose(np.linalg.det(fit.rotation), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(fit.rotation), 1.0, atol=EXACT_FLOAT64)
 
 
 def test_rigid_fit_matches_scipy_align_vectors_weighted():
@@ -88,7 +88,7 @@ def test_half_turn_is_recovered():
     for axis in np.eye(3):
         rot = Rotation.from_rotvec(np.pi * axis)
         fit = fit_rigid(x, rot.apply(x))
-        np.testing.assert_allclose(fit.rotation, rot.as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(fit.rotation, rot.as_matrix(), atol=EXACT_FLOAT64)
 
 
 def test_reflection_is_never_returned():
@@ -97,7 +97,7 @@ def test_reflection_is_never_returned():
     mirror = np.diag([1.0, 1.0, -1.0])
     y = x @ mirror                                   # best orthogonal map has det -1
     fit = fit_rigid(x, y, scale=True)
-    np.testing.assert_allclose(np.linalg.det(fit.rotation), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(fit.rotation), 1.0, atol=EXACT_FLOAT64)
     for t in range(30):
         rot, trans, s = svd_oracle(x[t], y[t], np.ones(5), True)
         np.testing.assert_allclose(fit.rotation[t], rot, atol=1e-9)
@@ -129,7 +129,7 @@ def test_too_few_or_collinear_points_have_no_fit():
     fit = fit_rigid(xs, y, w)
     assert fit.valid.tolist() == [False, False, True]
     assert np.isnan(fit.rotation[:2]).all() and np.isnan(fit.translation[:2]).all()
-    np.testing.assert_allclose(fit.rotation[2], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(fit.rotation[2], np.eye(3), atol=EXACT_FLOAT64)
 
 
 @pytest.mark.parametrize("args, kwargs, match", [

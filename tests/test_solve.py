@@ -8,7 +8,7 @@ from scipy.optimize import lsq_linear
 
 from fit.solve.weights import WeightSolution, solve_weights
 from mocap.errors import InputError
-from tests.tolerances import SOLVE_KKT_REL, SOLVE_OBJECTIVE_REL
+from tolerances import EXACT_FLOAT64, SOLVE_KKT_REL, SOLVE_OBJECTIVE_REL
 
 N_SHAPES, N_ROWS, N_FRAMES = 12, 30, 60
 
@@ -78,7 +78,7 @@ def test_objective_equals_oracle(kind, bounds):
     assert isinstance(sol, WeightSolution)
     assert sol.status == 0 and sol.converged.all()
     assert sol.rank == (10 if kind == "rank-deficient" else N_SHAPES)
-    np.testing.assert_allclose(sol.cost, half_cost(basis, sol.weights, data), rtol=1e-12)
+    np.testing.assert_allclose(sol.cost, half_cost(basis, sol.weights, data), rtol=EXACT_FLOAT64)
     np.testing.assert_allclose(sol.cost, oracle_cost(basis, data, lo, hi),
                                rtol=SOLVE_OBJECTIVE_REL)
     assert_kkt(basis, data, sol.weights, lo, hi)
@@ -113,7 +113,7 @@ def test_marker_layout_equals_flat_layout():
     flat = solve_weights(basis, data, lower=0, upper=1)
     markers = solve_weights(basis.T.reshape(N_SHAPES, N_ROWS // 3, 3),
                             data.reshape(N_FRAMES, N_ROWS // 3, 3), lower=0, upper=1)
-    np.testing.assert_allclose(markers.cost, flat.cost, rtol=1e-12)
+    np.testing.assert_allclose(markers.cost, flat.cost, rtol=EXACT_FLOAT64)
     np.testing.assert_allclose(markers.weights, flat.weights, atol=1e-9)
 
 
@@ -240,7 +240,7 @@ def test_reduced_solve_matches_dense_solve(kind, bound_fraction):
     state = np.where(bound, np.where(rng.random(c.shape) < 0.5, -1, 1), 0).astype(np.int8)
     w, grad = reduced_solve(qp, state, c, refine=True)
     np.testing.assert_array_equal(w[bound], np.where(state[bound] < 0, 0.0, 1.0))
-    np.testing.assert_allclose(grad, w @ G - c, rtol=0, atol=1e-12 * np.abs(c).max())
+    np.testing.assert_allclose(grad, w @ G - c, rtol=0, atol=EXACT_FLOAT64 * np.abs(c).max())
     scale = np.abs(w) @ np.abs(G) + np.abs(c)
     assert np.all(np.abs(grad[~bound]) <= 1e-11 * scale[~bound])
     if kind == "random":

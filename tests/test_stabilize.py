@@ -6,6 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from mocap import InputError, MarkerError, Take
 from mocap.stabilize import INVALID_POLICIES, REFERENCES, stabilize
+from tolerances import EXACT_FLOAT64, EXACT_MM
 
 HEAD = ["root-1", "root-2", "root-3", "root-4", "root-5", "root-6"]
 #: A head-marker layout like the one of facial-sing.c3d, mm.
@@ -68,7 +69,7 @@ def test_transform_equals_scipy_align_vectors_with_the_reported_weights():
         rot, _ = Rotation.align_vectors(head[t] - cy, st.reference_shape - cx, weights=w)
         np.testing.assert_allclose(st.rotation[t], rot.as_matrix(), atol=1e-9)
         np.testing.assert_allclose(st.translation[t], cy - rot.apply(cx), atol=1e-7)
-    np.testing.assert_allclose(np.linalg.det(st.rotation), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(st.rotation), 1.0, atol=EXACT_FLOAT64)
 
 
 def test_frame_reference_equals_align_vectors_on_that_frame():
@@ -76,7 +77,7 @@ def test_frame_reference_equals_align_vectors_on_that_frame():
     st = stabilize(take, HEAD, reference="frame", reference_frame=40, robust=False)
     head = take.positions[:, :6]
     np.testing.assert_allclose(st.reference_shape, head[40])
-    np.testing.assert_allclose(st.rotation[40], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(st.rotation[40], np.eye(3), atol=EXACT_FLOAT64)
     for t in (3, 200):
         rot, _ = Rotation.align_vectors(head[t] - head[t].mean(0), head[40] - head[40].mean(0))
         np.testing.assert_allclose(st.rotation[t], rot.as_matrix(), atol=1e-9)
@@ -90,10 +91,10 @@ def test_gpa_mean_shape_is_the_true_shape_and_invariant_to_rigid_motion():
     def distances(shape):
         return np.linalg.norm(shape[:, None] - shape[None], axis=-1)
 
-    np.testing.assert_allclose(distances(st.reference_shape), distances(SHAPE), atol=1e-9)
-    np.testing.assert_allclose(distances(moved.reference_shape), distances(SHAPE), atol=1e-9)
+    np.testing.assert_allclose(distances(st.reference_shape), distances(SHAPE), atol=EXACT_MM)
+    np.testing.assert_allclose(distances(moved.reference_shape), distances(SHAPE), atol=EXACT_MM)
     # Exact data: the head frame is the world at the first frame.
-    np.testing.assert_allclose(st.reference_shape, SHAPE @ rot[0].T + trans[0], atol=1e-9)
+    np.testing.assert_allclose(st.reference_shape, SHAPE @ rot[0].T + trans[0], atol=EXACT_MM)
     assert st.converged and st.valid.all() and st.slips == ()
 
 
@@ -183,7 +184,7 @@ def test_stabilized_take_keeps_labels_nan_and_filled_and_round_trips():
     assert st.take.labels == take.labels and st.take.rate == take.rate
     np.testing.assert_array_equal(st.take.filled, filled)
     np.testing.assert_array_equal(np.isnan(st.take.positions), np.isnan(pos))
-    np.testing.assert_allclose(st.to_world(st.take.positions), pos, atol=1e-9)
+    np.testing.assert_allclose(st.to_world(st.take.positions), pos, atol=EXACT_MM)
     np.testing.assert_array_equal(take.positions, before)
     on_head = st.to_world(st.reference_shape)
     assert np.nanmax(np.abs(on_head - pos[:, :6])) < 0.5

@@ -17,7 +17,7 @@ from mocap.synth.performance import Performance
 from mocap.stabilize import stabilize
 from mocap.synth.capture import CaptureTruth, load_capture_truth, simulate_capture
 from helpers import ICT_LAYOUT_TOML, jaw_open_peak_time
-from tolerances import SYNTH_HEAD_EXACT, SYNTH_VS_DENSE_MM
+from tolerances import EXACT_FLOAT64, EXACT_MM, FLOAT32_REL, SYNTH_HEAD_EXACT, SYNTH_VS_DENSE_MM
 
 SHAPES = ["browInnerUp_L", "browInnerUp_R", "cheekPuff_L", "cheekPuff_R", "eyeBlink_L",
           "eyeBlink_R", "jawOpen", "mouthSmile_L"]
@@ -72,7 +72,7 @@ def test_still_capture_equals_the_layout_on_the_dense_mesh(synth_basis, performa
                                                                                    3, 3)))
     world = np.einsum("ij,tmj->tmi", truth.rotation[0], truth.markers_head) + \
         truth.translation[0]
-    np.testing.assert_allclose(sim.take.positions, world, atol=1e-9)
+    np.testing.assert_allclose(sim.take.positions, world, atol=EXACT_MM)
     np.testing.assert_array_equal(sim.take.positions, truth.markers_world)
     assert sim.take.labels == ict_layout.labels and sim.take.rate == 100.0
     assert not sim.take.missing.any()
@@ -93,14 +93,14 @@ def test_head_motion_is_rigid_and_recovered_by_stabilize(synth_basis, performanc
     sim = _simulate(synth_basis, performance, ict_layout, head, head_rotation_deg=deg,
                     head_translation_mm=mm, head_cutoff_hz=2.0, seed=seed)
     rot, trans = sim.truth.rotation, sim.truth.translation
-    np.testing.assert_allclose(np.linalg.det(rot), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(rot), 1.0, atol=EXACT_FLOAT64)
     np.testing.assert_allclose(rot @ rot.transpose(0, 2, 1), np.broadcast_to(np.eye(3),
                                                                                rot.shape),
-                               atol=1e-12)
+                               atol=EXACT_FLOAT64)
     angle = np.rad2deg(Rotation.from_matrix(rot[0].T @ rot).magnitude())
     assert deg / 4 < angle.max() <= 2 * np.sqrt(3) * deg          # moves, within its peaks
     travel = np.ptp(trans, axis=0)
-    assert mm <= travel.max() and travel.max() <= 2 * mm + 1e-9
+    assert mm <= travel.max() and travel.max() <= 2 * mm + EXACT_MM
     st = stabilize(sim.take, head, reference="frame", reference_frame=0, robust=False)
     expected_r = rot @ rot[0].T                    # the stabilized head frame is frame 0's
     expected_t = trans - np.einsum("tij,j->ti", expected_r, trans[0])
@@ -183,7 +183,7 @@ def test_written_capture_reads_back_with_the_same_gaps(synth_basis, performance,
         ez = ezc3d.c3d(str(path))
         points = ez["data"]["points"][:3].transpose(2, 1, 0)
         np.testing.assert_array_equal(np.isnan(points[..., 0]), take.missing)
-        np.testing.assert_allclose(points, take.positions, rtol=1e-6, equal_nan=True)
+        np.testing.assert_allclose(points, take.positions, rtol=FLOAT32_REL, equal_nan=True)
         assert tuple(ez["parameters"]["POINT"]["LABELS"]["value"]) == take.labels
 
 

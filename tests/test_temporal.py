@@ -13,7 +13,7 @@ from fit.solve.sampling_estimator import estimate_weights_by_sampling
 from fit.solve.weights import solve_weights
 from fit.solve.temporal import EDGE_MODES, moving_average
 from mocap.errors import InputError
-from tests.tolerances import SOLVE_KKT_REL, SOLVE_OBJECTIVE_REL
+from tolerances import EXACT_FLOAT64, LOOP_ORACLE, SOLVE_KKT_REL, SOLVE_OBJECTIVE_REL
 
 
 def brute_moving_average(data, window, edge):
@@ -39,7 +39,7 @@ def test_moving_average_matches_loop(edge, window):
     data[rng.random((90, 4)) < 0.2] = np.nan
     data[10:70, 1] = np.nan  # a gap longer than the window
     got = moving_average(data, window=window, edge=edge)
-    np.testing.assert_allclose(got, brute_moving_average(data, window, edge), atol=1e-9)
+    np.testing.assert_allclose(got, brute_moving_average(data, window, edge), atol=LOOP_ORACLE)
     assert np.isnan(got).any() == (window < 60)
 
 
@@ -206,7 +206,7 @@ def test_sampling_estimator_is_feasible_and_never_beats_exact(eps):
     est = estimate_weights_by_sampling(basis, data, lower=-eps, upper=1 + eps, seed=1)
     exact = solve_weights(basis, data, lower=-eps, upper=1 + eps)
     assert np.all((est.weights >= -eps) & (est.weights <= 1 + eps))
-    assert np.all(est.cost >= exact.cost * (1 - 1e-12))
+    assert np.all(est.cost >= exact.cost * (1 - EXACT_FLOAT64))
     again = estimate_weights_by_sampling(basis, data, lower=-eps, upper=1 + eps, seed=1)
     np.testing.assert_array_equal(again.weights, est.weights)
 
@@ -221,8 +221,8 @@ def test_sampling_estimator_matches_brute_force_neighbours():
     near = np.argsort(dist, axis=1)[:, :5]
     inv = 1.0 / np.take_along_axis(dist, near, axis=1)
     expected = np.einsum("tk,tkn->tn", inv / inv.sum(1, keepdims=True), samples[near])
-    np.testing.assert_allclose(est.weights, expected, rtol=1e-12)
-    np.testing.assert_allclose(est.distance, dist.min(axis=1), rtol=1e-12)
+    np.testing.assert_allclose(est.weights, expected, rtol=EXACT_FLOAT64)
+    np.testing.assert_allclose(est.distance, dist.min(axis=1), rtol=EXACT_FLOAT64)
 
 
 @pytest.mark.parametrize("kwargs, message", [

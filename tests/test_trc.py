@@ -11,7 +11,7 @@ import mocap.io
 from mocap import FileFormatError, InputError, MarkerError, Take
 from mocap.io.trc import read_trc, write_trc
 from helpers import write_utf8
-from tolerances import TRC_BOX_VS_C3D_MM
+from tolerances import EXACT_MM, TRC_BOX_VS_C3D_MM
 
 
 def trc_text(labels, positions, *, rate=100.0, first_frame=1, units="mm", sep="\t",
@@ -155,7 +155,7 @@ def test_writer_round_trips_to_the_printed_precision(tmp_path, c3d, decimals):
     back = read_trc(first)
     assert (back.labels, back.rate, back.first_frame) == (labels, 100, first_frame)
     np.testing.assert_array_equal(back.missing, take.missing)
-    assert np.nanmax(np.abs(back.positions - positions)) <= 0.5 * 10.0 ** -decimals + 1e-9
+    assert np.nanmax(np.abs(back.positions - positions)) <= 0.5 * 10.0 ** -decimals + EXACT_MM
     write_trc(back, second, decimals=decimals)
     assert first.read_bytes() == second.read_bytes()
 

@@ -12,7 +12,7 @@ from mocap import FileFormatError, InputError, MarkerError, Take
 from mocap.units import UNITS_TO_MM
 from mocap.io.vicon_csv import read_vicon_csv, write_vicon_csv
 from helpers import write_utf8
-from tolerances import CSV_VS_C3D_MM
+from tolerances import CSV_VS_C3D_MM, EXACT_MM
 
 DEVICES = ("Devices\n1000\n,,Force Plate 1 - Force,,\nFrame,Sub Frame,Fx,Fy,Fz\n"
            ",,N,N,N\n1,0,1.5,2.5,3.5\n1,1,1.6,2.6,3.6\n")
@@ -196,7 +196,7 @@ def test_writer_round_trips_to_the_printed_precision(tmp_path, nexus, decimals):
     assert (back.labels, back.rate, back.first_frame) == (take.labels, take.rate,
                                                           take.first_frame)
     np.testing.assert_array_equal(back.missing, take.missing)
-    assert np.nanmax(np.abs(back.positions - take.positions)) <= 0.5 * 10.0 ** -decimals + 1e-9
+    assert np.nanmax(np.abs(back.positions - take.positions)) <= 0.5 * 10.0 ** -decimals + EXACT_MM
     write_vicon_csv(back, second, decimals=decimals)
     assert first.read_bytes() == second.read_bytes()
 

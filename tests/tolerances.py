@@ -1,4 +1,33 @@
-"""Tolerances used across the tests, in one place."""
+"""Tolerances used across the tests, in one place.
+
+The shared ones (what rounding alone allows) come first, then one group per topic.
+"""
+
+# ---------------------------------------------------------------- rounding only
+
+#: An exact identity in float64 on values of order 1-100 (rotations, determinants, unit
+#: vectors, weights, sums to 1, costs, s, px): a few operations' rounding; abs or rel.
+EXACT_FLOAT64 = 1e-12
+#: An O(1) value from a handful of float64 operations (a kernel or Shepard formula) against
+#: its exact value or another evaluation of the same formula: a few ulps.
+FEW_ULPS = 1e-14
+#: Positions and motions in mm (up to ~2 m from the origin) that only float64 rounding
+#: separates from their oracle (transforms applied and undone, parts summed back), mm.
+EXACT_MM = 1e-9
+#: Mesh-geometry results that only rounding separates from their oracle (normals, closest
+#: points, ray hits, exact geodesics, barycentric coordinates), mesh units.
+MESH_EXACT = 1e-9
+#: A vectorized computation against a plain loop over the same formula (float64, sums in
+#: another order), on values up to ~100: absolute, or relative.
+LOOP_ORACLE = 1e-9
+#: Values stored or computed in float32 (glTF, mesh sequences, float32 archives and C3D
+#: files), relative to the largest magnitude compared (abs for O(1)): 6e-8 with margin.
+FLOAT32_REL = 1e-6
+#: Files that store float32 (glTF, PLY, mesh sequences): positions of a ~20 cm face
+#: agree to this, cm.
+FLOAT32_FACE_CM = 1e-5
+
+# ---------------------------------------------------------------- by topic
 
 #: Our C3D reader against ezc3d on the same file, mm.
 C3D_VS_EZC3D_MM = 1e-4
@@ -21,18 +50,12 @@ PCA_EXACT_RTOL = 1e-10
 #: Distances between the 8 markers of the rigid box, markers.trc vs markers.c3d
 #: (two trials of one session): marker jitter, mm.
 TRC_BOX_VS_C3D_MM = 1.0
-#: The same C3D trial stored as int16 x scale and as float32: float32 resolution, relative.
-C3D_FLOAT32_RTOL = 1e-6
-#: Mesh-geometry results that only rounding separates from their oracle, mesh units.
-MESH_EXACT = 1e-9
 #: A similarity recovered by marker binding from exact data: scale (relative), rotation, mm.
 BIND_EXACT = 1e-8
 #: Bound marker points vs the layout they were simulated from (0.2 mm noise, 2 mm skin
 #: offset), mm: mean and worst marker.
 BIND_LAYOUT_MEAN_MM = 0.5
 BIND_LAYOUT_MAX_MM = 1.5
-#: glTF stores float32: positions of a ~20 cm face agree to this, cm.
-GLTF_FLOAT32_CM = 1e-5
 #: Objective of the batched weight solver against lsq_linear(bvls) / lstsq, relative.
 SOLVE_OBJECTIVE_REL = 1e-9
 #: Independent KKT check of solved weights (relative to the gradient's terms).
@@ -51,8 +74,6 @@ LOWPASS_VS_SCIPY_MM = 1e-9
 #: Absolute floor of eigenvalue comparisons, as a fraction of the largest eigenvalue:
 #: a covariance (Gram) method knows every eigenvalue to ~ε·λ₁ only.
 PCA_EIG_FLOOR = 1e-13
-#: Arrays exported as float32 (glTF weights, mesh sequences), relative to the largest magnitude.
-EXPORT_FLOAT32_REL = 1e-6
 #: Simulated markers (mesh evaluated at the layout's vertices only) vs the layout on the
 #: dense mesh v0 + sum w e, mm.
 SYNTH_VS_DENSE_MM = 1e-9
