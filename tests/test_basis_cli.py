@@ -18,7 +18,7 @@ from fit.cli.main import main
 from mocap.retarget.retargeting import CONTENTS, Retargeting, save_npz
 from mocap.mesh.mesh import Mesh, save_obj
 from mocap.retarget.rbf import build_rbf_operator
-from tolerances import BASIS_CLI_REL
+from tolerances import BASIS_CLI_MOVES_RTOL, BASIS_CLI_REL
 
 N_SIDE, N_SHAPES, N_FRAMES = 12, 4, 120
 M_PER_CM = 0.01
@@ -167,7 +167,7 @@ def test_fewer_components_move_the_shapes_as_a_dense_projection_says(basis_case,
     got = np.array([[float(r["relative_move"]), float(r["max_vertex_move"])] for r in rows])
     expected = np.column_stack([np.linalg.norm(moves, axis=1) / np.linalg.norm(artist, axis=1),
                                 moves.max(axis=1)])
-    np.testing.assert_allclose(got, expected, rtol=1e-4)
+    np.testing.assert_allclose(got, expected, rtol=BASIS_CLI_MOVES_RTOL)
     assert np.all(got[:, 0] > 0.01)
     np.testing.assert_allclose(load_basis(out / "qe.npz").displacements.reshape(N_SHAPES, -1),
                                qe, atol=_scale(qe))

@@ -13,7 +13,7 @@ from basis.artist import ArtistBasis, load_artist_basis
 from basis.basis_io import BASIS_DTYPES, load_basis, save_basis, shape_file_stems
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh, load_mesh
-from tolerances import FLOAT32_REL
+from tolerances import FLOAT32_REL, OBJ_DISPLACEMENT_MM
 
 #: Quads and one triangle: the polygon map must survive both forms.
 _OBJ = """v 0 0 0
@@ -100,7 +100,8 @@ def test_directory_without_manifest_names_shapes_by_stem(small_basis, tmp_path):
     stems = shape_file_stems(small_basis.names)
     assert back.names == tuple(sorted(stems)) and back.neutral.units == "mm"
     order = [stems.index(n) for n in back.names]
-    np.testing.assert_allclose(back.displacements, small_basis.displacements[order], atol=1e-8)
+    np.testing.assert_allclose(back.displacements, small_basis.displacements[order],
+                               atol=OBJ_DISPLACEMENT_MM)
 
 
 def test_file_stems_are_safe_unique_and_never_neutral():

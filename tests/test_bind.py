@@ -13,7 +13,9 @@ from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.mesh.layout import load_marker_layout, make_layout, save_marker_layout
 from mocap.markerset import REQUIRED_REGIONS
 from mocap.mesh.mesh import boundary_loops, load_mesh
-from tolerances import BIND_EXACT, BIND_LAYOUT_MAX_MM, BIND_LAYOUT_MEAN_MM, MESH_EXACT
+from tolerances import (BIND_CLOSEST_POINT_CM, BIND_EXACT, BIND_ICP_GAIN, BIND_LAYOUT_MAX_MM,
+                        BIND_LAYOUT_MEAN_MM, BIND_SCALE_REL, LAYOUT_TOML_CM, MESH_EXACT,
+                        NEUTRAL_FRAME_RMS_MM)
 
 CM_PER_MM = 0.1
 
@@ -130,7 +132,7 @@ def test_layout_round_trip(ict_mesh, ict_layout, tmp_path):
     back = load_marker_layout(path, ict_mesh)
     assert back.labels == ict_layout.labels
     np.testing.assert_allclose(back.positions(ict_mesh.vertices),
-                               ict_layout.positions(ict_mesh.vertices), atol=1e-7)
+                               ict_layout.positions(ict_mesh.vertices), atol=LAYOUT_TOML_CM)
 
 
 _BAD_SPECS = [
@@ -203,7 +205,7 @@ def test_closest_point_matches_brute_force(ict_mesh):
         brute = np.linalg.norm(candidates - p, axis=1)
         assert d == pytest.approx(brute.min(), abs=MESH_EXACT)
         np.testing.assert_allclose(w @ ict_mesh.vertices[ict_mesh.faces[f]],
-                                   candidates[np.argmin(brute)], atol=1e-7)
+                                   candidates[np.argmin(brute)], atol=BIND_CLOSEST_POINT_CM)
         assert np.all(w >= 0) and w.sum() == pytest.approx(1)
 
 
@@ -258,8 +260,8 @@ def test_ict_layout_binding_recovers_the_layout(ict_mesh, ict_layout, ict_marker
           f"{errors[True].max():.3f} mm")
     assert errors[True].mean() < BIND_LAYOUT_MEAN_MM
     assert errors[True].max() < BIND_LAYOUT_MAX_MM
-    assert errors[True].mean() < errors[False].mean() / 2
-    assert binding.scale * mm_per_cm == pytest.approx(1, abs=0.01)
+    assert errors[True].mean() < errors[False].mean() / BIND_ICP_GAIN
+    assert binding.scale * mm_per_cm == pytest.approx(1, abs=BIND_SCALE_REL)
 
 
 def test_icp_without_scale_keeps_the_landmark_scale(ict_mesh, ict_layout, ict_markerset,
@@ -339,7 +341,7 @@ def test_pick_neutral_frame():
     frames[150, 3] = np.nan
     chosen = pick_neutral_frame(frames)
     assert chosen != 150 and not np.isnan(frames[chosen]).any()
-    assert np.sqrt(np.mean(np.sum((frames[chosen] - rest) ** 2, -1))) < 1.0
+    assert np.sqrt(np.mean(np.sum((frames[chosen] - rest) ** 2, -1))) < NEUTRAL_FRAME_RMS_MM
     with pytest.raises(InputError, match="no frame has every marker visible"):
         pick_neutral_frame(np.full((4, 2, 3), np.nan))
 

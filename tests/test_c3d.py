@@ -15,7 +15,7 @@ from mocap.io.c3d import read_c3d, read_c3d_parameters, write_c3d
 from mocap.errors import FileFormatError, InputError
 from mocap.take import Analog
 from mocap.units import mm_per_unit
-from tolerances import C3D_VS_EZC3D_MM, EXACT_FLOAT64, FLOAT32_REL
+from tolerances import C3D_ANALOG_FLOOR, C3D_VS_EZC3D_MM, EXACT_FLOAT64, FLOAT32_REL
 
 # Files ezc3d 1.7.2 opens with their points (it fails on the MIPS files,
 # Dance.c3d, facial-sing.c3d and bad_parameter_section.c3d; it segfaults on the
@@ -106,7 +106,8 @@ def test_agrees_with_ezc3d(shared_data, name):
     assert [take.labels[i] for i in same] == [ez_labels[i] for i in same]
     analogs = ez["data"]["analogs"][0].T
     if analogs.size:
-        np.testing.assert_allclose(take.analog.values, analogs, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(take.analog.values, analogs, rtol=FLOAT32_REL,
+                                   atol=C3D_ANALOG_FLOOR)
     else:
         assert take.analog is None
 

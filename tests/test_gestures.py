@@ -24,7 +24,9 @@ from mocap.mesh.mesh import Mesh
 from mocap.stabilize import stabilize
 from mocap.take import Take
 from helpers import moving_average_oracle
-from tolerances import EXACT_FLOAT64, EXACT_MM, FLOAT32_FACE_CM, LOOP_ORACLE, MESH_EXACT
+from tolerances import (CHI_SQUARE_PVALUE, EXACT_FLOAT64, EXACT_MM, FLOAT32_FACE_CM,
+                        GESTURES_AT_BOUND, GESTURES_CLI_VS_API, GESTURES_NOISE_FREE, LOOP_ORACLE,
+                        MESH_EXACT)
 
 REGIONS = {"upper_lip": ["UL1", "UL2"], "lower_lip": ["LL1", "LL2"],
            "left_brow": ["LB1", "LB2"], "right_brow": ["RB1", "RB2"],
@@ -65,10 +67,11 @@ def capture():
 def test_exact_analysis_recovers_the_averaged_weights(capture, window):
     stab, neutral, basis, c, _ = capture
     result = analyze_gestures(stab, neutral, basis, REGIONS, labels=FACE, window=window)
-    np.testing.assert_allclose(result.weights, moving_average_oracle(c, window), atol=1e-8)
+    np.testing.assert_allclose(result.weights, moving_average_oracle(c, window),
+                               atol=GESTURES_NOISE_FREE)
     np.testing.assert_allclose(result.rotation, stab.rotation)
     if window == 1:
-        np.testing.assert_allclose(result.residual(), 0.0, atol=1e-8)
+        np.testing.assert_allclose(result.residual(), 0.0, atol=GESTURES_NOISE_FREE)
 
 
 @pytest.mark.parametrize("estimator", ESTIMATORS)
@@ -79,7 +82,7 @@ def test_weights_respect_the_bounds(capture, estimator):
                               estimator=estimator, window=1, n_samples=300, n_neighbors=20)
     assert np.all(result.weights >= -eps - EXACT_FLOAT64) \
         and np.all(result.weights <= 1 + eps + EXACT_FLOAT64)
-    assert np.any(result.weights >= 1 + eps - 1e-9) == (estimator == "exact")
+    assert np.any(result.weights >= 1 + eps - GESTURES_AT_BOUND) == (estimator == "exact")
 
 
 def test_groups_are_disjoint_and_sum_to_the_stabilized_markers(capture):
@@ -236,7 +239,7 @@ def test_choice_among_the_best_k_follows_exp_minus_dist_over_sigma():
     assert set(np.unique(picks)) <= {5, 15, 25}
     counts = np.array([(picks == i).sum() for i in (5, 15, 25)])
     p = np.exp(-np.array([0.0, 0.05, 0.1]) / sigma)
-    assert scipy.stats.chisquare(counts, draws * p / p.sum()).pvalue > 1e-3
+    assert scipy.stats.chisquare(counts, draws * p / p.sum()).pvalue > CHI_SQUARE_PVALUE
     assert pick_candidate(dist, n_candidates=3, sigma=0.0) == 5
 
 
@@ -411,7 +414,7 @@ def test_cli_writes_weights_and_head_motion(cli_files, flags):
     assert len(table) == 120 and list(table.columns[2:]) == ["s0", "s1", "s2"]
     want = synthesize_gestures(wav_intensity(wav, frame_rate=RATE), [load_clip(clip)],
                                rate=RATE, time_warps=not flags)
-    np.testing.assert_allclose(table.to_numpy()[:, 2:], want.weights, atol=1e-6)
+    np.testing.assert_allclose(table.to_numpy()[:, 2:], want.weights, atol=GESTURES_CLI_VS_API)
     head = np.load(out / "head.npz")
     assert head["rotation"].shape == (120, 3, 3)
 
@@ -439,7 +442,7 @@ def test_cli_one_chain_keeps_blinks_and_brows_in_the_weights_chain(cli_files):
                                    weight_groups=groups)
         assert set(want.sources) == ({"weights"} if one_chain
                                      else {"weights", "blinks", "brows"})
-        np.testing.assert_allclose(got[one_chain], want.weights, atol=1e-6)
+        np.testing.assert_allclose(got[one_chain], want.weights, atol=GESTURES_CLI_VS_API)
     assert np.abs(got[True] - got[False]).max() > 0.01
 
 @pytest.mark.parametrize("args, match", [

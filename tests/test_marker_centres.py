@@ -10,7 +10,8 @@ from fit.solve.marker_centres import solve_at_marker_centres
 from fit.solve.weights import solve_weights
 from mocap.errors import InputError
 from mocap.synth.performance import match_shape_names
-from tolerances import EXACT_FLOAT64
+from tolerances import (EXACT_FLOAT64, MARKER_CENTRES_CM, MARKER_CENTRES_COST,
+                        MARKER_CENTRES_FIXED_POINT, MARKER_CENTRES_WEIGHTS)
 
 N_FRAMES = 120
 
@@ -56,9 +57,10 @@ def test_noise_free_centres_give_back_the_true_weights(centres_case):
     assert fit.settled.all() and fit.n_steps.max() > 2
     linear_error = np.abs(linear - truth).max()
     assert linear_error > 0.1                           # the tangent model is off here
-    assert np.abs(fit.solution.weights - truth).max() < 1e-5
-    np.testing.assert_allclose(fit.displacements, data, rtol=0, atol=1e-6)   # cm: 0.1 µm
-    assert np.all(fit.solution.cost < 1e-12)
+    assert np.abs(fit.solution.weights - truth).max() < MARKER_CENTRES_WEIGHTS
+    np.testing.assert_allclose(fit.displacements, data, rtol=0,
+                               atol=MARKER_CENTRES_CM)   # cm: 0.1 µm
+    assert np.all(fit.solution.cost < MARKER_CENTRES_COST)
 
 
 def test_noisy_centres_reach_a_fixed_point_of_the_chord_step(centres_case):
@@ -75,7 +77,7 @@ def test_noisy_centres_reach_a_fixed_point_of_the_chord_step(centres_case):
         again = solve_weights(tangent, noisy - (moved - np.tensordot(w, tangent, axes=1)),
                               lower=0.0, upper=1.0, smoothness=smoothness).weights
         assert fit.settled.all(), fit.solution.message
-        np.testing.assert_allclose(again, w, rtol=0, atol=1e-7)
+        np.testing.assert_allclose(again, w, rtol=0, atol=MARKER_CENTRES_FIXED_POINT)
         np.testing.assert_allclose(fit.displacements, moved, rtol=0, atol=EXACT_FLOAT64)
 
 

@@ -12,7 +12,7 @@ from fit.demo.face import MOUTH, mouth_line
 from fit.demo.muscles import muscle_basis
 from mocap.errors import InputError
 from mocap.mesh.mesh import boundary_loops
-from tolerances import EXACT_FLOAT64
+from tolerances import EXACT_FLOAT64, MOUTH_SIDE_AT_LANDMARK
 
 @pytest.fixture(scope="module")
 def gold_basis(ict_mesh, ict_expressions_dir):
@@ -66,7 +66,7 @@ def test_ict_sides_agree_with_the_jaw(gold_basis, ict_landmarks):
     assert drop[upper].max() < 1 / 3 < drop[lower].min()
     for name, want in (("upper_lip_top", 1), ("upper_lip_bottom", 1), ("lower_lip_top", 0),
                        ("lower_lip_bottom", 0)):
-        assert side[marks[name]] == pytest.approx(want, abs=0.05), name
+        assert side[marks[name]] == pytest.approx(want, abs=MOUTH_SIDE_AT_LANDMARK), name
 
 
 def test_gold_lip_bones_keep_to_their_side(gold_basis, ict_landmarks):

@@ -10,6 +10,7 @@ from mocap.clean.outliers import (REASONS, ImplausibleSamples, find_implausible_
                                   remove_implausible_samples)
 from mocap.errors import InputError, MarkerError
 from mocap.take import Take
+from tolerances import OUTLIER_REFILL_MM, REPAIRED_STEP_MM
 
 N_FRAMES = 400
 #: A 4 x 3 grid of markers 15 mm apart, so that every marker has neighbours to refill it.
@@ -147,7 +148,7 @@ def test_removed_samples_are_refilled_near_the_truth():
     refilled = fill_gaps(removed, method="auto").take
     err = np.linalg.norm(refilled.positions - clean.positions, axis=2)[found.mask]
     raw = np.linalg.norm(dirty.positions - clean.positions, axis=2)[found.mask]
-    assert raw.min() > 79 and err.max() < 2.0
+    assert raw.min() > 79 and err.max() < OUTLIER_REFILL_MM
 
 
 def test_inputs_not_mutated_and_results_read_only():
@@ -209,4 +210,4 @@ def test_facial_sing_mislabel_is_the_only_implausible_event(facial_sing_take,
     assert np.nanmax(jump) > 60  # the event is in the file
     cleaned = fill_gaps(remove_implausible_samples(take, found), method="auto").take
     after = np.linalg.norm(np.diff(cleaned.positions[815:870, i], axis=0), axis=1)
-    assert np.nanmax(after) < 5.0
+    assert np.nanmax(after) < REPAIRED_STEP_MM

@@ -12,7 +12,7 @@ from mocap.errors import FileFormatError, InputError
 from mocap.synth.performance import (NON_WEIGHT_COLUMNS, TIME_COLUMNS, Performance,
                                match_shape_names, performance_weights, read_performance,
                                resample_performance)
-from tolerances import EXACT_FLOAT64
+from tolerances import EXACT_FLOAT64, PERFORMANCE_RATE_REL, TIMECODE_S
 
 ICT_SHAPES = [
     "browDown_L", "browDown_R", "browInnerUp_L", "browInnerUp_R", "browOuterUp_L",
@@ -68,11 +68,11 @@ def test_live_link_face_file_against_a_hand_parse(arkit_performance_path):
     seconds = np.array(seconds) - seconds[0]
     perf = read_performance(path)
     assert perf.n_frames == len(body)
-    np.testing.assert_allclose(perf.times, seconds, atol=1e-9)
+    np.testing.assert_allclose(perf.times, seconds, atol=TIMECODE_S)
     steps = np.round(np.diff(seconds) * 60, 1)
     assert set(steps) == {2.0, 4.0}                   # 30 Hz with dropped frames
     assert np.count_nonzero(steps == 4.0) >= 1
-    assert perf.rate == pytest.approx(30, rel=1e-6)
+    assert perf.rate == pytest.approx(30, rel=PERFORMANCE_RATE_REL)
     weight_cols = [c for c in header[1:] if c.lower() not in NON_WEIGHT_COLUMNS]
     assert perf.names == tuple(weight_cols) and len(perf.names) == 52
     for i in (0, 1, len(body) // 2, len(body) - 1):

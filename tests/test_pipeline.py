@@ -25,7 +25,10 @@ from mocap.markerset import load_markerset
 from mocap.mesh.mesh import load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
 from fit.solve.gcv import gcv_smoothness
-from tolerances import EXACT_FLOAT64, EXACT_MM, MESH_EXACT, SOLVE_OBJECTIVE_REL
+from tolerances import (EXACT_FLOAT64, EXACT_MM, MARKER_BASIS_LIFTED, MARKER_CENTRES_COST_REL,
+                        MARKER_CENTRES_VS_LINEAR, MARKER_CENTRES_VS_OPTIMUM, MESH_EXACT,
+                        MESH_SPACE_CHAIN, MESH_SPACE_VS_DENSE, PCA_FIT_VS_LSTSQ_REL,
+                        SOLVE_OBJECTIVE_FLOOR, SOLVE_OBJECTIVE_REL)
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +71,7 @@ def test_h_weights_solve_marker_problem_like_lsq_linear(chain, fitted):
     for t in np.linspace(0, len(D) - 1, 6).astype(int):
         ref = lsq_linear(B, D[t], bounds=(0, 1), method="bvls", max_iter=10_000)
         ours = 0.5 * np.sum((B @ sol.weights[t] - D[t]) ** 2)
-        assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + 1e-15
+        assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + SOLVE_OBJECTIVE_FLOOR
         assert sol.cost[t] == pytest.approx(ours, rel=EXACT_FLOAT64)
 
 
@@ -97,9 +100,9 @@ def test_h_weights_at_the_exact_marker_centres_near_least_squares(chain, fitted)
         ref = least_squares(residual, linear.weights[t], bounds=(0.0, 1.0), args=(t,),
                             xtol=1e-12, ftol=1e-12, gtol=1e-12)
         ours = 0.5 * np.sum(residual(exact.weights[t], t) ** 2)
-        assert ours == pytest.approx(exact.cost[t], rel=1e-9)
-        assert ref.cost * (1 - 1e-9) <= ours <= 1.01 * ref.cost
-        assert ours < 0.5 * np.sum(residual(linear.weights[t], t) ** 2)
+        assert ours == pytest.approx(exact.cost[t], rel=MARKER_CENTRES_COST_REL)
+        assert ref.cost * (1 - SOLVE_OBJECTIVE_REL) <= ours <= MARKER_CENTRES_VS_OPTIMUM * ref.cost
+        assert ours < MARKER_CENTRES_VS_LINEAR * np.sum(residual(linear.weights[t], t) ** 2)
     np.testing.assert_allclose(fitted["marker"].reconstructed["H"],
                                bound.neutral_pose(chain["take"].select(labels).positions)
                                + np.stack([residual(w, t).reshape(-1, 3) + D[t] for t, w in
@@ -122,7 +125,7 @@ def test_moving_average_fit_solves_the_averaged_displacements(chain):
         d = D[max(0, t - 2):t + 3].mean(axis=0)
         ref = lsq_linear(B, d, bounds=(0, 1), method="bvls", max_iter=10_000)
         ours = 0.5 * np.sum((B @ fit.weights["H"][t] - d) ** 2)
-        assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + 1e-15
+        assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + SOLVE_OBJECTIVE_FLOOR
 
 
 @pytest.mark.parametrize("space", SPACES)
@@ -180,7 +183,7 @@ def test_marker_basis_moves_the_offset_marker_centres_with_the_skin(chain):
                           binding.face_ids, np.full(len(binding.labels),
                                                     binding.skin_offset * binding.scale),
                           mesh.faces, mesh.n_vertices).positions(mesh.vertices)
-    np.testing.assert_allclose(got[1], np.cross(omega, lifted - centre), atol=1e-7)
+    np.testing.assert_allclose(got[1], np.cross(omega, lifted - centre), atol=MARKER_BASIS_LIFTED)
     assert np.abs(got[1] - skin[1]).max() > 1e-3 * np.abs(skin[1]).max()
 
 
@@ -199,7 +202,7 @@ def test_gesture_marker_basis_lifts_the_centres_too_in_capture_mm(chain):
                                                     binding.skin_offset * binding.scale),
                           mesh.faces, mesh.n_vertices).positions(mesh.vertices)[::-1]
     want = np.cross(omega, lifted - centre) @ np.asarray(binding.rotation) / binding.scale
-    np.testing.assert_allclose(got[0], want, atol=1e-7 / binding.scale)
+    np.testing.assert_allclose(got[0], want, atol=MARKER_BASIS_LIFTED / binding.scale)
     skin = gesture_marker_basis(binding, fields, labels)
     assert np.abs(got - skin).max() > 1e-3 * np.abs(skin).max()
 
@@ -219,7 +222,7 @@ def test_pca_marker_fit_is_least_squares_with_mean_fixed(chain, fitted):
     ref = np.linalg.lstsq(B, D.T, rcond=None)[0].T
     weights = fitted["marker"].weights["PCA"]
     np.testing.assert_array_equal(weights[:, 0], 1.0)
-    np.testing.assert_allclose(weights[:, 1:], ref, atol=1e-8 * np.abs(ref).max())
+    np.testing.assert_allclose(weights[:, 1:], ref, atol=PCA_FIT_VS_LSTSQ_REL * np.abs(ref).max())
 
 
 @pytest.mark.parametrize("space", SPACES)
@@ -249,8 +252,8 @@ def test_mesh_space_reduction_equals_materialized_solve(bounds, with_offset):
                           upper=bounds[1])
     ours = solve_mesh_space(E, W, D, offset=offset if with_offset else None,
                             lower=bounds[0], upper=bounds[1])
-    np.testing.assert_allclose(ours.weights, dense.weights, atol=1e-8)
-    np.testing.assert_allclose(ours.cost, dense.cost, rtol=1e-8)
+    np.testing.assert_allclose(ours.weights, dense.weights, atol=MESH_SPACE_VS_DENSE)
+    np.testing.assert_allclose(ours.cost, dense.cost, rtol=MESH_SPACE_VS_DENSE)
 
 
 def test_mesh_space_fit_matches_materialized_on_the_chain(chain, fitted):
@@ -261,7 +264,8 @@ def test_mesh_space_fit_matches_materialized_on_the_chain(chain, fitted):
     target = np.einsum("nm,tmc->tnc", W, D).reshape(len(D), -1)
     dense = solve_weights(basis.displacements.reshape(len(basis.names), -1).T, target,
                           lower=0, upper=1)
-    np.testing.assert_allclose(fitted["mesh"].weights["H"][::20], dense.weights, atol=1e-7)
+    np.testing.assert_allclose(fitted["mesh"].weights["H"][::20], dense.weights,
+                               atol=MESH_SPACE_CHAIN)
 
 
 def test_complete_span_drops_incomplete_end_frames():

@@ -15,7 +15,8 @@ from mocap.retarget._kernels import COMPACT_KERNELS, KERNELS, MIN_DEGREE, evalua
 from mocap.retarget.rbf import build_rbf_operator
 from mocap.mesh.regions import painted_region_weights, region_weights
 from helpers import slit_grid
-from tolerances import EXACT_FLOAT64, FEW_ULPS, RBF_VS_SCIPY_RTOL
+from tolerances import (EXACT_FLOAT64, FEW_ULPS, RBF_ACROSS_CUT, RBF_AFFINE_EXACT,
+                        RBF_AFFINE_ICT_CM, RBF_APPLY_FLOAT32, RBF_REGION_SUM, RBF_VS_SCIPY_RTOL)
 
 SCIPY_KERNELS = tuple(k for k in KERNELS if k not in COMPACT_KERNELS)
 RNG = np.random.default_rng(11)
@@ -68,11 +69,13 @@ def test_default_epsilon_and_degree_match_scipy(kernel):
 def test_affine_fields_reproduced(kernel, degree):
     a, b = RNG.normal(size=(3, 3)), RNG.normal(size=3)
     op = build_rbf_operator(CENTERS, POINTS, kernel=kernel, epsilon=0.9, degree=degree)
-    np.testing.assert_allclose(op.matrix @ (CENTERS @ a.T + b), POINTS @ a.T + b, atol=1e-9)
+    np.testing.assert_allclose(op.matrix @ (CENTERS @ a.T + b), POINTS @ a.T + b,
+                               atol=RBF_AFFINE_EXACT)
 
 
 @pytest.mark.parametrize("kernel", ["thin_plate_spline", "wendland_c2"])
-@pytest.mark.parametrize("dtype, atol", [(np.float64, 1e-12), (np.float32, 1e-4)])
+@pytest.mark.parametrize("dtype, atol", [(np.float64, EXACT_FLOAT64), (np.float32,
+                                                                       RBF_APPLY_FLOAT32)])
 def test_apply_equals_per_frame_loop(kernel, dtype, atol):
     op = build_rbf_operator(CENTERS, POINTS, kernel=kernel, epsilon=0.8)
     d = RNG.normal(size=(23, len(CENTERS), 3))
@@ -171,7 +174,7 @@ def test_geodesic_operator_interpolates_and_respects_the_slit():
     # Upper-lip centers do not reach across the cut (support 0.15 < the way around).
     below = np.abs(_dense(op.matrix)[lower[4], :4]).max()
     euclid = build_rbf_operator(v[centers], v, kernel="wendland_c2", epsilon=1 / 0.15)
-    assert below < 1e-9 < 1e-3 < np.abs(_dense(euclid.matrix)[lower[4], :4]).max()
+    assert below < RBF_ACROSS_CUT < 1e-3 < np.abs(_dense(euclid.matrix)[lower[4], :4]).max()
 
 
 def _lip_regions():
@@ -213,7 +216,7 @@ def test_region_operator_is_the_weighted_sum_of_region_operators():
         subset = np.union1d(regions[name], regions["other"])
         w_r = build_rbf_operator(v[centers[subset]], v, **options).matrix
         expected[:, subset] += weights[:, col, None] * w_r
-    np.testing.assert_allclose(op.matrix, expected, atol=1e-10)
+    np.testing.assert_allclose(op.matrix, expected, atol=RBF_REGION_SUM)
 
 
 def test_region_weights_blend_smoothly():
@@ -319,4 +322,4 @@ def test_geodesic_thin_plate_spline_on_the_ict_face(ict_neutral_path):
     assert np.isfinite(op.matrix).all()
     affine = np.random.default_rng(1).normal(size=(3, 3))
     field = op.apply((vertices[idx] @ affine)[None], dtype=np.float64)[0]
-    np.testing.assert_allclose(field, vertices @ affine, atol=1e-8)
+    np.testing.assert_allclose(field, vertices @ affine, atol=RBF_AFFINE_ICT_CM)

@@ -23,7 +23,8 @@ from mocap.mesh.mesh import Mesh, load_mesh
 from mocap.synth.capture import simulate_capture
 from mocap.take import Take
 from helpers import ICT_MARKERSET_TOML, jaw_open_peak_time
-from tolerances import EXACT_FLOAT64, FLOAT32_REL, RETARGET_CLI_SIM_REL, RETARGET_EXACT
+from tolerances import (EXACT_FLOAT64, FLOAT32_REL, OBJ_TEXT, RBF_AFFINE_EXACT,
+                        RETARGET_CLI_SIM_REL, RETARGET_EXACT, RETARGET_HEAD_ALIGN)
 
 MM_PER_CM = 10.0
 
@@ -140,7 +141,7 @@ def test_align_head_frame_recovers_the_capture_rotation():
     take = _take_from_mesh_displacements(np.zeros((2, len(FACE_LABELS), 3)))
     head = take.replace(positions=take.positions @ turn)          # p_head = turn^T p
     np.testing.assert_allclose(align_head_frame(head, BINDING, GRID, neutral_frame=0), turn,
-                               atol=1e-9)
+                               atol=RETARGET_HEAD_ALIGN)
 
 
 # -- the operator ------------------------------------------------------------------------
@@ -183,7 +184,7 @@ def test_retarget_reproduces_an_affine_field(distance, use_regions):
     result = retarget(take, BINDING, GRID, MARKERSET, options=options, neutral_frame=0)
     xi = result.vertex_displacements(dtype=np.float64)[1:]
     np.testing.assert_allclose(xi, GRID.vertices @ a.transpose(0, 2, 1) + b, rtol=0,
-                               atol=1e-9)
+                               atol=RBF_AFFINE_EXACT)
     np.testing.assert_allclose(result.rotation, np.eye(3), atol=EXACT_FLOAT64)
 
 
@@ -230,7 +231,7 @@ def test_obj_sequence_reads_back(small_result, tmp_path):
     expected = small_result.vertex_displacements(dtype=np.float64) + GRID.vertices
     for path, vertices in zip(paths, expected):
         mesh = load_mesh(path)
-        np.testing.assert_allclose(mesh.vertices, vertices, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(mesh.vertices, vertices, rtol=OBJ_TEXT, atol=OBJ_TEXT)
         np.testing.assert_array_equal(mesh.faces, GRID.faces)
 
 

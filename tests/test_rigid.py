@@ -6,7 +6,9 @@ from scipy.spatial.transform import Rotation
 
 from mocap import InputError
 from mocap.rigid import fit_rigid
-from tolerances import EXACT_FLOAT64, RIGID_EXACT_DEG, RIGID_EXACT_MM
+from tolerances import (EXACT_FLOAT64, RIGID_DROPPED_MM, RIGID_DROPPED_ROT, RIGID_EXACT_DEG,
+                        RIGID_EXACT_MM, RIGID_MIRRORED_SCALE, RIGID_RMS_MM, RIGID_VS_ORACLE,
+                        RIGID_VS_ORACLE_MM, RIGID_VS_ORACLE_SCALE)
 
 
 def svd_oracle(x, y, w, scale):
@@ -40,9 +42,9 @@ def test_batched_fit_matches_per_frame_svd(scale, shared):
     fit = fit_rigid(x, y, w, scale=scale)
     for t in range(len(y)):
         rot, trans, s = svd_oracle(x if shared else x[t], y[t], w[t], scale)
-        np.testing.assert_allclose(fit.rotation[t], rot, atol=1e-9)
-        np.testing.assert_allclose(fit.translation[t], trans, atol=1e-7)
-        np.testing.assert_allclose(fit.scale[t], s, rtol=1e-10)
+        np.testing.assert_allclose(fit.rotation[t], rot, atol=RIGID_VS_ORACLE)
+        np.testing.assert_allclose(fit.translation[t], trans, atol=RIGID_VS_ORACLE_MM)
+        np.testing.assert_allclose(fit.scale[t], s, rtol=RIGID_VS_ORACLE_SCALE)
     assert fit.valid.all()
     np.testing.assert_allclose(np.linalg.det(fit.rotation), 1.0, atol=EXACT_FLOAT64)
 
@@ -55,7 +57,7 @@ def test_rigid_fit_matches_scipy_align_vectors_weighted():
         cx = w[t] @ x[t] / w[t].sum()
         cy = w[t] @ y[t] / w[t].sum()
         rot, _ = Rotation.align_vectors(y[t] - cy, x[t] - cx, weights=w[t])
-        np.testing.assert_allclose(fit.rotation[t], rot.as_matrix(), atol=1e-9)
+        np.testing.assert_allclose(fit.rotation[t], rot.as_matrix(), atol=RIGID_VS_ORACLE)
 
 
 def test_rms_is_the_weighted_residual():
@@ -64,7 +66,7 @@ def test_rms_is_the_weighted_residual():
     fit = fit_rigid(x, y, w)
     resid = fit.apply(x) - y
     rms = np.sqrt((w * (resid ** 2).sum(axis=-1)).sum(axis=1) / w.sum(axis=1))
-    np.testing.assert_allclose(fit.rms, rms, atol=1e-6)
+    np.testing.assert_allclose(fit.rms, rms, atol=RIGID_RMS_MM)
 
 
 @pytest.mark.parametrize("shared", [False, True])
@@ -100,8 +102,8 @@ def test_reflection_is_never_returned():
     np.testing.assert_allclose(np.linalg.det(fit.rotation), 1.0, atol=EXACT_FLOAT64)
     for t in range(30):
         rot, trans, s = svd_oracle(x[t], y[t], np.ones(5), True)
-        np.testing.assert_allclose(fit.rotation[t], rot, atol=1e-9)
-        np.testing.assert_allclose(fit.scale[t], s, rtol=1e-9)
+        np.testing.assert_allclose(fit.rotation[t], rot, atol=RIGID_VS_ORACLE)
+        np.testing.assert_allclose(fit.scale[t], s, rtol=RIGID_MIRRORED_SCALE)
 
 
 def test_zero_weight_and_nan_points_are_dropped():
@@ -113,8 +115,8 @@ def test_zero_weight_and_nan_points_are_dropped():
     keep = [0, 1, 2, 4, 5, 6]
     dropped = fit_rigid(x[:, keep], y[:, keep], w[:, keep])
     for fit in (fit_rigid(x, y, w), fit_rigid(x, y_nan, np.where(w > 0, w, 1.0))):
-        np.testing.assert_allclose(fit.rotation, dropped.rotation, atol=1e-10)
-        np.testing.assert_allclose(fit.translation, dropped.translation, atol=1e-8)
+        np.testing.assert_allclose(fit.rotation, dropped.rotation, atol=RIGID_DROPPED_ROT)
+        np.testing.assert_allclose(fit.translation, dropped.translation, atol=RIGID_DROPPED_MM)
         assert (fit.n_points == 6).all()
 
 

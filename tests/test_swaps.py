@@ -9,6 +9,7 @@ from mocap.clean.swaps import LabelSwap, find_label_swaps, fix_label_swaps
 from mocap.errors import InputError, MarkerError
 from mocap.stabilize import stabilize
 from mocap.take import Take
+from tolerances import SWAP_RESIDUAL_FRACTION
 
 N_FRAMES = 400
 LABELS = ("m0", "m1", "m2", "m3", "m4", "m5")
@@ -94,7 +95,7 @@ def test_injected_swaps_found_exactly_and_repaired(case, head_frame):
         want = [("m2", "m5", 100, 150)]
     assert found(result) == sorted(want, key=lambda s: (s[2], s[0], s[1]))
     for swap in result:
-        assert swap.residual_mm < 0.25 * swap.jump_mm
+        assert swap.residual_mm < SWAP_RESIDUAL_FRACTION * swap.jump_mm
         assert swap.score > 10
     repaired = fix_label_swaps(dirty, result)
     np.testing.assert_array_equal(repaired.positions, clean.positions)

@@ -17,7 +17,8 @@ from mocap.synth.performance import Performance
 from mocap.stabilize import stabilize
 from mocap.synth.capture import CaptureTruth, load_capture_truth, simulate_capture
 from helpers import ICT_LAYOUT_TOML, jaw_open_peak_time
-from tolerances import EXACT_FLOAT64, EXACT_MM, FLOAT32_REL, SYNTH_HEAD_EXACT, SYNTH_VS_DENSE_MM
+from tolerances import (CAPTURE_FILE_MM, EXACT_FLOAT64, EXACT_MM, FLOAT32_REL, SYNTH_HEAD_EXACT,
+                        SYNTH_NOISE_MEAN_MM, SYNTH_NOISE_STD_REL, SYNTH_VS_DENSE_MM)
 
 SHAPES = ["browInnerUp_L", "browInnerUp_R", "cheekPuff_L", "cheekPuff_R", "eyeBlink_L",
           "eyeBlink_R", "jawOpen", "mouthSmile_L"]
@@ -125,8 +126,8 @@ def test_gaps_are_nan_and_noise_has_its_level(synth_basis, performance, ict_layo
     assert truth.missing[:, rigid].sum(axis=1).max() <= 1                 # >= 5 head markers seen
     assert truth.missing[:, rigid].mean() < truth.missing[:, ~rigid].mean()
     error = (take.positions - truth.markers_world)[~truth.missing]
-    assert error.std() == pytest.approx(0.5, rel=0.05)
-    assert abs(error.mean()) < 0.05
+    assert error.std() == pytest.approx(0.5, rel=SYNTH_NOISE_STD_REL)
+    assert abs(error.mean()) < SYNTH_NOISE_MEAN_MM
 
 
 def test_seeded_and_deterministic(synth_basis, performance, ict_layout, head):
@@ -178,7 +179,8 @@ def test_written_capture_reads_back_with_the_same_gaps(synth_basis, performance,
     back = mocap.read(path)
     assert back.labels == take.labels and back.rate == take.rate
     np.testing.assert_array_equal(back.missing, take.missing)
-    np.testing.assert_allclose(back.positions, take.positions, atol=5e-3, equal_nan=True)
+    np.testing.assert_allclose(back.positions, take.positions, atol=CAPTURE_FILE_MM,
+                               equal_nan=True)
     if ext == ".c3d":                                        # an independent reader
         ez = ezc3d.c3d(str(path))
         points = ez["data"]["points"][:3].transpose(2, 1, 0)

@@ -12,7 +12,7 @@ from mocap import FileFormatError, InputError, MarkerError, Take
 from mocap.units import UNITS_TO_MM
 from mocap.io.vicon_csv import read_vicon_csv, write_vicon_csv
 from helpers import write_utf8
-from tolerances import CSV_VS_C3D_MM, EXACT_MM
+from tolerances import CSV_VS_C3D_MM, EXACT_MM, VICON_CSV_CELL_MM
 
 DEVICES = ("Devices\n1000\n,,Force Plate 1 - Force,,\nFrame,Sub Frame,Fx,Fy,Fz\n"
            ",,N,N,N\n1,0,1.5,2.5,3.5\n1,1,1.6,2.6,3.6\n")
@@ -221,7 +221,8 @@ def test_writer_layout_is_nexus(tmp_path):
             if np.isnan(pos[t, m, 0]):
                 assert cells == ["", "", ""]
             else:
-                np.testing.assert_allclose([float(c) for c in cells], pos[t, m], atol=5e-6)
+                np.testing.assert_allclose([float(c) for c in cells], pos[t, m],
+                                           atol=VICON_CSV_CELL_MM)
     assert read_vicon_csv(path).rate == 119.88
 
 
@@ -229,7 +230,7 @@ def test_io_write_dispatches_to_the_csv_writer(tmp_path):
     take = Take(("a",), random_positions(3, 1), rate=50)
     mocap.io.write(take, tmp_path / "t.csv")
     np.testing.assert_allclose(mocap.io.read(tmp_path / "t.csv").positions, take.positions,
-                               atol=5e-6)
+                               atol=VICON_CSV_CELL_MM)
 
 
 def test_writer_refuses_to_overwrite_an_input(tmp_path):
