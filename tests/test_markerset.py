@@ -5,6 +5,7 @@ import pytest
 from mocap.errors import FileFormatError, MarkerError
 from mocap.markerset import REQUIRED_REGIONS, load_markerset
 from helpers import TESTS_DIR
+
 GOOD = """
 name = "t"
 head = ["h1", "h2", "h3"]

@@ -14,6 +14,7 @@ from mocap.errors import InputError
 from mocap.mesh.mesh import boundary_loops
 from tolerances import EXACT_FLOAT64, MOUTH_SIDE_AT_LANDMARK
 
+
 @pytest.fixture(scope="module")
 def gold_basis(ict_mesh, ict_expressions_dir):
     """The ICT expressions the gold weights are made of, and jawOpen (cm)."""

@@ -19,7 +19,6 @@ from helpers import ICT_LANDMARKS_TOML
 from tolerances import FLOAT32_FACE_CM, MESH_EXACT
 
 
-
 def _polygons_by_loop(path) -> list[list[int]]:
     """Brute-force oracle: the OBJ's polygons, 0-based, line by line."""
     polys = []
