@@ -10,100 +10,91 @@ import numpy as np
 import pygltflib
 import pytest
 import trimesh
+from tolerances import FLOAT32_FACE_CM, MESH_EXACT
 
-from basis.artist import ArtistBasis, load_artist_basis
+from basis.artist import load_artist_basis
 from mocap.errors import FileFormatError, InputError
-from mocap.mesh.mesh import load_mesh, save_obj
-from tolerances import GLTF_FLOAT32_CM, MESH_EXACT
+from mocap.mesh.mesh import save_obj
 
 
-@pytest.fixture(scope="module")
-def ict_dir(shared_data) -> Path:
-    return shared_data / "ict-face"
-
-
-@pytest.fixture(scope="module")
-def basis(ict_dir) -> ArtistBasis:
-    return load_artist_basis(ict_dir / "generic_neutral_mesh.obj", ict_dir / "expressions",
-                             units="cm")
-
-
-def test_ict_expressions_load_as_displacements(basis, ict_dir):
+def test_ict_expressions_load_as_displacements(ict_basis, ict_dir):
     listed = json.loads((ict_dir / "vertex_indices.json").read_text())["expressions"]
-    assert basis.names == tuple(sorted(listed))
-    assert basis.displacements.shape == (53, 9409, 3)
-    assert basis.neutral.units == "cm" and not basis.displacements.flags.writeable
+    assert ict_basis.names == tuple(sorted(listed))
+    assert ict_basis.displacements.shape == (53, 9409, 3)
+    assert ict_basis.neutral.units == "cm" and not ict_basis.displacements.flags.writeable
     neutral = trimesh.load(ict_dir / "generic_neutral_mesh.obj", process=False,
                            maintain_order=True).vertices
     for name in ("jawOpen", "mouthSmile_L", "eyeBlink_R"):
         shape = trimesh.load(ict_dir / "expressions" / f"{name}.obj", process=False,
                              maintain_order=True).vertices
-        np.testing.assert_allclose(basis.displacements[basis.index(name)], shape - neutral,
-                                   atol=MESH_EXACT)
+        np.testing.assert_allclose(ict_basis.displacements[ict_basis.index(name)],
+                                   shape - neutral, atol=MESH_EXACT)
     # ICT's _L is the subject's left, +x: the left smile moves the left mouth corner most
-    smile = np.linalg.norm(basis.displacements[basis.index("mouthSmile_L")], axis=1)
-    assert basis.neutral.vertices[np.argmax(smile), 0] > 1
+    smile = np.linalg.norm(ict_basis.displacements[ict_basis.index("mouthSmile_L")], axis=1)
+    assert ict_basis.neutral.vertices[np.argmax(smile), 0] > 1
 
 
-def test_evaluate_is_neutral_plus_weighted_displacements(basis):
+def test_evaluate_is_neutral_plus_weighted_displacements(ict_basis):
     rng = np.random.default_rng(0)
-    weights = rng.random((4, basis.n_shapes))
-    out = basis.evaluate(weights)
+    weights = rng.random((4, ict_basis.n_shapes))
+    out = ict_basis.evaluate(weights)
     assert out.shape == (4, 9409, 3)
-    expected = basis.neutral.vertices + np.tensordot(weights[2], basis.displacements, axes=1)
+    expected = ict_basis.neutral.vertices + np.tensordot(weights[2], ict_basis.displacements,
+                                                         axes=1)
     np.testing.assert_allclose(out[2], expected, atol=MESH_EXACT)
-    one_hot = np.eye(basis.n_shapes)[basis.index("jawOpen")]
-    np.testing.assert_allclose(basis.evaluate(one_hot),
-                               basis.neutral.vertices + basis.displacements[basis.index("jawOpen")],
+    one_hot = np.eye(ict_basis.n_shapes)[ict_basis.index("jawOpen")]
+    np.testing.assert_allclose(ict_basis.evaluate(one_hot),
+                               ict_basis.neutral.vertices
+                               + ict_basis.displacements[ict_basis.index("jawOpen")],
                                atol=MESH_EXACT)
     with pytest.raises(InputError, match=r"weights must have shape \(\.\.\., 53\)"):
-        basis.evaluate(np.ones(3))
+        ict_basis.evaluate(np.ones(3))
     with pytest.raises(InputError, match="no artist shape 'smile'"):
-        basis.index("smile")
+        ict_basis.index("smile")
 
 
-def test_names_select_and_order(ict_dir, basis):
-    sub = load_artist_basis(basis.neutral, ict_dir / "expressions",
+def test_names_select_and_order(ict_expressions_dir, ict_basis):
+    sub = load_artist_basis(ict_basis.neutral, ict_expressions_dir,
                             names=["noseSneer_R", "browDown_L"])
     assert sub.names == ("noseSneer_R", "browDown_L")
     np.testing.assert_array_equal(sub.displacements[0],
-                                  basis.displacements[basis.index("noseSneer_R")])
+                                  ict_basis.displacements[ict_basis.index("noseSneer_R")])
     with pytest.raises(InputError, match="no OBJ file for shapes smile"):
-        load_artist_basis(basis.neutral, ict_dir / "expressions", names=["smile"])
+        load_artist_basis(ict_basis.neutral, ict_expressions_dir, names=["smile"])
 
 
 @pytest.fixture()
-def small_dir(ict_dir, tmp_path) -> Path:
+def small_dir(ict_expressions_dir, tmp_path) -> Path:
     folder = tmp_path / "shapes"
     folder.mkdir()
     for name in ("jawOpen", "eyeBlink_L"):
-        shutil.copy(ict_dir / "expressions" / f"{name}.obj", folder)
+        shutil.copy(ict_expressions_dir / f"{name}.obj", folder)
     return folder
 
 
-def test_other_vertex_count_is_rejected_naming_the_file(basis, small_dir):
-    cut = trimesh.Trimesh(basis.neutral.vertices, basis.neutral.faces, process=False)
+def test_other_vertex_count_is_rejected_naming_the_file(ict_basis, small_dir):
+    cut = trimesh.Trimesh(ict_basis.neutral.vertices, ict_basis.neutral.faces, process=False)
     cut = cut.submesh([np.arange(100)], append=True)
     save_obj(np.asarray(cut.vertices), small_dir / "broken.obj", faces=np.asarray(cut.faces))
     with pytest.raises(FileFormatError, match=r"broken.obj: has \d+ vertices but the neutral "
                                               r"has 9409"):
-        load_artist_basis(basis.neutral, small_dir)
+        load_artist_basis(ict_basis.neutral, small_dir)
 
 
-def test_other_topology_is_rejected_naming_the_file(basis, small_dir):
-    faces = basis.neutral.faces.copy()
+def test_other_topology_is_rejected_naming_the_file(ict_basis, small_dir):
+    faces = ict_basis.neutral.faces.copy()
     faces[0] = faces[0, [0, 2, 1]]
-    save_obj(basis.neutral.vertices, small_dir / "flipped.obj", faces=faces)
+    save_obj(ict_basis.neutral.vertices, small_dir / "flipped.obj", faces=faces)
     with pytest.raises(FileFormatError, match="flipped.obj: has the neutral's vertex count but "
                                               "other faces"):
-        load_artist_basis(basis.neutral, small_dir)
+        load_artist_basis(ict_basis.neutral, small_dir)
 
 
-def test_bad_shape_sources(basis, tmp_path):
+def test_bad_shape_sources(ict_basis, tmp_path):
     with pytest.raises(InputError, match="must be a directory of OBJ files or a glTF"):
-        load_artist_basis(basis.neutral, tmp_path / "absent")
+        load_artist_basis(ict_basis.neutral, tmp_path / "absent")
     with pytest.raises(InputError, match="no artist shapes found"):
-        load_artist_basis(basis.neutral, tmp_path)
+        load_artist_basis(ict_basis.neutral, tmp_path)
 
 
 def _write_gltf(path: Path, base: np.ndarray, deltas: list, names: list, faces) -> None:
@@ -138,38 +129,37 @@ def _write_gltf(path: Path, base: np.ndarray, deltas: list, names: list, faces) 
 
 
 @pytest.mark.parametrize("suffix", [".glb", ".gltf"])
-def test_gltf_morph_targets(basis, tmp_path, suffix):
+def test_gltf_morph_targets(ict_basis, tmp_path, suffix):
     names = ["jawOpen", "mouthSmile_L", "browDown_R"]
-    deltas = [basis.displacements[basis.index(n)] for n in names]
+    deltas = [ict_basis.displacements[ict_basis.index(n)] for n in names]
     path = tmp_path / f"face{suffix}"
     cm_to_m = 0.01                                   # glTF stores metres
-    _write_gltf(path, basis.neutral.vertices * cm_to_m, [d * cm_to_m for d in deltas], names,
-                basis.neutral.faces)
-    loaded = load_artist_basis(basis.neutral, path)
+    _write_gltf(path, ict_basis.neutral.vertices * cm_to_m, [d * cm_to_m for d in deltas], names,
+                ict_basis.neutral.faces)
+    loaded = load_artist_basis(ict_basis.neutral, path)
     assert loaded.names == tuple(names)
-    np.testing.assert_allclose(loaded.displacements, np.stack(deltas), atol=GLTF_FLOAT32_CM)
-    picked = load_artist_basis(basis.neutral, path, names=["browDown_R"])
-    np.testing.assert_allclose(picked.displacements[0], deltas[2], atol=GLTF_FLOAT32_CM)
+    np.testing.assert_allclose(loaded.displacements, np.stack(deltas), atol=FLOAT32_FACE_CM)
+    picked = load_artist_basis(ict_basis.neutral, path, names=["browDown_R"])
+    np.testing.assert_allclose(picked.displacements[0], deltas[2], atol=FLOAT32_FACE_CM)
 
 
-def test_gltf_mismatches(basis, tmp_path):
+def test_gltf_mismatches(ict_basis, tmp_path):
     path = tmp_path / "small.glb"
-    _write_gltf(path, basis.neutral.vertices[:10], [np.zeros((10, 3))], ["a"], [[0, 1, 2]])
+    _write_gltf(path, ict_basis.neutral.vertices[:10], [np.zeros((10, 3))], ["a"], [[0, 1, 2]])
     with pytest.raises(FileFormatError, match="small.glb: has 10 vertices but the neutral has"):
-        load_artist_basis(basis.neutral, path)
+        load_artist_basis(ict_basis.neutral, path)
     path = tmp_path / "centimetres.glb"                # not metres: wrong for glTF
-    _write_gltf(path, basis.neutral.vertices, [np.zeros((9409, 3))], ["a"],
-                basis.neutral.faces)
+    _write_gltf(path, ict_basis.neutral.vertices, [np.zeros((9409, 3))], ["a"],
+                ict_basis.neutral.faces)
     with pytest.raises(FileFormatError, match="centimetres.glb: base positions differ"):
-        load_artist_basis(basis.neutral, path)
+        load_artist_basis(ict_basis.neutral, path)
     path = tmp_path / "ok.glb"
-    _write_gltf(path, basis.neutral.vertices / 100, [np.zeros((9409, 3))], ["a"],
-                basis.neutral.faces)
+    _write_gltf(path, ict_basis.neutral.vertices / 100, [np.zeros((9409, 3))], ["a"],
+                ict_basis.neutral.faces)
     with pytest.raises(InputError, match="ok.glb: no morph target named b"):
-        load_artist_basis(basis.neutral, path, names=["b"])
+        load_artist_basis(ict_basis.neutral, path, names=["b"])
 
 
-def test_neutral_path_and_mesh_agree(basis, ict_dir):
-    mesh = load_mesh(ict_dir / "generic_neutral_mesh.obj", units="cm")
-    assert mesh.same_topology(basis.neutral)
-    np.testing.assert_array_equal(mesh.vertices, basis.neutral.vertices)
+def test_neutral_path_and_mesh_agree(ict_basis, ict_mesh):
+    assert ict_mesh.same_topology(ict_basis.neutral)
+    np.testing.assert_array_equal(ict_mesh.vertices, ict_basis.neutral.vertices)

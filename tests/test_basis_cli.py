@@ -9,17 +9,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from tolerances import BASIS_CLI_MOVES_RTOL, BASIS_CLI_REL
 
 from basis.artist import load_artist_basis
 from basis.basis_io import load_basis
 from basis.comparison import MOVE_COLUMNS
 from basis.quasi_eigen import MISSING_POLICIES
 from fit.cli.main import main
-from mocap.retarget.archive import CONTENTS, save_npz
-from mocap.retarget.retargeting import Retargeting
 from mocap.mesh.mesh import Mesh, save_obj
+from mocap.retarget.archive import CONTENTS, save_npz
 from mocap.retarget.rbf import build_rbf_operator
-from tolerances import BASIS_CLI_REL
+from mocap.retarget.retargeting import Retargeting
 
 N_SIDE, N_SHAPES, N_FRAMES = 12, 4, 120
 M_PER_CM = 0.01
@@ -38,7 +38,7 @@ def _grid_mesh() -> Mesh:
 
 
 @pytest.fixture(scope="module")
-def case(tmp_path_factory):
+def basis_case(tmp_path_factory):
     """Artist shapes e_i = W a_i, and a take D(t) = sum_i c_i(t) a_i + x(t) b with W b
     orthogonal to every e_i and x(t) centred and uncorrelated with the c_i."""
     folder = tmp_path_factory.mktemp("basis")
@@ -97,40 +97,42 @@ def _scale(x) -> float:
 
 @pytest.mark.parametrize("missing", MISSING_POLICIES)
 @pytest.mark.parametrize("take", CONTENTS)
-def test_quasi_eigen_keeps_the_shapes_and_finds_the_extra_axis(case, tmp_path, missing, take):
+def test_quasi_eigen_keeps_the_shapes_and_finds_the_extra_axis(basis_case, tmp_path, missing,
+                                                               take):
     out = tmp_path / "out"
     images = "shape0,shape2" if missing == "augment" else "none"
-    assert _run(case, out, "--missing", missing, "--images", images, take=take) == 0
-    evals, artist = case["evals"], case["artist"]
+    assert _run(basis_case, out, "--missing", missing, "--images", images, take=take) == 0
+    evals, artist = basis_case["evals"], basis_case["artist"]
     m = int(np.nonzero(np.cumsum(evals) / evals.sum() >= 0.995)[0][0]) + 1
     assert m == N_SHAPES + 1                          # the data has rank 5, all above 0.5 %
 
     pca = load_basis(out / "pca.npz")
     assert pca.names == ("pca_mean",) + tuple(f"pc_{j:02d}" for j in range(m))
-    np.testing.assert_allclose(pca.displacements[0], case["mean"], atol=_scale(case["mean"]))
+    np.testing.assert_allclose(pca.displacements[0], basis_case["mean"],
+                               atol=_scale(basis_case["mean"]))
     np.testing.assert_allclose(np.sum(pca.displacements[1:] ** 2, axis=(1, 2)), evals[:m],
                                atol=_scale(evals))
 
     qe = load_basis(out / "qe.npz")
     np.testing.assert_allclose(qe.displacements[:N_SHAPES], artist, atol=_scale(artist))
-    extra = case["extra"].ravel()
+    extra = basis_case["extra"].ravel()
     rows = _table(out / "moves.csv")
     assert tuple(rows[0]) == MOVE_COLUMNS
     missing_rows = [r for r in rows if r["kind"] == "missing_axis"]
     assert len(missing_rows) == 1
     axis = int(missing_rows[0]["axis"])
-    assert abs(case["axes"][axis] @ extra) == pytest.approx(1, abs=BASIS_CLI_REL)
+    assert abs(basis_case["axes"][axis] @ extra) == pytest.approx(1, abs=BASIS_CLI_REL)
     assert float(missing_rows[0]["variance_share"]) == pytest.approx(
         evals[axis] / evals.sum(), rel=BASIS_CLI_REL)
     for row in rows[:N_SHAPES]:
         assert float(row["relative_move"]) < BASIS_CLI_REL
     if missing == "augment":
-        assert qe.names == tuple(case["names"]) + (f"pca_axis_{axis:02d}",)
+        assert qe.names == tuple(basis_case["names"]) + (f"pca_axis_{axis:02d}",)
         assert abs(qe.displacements[-1].ravel() @ extra) == pytest.approx(1, abs=BASIS_CLI_REL)
     else:
-        assert qe.names == tuple(case["names"])
+        assert qe.names == tuple(basis_case["names"])
 
-    mesh = case["mesh"]                                      # glTF is in metres
+    mesh = basis_case["mesh"]                                # glTF is in metres
     in_metres = Mesh(mesh.vertices * M_PER_CM, mesh.faces, units="m")
     for stem, basis in (("qe", qe), ("pca", pca)):
         glb = load_artist_basis(in_metres, out / f"{stem}.glb")
@@ -153,12 +155,12 @@ def test_quasi_eigen_keeps_the_shapes_and_finds_the_extra_axis(case, tmp_path, m
     assert image.shape[0] > 300 and image.shape[1] > 900 and image.std() > 10
 
 
-def test_fewer_components_move_the_shapes_as_a_dense_projection_says(case, tmp_path):
+def test_fewer_components_move_the_shapes_as_a_dense_projection_says(basis_case, tmp_path):
     out = tmp_path / "out"
-    assert _run(case, out, "-m", "2", "--images", "none", "--missing-eps", "0") == 0
+    assert _run(basis_case, out, "-m", "2", "--images", "none", "--missing-eps", "0") == 0
     assert not (out / "comparison").exists()
-    axes, mean = case["axes"][:2], case["mean"].ravel()
-    artist = case["artist"].reshape(N_SHAPES, -1)
+    axes, mean = basis_case["axes"][:2], basis_case["mean"].ravel()
+    artist = basis_case["artist"].reshape(N_SHAPES, -1)
     qe = mean + ((artist - mean) @ axes.T) @ axes            # eq. 3-4 on the dense SVD
     moves = np.linalg.norm((qe - artist).reshape(N_SHAPES, -1, 3), axis=2)
     rows = _table(out / "moves.csv")
@@ -166,7 +168,7 @@ def test_fewer_components_move_the_shapes_as_a_dense_projection_says(case, tmp_p
     got = np.array([[float(r["relative_move"]), float(r["max_vertex_move"])] for r in rows])
     expected = np.column_stack([np.linalg.norm(moves, axis=1) / np.linalg.norm(artist, axis=1),
                                 moves.max(axis=1)])
-    np.testing.assert_allclose(got, expected, rtol=1e-4)
+    np.testing.assert_allclose(got, expected, rtol=BASIS_CLI_MOVES_RTOL)
     assert np.all(got[:, 0] > 0.01)
     np.testing.assert_allclose(load_basis(out / "qe.npz").displacements.reshape(N_SHAPES, -1),
                                qe, atol=_scale(qe))
@@ -211,10 +213,10 @@ def _too_many_components(case, tmp_path):
 
 @pytest.mark.parametrize("make", [_bad_shape, _other_mesh_take, _capture_without_binding,
                                   _unknown_image, _too_many_components])
-def test_bad_input_exits_1_naming_the_fault(case, tmp_path, capsys, make):
-    extra, message = make(case, tmp_path)
-    argv = ["basis", str(case["takes"]["vertices"]), "--neutral", str(case["neutral"]),
-            "--shapes", str(case["shapes"]), "--units", "cm", "-o", str(tmp_path / "out")]
+def test_bad_input_exits_1_naming_the_fault(basis_case, tmp_path, capsys, make):
+    extra, message = make(basis_case, tmp_path)
+    argv = ["basis", str(basis_case["takes"]["vertices"]), "--neutral", str(basis_case["neutral"]),
+            "--shapes", str(basis_case["shapes"]), "--units", "cm", "-o", str(tmp_path / "out")]
     if extra[0].endswith((".npz", ".c3d")):
         argv[1] = extra.pop(0)
     argv += extra

@@ -8,14 +8,14 @@ import warnings
 import ezc3d
 import numpy as np
 import pytest
+from tolerances import C3D_ANALOG_FLOOR, C3D_VS_EZC3D_MM, EXACT_FLOAT64, FLOAT32_REL
 
-from mocap import Take, read
+from mocap import Take
+from mocap.errors import FileFormatError, InputError
 from mocap.io._c3d_numbers import BYTE_ORDERS
 from mocap.io.c3d import read_c3d, read_c3d_parameters, write_c3d
-from mocap.errors import FileFormatError, InputError
 from mocap.take import Analog
 from mocap.units import mm_per_unit
-from tolerances import C3D_FLOAT32_RTOL, C3D_VS_EZC3D_MM
 
 # Files ezc3d 1.7.2 opens with their points (it fails on the MIPS files,
 # Dance.c3d, facial-sing.c3d and bad_parameter_section.c3d; it segfaults on the
@@ -106,7 +106,8 @@ def test_agrees_with_ezc3d(shared_data, name):
     assert [take.labels[i] for i in same] == [ez_labels[i] for i in same]
     analogs = ez["data"]["analogs"][0].T
     if analogs.size:
-        np.testing.assert_allclose(take.analog.values, analogs, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(take.analog.values, analogs, rtol=FLOAT32_REL,
+                                   atol=C3D_ANALOG_FLOOR)
     else:
         assert take.analog is None
 
@@ -117,7 +118,7 @@ def test_agrees_with_brute_force_decoder(shared_data, name):
     take = _quiet_read(path)
     expected = brute_force_points(path) * mm_per_unit(take.source.units)
     np.testing.assert_array_equal(np.isnan(expected[:, :, 0]), take.missing)
-    np.testing.assert_allclose(take.positions, expected, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(take.positions, expected, rtol=EXACT_FLOAT64, atol=0)
 
 
 @pytest.mark.parametrize("encoding", ["pr", "si", "sr", "vi", "vr"])
@@ -127,7 +128,7 @@ def test_sample_01_encodings_decode_identically(shared_data, encoding):
     assert take.labels == ref.labels and take.rate == ref.rate
     np.testing.assert_array_equal(take.missing, ref.missing)
     # integer files hold int16 x scale; float files the same numbers rounded to float32
-    np.testing.assert_allclose(take.positions, ref.positions, rtol=C3D_FLOAT32_RTOL, atol=0)
+    np.testing.assert_allclose(take.positions, ref.positions, rtol=FLOAT32_REL, atol=0)
     np.testing.assert_allclose(take.analog.values, ref.analog.values, rtol=0, atol=0)
 
 
@@ -140,7 +141,7 @@ def test_sample_02_integer_and_float_differ_by_one_scale_unit(shared_data, machi
     assert (integer.source.storage, real.source.storage) == ("integer", "float")
     np.testing.assert_array_equal(integer.missing, real.missing)
     diff = np.abs(integer.positions - real.positions)[~integer.missing]
-    assert diff.max() <= scale * (1 + 1e-6)
+    assert diff.max() <= scale * (1 + FLOAT32_REL)
 
 
 def test_facial_sing_facts(shared_data):
@@ -163,8 +164,8 @@ def test_facial_sing_facts(shared_data):
     assert not (take.positions == 0).all(axis=2).any()  # residual -1 with xyz 0 is NaN
 
 
-def test_vicon_nexus_facts(shared_data):
-    take = read(shared_data / "vicon-nexus/markers.c3d")
+def test_vicon_nexus_facts(vicon_nexus_take):
+    take = vicon_nexus_take
     assert (take.n_markers, take.n_frames, int(take.missing.sum())) == (51, 580, 305)
     assert take.analog.values.shape == (580 * 20, 38) and take.analog.rate == 2000.0
     assert take.source.producer.startswith("Vicon Nexus")
@@ -273,7 +274,7 @@ def test_units_converted_to_mm(tmp_path, unit, factor):
                     + unit.encode())
     back = read_c3d(path)
     assert back.source.units == unit.strip()
-    np.testing.assert_allclose(back.positions, _f32(take.positions) * factor, rtol=1e-12)
+    np.testing.assert_allclose(back.positions, _f32(take.positions) * factor, rtol=EXACT_FLOAT64)
 
 
 def test_header_data_pointer_wrong_uses_point_data_start(tmp_path):

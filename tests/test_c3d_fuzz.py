@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from mocap import Take
-from mocap.io.c3d import read_c3d, write_c3d
 from mocap.errors import Mocap2MeshError
+from mocap.io.c3d import read_c3d, write_c3d
 from mocap.take import Analog
 
 CORPUS = ["c3d-samples/sample_16/basketball.c3d", "c3d-samples/sample_02/pc_int.c3d",

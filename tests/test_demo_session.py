@@ -7,6 +7,17 @@ import pytest
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial.transform import Rotation
+from tolerances import (
+    DEMO_CAPTURE_MM,
+    DEMO_LAYOUT_MM,
+    DEMO_NEUTRAL_MM,
+    DEMO_SHAPES_MM,
+    DEMO_SHAPES_SPAN_REL,
+    EXACT_FLOAT64,
+    EXACT_MM,
+    MESH_EXACT,
+    OBJ_TEXT,
+)
 
 import mocap
 from basis.artist import load_artist_basis
@@ -16,10 +27,10 @@ from fit.demo.muscles import JAW, MUSCLES, UPPER_FACE
 from fit.demo.performance import HIDDEN, DemoPerformance
 from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import InputError
-from mocap.mesh.layout import load_marker_layout
 from mocap.markerset import load_markerset
-from mocap.mesh.mesh import boundary_loops, degenerate_faces, face_normals, load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.mesh.layout import load_marker_layout
+from mocap.mesh.mesh import boundary_loops, degenerate_faces, face_normals, load_mesh
 
 SECONDS, RATE, SEED = 4.0, 60.0, 3
 
@@ -125,11 +136,11 @@ def test_jaw_follows_a_true_rotation(session, lips):
         rot = Rotation.from_rotvec(np.deg2rad(JAW["degrees"]) * a * np.array(JAW["axis"]))
         pivot = np.array(JAW["pivot"])
         expected = rot.apply(session.face.mesh.vertices[lower] - pivot) + pivot
-        np.testing.assert_allclose(moved[lower], expected, atol=1e-9)
+        np.testing.assert_allclose(moved[lower], expected, atol=MESH_EXACT)
         if a == 1.0:   # full opening is the artist's shape
             np.testing.assert_allclose(moved - session.face.mesh.vertices,
                                        session.basis.displacements[MUSCLES.index("jaw_open")],
-                                       atol=1e-12)
+                                       atol=EXACT_FLOAT64)
 
 
 def _residual(basis_disp, displacements):
@@ -145,7 +156,8 @@ def test_performance_is_outside_the_basis_span_but_the_shapes_are_exact(session)
     weights = session.performance.truth_weights()[frames]
     true = session.truth_basis.evaluate(weights) - session.face.mesh.vertices
     assert _residual(session.basis.displacements, true) > 0.02
-    assert _residual(session.basis.displacements, session.basis.displacements) < 1e-10
+    assert _residual(session.basis.displacements,
+                     session.basis.displacements) < DEMO_SHAPES_SPAN_REL
     hidden = session.truth_basis.displacements[len(MUSCLES):]
     for shape in hidden:
         assert _residual(session.basis.displacements, shape[None]) > 0.3
@@ -165,26 +177,30 @@ def test_files_load_with_the_project_readers(session):
     paths = session.paths
     assert set(paths) == set(SESSION_FILES) and all(p.exists() for p in paths.values())
     mesh = load_mesh(paths["neutral"])
-    np.testing.assert_allclose(mesh.vertices, session.face.mesh.vertices, rtol=1e-9, atol=1e-7)
+    np.testing.assert_allclose(mesh.vertices, session.face.mesh.vertices, rtol=OBJ_TEXT,
+                               atol=DEMO_NEUTRAL_MM)
     assert np.array_equal(mesh.faces, session.face.mesh.faces)
     for basis in (load_artist_basis(paths["neutral"], paths["shapes"], names=MUSCLES),
                   load_basis(paths["shapes"])):
         assert basis.names == MUSCLES
-        np.testing.assert_allclose(basis.displacements, session.basis.displacements, atol=1e-6)
+        np.testing.assert_allclose(basis.displacements, session.basis.displacements,
+                                   atol=DEMO_SHAPES_MM)
     landmarks = load_mesh_landmarks(paths["landmarks"], mesh)
     assert landmarks == session.face.landmarks
     assert set(MASKLE_POINTS) | {"nose_tip", "chin", "brow_inner_left", "brow_outer_right"} \
         <= set(landmarks)
     layout = load_marker_layout(paths["layout"], mesh)
     np.testing.assert_allclose(layout.positions(mesh.vertices),
-                               session.layout.positions(session.face.mesh.vertices), atol=1e-5)
+                               session.layout.positions(session.face.mesh.vertices),
+                               atol=DEMO_LAYOUT_MM)
     markerset = load_markerset(paths["markerset"])
     assert set(markerset.markers) == set(layout.labels)
     assert markerset.head == session.head_markers and 4 <= len(markerset.head) <= 7
     assert 40 <= len(markerset.face_markers) <= 66
     take = mocap.read(paths["capture"])
     assert take.labels == layout.labels and take.rate == pytest.approx(RATE)
-    np.testing.assert_allclose(take.positions, session.capture.take.positions, atol=1e-3)
+    np.testing.assert_allclose(take.positions, session.capture.take.positions,
+                               atol=DEMO_CAPTURE_MM)
     with np.load(paths["truth"]) as truth:
         assert tuple(truth["shape_names"]) == MUSCLES
         np.testing.assert_array_equal(truth["weights"], session.performance.activations)
@@ -194,7 +210,7 @@ def test_files_load_with_the_project_readers(session):
         assert 0.1 < noise.std() < 0.3                              # 0.2 mm noise
         world = np.einsum("tij,tmj->tmi", truth["rotation"], truth["markers_head"]) \
             + truth["translation"][:, None]
-        np.testing.assert_allclose(world, truth["markers_world"], atol=1e-9)
+        np.testing.assert_allclose(world, truth["markers_world"], atol=EXACT_MM)
 
 
 def test_landmarks_sit_where_their_names_say(session, lips):

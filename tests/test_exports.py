@@ -6,14 +6,19 @@ import csv
 
 import numpy as np
 import pytest
+from tolerances import FLOAT32_REL
 
-from fit.exports import (read_mesh_sequence, read_weights_csv, weights_frame,
-                         write_mesh_sequence, write_weights_csv)
+from fit.exports import (
+    read_mesh_sequence,
+    read_weights_csv,
+    weights_frame,
+    write_mesh_sequence,
+    write_weights_csv,
+)
 from fit.solve.weights import solve_weights
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh, load_mesh, save_obj
 from mocap.take import Take
-from tolerances import EXPORT_FLOAT32_REL
 
 NAMES = ("jawOpen", "smile L", "blink")
 
@@ -77,7 +82,7 @@ def test_mesh_sequence_evaluates_like_a_loop(neutral, displacements, weights, tm
     seq = read_mesh_sequence(path)
     expected = np.stack([neutral.vertices + sum(w[i] * displacements[i] for i in range(3))
                          for w in weights])  # brute force, frame by frame, float64
-    atol = EXPORT_FLOAT32_REL * np.abs(expected).max()
+    atol = FLOAT32_REL * np.abs(expected).max()
     assert seq.n_frames == len(weights) and (seq.rate, seq.first_frame) == (60.0, 3)
     assert seq.units == "cm" and seq.names == NAMES
     np.testing.assert_array_equal(seq.faces, neutral.faces)
@@ -100,7 +105,7 @@ def test_materialized_in_chunks_matches_compact(neutral, displacements, tmp_path
     a, b = read_mesh_sequence(tmp_path / "a.npz"), read_mesh_sequence(tmp_path / "b.npz")
     assert a.rate is None and b.n_frames == 600
     np.testing.assert_allclose(a.vertices(), b.vertices(), rtol=0,
-                               atol=2 * EXPORT_FLOAT32_REL * np.abs(b.vertices()).max())
+                               atol=2 * FLOAT32_REL * np.abs(b.vertices()).max())
 
 
 @pytest.mark.parametrize("bad, message", [

@@ -7,11 +7,19 @@ response, analytic band-limited signals, a brute-force loop over new samples.
 import numpy as np
 import pytest
 from scipy.signal import butter, sosfiltfilt
+from tolerances import (
+    LOWPASS_GAIN,
+    LOWPASS_PASSBAND,
+    LOWPASS_STOPBAND,
+    LOWPASS_VS_SCIPY_MM,
+    RESAMPLE_ALIAS_REL,
+    RESAMPLE_COARSE_MM,
+    RESAMPLE_MM,
+)
 
 from mocap import Analog, InputError, Take
 from mocap.clean import lowpass, resample
 from mocap.take import fill_code
-from tolerances import LOWPASS_VS_SCIPY_MM
 
 RATE = 100.0
 
@@ -52,11 +60,11 @@ def test_lowpass_gain_is_the_squared_butterworth_response(freq):
     amplitude = np.sqrt((out ** 2).sum(axis=1)).mean() / 10.0
     warp = np.tan(np.pi * freq / RATE) / np.tan(np.pi * cutoff / RATE)   # bilinear transform
     expected = 1.0 / (1.0 + warp ** (2 * order))   # |H|² of the forward-backward filter
-    assert amplitude == pytest.approx(expected, abs=1e-3)
+    assert amplitude == pytest.approx(expected, abs=LOWPASS_GAIN)
     if freq < cutoff / 2:
-        assert amplitude > 0.99
+        assert amplitude > LOWPASS_PASSBAND
     if freq > 2 * cutoff:
-        assert amplitude < 0.01
+        assert amplitude < LOWPASS_STOPBAND
 
 
 def test_lowpass_filters_each_segment_and_keeps_gaps():
@@ -116,14 +124,14 @@ def test_resample_band_limited_signal_matches_analytic(old, new):
     t = np.arange(out.n_frames) / new
     truth = sine_take(freqs, n_frames=out.n_frames, rate=new).positions
     inner = (t > 1.0) & (t < t[-1] - 1.0)          # away from the filter's end effects
-    tol = 0.05 if new < 4 * max(freqs) * 4 else 0.02
+    tol = RESAMPLE_COARSE_MM if new < 4 * max(freqs) * 4 else RESAMPLE_MM
     np.testing.assert_allclose(out.positions[inner], truth[inner], atol=tol, rtol=0)
 
 
 def test_resample_attenuates_above_new_nyquist():
     take = sine_take([20.0], n_frames=1200, rate=120.0)     # above 15 Hz, Nyquist of 30 Hz
     out = resample(take, 30.0)
-    assert np.abs(out.positions[60:-60, 0, :2]).max() < 0.05 * 10.0
+    assert np.abs(out.positions[60:-60, 0, :2]).max() < RESAMPLE_ALIAS_REL * 10.0
 
 
 def test_resample_missing_mask_and_filled_record_by_brute_force():

@@ -8,14 +8,22 @@ scipy's Rotation.align_vectors for the batched Kabsch fit the rigid fill uses.
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from tolerances import (
+    EXACT_FLOAT64,
+    EXACT_MM,
+    GAPFILL_KABSCH_MM,
+    GAPFILL_KABSCH_ROT,
+    GAPFILL_LOW_RANK_MM,
+    GAPFILL_RIGID_MM,
+    GAPFILL_WANDER_REL,
+    SPLINE_BOUND_FACTOR,
+)
 
 from mocap import InputError, MarkerError, Take
-from mocap.clean import FILL_OPTIONS, fill_gaps
-from mocap.clean import _pca_fill
+from mocap.clean import FILL_OPTIONS, _pca_fill, fill_gaps
 from mocap.clean._rigid_fill import donor_weights
 from mocap.rigid import fit_rigid
 from mocap.take import fill_code
-from tolerances import GAPFILL_LOW_RANK_MM, GAPFILL_RIGID_MM
 
 FILLING = tuple(m for m in FILL_OPTIONS if m != "none")
 RATE = 100.0
@@ -73,8 +81,8 @@ def test_rigid_fit_recovers_exact_transform_and_matches_scipy():
     src_nan = np.where(weights[..., None] > 0, src, np.nan)
     fit = fit_rigid(src_nan, dst, weights)
     r, t = fit.rotation, fit.translation
-    np.testing.assert_allclose(r, rot.as_matrix(), atol=1e-12)
-    np.testing.assert_allclose(t, trans, atol=1e-9)
+    np.testing.assert_allclose(r, rot.as_matrix(), atol=EXACT_FLOAT64)
+    np.testing.assert_allclose(t, trans, atol=EXACT_MM)
 
     noisy = dst + rng.normal(scale=2.0, size=dst.shape)
     w = weights * rng.uniform(0.5, 2.0, size=weights.shape)
@@ -84,8 +92,8 @@ def test_rigid_fit_recovers_exact_transform_and_matches_scipy():
         cs = (w[f, :, None] * src[f]).sum(0) / w[f].sum()
         cd = (w[f, :, None] * noisy[f]).sum(0) / w[f].sum()
         ref, _ = Rotation.align_vectors(noisy[f] - cd, src[f] - cs, weights=w[f])
-        np.testing.assert_allclose(r[f], ref.as_matrix(), atol=1e-10)
-        np.testing.assert_allclose(t[f], cd - ref.as_matrix() @ cs, atol=1e-8)
+        np.testing.assert_allclose(r[f], ref.as_matrix(), atol=GAPFILL_KABSCH_ROT)
+        np.testing.assert_allclose(t[f], cd - ref.as_matrix() @ cs, atol=GAPFILL_KABSCH_MM)
 
 
 @pytest.mark.parametrize("gap", [5, 20, 40])
@@ -100,7 +108,7 @@ def test_spline_fill_of_sinusoid_within_the_cubic_spline_bound(gap):
     h = (gap + 1) / RATE                               # the spline piece spanning the gap
     bound = 5 / 384 * amp * omega ** 4 * h ** 4         # (5/384) h^4 max|f''''|
     linear = amp * omega ** 2 * h ** 2 / 8              # linear interpolation's bound
-    assert err <= 2 * bound
+    assert err <= SPLINE_BOUND_FACTOR * bound
     assert err < linear
 
 
@@ -161,7 +169,7 @@ def test_rigid_fill_down_weights_a_donor_that_moves_relative_to_the_target():
     naive = fit_rigid(pos[start - 1, 1:6], pos[start:stop, 1:6])
     naive_err = np.linalg.norm(naive.apply(pos[start - 1, :1])[:, 0] - pos[start:stop, 0], axis=1)
     assert naive_err.max() > 0.3
-    assert err.max() < 0.02 * naive_err.max()
+    assert err.max() < GAPFILL_WANDER_REL * naive_err.max()
 
 
 def test_donor_weights_are_inverse_distance_variances_near_the_gap():
@@ -175,7 +183,7 @@ def test_donor_weights_are_inverse_distance_variances_near_the_gap():
     near = np.r_[150:250, 300:400]               # RIGIDITY_FRAMES = 100 each side
     expect = [1 / (np.nanvar(np.linalg.norm(pos[near, d] - pos[near, 0], axis=1)) + 0.1 ** 2)
               for d in donors[:3]]
-    np.testing.assert_allclose(got, expect + [min(expect)], rtol=1e-12)
+    np.testing.assert_allclose(got, expect + [min(expect)], rtol=EXACT_FLOAT64)
 
 
 @pytest.mark.parametrize("path", ["complete", "iterative"])

@@ -6,36 +6,11 @@ import igl
 import numpy as np
 import pytest
 import trimesh
+from helpers import slit_grid
+from tolerances import EXACT_FLOAT64, GEODESIC_HEAT_MAX_REL, GEODESIC_HEAT_MEAN_REL, MESH_EXACT
 
 from mocap import InputError
 from mocap.mesh.geodesic import HeatGeodesics
-from tolerances import GEODESIC_HEAT_MAX_REL, GEODESIC_HEAT_MEAN_REL
-
-
-def slit_grid(n: int = 25, slit: float = 0.6):
-    """Unit-square grid (criss-cross triangles) cut along y = 0.5 for x < `slit`.
-
-    Returns vertices (V, 3), triangles (F, 3), and the ids of the vertex rows
-    just above and just below the cut (sharing x), as (upper, lower).
-    """
-    xs = np.linspace(0.0, 1.0, n)
-    gx, gy = np.meshgrid(xs, xs, indexing="ij")
-    vertices = np.c_[gx.ravel(), gy.ravel(), np.zeros(n * n)]
-    ids = np.arange(n * n).reshape(n, n)
-    mid, tip = (n - 1) // 2, int(round(slit * (n - 1)))
-    faces = []
-    lower_ids = ids.copy()
-    if slit > 0:
-        # Duplicate the cut vertices (x < tip) for the cells below the cut.
-        dup = np.arange(n * n, n * n + tip)
-        vertices = np.r_[vertices, vertices[ids[:tip, mid]]]
-        lower_ids[:tip, mid] = dup
-    for i in range(n - 1):
-        for j in range(n - 1):
-            grid = lower_ids if j < mid else ids
-            a, b, c, d = grid[i, j], grid[i + 1, j], grid[i + 1, j + 1], grid[i, j + 1]
-            faces += [[a, b, c], [a, c, d]] if (i + j) % 2 else [[a, b, d], [b, c, d]]
-    return vertices, np.array(faces), ids[:, mid], lower_ids[:, mid]
 
 
 def test_flat_grid_matches_euclidean_and_exact():
@@ -46,7 +21,7 @@ def test_flat_grid_matches_euclidean_and_exact():
     euclid = np.linalg.norm(v[None, :, :] - v[sources, None, :], axis=2)
     exact = np.stack([igl.exact_geodesic(v, f, VS=np.array([s]), VT=np.arange(len(v)))
                       for s in sources])
-    np.testing.assert_allclose(exact, euclid, atol=1e-9)
+    np.testing.assert_allclose(exact, euclid, atol=MESH_EXACT)
     far = euclid > 0.25                         # the heat method is O(h) near the source
     rel = np.abs(heat - euclid)[far] / euclid[far]
     assert rel.max() < GEODESIC_HEAT_MAX_REL
@@ -63,7 +38,7 @@ def test_slit_forces_the_way_around():
     heat = geo.from_vertices([a])[0, b]
     exact = igl.exact_geodesic(v, f, VS=np.array([a]), VT=np.array([b]))[0]
     assert np.linalg.norm(v[a] - v[b]) == 0.0
-    np.testing.assert_allclose(exact, around, rtol=1e-9)
+    np.testing.assert_allclose(exact, around, rtol=MESH_EXACT)
     np.testing.assert_allclose(heat, exact, rtol=GEODESIC_HEAT_MAX_REL)
 
 
@@ -75,7 +50,7 @@ def test_surface_points_blend_vertex_fields():
     np.testing.assert_array_equal(at_vertex, geo.from_vertices([corner]))
     bary = np.array([[0.2, 0.5, 0.3]])
     blended = geo.from_surface_points([40], bary)
-    np.testing.assert_allclose(blended[0], bary[0] @ geo.from_vertices(f[40]), rtol=1e-12)
+    np.testing.assert_allclose(blended[0], bary[0] @ geo.from_vertices(f[40]), rtol=EXACT_FLOAT64)
 
 
 def test_symmetric_fields_agree_with_point_distances():
@@ -87,9 +62,9 @@ def test_symmetric_fields_agree_with_point_distances():
     raw = geo.at_surface_points(geo.from_surface_points(faces, bary), faces, bary)
     dist = geo.between_surface_points(faces, bary)
     fields = geo.from_surface_points(faces, bary, symmetric=True)
-    np.testing.assert_allclose(dist, dist.T, atol=1e-12)
-    np.testing.assert_allclose(dist, (raw + raw.T) / 2 - np.diag(np.diag(raw)), atol=1e-9)
-    np.testing.assert_allclose(geo.at_surface_points(fields, faces, bary), dist, atol=1e-9)
+    np.testing.assert_allclose(dist, dist.T, atol=EXACT_FLOAT64)
+    np.testing.assert_allclose(dist, (raw + raw.T) / 2 - np.diag(np.diag(raw)), atol=MESH_EXACT)
+    np.testing.assert_allclose(geo.at_surface_points(fields, faces, bary), dist, atol=MESH_EXACT)
 
 
 def test_locate_recovers_surface_points():
@@ -102,11 +77,11 @@ def test_locate_recovers_surface_points():
     points = np.einsum("pk,pkd->pd", bary, v[f[faces]])
     got_faces, got_bary = geo.locate(points)
     np.testing.assert_array_equal(got_faces, faces)
-    np.testing.assert_allclose(got_bary, bary, atol=1e-9)
+    np.testing.assert_allclose(got_bary, bary, atol=MESH_EXACT)
 
 
-def test_ict_mouth_is_open(shared_data):
-    mesh = trimesh.load(shared_data / "ict-face" / "generic_neutral_mesh.obj", process=False)
+def test_ict_mouth_is_open(ict_neutral_path):
+    mesh = trimesh.load(ict_neutral_path, process=False)
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)   # quads split by trimesh
     assert f.shape == (2 * 9230, 3)
     upper_inner, lower_inner = 5533, 5517       # Multi-PIE landmarks 62 and 66

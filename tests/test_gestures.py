@@ -3,21 +3,43 @@
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.io.wavfile
 import scipy.stats
+from helpers import moving_average_oracle
 from scipy.interpolate import BSpline
 from scipy.spatial.distance import cdist
 from scipy.spatial.transform import Rotation
+from tolerances import (
+    CHI_SQUARE_PVALUE,
+    EXACT_FLOAT64,
+    EXACT_MM,
+    FLOAT32_FACE_CM,
+    GESTURES_AT_BOUND,
+    GESTURES_CLI_VS_API,
+    GESTURES_NOISE_FREE,
+    LOOP_ORACLE,
+    MESH_EXACT,
+)
 
 from fit.cli.main import main
-from fit.gestures import (ESTIMATORS, FEATURES, GestureClip, analyze_gestures,
-                          candidate_distances, clip_from_analysis, load_clip,
-                          parse_timeline, pick_candidate, save_clip, synthesize_gestures,
-                          wav_intensity, weight_columns)
+from fit.gestures import (
+    ESTIMATORS,
+    FEATURES,
+    GestureClip,
+    analyze_gestures,
+    candidate_distances,
+    clip_from_analysis,
+    load_clip,
+    parse_timeline,
+    pick_candidate,
+    save_clip,
+    synthesize_gestures,
+    wav_intensity,
+    weight_columns,
+)
 from fit.gestures.transfer import SUPPORT_SPACINGS, build_detail_transfer
 from fit.solve.marker_basis import marker_basis
 from mocap.bind import Binding
@@ -32,7 +54,6 @@ REGIONS = {"upper_lip": ["UL1", "UL2"], "lower_lip": ["LL1", "LL2"],
 FACE = [x for members in REGIONS.values() for x in members]
 HEAD = ["H1", "H2", "H3", "H4"]
 N_FRAMES, N_SHAPES, RATE = 120, 4, 30.0
-HERE = Path(__file__).resolve().parent
 
 
 def _smooth(rng, n, d, lo=0.0, hi=1.0):
@@ -62,20 +83,15 @@ def capture():
     return stab, neutral, basis, c, face
 
 
-def _moving_average_oracle(x, window):
-    """Centred mean over the frames inside the take (explicit loop)."""
-    k = window // 2
-    return np.array([x[max(0, t - k):t + k + 1].mean(axis=0) for t in range(len(x))])
-
-
 @pytest.mark.parametrize("window", [1, 5, 41])
 def test_exact_analysis_recovers_the_averaged_weights(capture, window):
     stab, neutral, basis, c, _ = capture
     result = analyze_gestures(stab, neutral, basis, REGIONS, labels=FACE, window=window)
-    np.testing.assert_allclose(result.weights, _moving_average_oracle(c, window), atol=1e-8)
+    np.testing.assert_allclose(result.weights, moving_average_oracle(c, window),
+                               atol=GESTURES_NOISE_FREE)
     np.testing.assert_allclose(result.rotation, stab.rotation)
     if window == 1:
-        np.testing.assert_allclose(result.residual(), 0.0, atol=1e-8)
+        np.testing.assert_allclose(result.residual(), 0.0, atol=GESTURES_NOISE_FREE)
 
 
 @pytest.mark.parametrize("estimator", ESTIMATORS)
@@ -84,8 +100,9 @@ def test_weights_respect_the_bounds(capture, estimator):
     eps = 0.05
     result = analyze_gestures(stab, neutral, 0.4 * basis, REGIONS, labels=FACE, epsilon=eps,
                               estimator=estimator, window=1, n_samples=300, n_neighbors=20)
-    assert np.all(result.weights >= -eps - 1e-12) and np.all(result.weights <= 1 + eps + 1e-12)
-    assert np.any(result.weights >= 1 + eps - 1e-9) == (estimator == "exact")
+    assert np.all(result.weights >= -eps - EXACT_FLOAT64) \
+        and np.all(result.weights <= 1 + eps + EXACT_FLOAT64)
+    assert np.any(result.weights >= 1 + eps - GESTURES_AT_BOUND) == (estimator == "exact")
 
 
 def test_groups_are_disjoint_and_sum_to_the_stabilized_markers(capture):
@@ -100,7 +117,7 @@ def test_groups_are_disjoint_and_sum_to_the_stabilized_markers(capture):
                                   "right_eye"}
     assert result.groups["lips"] == ("UL1", "UL2", "LL1", "LL2")
     total = neutral + result.blend() + result.residual()
-    np.testing.assert_allclose(total, moved[:, len(HEAD):], atol=1e-9)
+    np.testing.assert_allclose(total, moved[:, len(HEAD):], atol=EXACT_MM)
     assert np.abs(result.details["left_brow"]).max() > 1.0
 
 
@@ -147,7 +164,7 @@ def test_candidate_distances_match_a_brute_force_loop():
         speech = sum((s_hist[h - 1 - j] - s_ref[t - j]) ** 2 for j in range(h))
         feature = sum(np.sum((f_hist[h - j] - f_ref[t - j]) ** 2) for j in range(1, h + 1))
         want[t] = alpha * speech + feature
-    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(got, want, rtol=LOOP_ORACLE, atol=LOOP_ORACLE)
 
 
 @pytest.mark.parametrize("run", [1, 4])
@@ -227,7 +244,7 @@ def test_synthesis_is_deterministic_for_a_seed():
     np.testing.assert_array_equal(one.head_rotation, two.head_rotation)
     assert not np.array_equal(one.sources["weights"], other.sources["weights"])
     np.testing.assert_allclose(np.einsum("tij,tkj->tik", one.head_rotation, one.head_rotation),
-                               np.broadcast_to(np.eye(3), (200, 3, 3)), atol=1e-12)
+                               np.broadcast_to(np.eye(3), (200, 3, 3)), atol=EXACT_FLOAT64)
 
 
 def test_choice_among_the_best_k_follows_exp_minus_dist_over_sigma():
@@ -242,7 +259,7 @@ def test_choice_among_the_best_k_follows_exp_minus_dist_over_sigma():
     assert set(np.unique(picks)) <= {5, 15, 25}
     counts = np.array([(picks == i).sum() for i in (5, 15, 25)])
     p = np.exp(-np.array([0.0, 0.05, 0.1]) / sigma)
-    assert scipy.stats.chisquare(counts, draws * p / p.sum()).pvalue > 1e-3
+    assert scipy.stats.chisquare(counts, draws * p / p.sum()).pvalue > CHI_SQUARE_PVALUE
     assert pick_candidate(dist, n_candidates=3, sigma=0.0) == 5
 
 
@@ -272,7 +289,7 @@ def test_clip_roundtrip(tmp_path, capture):
     moved = np.einsum("tij,mj->tmi", turn, neutral) + clip.head[:, None, 3:]
     world = np.einsum("ij,tmj->tmi", mean_rot, moved) + stab.translation.mean(axis=0)
     want = np.einsum("tij,mj->tmi", stab.rotation, neutral) + stab.translation[:, None]
-    np.testing.assert_allclose(world, want, atol=1e-9)
+    np.testing.assert_allclose(world, want, atol=EXACT_MM)
 
 
 @pytest.mark.parametrize("doc, match", [
@@ -378,7 +395,7 @@ def test_a_jump_fades_from_the_old_continuation_over_blend_frames(blend):
             if t + j < len(want):
                 want[t + j] += (1 - j / blend) * offset
     want = np.clip(want, ref.min(axis=0), ref.max(axis=0))
-    np.testing.assert_allclose(syn.weights[:, cols], want, atol=1e-12)
+    np.testing.assert_allclose(syn.weights[:, cols], want, atol=EXACT_FLOAT64)
 
 
 def test_timeline_paints_blinks_apart_from_the_weights():
@@ -417,7 +434,7 @@ def test_cli_writes_weights_and_head_motion(cli_files, flags):
     assert len(table) == 120 and list(table.columns[2:]) == ["s0", "s1", "s2"]
     want = synthesize_gestures(wav_intensity(wav, frame_rate=RATE), [load_clip(clip)],
                                rate=RATE, time_warps=not flags)
-    np.testing.assert_allclose(table.to_numpy()[:, 2:], want.weights, atol=1e-6)
+    np.testing.assert_allclose(table.to_numpy()[:, 2:], want.weights, atol=GESTURES_CLI_VS_API)
     head = np.load(out / "head.npz")
     assert head["rotation"].shape == (120, 3, 3)
 
@@ -445,7 +462,7 @@ def test_cli_one_chain_keeps_blinks_and_brows_in_the_weights_chain(cli_files):
                                    weight_groups=groups)
         assert set(want.sources) == ({"weights"} if one_chain
                                      else {"weights", "blinks", "brows"})
-        np.testing.assert_allclose(got[one_chain], want.weights, atol=1e-6)
+        np.testing.assert_allclose(got[one_chain], want.weights, atol=GESTURES_CLI_VS_API)
     assert np.abs(got[True] - got[False]).max() > 0.01
 
 @pytest.mark.parametrize("args, match", [
@@ -528,7 +545,7 @@ def test_detail_transfer_matches_a_dense_bspline_interpolant():
                "left_eye": np.random.default_rng(2).normal(0, 2, (3, 3, 3))}
     marker_mm = np.concatenate([details["left_brow"], details["left_eye"]], axis=1)
     want = np.einsum("vm,tma->tva", w, binding.scale * marker_mm @ binding.rotation.T)
-    np.testing.assert_allclose(_mesh_motion(transfer, details), want, atol=1e-12)
+    np.testing.assert_allclose(_mesh_motion(transfer, details), want, atol=EXACT_FLOAT64)
     _, names = transfer.shapes()
     assert names[:4] == ("left_brow:m0:x", "left_brow:m0:y", "left_brow:m0:z", "left_brow:m1:x")
 
@@ -542,7 +559,7 @@ def test_markers_at_vertices_are_interpolated_exactly():
                groups.items()}
     moved = _mesh_motion(transfer, details)[:, binding.vertex_ids[:, 0]]
     marker_mm = np.concatenate([details[g] for g in groups], axis=1)
-    np.testing.assert_allclose(moved, 0.1 * marker_mm @ binding.rotation.T, atol=1e-9)
+    np.testing.assert_allclose(moved, 0.1 * marker_mm @ binding.rotation.T, atol=MESH_EXACT)
 
 
 def test_a_marker_moves_only_vertices_within_the_support_of_its_cluster():
@@ -568,7 +585,7 @@ def test_transfer_is_linear_in_the_details():
     mix = {g: 2.0 * a[g] - 0.5 * b[g] for g in groups}
     np.testing.assert_allclose(_mesh_motion(transfer, mix),
                                2.0 * _mesh_motion(transfer, a) - 0.5 * _mesh_motion(transfer, b),
-                               atol=1e-12)
+                               atol=EXACT_FLOAT64)
 
 
 def test_default_support_is_a_multiple_of_the_median_marker_spacing():
@@ -598,17 +615,15 @@ def test_weights_need_every_group():
         transfer.weights({"left_brow": np.zeros((1, 2, 3))})
 
 
-def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_path):
+def test_cli_transfers_details_onto_the_ict_face(ict_mesh, ict_layout, ict_neutral_path,
+                                                  ict_expressions_dir, cli_files, tmp_path):
     """``gestures --mesh --shapes --binding``: details as extra shapes of the real ICT face."""
     from fit.exports import read_mesh_sequence
-    from mocap.mesh.layout import load_marker_layout
-    from mocap.mesh.mesh import load_mesh
     from mocap.retarget.rbf import build_rbf_operator
 
     wav, _, out = cli_files
-    ict = shared_data / "ict-face"
-    neutral = load_mesh(ict / "generic_neutral_mesh.obj", units="cm")
-    layout = load_marker_layout(HERE / "ict_marker_layout.toml", neutral)
+    neutral = ict_mesh
+    layout = ict_layout
     binding = Binding(labels=layout.labels, scale=0.1, rotation=np.eye(3),
                       translation=np.zeros(3), face_ids=layout.face_ids,
                       vertex_ids=layout.vertex_ids, barycentric=layout.weights,
@@ -618,7 +633,7 @@ def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_pat
     shapes = tmp_path / "shapes"
     shapes.mkdir()
     for name in ("eyeBlink_L", "jawOpen"):
-        (shapes / f"{name}.obj").symlink_to(ict / "expressions" / f"{name}.obj")
+        (shapes / f"{name}.obj").symlink_to(ict_expressions_dir / f"{name}.obj")
     rng = np.random.default_rng(8)
     groups = {"left_brow": ("brow-L1", "brow-L2", "brow-L3"), "left_eye": ("eye-L-upper",)}
     clip = GestureClip("ict", RATE, np.cumsum(rng.normal(0, 1, 200)),
@@ -628,7 +643,7 @@ def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_pat
     save_clip(tmp_path / "ict.npz", clip)
     assert main(["gestures", "synthesize", str(wav), "--palette", str(tmp_path / "ict.npz"),
                  "-o", str(out),
-                 "--mesh", str(ict / "generic_neutral_mesh.obj"), "--shapes", str(shapes),
+                 "--mesh", str(ict_neutral_path), "--shapes", str(shapes),
                  "--units", "cm", "--binding", str(tmp_path / "binding.json")]) == 0
     seq = read_mesh_sequence(out / "mesh.npz")
     assert seq.names[:2] == ("eyeBlink_L", "jawOpen") and len(seq.names) == 2 + 3 * 4
@@ -644,7 +659,7 @@ def test_cli_transfers_details_onto_the_ict_face(shared_data, cli_files, tmp_pat
     want_details = np.einsum("vm,tma->tva", matrix, 0.1 * marker_mm)
     blend = np.tensordot(seq.weights[:, :2], seq.displacements[:2], axes=1)
     total = np.tensordot(seq.weights, seq.displacements, axes=1)
-    np.testing.assert_allclose(total - blend, want_details, atol=1e-5)
+    np.testing.assert_allclose(total - blend, want_details, atol=FLOAT32_FACE_CM)
     far = cdist(neutral.vertices, centers).min(axis=1) >= support
     assert far.sum() > 0.5 * len(far) and np.all(total[:, far] == blend[:, far])
     assert (out / "gestures.glb").stat().st_size > 0
@@ -660,6 +675,6 @@ def test_marker_basis_is_the_shape_motion_of_the_bound_points_in_capture_mm():
     for i, shape in enumerate(shapes):           # through the affine map, shape by shape
         moved = binding.to_capture(binding.marker_points(mesh.vertices + shape)[rows])
         rest = binding.to_capture(binding.marker_points(mesh.vertices)[rows])
-        np.testing.assert_allclose(got[i], moved - rest, atol=1e-9)
+        np.testing.assert_allclose(got[i], moved - rest, atol=EXACT_MM)
     with pytest.raises(MarkerError, match="'nope'.*is not in the binding"):
         marker_basis(binding, shapes, ("nope",))

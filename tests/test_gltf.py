@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import base64
 import importlib.util
 import struct
 from pathlib import Path
@@ -11,41 +10,21 @@ import numpy as np
 import pygltflib
 import pytest
 import trimesh
+from helpers import read_gltf_accessor
+from tolerances import FLOAT32_FACE_CM, FLOAT32_REL
 
 from basis.artist import load_artist_basis
 from basis.gltf import GLTF_FORMATS, write_gltf
 from mocap.errors import InputError
 from mocap.mesh.mesh import Mesh, load_mesh
-from tolerances import EXPORT_FLOAT32_REL, GLTF_FLOAT32_CM
 
 #: Metres per unit: the oracle of the unit conversion.
 _METRES = {"mm": 0.001, "cm": 0.01, "m": 1.0}
-_DTYPES = {pygltflib.FLOAT: "<f4", pygltflib.UNSIGNED_INT: "<u4",
-           pygltflib.UNSIGNED_SHORT: "<u2"}
-_WIDTH = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}
-
-
-def _buffer(gltf: pygltflib.GLTF2) -> bytes:
-    uri = gltf.buffers[0].uri
-    if uri is None:
-        return gltf.binary_blob()
-    assert uri.startswith("data:application/octet-stream;base64,")
-    return base64.b64decode(uri.split(",", 1)[1])
 
 
 def _read(gltf: pygltflib.GLTF2, index: int) -> np.ndarray:
-    """Decode an accessor (count, width) by hand from its view and buffer."""
-    acc = gltf.accessors[index]
-    view = gltf.bufferViews[acc.bufferView]
-    dtype = np.dtype(_DTYPES[acc.componentType])
-    width = _WIDTH[acc.type]
-    stride = view.byteStride or dtype.itemsize * width
-    data = _buffer(gltf)
-    start = view.byteOffset + (acc.byteOffset or 0)
-    assert start + stride * (acc.count - 1) + dtype.itemsize * width <= view.byteOffset \
-        + view.byteLength <= len(data)
-    return np.ndarray((acc.count, width), dtype=dtype, buffer=data, offset=start,
-                      strides=(stride, dtype.itemsize))
+    """Decode an accessor (count, width) by hand, checking that it lies in its buffer."""
+    return read_gltf_accessor(gltf, index, check_bounds=True)
 
 
 def _check_accessors(gltf: pygltflib.GLTF2) -> None:
@@ -71,36 +50,37 @@ def _grid(units: str | None, n: int = 5) -> Mesh:
 
 
 @pytest.fixture(scope="module")
-def ict(shared_data):
-    folder = shared_data / "ict-face"
-    return load_artist_basis(folder / "generic_neutral_mesh.obj", folder / "expressions",
+def ict_subset(ict_neutral_path, ict_expressions_dir):
+    """The ArtistBasis of four ICT expressions (cm)."""
+    return load_artist_basis(ict_neutral_path, ict_expressions_dir,
                              names=["jawOpen", "mouthSmile_L", "eyeBlink_R", "browInnerUp_L"],
                              units="cm")
 
 
-def test_ict_face_as_animated_morph_targets(ict, tmp_path):
+def test_ict_face_as_animated_morph_targets(ict_subset, tmp_path):
     rng = np.random.default_rng(0)
-    weights = rng.random((24, ict.n_shapes))
+    weights = rng.random((24, ict_subset.n_shapes))
     path = tmp_path / "face.glb"
-    write_gltf(path, ict.neutral, ict.displacements, ict.names, weights=weights, rate=60.0)
+    write_gltf(path, ict_subset.neutral, ict_subset.displacements, ict_subset.names,
+               weights=weights, rate=60.0)
 
     gltf = pygltflib.GLTF2().load(str(path))
     _check_accessors(gltf)
     (mesh,), (prim,) = gltf.meshes, gltf.meshes[0].primitives
-    assert mesh.extras["targetNames"] == list(ict.names) and mesh.weights == [0.0] * 4
-    assert gltf.accessors[prim.attributes.POSITION].count == ict.neutral.n_vertices
+    assert mesh.extras["targetNames"] == list(ict_subset.names) and mesh.weights == [0.0] * 4
+    assert gltf.accessors[prim.attributes.POSITION].count == ict_subset.neutral.n_vertices
     indices = _read(gltf, prim.indices).reshape(-1, 3)
-    np.testing.assert_array_equal(indices, ict.neutral.faces)
+    np.testing.assert_array_equal(indices, ict_subset.neutral.faces)
     np.testing.assert_allclose(_read(gltf, prim.attributes.POSITION) / _METRES["cm"],
-                               ict.neutral.vertices, rtol=0, atol=GLTF_FLOAT32_CM)
+                               ict_subset.neutral.vertices, rtol=0, atol=FLOAT32_FACE_CM)
     normals = _read(gltf, prim.attributes.NORMAL)
-    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=FLOAT32_REL)
     # the face looks along +Z: normals at the nose tip point forward
-    assert normals[np.argmax(ict.neutral.vertices[:, 2]), 2] > 0.9
-    assert len(prim.targets) == ict.n_shapes
-    for target, disp in zip(prim.targets, ict.displacements):
+    assert normals[np.argmax(ict_subset.neutral.vertices[:, 2]), 2] > 0.9
+    assert len(prim.targets) == ict_subset.n_shapes
+    for target, disp in zip(prim.targets, ict_subset.displacements):
         np.testing.assert_allclose(_read(gltf, target["POSITION"]) / _METRES["cm"], disp,
-                                   rtol=0, atol=GLTF_FLOAT32_CM)
+                                   rtol=0, atol=FLOAT32_FACE_CM)
 
     (anim,) = gltf.animations
     (sampler,), (channel,) = anim.samplers, anim.channels
@@ -108,23 +88,23 @@ def test_ict_face_as_animated_morph_targets(ict, tmp_path):
     assert (channel.target.node, channel.target.path) == (0, "weights")
     assert gltf.nodes[channel.target.node].mesh == 0
     times = _read(gltf, sampler.input)[:, 0]
-    np.testing.assert_allclose(times, np.arange(24) / 60.0, rtol=EXPORT_FLOAT32_REL)
-    np.testing.assert_allclose(_read(gltf, sampler.output).reshape(24, ict.n_shapes), weights,
-                               rtol=0, atol=EXPORT_FLOAT32_REL)
+    np.testing.assert_allclose(times, np.arange(24) / 60.0, rtol=FLOAT32_REL)
+    np.testing.assert_allclose(_read(gltf, sampler.output).reshape(24, ict_subset.n_shapes),
+                               weights, rtol=0, atol=FLOAT32_REL)
 
     # an independent reader (another engineer's): the basis comes back in the
     # neutral's units, from metres in the file
-    for neutral, per_cm in ((ict.neutral, 1.0),
-                            (Mesh(ict.neutral.vertices * _METRES["cm"], ict.neutral.faces,
-                                  units="m"), _METRES["cm"])):
+    for neutral, per_cm in ((ict_subset.neutral, 1.0),
+                            (Mesh(ict_subset.neutral.vertices * _METRES["cm"],
+                                  ict_subset.neutral.faces, units="m"), _METRES["cm"])):
         back = load_artist_basis(neutral, path)
-        assert back.names == ict.names
-        np.testing.assert_allclose(back.displacements / per_cm, ict.displacements,
-                                   rtol=0, atol=GLTF_FLOAT32_CM)
+        assert back.names == ict_subset.names
+        np.testing.assert_allclose(back.displacements / per_cm, ict_subset.displacements,
+                                   rtol=0, atol=FLOAT32_FACE_CM)
     loaded = trimesh.load(path, process=False)
     geometry = loaded.to_geometry() if isinstance(loaded, trimesh.Scene) else loaded
-    assert len(geometry.vertices) == ict.neutral.n_vertices
-    assert len(geometry.faces) == ict.neutral.n_faces
+    assert len(geometry.vertices) == ict_subset.neutral.n_vertices
+    assert len(geometry.faces) == ict_subset.neutral.n_faces
 
 
 @pytest.mark.parametrize("suffix", GLTF_FORMATS)
@@ -142,13 +122,13 @@ def test_units_become_metres(tmp_path, suffix, units):
     for target, d in zip(prim.targets, disp):
         decoded = _read(gltf, target["POSITION"])
         np.testing.assert_allclose(decoded, d * scale, rtol=0,
-                                   atol=EXPORT_FLOAT32_REL * np.abs(d * scale).max())
+                                   atol=FLOAT32_REL * np.abs(d * scale).max())
     np.testing.assert_allclose(_read(gltf, prim.attributes.POSITION), neutral.vertices * scale,
-                               rtol=0, atol=EXPORT_FLOAT32_REL * neutral.vertices.max() * scale)
+                               rtol=0, atol=FLOAT32_REL * neutral.vertices.max() * scale)
     metres = Mesh(neutral.vertices * scale, neutral.faces, units="m")
     back = load_artist_basis(metres, path)
     np.testing.assert_allclose(back.displacements, disp * scale, rtol=0,
-                               atol=EXPORT_FLOAT32_REL * np.abs(disp * scale).max())
+                               atol=FLOAT32_REL * np.abs(disp * scale).max())
 
 
 def test_glb_chunks_are_aligned(tmp_path):
@@ -179,7 +159,7 @@ def test_one_frame_animation_and_unitless_mesh(tmp_path):
     assert _read(gltf, sampler.input).tolist() == [[0.0]]
     assert _read(gltf, sampler.output).ravel().tolist() == [0.25, 0.5]
     np.testing.assert_allclose(_read(gltf, gltf.meshes[0].primitives[0].attributes.POSITION),
-                               neutral.vertices, atol=1e-6)
+                               neutral.vertices, atol=FLOAT32_REL)
 
 
 def _quat_apply(q, v):
@@ -210,13 +190,13 @@ def test_rigid_motion_animates_the_node_in_metres(tmp_path):
     quat = _read(gltf, paths["rotation"].output)
     move = _read(gltf, paths["translation"].output)
     np.testing.assert_allclose(_read(gltf, paths["rotation"].input)[:, 0], np.arange(n) / 30,
-                               rtol=EXPORT_FLOAT32_REL)
-    np.testing.assert_allclose(np.linalg.norm(quat, axis=1), 1.0, atol=1e-6)
+                               rtol=FLOAT32_REL)
+    np.testing.assert_allclose(np.linalg.norm(quat, axis=1), 1.0, atol=FLOAT32_REL)
     assert np.all(np.einsum("ij,ij->i", quat[1:], quat[:-1]) > 0)   # the slerp's short way
     metres = _read(gltf, gltf.meshes[0].primitives[0].attributes.POSITION)
     played = _quat_apply(quat.astype(float), metres[None].astype(float)) + move[:, None]
     want = np.einsum("tij,vj->tvi", rotation, neutral.vertices) + translation[:, None]
-    np.testing.assert_allclose(played / _METRES["cm"], want, atol=GLTF_FLOAT32_CM * 10)
+    np.testing.assert_allclose(played / _METRES["cm"], want, atol=FLOAT32_FACE_CM * 10)
 
 
 
@@ -234,8 +214,8 @@ def test_blender_check_reads_the_weights_beside_a_head_motion(tmp_path):
                rotation=np.tile(np.eye(3), (n, 1, 1)), translation=np.ones((n, 3)), rate=30)
     want = blender_check.expected(*blender_check.read_glb(path))
     assert (want["vertices"], want["names"], want["n_targets"]) == (9, ["a", "b"], 2)
-    np.testing.assert_allclose(want["times"], np.arange(n) / 30, rtol=EXPORT_FLOAT32_REL)
-    np.testing.assert_allclose(want["weights"], weights, rtol=EXPORT_FLOAT32_REL)
+    np.testing.assert_allclose(want["times"], np.arange(n) / 30, rtol=FLOAT32_REL)
+    np.testing.assert_allclose(want["weights"], weights, rtol=FLOAT32_REL)
 
 def test_output_never_replaces_the_neutral(tmp_path):
     neutral = _grid("cm", n=3)

@@ -2,31 +2,31 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from tolerances import (
+    EXACT_FLOAT64,
+    MARKER_CENTRES_CM,
+    MARKER_CENTRES_COST,
+    MARKER_CENTRES_FIXED_POINT,
+    MARKER_CENTRES_WEIGHTS,
+)
 
-from basis.artist import load_artist_basis
 from fit.solve.gcv import gcv_smoothness
 from fit.solve.marker_centres import solve_at_marker_centres
 from fit.solve.weights import solve_weights
 from mocap.errors import InputError
-from mocap.mesh.layout import load_marker_layout
-from mocap.synth.performance import match_shape_names, read_performance
+from mocap.synth.performance import match_shape_names
 
-HERE = Path(__file__).resolve().parent
 N_FRAMES = 120
 
 
 @pytest.fixture(scope="module")
-def ict(shared_data):
+def centres_case(ict_basis, ict_layout, arkit_performance):
     """The ICT face, the 66-marker layout (2 mm offsets), real weights and their exact centres."""
-    ict = shared_data / "ict-face"
-    basis = load_artist_basis(ict / "generic_neutral_mesh.obj", ict / "expressions", units="cm")
-    layout = load_marker_layout(HERE / "ict_marker_layout.toml", basis.neutral)
+    basis, layout = ict_basis, ict_layout
     assert np.all(layout.offsets > 0)
-    performance = read_performance(shared_data / "arkit-performances" / "alex_rom_3.csv")
+    performance = arkit_performance
     columns = match_shape_names(performance.names, basis.names)
     weights = np.zeros((performance.n_frames, len(basis.names)))
     for i, name in enumerate(basis.names):
@@ -45,16 +45,16 @@ def ict(shared_data):
     return basis, layout, truth, data, tangent
 
 
-def test_positions_under_weights_are_the_positions_on_the_deformed_mesh(ict):
-    basis, layout, truth, data, _ = ict
+def test_positions_under_weights_are_the_positions_on_the_deformed_mesh(centres_case):
+    basis, layout, truth, data, _ = centres_case
     got = layout.positions_under_weights(basis.neutral.vertices, basis.displacements, truth)
     np.testing.assert_allclose(got - layout.positions(basis.neutral.vertices), data,
-                               rtol=0, atol=1e-12)
+                               rtol=0, atol=EXACT_FLOAT64)
 
 
-def test_noise_free_centres_give_back_the_true_weights(ict):
+def test_noise_free_centres_give_back_the_true_weights(centres_case):
     """The linear (tangent) model misses the normals turning; the exact model does not."""
-    basis, layout, truth, data, tangent = ict
+    basis, layout, truth, data, tangent = centres_case
     linear = solve_weights(tangent, data, lower=0.0, upper=1.0).weights
     fit = solve_at_marker_centres(layout, basis.neutral.vertices, basis.displacements, tangent,
                                   data, lower=0.0, upper=1.0)
@@ -62,14 +62,15 @@ def test_noise_free_centres_give_back_the_true_weights(ict):
     assert fit.settled.all() and fit.n_steps.max() > 2
     linear_error = np.abs(linear - truth).max()
     assert linear_error > 0.1                           # the tangent model is off here
-    assert np.abs(fit.solution.weights - truth).max() < 1e-5
-    np.testing.assert_allclose(fit.displacements, data, rtol=0, atol=1e-6)   # cm: 0.1 µm
-    assert np.all(fit.solution.cost < 1e-12)
+    assert np.abs(fit.solution.weights - truth).max() < MARKER_CENTRES_WEIGHTS
+    np.testing.assert_allclose(fit.displacements, data, rtol=0,
+                               atol=MARKER_CENTRES_CM)   # cm: 0.1 µm
+    assert np.all(fit.solution.cost < MARKER_CENTRES_COST)
 
 
-def test_noisy_centres_reach_a_fixed_point_of_the_chord_step(ict):
+def test_noisy_centres_reach_a_fixed_point_of_the_chord_step(centres_case):
     """With noise the result solves the linear problem of its own nonlinear residual."""
-    basis, layout, truth, data, tangent = ict
+    basis, layout, truth, data, tangent = centres_case
     noisy = data + 0.02 * np.random.default_rng(3).standard_normal(data.shape)   # 0.2 mm
     for smoothness in (0.0, 0.5):
         fit = solve_at_marker_centres(layout, basis.neutral.vertices, basis.displacements,
@@ -81,12 +82,12 @@ def test_noisy_centres_reach_a_fixed_point_of_the_chord_step(ict):
         again = solve_weights(tangent, noisy - (moved - np.tensordot(w, tangent, axes=1)),
                               lower=0.0, upper=1.0, smoothness=smoothness).weights
         assert fit.settled.all(), fit.solution.message
-        np.testing.assert_allclose(again, w, rtol=0, atol=1e-7)
-        np.testing.assert_allclose(fit.displacements, moved, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(again, w, rtol=0, atol=MARKER_CENTRES_FIXED_POINT)
+        np.testing.assert_allclose(fit.displacements, moved, rtol=0, atol=EXACT_FLOAT64)
 
 
-def test_gcv_smoothness_is_chosen_once_on_the_tangent_model(ict):
-    basis, layout, _, data, tangent = ict
+def test_gcv_smoothness_is_chosen_once_on_the_tangent_model(centres_case):
+    basis, layout, _, data, tangent = centres_case
     noisy = data + 0.02 * np.random.default_rng(4).standard_normal(data.shape)
     args = (layout, basis.neutral.vertices, basis.displacements, tangent, noisy)
     chosen = solve_at_marker_centres(*args, lower=0.0, upper=1.0, smoothness="gcv")
@@ -96,16 +97,16 @@ def test_gcv_smoothness_is_chosen_once_on_the_tangent_model(ict):
     np.testing.assert_array_equal(chosen.solution.weights, fixed.solution.weights)
 
 
-def test_an_unsettled_frame_is_reported(ict):
-    basis, layout, _, data, tangent = ict
+def test_an_unsettled_frame_is_reported(centres_case):
+    basis, layout, _, data, tangent = centres_case
     fit = solve_at_marker_centres(layout, basis.neutral.vertices, basis.displacements, tangent,
                                   data, lower=0.0, upper=1.0, max_steps=1)
     assert fit.solution.status == 1 and not fit.settled.any()
     assert f"{N_FRAMES} frames had not settled after 1 steps" in fit.solution.message
 
 
-def test_mismatched_inputs_are_named(ict):
-    basis, layout, _, data, tangent = ict
+def test_mismatched_inputs_are_named(centres_case):
+    basis, layout, _, data, tangent = centres_case
     args = (layout, basis.neutral.vertices, basis.displacements)
     with pytest.raises(InputError, match=r"basis has 65 markers, the layout 66"):
         solve_at_marker_centres(*args, tangent[:, 1:], data[:, 1:])

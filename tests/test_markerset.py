@@ -1,13 +1,11 @@
 """Marker-set files: the real one for facial-sing.c3d and every error path."""
 
-from pathlib import Path
-
 import pytest
+from helpers import TESTS_DIR
 
 from mocap.errors import FileFormatError, MarkerError
 from mocap.markerset import REQUIRED_REGIONS, load_markerset
 
-TESTS = Path(__file__).parent
 GOOD = """
 name = "t"
 head = ["h1", "h2", "h3"]
@@ -60,5 +58,5 @@ def test_errors(tmp_path, old, new, message):
 
 @pytest.mark.parametrize("name", ["facial_sing_markerset.toml"])
 def test_shipped_markersets_are_valid(name):
-    ms = load_markerset(TESTS / name)
+    ms = load_markerset(TESTS_DIR / name)
     assert set(REQUIRED_REGIONS) <= set(ms.regions)

@@ -5,30 +5,44 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from helpers import ICT_LANDMARKS_TOML
 from scipy.optimize import linprog
+from tolerances import (
+    EXACT_FLOAT64,
+    FEW_ULPS,
+    MASKLE_LANDMARK_CM,
+    MASKLE_LIP_LEAK,
+    MASKLE_PAINT,
+    MASKLE_PARTING_CM,
+    MASKLE_SIMILAR_HITS,
+    MASKLE_SIMILAR_PLACED,
+    MASKLE_SIMILAR_SCALE_REL,
+    MASKLE_SIMILAR_WEIGHTS,
+    MESH_EXACT,
+)
 
-from basis.maskle import (CHANNEL_KINDS, FIT_STATUSES, Mask, fit_mask, landmark_points,
-                          load_default_mask, load_mask, maskle_weights, paint_mask, save_mask,
-                          shepard_coefficients, smoothing_operator, transfer_operator)
+from basis.maskle import (
+    CHANNEL_KINDS,
+    FIT_STATUSES,
+    Mask,
+    fit_mask,
+    landmark_points,
+    load_default_mask,
+    load_mask,
+    maskle_weights,
+    paint_mask,
+    save_mask,
+    shepard_coefficients,
+    smoothing_operator,
+    transfer_operator,
+)
 from basis.maskle._geometry import TriangleIndex, nearest_ray_hits, triangles_intersect
 from basis.maskle.build_default import BONES, build_default_mask
 from basis.maskle.gold import LIP_SIDES, mouth_sides
 from fit.cli.main import main
-from fit.demo.face import make_face
 from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
 from mocap.markerset import REQUIRED_REGIONS
-from mocap.mesh.mesh import load_mesh
-from mocap.mesh.landmarks import load_mesh_landmarks
-from tolerances import MESH_EXACT
-
-LANDMARKS = "tests/ict_landmarks.toml"
-
-
-@pytest.fixture(scope="module")
-def ict(shared_data):
-    mesh = load_mesh(shared_data / "ict-face" / "generic_neutral_mesh.obj")
-    return mesh, load_mesh_landmarks(LANDMARKS, mesh)
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +64,7 @@ def test_default_mask_file_is_the_built_mask(mask):
     np.testing.assert_array_equal(shipped.weights, mask.weights)
     assert set(REQUIRED_REGIONS) <= set(shipped.channel_names)
     regions = shipped.weights[:, [shipped.channel_names.index(r) for r in REQUIRED_REGIONS]]
-    np.testing.assert_allclose(regions.sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(regions.sum(axis=1), 1.0, atol=EXACT_FLOAT64)
 
 
 def test_mask_round_trip(mask, tmp_path):
@@ -109,14 +123,14 @@ def test_tongue_seam_pairs_the_strips_column_by_column(mask):
     assert len(seam) == len(mask.tongue_root)              # each root and each tip paired once
     assert upper[seam[:, 0]].all() and lower[seam[:, 1]].all()
     gap = mask.vertices[seam[:, 0]] - mask.vertices[seam[:, 1]]
-    np.testing.assert_allclose(gap, np.tile([0.0, 0.04, 0.0], (len(seam), 1)), atol=1e-12)
+    np.testing.assert_allclose(gap, np.tile([0.0, 0.04, 0.0], (len(seam), 1)), atol=EXACT_FLOAT64)
     tongue = np.union1d(mask.tongue_root, mask.tongue_tip)
     np.testing.assert_array_equal(np.sort(seam.ravel()), tongue)
 
 
-def test_paint_reproduces_weights_the_mask_can_carry(ict, mask):
+def test_paint_reproduces_weights_the_mask_can_carry(ict_mesh, ict_landmarks, mask):
     """Face weights made by transferring a band-limited mask channel are painted back."""
-    mesh, marks = ict
+    mesh, marks = ict_mesh, ict_landmarks
     fit = fit_mask(mask, mesh, marks)
     upper, lower = mask.lip_bands
     k = mask.channel_names.index("upper_lip_left")
@@ -127,7 +141,7 @@ def test_paint_reproduces_weights_the_mask_can_carry(ict, mask):
                          regularization=1e-6)
     got = transfer_operator(painted, fit, mesh).apply(painted.weights[:, [k]])
     hit = ~np.isnan(want[:, 0])
-    assert np.abs(got[hit] - want[hit]).max() < 0.02
+    assert np.abs(got[hit] - want[hit]).max() < MASKLE_PAINT
     assert np.all(painted.weights[lower, k] == 0) and painted.weights[upper, k].max() > 0.9
     with pytest.raises(InputError, match="support must have shape"):
         paint_mask(truth, fit, mesh, want, ["upper_lip_left"], support=upper)
@@ -222,7 +236,7 @@ def test_shepard_reproduces_corners_and_constants():
     np.testing.assert_array_equal(coef, np.eye(4)[np.ones(50, int)])
     points = rng.random((50, 3))
     coef = shepard_coefficients(points, corners, valid)
-    np.testing.assert_allclose(coef @ np.ones(4), 1.0, atol=1e-14)
+    np.testing.assert_allclose(coef @ np.ones(4), 1.0, atol=FEW_ULPS)
     assert np.all(coef[~valid] == 0)
 
 
@@ -234,40 +248,41 @@ def test_smoothing_keeps_unit_interval_and_constants():
     w = rng.random(len(defined))
     out = op @ w
     assert out.min() >= 0 and out.max() <= 1
-    np.testing.assert_allclose(op @ np.ones(len(defined)), 1.0, atol=1e-12)
+    np.testing.assert_allclose(op @ np.ones(len(defined)), 1.0, atol=EXACT_FLOAT64)
     np.testing.assert_array_equal(out[~defined], w[~defined])   # undefined untouched
 
 
 # --- fitting and transfer on the ICT face --------------------------------------------
 
-def test_placement_maps_landmarks_on_a_scaled_face(ict, mask):
-    mesh, marks = ict
+def test_placement_maps_landmarks_on_a_scaled_face(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     fit = fit_mask(mask, mesh, marks, max_iterations=1)
     copy = mesh.with_vertices(mesh.vertices * 2.5 + [3.0, -1.0, 7.0])
     fit2 = fit_mask(mask, copy, marks, max_iterations=1)
-    assert fit2.scale == pytest.approx(2.5 * fit.scale, rel=1e-10)
-    np.testing.assert_allclose(fit2.placed, fit.placed * 2.5 + [3.0, -1.0, 7.0], atol=1e-8)
+    assert fit2.scale == pytest.approx(2.5 * fit.scale, rel=MASKLE_SIMILAR_SCALE_REL)
+    np.testing.assert_allclose(fit2.placed, fit.placed * 2.5 + [3.0, -1.0, 7.0],
+                               atol=MASKLE_SIMILAR_PLACED)
     # landmarks land on the face landmarks in the face's plane (in front by the standoff)
     ids = [mask.landmarks[p] for p in MASKLE_POINTS]
     offset = fit.placed[ids] - landmark_points(mesh, marks)
     sideways = offset - np.outer(offset @ fit.forward, fit.forward)
     lip = [MASKLE_POINTS.index("upper_lip_bottom"), MASKLE_POINTS.index("lower_lip_top")]
     others = np.setdiff1d(np.arange(10), lip)
-    assert np.abs(sideways[others]).max() < 0.2 * fit.scale
+    assert np.abs(sideways[others]).max() < MASKLE_LANDMARK_CM * fit.scale
 
 
-def test_fit_freezes_every_vertex(ict, mask):
-    mesh, marks = ict
+def test_fit_freezes_every_vertex(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     fit = fit_mask(mask, mesh, marks)
     assert fit.status in FIT_STATUSES
     assert fit.status == "all_frozen" and fit.frozen.all()
     # the mask moved back towards the face and stays in front of the face's back
-    assert np.all((fit.vertices - fit.placed) @ fit.forward <= 1e-12)
+    assert np.all((fit.vertices - fit.placed) @ fit.forward <= EXACT_FLOAT64)
 
 
-def test_tongue_enters_the_closed_mouth(ict, mask):
+def test_tongue_enters_the_closed_mouth(ict_mesh, ict_landmarks, mask):
     """ICT's lips touch; the tongue slides between them, the lip row reaches the lips."""
-    mesh, marks = ict
+    mesh, marks = ict_mesh, ict_landmarks
     fit = fit_mask(mask, mesh, marks)
     contact = (mesh.vertices[marks["upper_lip_bottom"]]
                + mesh.vertices[marks["lower_lip_top"]]) / 2
@@ -277,7 +292,7 @@ def test_tongue_enters_the_closed_mouth(ict, mask):
         < 0.8
 
 
-def test_demo_face_lips_keep_their_bones(mask):
+def test_demo_face_lips_keep_their_bones(demo_face, mask):
     """The demo face's mouth is a slit with touching corners (its own topology, mm).
 
     Reference sides from its mouth loop (:func:`basis.maskle.gold.mouth_sides`,
@@ -287,12 +302,13 @@ def test_demo_face_lips_keep_their_bones(mask):
     band through the parting and read the upper strip: 9 crossings with this
     analytic paint, 3 with the bench's painted mask.
     """
-    demo = make_face()
+    demo = demo_face
     fit = fit_mask(mask, demo.mesh, demo.landmarks)
     seam = mask.tongue_seam
     to_template = (fit.vertices - fit.translation) @ fit.rotation / fit.scale
     parting = to_template[seam[:, 0], :2] - to_template[seam[:, 1], :2]
-    assert np.linalg.norm(parting, axis=1).max() < 0.05          # template cm; placed 0.04
+    assert np.linalg.norm(parting,
+                          axis=1).max() < MASKLE_PARTING_CM          # template cm; placed 0.04
     w = transfer_operator(mask, fit, demo.mesh).apply(mask.weights)
     side = mouth_sides(demo.mesh, demo.landmarks)
     lip = {s: [mask.channel_names.index(b) for b in BONES if LIP_SIDES.get(b) == s]
@@ -300,44 +316,44 @@ def test_demo_face_lips_keep_their_bones(mask):
     hit = ~np.isnan(w[:, 0])
     upper, lower = hit & (side > 0.9), hit & (side < 0.1)
     assert upper.sum() > 100 and lower.sum() > 100
-    assert w[upper][:, lip["lower"]].max() <= 0.1
-    assert w[lower][:, lip["upper"]].max() <= 0.1
+    assert w[upper][:, lip["lower"]].max() <= MASKLE_LIP_LEAK
+    assert w[lower][:, lip["upper"]].max() <= MASKLE_LIP_LEAK
 
 
-def test_transfer_is_invariant_to_similarity(ict, mask):
-    mesh, marks = ict
+def test_transfer_is_invariant_to_similarity(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     rng = np.random.default_rng(8)
     rot = _random_rotation(rng)
     moved = mesh.with_vertices(3.0 * mesh.vertices @ rot.T + [10.0, 2.0, -5.0])
     a = maskle_weights(mesh, marks, mask)
     b = maskle_weights(moved, marks, mask)
     both = a.hit & b.hit
-    assert (a.hit != b.hit).sum() <= 0.01 * a.hit.sum()
+    assert (a.hit != b.hit).sum() <= MASKLE_SIMILAR_HITS * a.hit.sum()
     diff = np.abs(a.weights[both] - b.weights[both])
-    assert diff.mean() < 1e-3
+    assert diff.mean() < MASKLE_SIMILAR_WEIGHTS
     assert a.fit.n_iterations == b.fit.n_iterations
     regions = a.region_masks()
-    np.testing.assert_allclose(regions[a.hit].sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(regions[a.hit].sum(axis=1), 1.0, atol=EXACT_FLOAT64)
     assert np.isnan(regions[~a.hit]).all()
     assert np.all((a.weights[a.hit] >= 0) & (a.weights[a.hit] <= 1))
 
 
-def test_missing_landmark_is_an_error(ict, mask):
-    mesh, marks = ict
+def test_missing_landmark_is_an_error(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     partial = {k: v for k, v in marks.items() if k != "mouth_corner_left"}
     with pytest.raises(InputError, match="face landmarks lack mouth_corner_left"):
         fit_mask(mask, mesh, partial)
 
 
-def test_coincident_landmarks_are_an_error(ict, mask):
-    mesh, marks = ict
+def test_coincident_landmarks_are_an_error(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     same = {p: marks["nose_tip"] for p in MASKLE_POINTS}
     with pytest.raises(InputError, match="collinear or coincident"):
         fit_mask(mask, mesh, same)
 
 
-def test_bad_option_is_an_error(ict, mask):
-    mesh, marks = ict
+def test_bad_option_is_an_error(ict_mesh, ict_landmarks, mask):
+    mesh, marks = ict_mesh, ict_landmarks
     with pytest.raises(InputError, match="b must be positive"):
         fit_mask(mask, mesh, marks, b=0.0)
     fit = fit_mask(mask, mesh, marks, max_iterations=1)
@@ -357,31 +373,31 @@ def test_region_masks_need_regions(mask):
 
 # --- command line ----------------------------------------------------------------------
 
-def test_cli_writes_weights(ict, shared_data, tmp_path, capsys):
+def test_cli_writes_weights(ict_mesh, ict_neutral_path, tmp_path, capsys):
     out, csv, png = tmp_path / "w.npz", tmp_path / "w.csv", tmp_path / "w.png"
-    mesh_path = str(shared_data / "ict-face" / "generic_neutral_mesh.obj")
-    assert main(["maskle", mesh_path, "--landmarks", LANDMARKS, "-o", str(out),
+    mesh_path = str(ict_neutral_path)
+    assert main(["maskle", mesh_path, "--landmarks", str(ICT_LANDMARKS_TOML), "-o", str(out),
                  "--csv", str(csv), "--picture", str(png)]) == 0
     with np.load(out) as doc:
         weights, hit, regions = doc["weights"], doc["hit"], doc["region_masks"]
-    assert weights.shape == (ict[0].n_vertices, len(load_default_mask().channel_names))
+    assert weights.shape == (ict_mesh.n_vertices, len(load_default_mask().channel_names))
     assert np.isnan(weights[~hit]).all() and not np.isnan(weights[hit]).any()
-    np.testing.assert_allclose(regions[hit].sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(regions[hit].sum(axis=1), 1.0, atol=EXACT_FLOAT64)
     rows = csv.read_text().splitlines()
-    assert len(rows) == ict[0].n_vertices + 1 and png.stat().st_size > 0
+    assert len(rows) == ict_mesh.n_vertices + 1 and png.stat().st_size > 0
 
 
-def test_cli_bad_landmarks_exit_1(shared_data, tmp_path, capsys):
+def test_cli_bad_landmarks_exit_1(ict_neutral_path, tmp_path, capsys):
     bad = tmp_path / "l.toml"
     bad.write_text("[landmarks]\nnose_tip = 4857\n")
-    mesh_path = str(shared_data / "ict-face" / "generic_neutral_mesh.obj")
+    mesh_path = str(ict_neutral_path)
     assert main(["maskle", mesh_path, "--landmarks", str(bad), "-o",
                  str(tmp_path / "o.npz")]) == 1
     assert "face landmarks lack" in capsys.readouterr().err
 
 
-def test_cli_output_must_be_npz(shared_data, tmp_path, capsys):
-    mesh_path = str(shared_data / "ict-face" / "generic_neutral_mesh.obj")
-    assert main(["maskle", mesh_path, "--landmarks", LANDMARKS, "-o",
+def test_cli_output_must_be_npz(ict_neutral_path, tmp_path, capsys):
+    mesh_path = str(ict_neutral_path)
+    assert main(["maskle", mesh_path, "--landmarks", str(ICT_LANDMARKS_TOML), "-o",
                  str(tmp_path / "o.txt")]) == 1
     assert "must be an .npz file" in capsys.readouterr().err

@@ -9,26 +9,22 @@ import igl
 import numpy as np
 import pytest
 import trimesh
+from helpers import ICT_LANDMARKS_TOML
+from tolerances import FLOAT32_FACE_CM, MESH_EXACT
 
 from mocap.anatomy import ANATOMICAL_POINTS, MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
-from mocap.mesh.mesh import (MESH_FORMATS, Mesh, boundary_loops, degenerate_faces, face_normals,
-                        load_mesh, save_obj, vertex_normals)
 from mocap.mesh.landmarks import check_mesh_landmarks, load_mesh_landmarks
-from tolerances import GLTF_FLOAT32_CM, MESH_EXACT
-
-HERE = Path(__file__).resolve().parent
-ICT_LANDMARKS = HERE / "ict_landmarks.toml"
-
-
-@pytest.fixture(scope="module")
-def ict_dir(shared_data) -> Path:
-    return shared_data / "ict-face"
-
-
-@pytest.fixture(scope="module")
-def ict(ict_dir) -> Mesh:
-    return load_mesh(ict_dir / "generic_neutral_mesh.obj", units="cm")
+from mocap.mesh.mesh import (
+    MESH_FORMATS,
+    Mesh,
+    boundary_loops,
+    degenerate_faces,
+    face_normals,
+    load_mesh,
+    save_obj,
+    vertex_normals,
+)
 
 
 def _polygons_by_loop(path) -> list[list[int]]:
@@ -42,25 +38,25 @@ def _polygons_by_loop(path) -> list[list[int]]:
 
 # ---------------------------------------------------------------- loading
 
-def test_ict_mesh_loads_with_file_order_and_fan_triangles(ict, ict_dir):
-    assert ict.units == "cm"
-    assert ict.n_vertices == 9409
-    polys = _polygons_by_loop(ict_dir / "generic_neutral_mesh.obj")
-    assert len(ict.polygon_sizes) == len(polys) == 9230
-    assert ict.n_faces == sum(len(p) - 2 for p in polys)
+def test_ict_mesh_loads_with_file_order_and_fan_triangles(ict_mesh, ict_neutral_path):
+    assert ict_mesh.units == "cm"
+    assert ict_mesh.n_vertices == 9409
+    polys = _polygons_by_loop(ict_neutral_path)
+    assert len(ict_mesh.polygon_sizes) == len(polys) == 9230
+    assert ict_mesh.n_faces == sum(len(p) - 2 for p in polys)
     expected = [[p[0], p[k + 1], p[k + 2]] for p in polys for k in range(len(p) - 2)]
-    np.testing.assert_array_equal(ict.faces, expected)
-    np.testing.assert_array_equal(ict.polygon_corners, np.concatenate(polys))
-    ref = trimesh.load(ict_dir / "generic_neutral_mesh.obj", process=False,
+    np.testing.assert_array_equal(ict_mesh.faces, expected)
+    np.testing.assert_array_equal(ict_mesh.polygon_corners, np.concatenate(polys))
+    ref = trimesh.load(ict_neutral_path, process=False,
                        maintain_order=True)
-    np.testing.assert_array_equal(ict.vertices, ref.vertices)
-    assert not ict.vertices.flags.writeable
+    np.testing.assert_array_equal(ict_mesh.vertices, ref.vertices)
+    assert not ict_mesh.vertices.flags.writeable
 
 
-def test_expression_meshes_share_the_neutral_triangles(ict, ict_dir):
-    shape = load_mesh(ict_dir / "expressions" / "jawOpen.obj")
-    assert ict.same_topology(shape)
-    assert not np.allclose(shape.vertices, ict.vertices)
+def test_expression_meshes_share_the_neutral_triangles(ict_mesh, ict_expressions_dir):
+    shape = load_mesh(ict_expressions_dir / "jawOpen.obj")
+    assert ict_mesh.same_topology(shape)
+    assert not np.allclose(shape.vertices, ict_mesh.vertices)
 
 
 _PLAIN = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0.5\nf 1 2 3 4\nf 2 5 6\nf 3 2 6 4 1\n"
@@ -127,13 +123,13 @@ def test_degenerate_faces_warn_and_are_found(tmp_path):
 
 
 @pytest.mark.parametrize("suffix", [s for s in MESH_FORMATS if s != ".obj"])
-def test_ply_and_gltf_keep_vertex_order(ict, tmp_path, suffix):
+def test_ply_and_gltf_keep_vertex_order(ict_mesh, tmp_path, suffix):
     path = tmp_path / f"face{suffix}"
-    trimesh.Trimesh(ict.vertices, ict.faces, process=False).export(path)
+    trimesh.Trimesh(ict_mesh.vertices, ict_mesh.faces, process=False).export(path)
     mesh = load_mesh(path, units="cm")
     # trimesh writes float32 to both formats
-    np.testing.assert_allclose(mesh.vertices, ict.vertices, atol=GLTF_FLOAT32_CM, rtol=0)
-    np.testing.assert_array_equal(mesh.faces, ict.faces)
+    np.testing.assert_allclose(mesh.vertices, ict_mesh.vertices, atol=FLOAT32_FACE_CM, rtol=0)
+    np.testing.assert_array_equal(mesh.faces, ict_mesh.faces)
 
 
 def test_mesh_constructor_validates():
@@ -150,63 +146,63 @@ def test_mesh_constructor_validates():
 
 # ---------------------------------------------------------------- geometry
 
-def test_vertex_normals_match_igl_and_batch(ict):
-    ours = vertex_normals(ict.vertices, ict.faces)
-    ref = igl.per_vertex_normals(ict.vertices, ict.faces,
+def test_vertex_normals_match_igl_and_batch(ict_mesh):
+    ours = vertex_normals(ict_mesh.vertices, ict_mesh.faces)
+    ref = igl.per_vertex_normals(ict_mesh.vertices, ict_mesh.faces,
                                  igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA)
     np.testing.assert_allclose(ours, ref, atol=MESH_EXACT)
     rng = np.random.default_rng(0)
-    frames = ict.vertices + rng.normal(0, 0.05, (3,) + ict.vertices.shape)
-    batch = vertex_normals(frames, ict.faces)
+    frames = ict_mesh.vertices + rng.normal(0, 0.05, (3,) + ict_mesh.vertices.shape)
+    batch = vertex_normals(frames, ict_mesh.faces)
     for frame, normals in zip(frames, batch):
-        np.testing.assert_allclose(normals, vertex_normals(frame, ict.faces), atol=MESH_EXACT)
-    faces_n = face_normals(ict.vertices, ict.faces)
-    np.testing.assert_allclose(faces_n, igl.per_face_normals(ict.vertices, ict.faces,
+        np.testing.assert_allclose(normals, vertex_normals(frame, ict_mesh.faces), atol=MESH_EXACT)
+    faces_n = face_normals(ict_mesh.vertices, ict_mesh.faces)
+    np.testing.assert_allclose(faces_n, igl.per_face_normals(ict_mesh.vertices, ict_mesh.faces,
                                                              np.zeros(3)), atol=MESH_EXACT)
     nose_tip = 4857
     assert ours[nose_tip, 2] > 0.9  # outward, towards the viewer (+z)
 
 
-def test_ict_has_four_boundary_loops(ict):
-    loops = boundary_loops(ict)
+def test_ict_has_four_boundary_loops(ict_mesh):
+    loops = boundary_loops(ict_mesh)
     assert len(loops) == 4
-    ref = igl.boundary_loop_all(ict.faces) if hasattr(igl, "boundary_loop_all") else None
+    ref = igl.boundary_loop_all(ict_mesh.faces) if hasattr(igl, "boundary_loop_all") else None
     if ref is not None:
         assert sorted(map(len, ref)) == sorted(map(len, loops))
         assert {frozenset(map(int, r)) for r in ref} == {frozenset(l.tolist()) for l in loops}
-    all_edges = np.sort(ict.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    all_edges = np.sort(ict_mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     edges = set(map(tuple, all_edges.tolist()))
     for loop in loops:  # consecutive loop vertices share an edge of the mesh
         pairs = np.sort(np.c_[loop, np.roll(loop, -1)], axis=1)
         assert all(tuple(pair) in edges for pair in pairs.tolist())
-    centres = np.array([ict.vertices[l].mean(axis=0) for l in loops[1:]])
+    centres = np.array([ict_mesh.vertices[l].mean(axis=0) for l in loops[1:]])
     mouth = np.argmin(centres[:, 1])
     eyes = np.delete(centres, mouth, axis=0)
     assert abs(centres[mouth, 0]) < 0.1 and np.all(eyes[:, 1] > centres[mouth, 1] + 4)
     assert sorted(np.sign(eyes[:, 0])) == [-1, 1]
 
 
-def test_save_obj_round_trip_keeps_quads(ict, tmp_path):
+def test_save_obj_round_trip_keeps_quads(ict_mesh, tmp_path):
     out = tmp_path / "copy.obj"
-    save_obj(ict, out)
+    save_obj(ict_mesh, out)
     back = load_mesh(out)
-    np.testing.assert_array_equal(back.vertices, ict.vertices)
-    np.testing.assert_array_equal(back.polygon_sizes, ict.polygon_sizes)
-    np.testing.assert_array_equal(back.faces, ict.faces)
+    np.testing.assert_array_equal(back.vertices, ict_mesh.vertices)
+    np.testing.assert_array_equal(back.polygon_sizes, ict_mesh.polygon_sizes)
+    np.testing.assert_array_equal(back.faces, ict_mesh.faces)
     tri = tmp_path / "tri.obj"
-    save_obj(ict.vertices, tri, faces=ict.faces)
+    save_obj(ict_mesh.vertices, tri, faces=ict_mesh.faces)
     assert np.all(load_mesh(tri).polygon_sizes == 3)
     with pytest.raises(InputError, match="refusing to overwrite an input file"):
-        save_obj(ict, out, inputs=[out])
+        save_obj(ict_mesh, out, inputs=[out])
     with pytest.raises(InputError, match="save_obj needs faces"):
-        save_obj(ict.vertices, tri)
+        save_obj(ict_mesh.vertices, tri)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["copy.obj", "tri.obj"]
 
 
 # ---------------------------------------------------------------- mesh landmarks
 
-def test_ict_landmarks_follow_the_multipie_68_ids(ict, ict_dir):
-    marks = load_mesh_landmarks(ICT_LANDMARKS, ict)
+def test_ict_landmarks_follow_the_multipie_68_ids(ict_mesh, ict_dir):
+    marks = load_mesh_landmarks(ICT_LANDMARKS_TOML, ict_mesh)
     assert set(MASKLE_POINTS) <= set(marks)
     assert {"nose_tip", "chin", "brow_inner_left", "brow_outer_right"} <= set(marks)
     ibug = json.loads((ict_dir / "vertex_indices.json").read_text())["multi_pie_68_landmarks"]
@@ -217,13 +213,13 @@ def test_ict_landmarks_follow_the_multipie_68_ids(ict, ict_dir):
                          ("upper_lip_top", 51), ("lower_lip_bottom", 57),
                          ("nose_tip", 30), ("chin", 8)]:
         assert marks[point] == ibug[index], point
-    x = ict.vertices[:, 0]
+    x = ict_mesh.vertices[:, 0]
     for point, vertex in marks.items():
         if point.endswith("_left"):
             assert x[vertex] > 0.5, point       # the subject's left is +x on the ICT face
         if point.endswith("_right"):
             assert x[vertex] < -0.5, point
-    y = ict.vertices[:, 1]
+    y = ict_mesh.vertices[:, 1]
     assert y[marks["upper_lip_top"]] > y[marks["upper_lip_bottom"]] \
         >= y[marks["lower_lip_top"]] > y[marks["lower_lip_bottom"]]
     assert y[marks["forehead"]] > y[marks["brow_mid_left"]] > y[marks["eye_outer_left"]] \
@@ -254,7 +250,7 @@ def test_check_mesh_landmarks_in_memory():
     assert check_mesh_landmarks({"chin": np.int64(3)}, 4) == {"chin": 3}
     with pytest.raises(InputError, match="landmarks must be a mapping"):
         check_mesh_landmarks([("chin", 3)], 4)
-    assert all(p in ANATOMICAL_POINTS for p in load_mesh_landmarks(ICT_LANDMARKS))
+    assert all(p in ANATOMICAL_POINTS for p in load_mesh_landmarks(ICT_LANDMARKS_TOML))
 
 
 def test_vertex_normals_of_a_mesh_without_faces_are_zero():

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+from tolerances import EXACT_FLOAT64
 
-from fit.metrics import (FRAME_METRICS, ReconstructionErrors, reconstruction_errors,
-                         summary_frame)
+from fit.metrics import FRAME_METRICS, ReconstructionErrors, reconstruction_errors, summary_frame
 from mocap.errors import InputError, MarkerError
 
 
@@ -53,9 +53,9 @@ def test_per_frame_metrics_match_loops(origin):
     used = neutral.mean(axis=0) if origin is None else origin
     np.testing.assert_allclose(res.origin, used)
     alpha, disp, rms = _brute(captured, recon, neutral, used)
-    np.testing.assert_allclose(res.alpha, alpha, rtol=1e-12)
-    np.testing.assert_allclose(res.displacement_error, disp, rtol=1e-12)
-    np.testing.assert_allclose(res.rms, rms, rtol=1e-12)
+    np.testing.assert_allclose(res.alpha, alpha, rtol=EXACT_FLOAT64)
+    np.testing.assert_allclose(res.displacement_error, disp, rtol=EXACT_FLOAT64)
+    np.testing.assert_allclose(res.rms, rms, rtol=EXACT_FLOAT64)
     assert np.isnan(res.alpha[20]) and res.n_valid[20] == 0
 
 
@@ -67,7 +67,7 @@ def test_alpha_depends_on_origin_as_expected():
     # Same errors, larger ‖v* − o‖: α shrinks by the ratio of the norms.
     centred = np.sqrt(((captured - near.origin) ** 2).sum(axis=(1, 2)))
     shifted = np.sqrt(((captured - near.origin + shift) ** 2).sum(axis=(1, 2)))
-    np.testing.assert_allclose(far.alpha, near.alpha * centred / shifted, rtol=1e-12)
+    np.testing.assert_allclose(far.alpha, near.alpha * centred / shifted, rtol=EXACT_FLOAT64)
     assert (far.alpha < near.alpha / 10).all()
     # Origin-free figures are unchanged.
     np.testing.assert_array_equal(far.rms, near.rms)

@@ -2,20 +2,20 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from tolerances import OUTLIER_REFILL_MM, REPAIRED_STEP_MM
 
-import mocap
 from mocap.clean import fill_gaps
-from mocap.clean.outliers import (REASONS, ImplausibleSamples, find_implausible_samples,
-                                  remove_implausible_samples)
+from mocap.clean.outliers import (
+    REASONS,
+    ImplausibleSamples,
+    find_implausible_samples,
+    remove_implausible_samples,
+)
 from mocap.errors import InputError, MarkerError
-from mocap.markerset import load_markerset
 from mocap.take import Take
 
-HERE = Path(__file__).resolve().parent
 N_FRAMES = 400
 #: A 4 x 3 grid of markers 15 mm apart, so that every marker has neighbours to refill it.
 GRID = np.array([[x, y, 0.0] for y in (0, 15, 30) for x in (0, 15, 30, 45)])
@@ -152,7 +152,7 @@ def test_removed_samples_are_refilled_near_the_truth():
     refilled = fill_gaps(removed, method="auto").take
     err = np.linalg.norm(refilled.positions - clean.positions, axis=2)[found.mask]
     raw = np.linalg.norm(dirty.positions - clean.positions, axis=2)[found.mask]
-    assert raw.min() > 79 and err.max() < 2.0
+    assert raw.min() > 79 and err.max() < OUTLIER_REFILL_MM
 
 
 def test_inputs_not_mutated_and_results_read_only():
@@ -198,12 +198,13 @@ def test_remove_rejects_a_result_of_another_take():
 
 # -- real data ------------------------------------------------------------------
 
-def test_facial_sing_mislabel_is_the_only_implausible_event(shared_data):
+def test_facial_sing_mislabel_is_the_only_implausible_event(facial_sing_take,
+                                                            facial_sing_markerset):
     """facial-sing frames 819-863: the section3-1/3-2 labels leave their markers
     (jumps of ~70 mm, ghost samples interpolated between). Everything else in the
     3000 frames, slips of the head markers included, is plausible."""
-    take = mocap.read(shared_data / "captures" / "facial-sing.c3d")
-    head = load_markerset(HERE / "facial_sing_markerset.toml").head
+    take = facial_sing_take
+    head = facial_sing_markerset.head
     found = find_implausible_samples(take, head=head)
     frames = np.flatnonzero(found.mask.any(axis=1))
     assert frames.min() >= 819 and frames.max() <= 863
@@ -213,4 +214,4 @@ def test_facial_sing_mislabel_is_the_only_implausible_event(shared_data):
     assert np.nanmax(jump) > 60  # the event is in the file
     cleaned = fill_gaps(remove_implausible_samples(take, found), method="auto").take
     after = np.linalg.norm(np.diff(cleaned.positions[815:870, i], axis=0), axis=1)
-    assert np.nanmax(after) < 5.0
+    assert np.nanmax(after) < REPAIRED_STEP_MM

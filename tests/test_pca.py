@@ -3,11 +3,22 @@
 import numpy as np
 import pytest
 from scipy.linalg import subspace_angles, svd
+from tolerances import (
+    EXACT_FLOAT64,
+    PCA_ANGLE_RAD,
+    PCA_CHUNKS_COMPONENTS,
+    PCA_CHUNKS_RTOL,
+    PCA_COMPONENT_DOT,
+    PCA_DISCARDED_IMPLICIT_RTOL,
+    PCA_DISCARDED_STREAMING_RTOL,
+    PCA_EIG_FLOOR,
+    PCA_EXACT_RTOL,
+    PCA_IMPLICIT_RTOL,
+    PCA_STREAMING_RTOL,
+)
 
 from basis.pca import PCA_METHODS, PCAModel, pca_from_operator, pca_streaming
 from mocap.errors import InputError
-from tolerances import (PCA_ANGLE_RAD, PCA_EIG_FLOOR, PCA_EXACT_RTOL, PCA_IMPLICIT_RTOL,
-                        PCA_STREAMING_RTOL)
 
 METHODS = ("implicit",) + PCA_METHODS
 RTOL = {"implicit": PCA_IMPLICIT_RTOL, "randomized": PCA_STREAMING_RTOL,
@@ -58,11 +69,11 @@ def test_agrees_with_dense_svd(method, case):
     np.testing.assert_allclose(model.eigenvalues, evals[:k], rtol=RTOL[method])
     assert subspace_angles(model.components.reshape(k, -1).T, vt[:k].T).max() < PCA_ANGLE_RAD
     np.testing.assert_allclose(model.total_variance, total, rtol=PCA_EXACT_RTOL)
-    np.testing.assert_allclose(model.mean.ravel(), mean, rtol=PCA_EXACT_RTOL, atol=1e-12)
+    np.testing.assert_allclose(model.mean.ravel(), mean, rtol=PCA_EXACT_RTOL, atol=EXACT_FLOAT64)
     flat = model.components.reshape(k, -1)
-    np.testing.assert_allclose(flat @ flat.T, np.eye(k), atol=1e-12)
+    np.testing.assert_allclose(flat @ flat.T, np.eye(k), atol=EXACT_FLOAT64)
     # each component is ± the oracle's (distinct eigenvalues), sign fixed by its largest entry
-    np.testing.assert_allclose(np.abs(np.sum(flat * vt[:k], axis=1)), 1, atol=1e-9)
+    np.testing.assert_allclose(np.abs(np.sum(flat * vt[:k], axis=1)), 1, atol=PCA_COMPONENT_DOT)
     assert (flat[np.arange(k), np.abs(flat).argmax(axis=1)] > 0).all()
     assert model.n_frames == len(xi) and model.method == method
 
@@ -118,7 +129,8 @@ def test_model_methods_against_dense_oracle(method):
         assert small.total_variance == model.total_variance
         rebuilt = small.reconstruct(small.project(xi))
         np.testing.assert_allclose(np.sum((rebuilt - xi) ** 2) / len(xi), evals[m:].sum(),
-                                   rtol=1e-6 if method == "implicit" else 1e-2)
+                                   rtol=(PCA_DISCARDED_IMPLICIT_RTOL if method == "implicit"
+                                         else PCA_DISCARDED_STREAMING_RTOL))
 
 
 def test_project_reconstruct_roundtrip_in_span():
@@ -126,8 +138,8 @@ def test_project_reconstruct_roundtrip_in_span():
     model = pca_from_operator(operator, disp)
     coefs = model.project(xi)
     assert coefs.shape == (len(xi), model.n_components)
-    np.testing.assert_allclose(model.reconstruct(coefs), xi, atol=1e-10)
-    np.testing.assert_allclose(model.reconstruct(model.project(xi[3])), xi[3], atol=1e-10)
+    np.testing.assert_allclose(model.reconstruct(coefs), xi, atol=PCA_EXACT_RTOL)
+    np.testing.assert_allclose(model.reconstruct(model.project(xi[3])), xi[3], atol=PCA_EXACT_RTOL)
     np.testing.assert_allclose(coefs.var(axis=0), model.eigenvalues, rtol=PCA_IMPLICIT_RTOL)
 
 
@@ -148,8 +160,9 @@ def test_chunk_iterables_match_array(method):
     chunks = [xi[:13], xi[13:50], xi[50:51], xi[51:]]
     from_array = pca_streaming(xi, n_components=4, method=method, chunk_frames=13, rng=5)
     from_list = pca_streaming(chunks, n_components=4, method=method, rng=5)
-    np.testing.assert_allclose(from_list.eigenvalues, from_array.eigenvalues, rtol=1e-9)
-    np.testing.assert_allclose(from_list.components, from_array.components, atol=1e-8)
+    np.testing.assert_allclose(from_list.eigenvalues, from_array.eigenvalues, rtol=PCA_CHUNKS_RTOL)
+    np.testing.assert_allclose(from_list.components, from_array.components,
+                               atol=PCA_CHUNKS_COMPONENTS)
     assert from_list.n_frames == len(xi)
 
 
@@ -161,10 +174,10 @@ def test_memmap_input(tmp_path):
     mapped = np.load(tmp_path / "xi.npy", mmap_mode="r")
     want = pca_streaming(mapped.astype(np.float64), n_components=3)
     np.testing.assert_allclose(pca_streaming(mapped, n_components=3).eigenvalues,
-                               want.eigenvalues, rtol=1e-12)
+                               want.eigenvalues, rtol=EXACT_FLOAT64)
     implicit = pca_from_operator(operator, np.load(tmp_path / "d.npy", mmap_mode="r"))
     np.testing.assert_allclose(implicit.eigenvalues, pca_from_operator(operator, disp).eigenvalues,
-                               rtol=1e-12)
+                               rtol=EXACT_FLOAT64)
 
 
 def test_incremental_accepts_a_generator():

@@ -7,11 +7,18 @@ import csv
 import numpy as np
 import pytest
 from scipy.interpolate import interp1d
+from tolerances import EXACT_FLOAT64, PERFORMANCE_RATE_REL, TIMECODE_S
 
 from mocap.errors import FileFormatError, InputError
-from mocap.synth.performance import (NON_WEIGHT_COLUMNS, TIME_COLUMNS, Performance,
-                               match_shape_names, performance_weights, read_performance,
-                               resample_performance)
+from mocap.synth.performance import (
+    NON_WEIGHT_COLUMNS,
+    TIME_COLUMNS,
+    Performance,
+    match_shape_names,
+    performance_weights,
+    read_performance,
+    resample_performance,
+)
 
 ICT_SHAPES = [
     "browDown_L", "browDown_R", "browInnerUp_L", "browInnerUp_R", "browOuterUp_L",
@@ -44,19 +51,19 @@ def test_timecodes_by_hand(tmp_path):
                   "13:13:05:06.500,61,0.25,0.7,0\n")
     perf = read_performance(path)
     expected = np.array([0.0, 2 / 60, 4.5 / 60, 8.5 / 60])
-    np.testing.assert_allclose(perf.times, expected, atol=1e-12)
+    np.testing.assert_allclose(perf.times, expected, atol=EXACT_FLOAT64)
     assert perf.names == ("JawOpen", "EyeBlinkLeft")
     assert perf.ignored == ("BlendShapeCount", "HeadYaw")
     np.testing.assert_array_equal(perf.weights, [[0, 1], [0.5, 0.9], [1.08, 0.8], [0.25, 0.7]])
     assert perf.rate == pytest.approx(1 / (2.5 / 60))      # median step 2.5 frames
     wrap = _write(tmp_path / "w.csv", "Timecode,JawOpen\n00:59:59:58,0\n01:00:00:00,1\n")
-    np.testing.assert_allclose(read_performance(wrap).times, [0, 2 / 60], atol=1e-12)
+    np.testing.assert_allclose(read_performance(wrap).times, [0, 2 / 60], atol=EXACT_FLOAT64)
     wrap30 = _write(tmp_path / "w30.csv", "Timecode,JawOpen\n00:59:59:28,0\n01:00:00:00,1\n")
     assert read_performance(wrap30, timecode_rate=30.0).duration == pytest.approx(2 / 30)
 
 
-def test_live_link_face_file_against_a_hand_parse(shared_data):
-    path = shared_data / "arkit-performances" / "alex_rom_3.csv"
+def test_live_link_face_file_against_a_hand_parse(arkit_performance_path):
+    path = arkit_performance_path
     with open(path, newline="", encoding="utf-8") as fh:
         rows = list(csv.reader(fh))
     header, body = rows[0], rows[1:]
@@ -67,11 +74,11 @@ def test_live_link_face_file_against_a_hand_parse(shared_data):
     seconds = np.array(seconds) - seconds[0]
     perf = read_performance(path)
     assert perf.n_frames == len(body)
-    np.testing.assert_allclose(perf.times, seconds, atol=1e-9)
+    np.testing.assert_allclose(perf.times, seconds, atol=TIMECODE_S)
     steps = np.round(np.diff(seconds) * 60, 1)
     assert set(steps) == {2.0, 4.0}                   # 30 Hz with dropped frames
     assert np.count_nonzero(steps == 4.0) >= 1
-    assert perf.rate == pytest.approx(30, rel=1e-6)
+    assert perf.rate == pytest.approx(30, rel=PERFORMANCE_RATE_REL)
     weight_cols = [c for c in header[1:] if c.lower() not in NON_WEIGHT_COLUMNS]
     assert perf.names == tuple(weight_cols) and len(perf.names) == 52
     for i in (0, 1, len(body) // 2, len(body) - 1):
@@ -175,10 +182,10 @@ def test_resampling_reproduces_a_linear_function_exactly():
     perf = Performance(("a", "b", "c"), times, offsets + np.outer(times, slopes), rate=30.0)
     out = resample_performance(perf, 120.0)
     grid = np.arange(len(out.times)) / 120.0
-    np.testing.assert_allclose(out.times, grid, atol=1e-12)
+    np.testing.assert_allclose(out.times, grid, atol=EXACT_FLOAT64)
     assert grid[-1] <= times[-1] - times[0] < grid[-1] + 1 / 120
     np.testing.assert_allclose(out.weights, offsets + np.outer(grid + times[0], slopes),
-                               atol=1e-12)
+                               atol=EXACT_FLOAT64)
     assert out.rate == 120.0 and out.names == perf.names
 
 
@@ -191,8 +198,8 @@ def test_resampling_matches_scipy_interp1d(rate):
     out = resample_performance(perf, rate, start=0.5, duration=3.0)
     grid = 0.5 + np.arange(int(3.0 * rate) + 1) / rate
     oracle = interp1d(times - times[0], values, axis=0)(grid)
-    np.testing.assert_allclose(out.times, grid - 0.5, atol=1e-12)
-    np.testing.assert_allclose(out.weights, oracle, atol=1e-12)
+    np.testing.assert_allclose(out.times, grid - 0.5, atol=EXACT_FLOAT64)
+    np.testing.assert_allclose(out.weights, oracle, atol=EXACT_FLOAT64)
 
 
 def test_resampling_a_sine_is_accurate_to_the_interpolation_bound():

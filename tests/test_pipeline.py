@@ -7,25 +7,49 @@ import warnings
 import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
+from tolerances import (
+    EXACT_FLOAT64,
+    EXACT_MM,
+    MARKER_BASIS_LIFTED,
+    MARKER_CENTRES_COST_REL,
+    MARKER_CENTRES_VS_LINEAR,
+    MARKER_CENTRES_VS_OPTIMUM,
+    MESH_EXACT,
+    MESH_SPACE_CHAIN,
+    MESH_SPACE_VS_DENSE,
+    PCA_FIT_VS_LSTSQ_REL,
+    SOLVE_OBJECTIVE_FLOOR,
+    SOLVE_OBJECTIVE_REL,
+)
 
 import mocap
 from basis.basis_io import load_basis
 from fit.demo import make_demo_session
-from mocap.clean.ingest import IngestOptions
-from fit.pipeline import (BASES, SPACES, BasisOptions, BindOptions, FitOptions, basis_stage,
-                          bind_stage, complete_span, fit_stage, ingest_stage, retarget_stage)
+from fit.pipeline import (
+    BASES,
+    SPACES,
+    BasisOptions,
+    BindOptions,
+    FitOptions,
+    basis_stage,
+    bind_stage,
+    complete_span,
+    fit_stage,
+    ingest_stage,
+    retarget_stage,
+)
+from fit.solve.gcv import gcv_smoothness
 from fit.solve.marker_basis import marker_basis
 from fit.solve.mesh_space import solve_mesh_space
 from fit.solve.sampling_estimator import estimate_weights_by_sampling
 from fit.solve.weights import solve_weights
-from mocap.neutral import hold_window
+from mocap.clean.ingest import IngestOptions
 from mocap.errors import InputError, MarkerError
-from mocap.mesh.layout import MarkerLayout
 from mocap.markerset import load_markerset
-from mocap.mesh.mesh import load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
-from fit.solve.gcv import gcv_smoothness
-from tests.tolerances import SOLVE_OBJECTIVE_REL
+from mocap.mesh.layout import MarkerLayout
+from mocap.mesh.mesh import load_mesh
+from mocap.neutral import hold_window
 
 
 @pytest.fixture(scope="module")
@@ -68,8 +92,8 @@ def test_h_weights_solve_marker_problem_like_lsq_linear(chain, fitted):
     for t in np.linspace(0, len(D) - 1, 6).astype(int):
         ref = lsq_linear(B, D[t], bounds=(0, 1), method="bvls", max_iter=10_000)
         ours = 0.5 * np.sum((B @ sol.weights[t] - D[t]) ** 2)
-        assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + 1e-15
-        assert sol.cost[t] == pytest.approx(ours, rel=1e-12)
+        assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + SOLVE_OBJECTIVE_FLOOR
+        assert sol.cost[t] == pytest.approx(ours, rel=EXACT_FLOAT64)
 
 
 def test_h_weights_at_the_exact_marker_centres_near_least_squares(chain, fitted):
@@ -97,14 +121,14 @@ def test_h_weights_at_the_exact_marker_centres_near_least_squares(chain, fitted)
         ref = least_squares(residual, linear.weights[t], bounds=(0.0, 1.0), args=(t,),
                             xtol=1e-12, ftol=1e-12, gtol=1e-12)
         ours = 0.5 * np.sum(residual(exact.weights[t], t) ** 2)
-        assert ours == pytest.approx(exact.cost[t], rel=1e-9)
-        assert ref.cost * (1 - 1e-9) <= ours <= 1.01 * ref.cost
-        assert ours < 0.5 * np.sum(residual(linear.weights[t], t) ** 2)
+        assert ours == pytest.approx(exact.cost[t], rel=MARKER_CENTRES_COST_REL)
+        assert ref.cost * (1 - SOLVE_OBJECTIVE_REL) <= ours <= MARKER_CENTRES_VS_OPTIMUM * ref.cost
+        assert ours < MARKER_CENTRES_VS_LINEAR * np.sum(residual(linear.weights[t], t) ** 2)
     np.testing.assert_allclose(fitted["marker"].reconstructed["H"],
                                bound.neutral_pose(chain["take"].select(labels).positions)
                                + np.stack([residual(w, t).reshape(-1, 3) + D[t] for t, w in
                                            enumerate(exact.weights)]) @ bound.binding.rotation
-                               / bound.binding.scale, rtol=0, atol=1e-9)
+                               / bound.binding.scale, rtol=0, atol=EXACT_MM)
 
 
 def test_moving_average_fit_solves_the_averaged_displacements(chain):
@@ -122,7 +146,7 @@ def test_moving_average_fit_solves_the_averaged_displacements(chain):
         d = D[max(0, t - 2):t + 3].mean(axis=0)
         ref = lsq_linear(B, d, bounds=(0, 1), method="bvls", max_iter=10_000)
         ours = 0.5 * np.sum((B @ fit.weights["H"][t] - d) ** 2)
-        assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + 1e-15
+        assert ours <= ref.cost * (1 + SOLVE_OBJECTIVE_REL) + SOLVE_OBJECTIVE_FLOOR
 
 
 @pytest.mark.parametrize("space", SPACES)
@@ -172,15 +196,15 @@ def test_marker_basis_moves_the_offset_marker_centres_with_the_skin(chain):
     got = marker_basis(binding, fields, mesh=mesh)
     skin = marker_basis(binding, fields)                       # no mesh: the surface points
     np.testing.assert_allclose(got[0], np.broadcast_to([0.3, -0.2, 0.1], got[0].shape),
-                               atol=1e-9)
+                               atol=MESH_EXACT)
     np.testing.assert_allclose(skin[1], np.cross(omega, binding.marker_points(mesh.vertices)
-                                                 - centre), atol=1e-12)
+                                                 - centre), atol=EXACT_FLOAT64)
     # the centres: the surface points lifted along their normals, which turn with the mesh
     lifted = MarkerLayout(binding.labels, binding.vertex_ids, binding.barycentric,
                           binding.face_ids, np.full(len(binding.labels),
                                                     binding.skin_offset * binding.scale),
                           mesh.faces, mesh.n_vertices).positions(mesh.vertices)
-    np.testing.assert_allclose(got[1], np.cross(omega, lifted - centre), atol=1e-7)
+    np.testing.assert_allclose(got[1], np.cross(omega, lifted - centre), atol=MARKER_BASIS_LIFTED)
     assert np.abs(got[1] - skin[1]).max() > 1e-3 * np.abs(skin[1]).max()
 
 
@@ -199,7 +223,7 @@ def test_gesture_marker_basis_lifts_the_centres_too_in_capture_mm(chain):
                                                     binding.skin_offset * binding.scale),
                           mesh.faces, mesh.n_vertices).positions(mesh.vertices)[::-1]
     want = np.cross(omega, lifted - centre) @ np.asarray(binding.rotation) / binding.scale
-    np.testing.assert_allclose(got[0], want, atol=1e-7 / binding.scale)
+    np.testing.assert_allclose(got[0], want, atol=MARKER_BASIS_LIFTED / binding.scale)
     skin = marker_basis(binding, fields, labels, units="mm")
     assert np.abs(got - skin).max() > 1e-3 * np.abs(skin).max()
 
@@ -219,7 +243,7 @@ def test_pca_marker_fit_is_least_squares_with_mean_fixed(chain, fitted):
     ref = np.linalg.lstsq(B, D.T, rcond=None)[0].T
     weights = fitted["marker"].weights["PCA"]
     np.testing.assert_array_equal(weights[:, 0], 1.0)
-    np.testing.assert_allclose(weights[:, 1:], ref, atol=1e-8 * np.abs(ref).max())
+    np.testing.assert_allclose(weights[:, 1:], ref, atol=PCA_FIT_VS_LSTSQ_REL * np.abs(ref).max())
 
 
 @pytest.mark.parametrize("space", SPACES)
@@ -232,7 +256,7 @@ def test_reconstruction_is_neutral_plus_basis_in_mm(chain, fitted, space):
     disp_mesh = np.einsum("tn,nmc->tmc", fit.weights["QE"], at)
     # back to capture mm through the binding's inverse similarity (independent path)
     expected = binding.to_capture(binding.to_mesh(neutral) + disp_mesh)
-    np.testing.assert_allclose(fit.reconstructed["QE"], expected, atol=1e-9)
+    np.testing.assert_allclose(fit.reconstructed["QE"], expected, atol=EXACT_MM)
 
 
 @pytest.mark.parametrize("bounds", [(-np.inf, np.inf), (0.0, 1.0), (-0.1, 1.1)])
@@ -249,8 +273,8 @@ def test_mesh_space_reduction_equals_materialized_solve(bounds, with_offset):
                           upper=bounds[1])
     ours = solve_mesh_space(E, W, D, offset=offset if with_offset else None,
                             lower=bounds[0], upper=bounds[1])
-    np.testing.assert_allclose(ours.weights, dense.weights, atol=1e-8)
-    np.testing.assert_allclose(ours.cost, dense.cost, rtol=1e-8)
+    np.testing.assert_allclose(ours.weights, dense.weights, atol=MESH_SPACE_VS_DENSE)
+    np.testing.assert_allclose(ours.cost, dense.cost, rtol=MESH_SPACE_VS_DENSE)
 
 
 def test_mesh_space_fit_matches_materialized_on_the_chain(chain, fitted):
@@ -261,7 +285,8 @@ def test_mesh_space_fit_matches_materialized_on_the_chain(chain, fitted):
     target = np.einsum("nm,tmc->tnc", W, D).reshape(len(D), -1)
     dense = solve_weights(basis.displacements.reshape(len(basis.names), -1).T, target,
                           lower=0, upper=1)
-    np.testing.assert_allclose(fitted["mesh"].weights["H"][::20], dense.weights, atol=1e-7)
+    np.testing.assert_allclose(fitted["mesh"].weights["H"][::20], dense.weights,
+                               atol=MESH_SPACE_CHAIN)
 
 
 def test_complete_span_drops_incomplete_end_frames():
@@ -320,11 +345,11 @@ def test_bind_hold_averages_the_hold_into_the_rest_pose(chain):
     face = take.select(markerset.face_markers).positions
     lo = max(0, bound.frame - window // 2)
     np.testing.assert_allclose(bound.neutral_pose(face), face[lo:bound.frame + window // 2 + 1]
-                               .mean(axis=0), rtol=0, atol=1e-12)
+                               .mean(axis=0), rtol=0, atol=EXACT_FLOAT64)
     retargeted = retarget_stage(take, bound, chain["mesh"], markerset)
     # displacements from that mean: they average to zero over the window
     np.testing.assert_allclose(retargeted.displacements[lo:bound.frame + window // 2 + 1]
-                               .mean(axis=0), 0.0, atol=1e-12)
+                               .mean(axis=0), 0.0, atol=EXACT_FLOAT64)
 
 
 def test_bind_frame_beyond_take(chain):

@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
+from tolerances import EXACT_FLOAT64, PCA_EXACT_RTOL, QE_COLUMN_SUMS_RTOL, QE_IN_SPAN_REL
 
 from basis.pca import PCAModel, pca_from_operator, pca_streaming
 from basis.quasi_eigen import MISSING_POLICIES, quasi_eigen
 from mocap.errors import InputError
-from tolerances import PCA_EXACT_RTOL
 
 N_VERTICES, M = 40, 5
 
@@ -36,11 +36,11 @@ def test_matches_brute_force_and_lstsq_projection():
     for i in range(4):
         for j in range(M):
             want = np.dot(pca.components[j].ravel(), (artist[i] - pca.mean).ravel())
-            assert abs(qe.weights[i, j] - want) < 1e-12
+            assert abs(qe.weights[i, j] - want) < EXACT_FLOAT64
     # e^QE is the closest point of the affine hyperplane μ + span(E): a least-squares oracle
     coef = np.linalg.lstsq(flat(pca).T, (artist - pca.mean).reshape(4, -1).T, rcond=None)[0]
     closest = pca.mean + (flat(pca).T @ coef).T.reshape(4, N_VERTICES, 3)
-    np.testing.assert_allclose(qe.displacements, closest, atol=1e-12)
+    np.testing.assert_allclose(qe.displacements, closest, atol=EXACT_FLOAT64)
     # per-element moves, against a loop over vertices
     for i in range(4):
         moves = [np.linalg.norm(closest[i, v] - artist[i, v]) for v in range(N_VERTICES)]
@@ -54,16 +54,16 @@ def test_shape_in_span_is_unchanged():
     pca, rng = make_pca(), np.random.default_rng(2)
     artist = pca.mean + np.einsum("ij,jvc->ivc", rng.normal(size=(3, M)), pca.components)
     qe = quasi_eigen(pca, artist)
-    np.testing.assert_allclose(qe.displacements, artist, atol=1e-12)
-    assert qe.relative_move.max() < 1e-12
+    np.testing.assert_allclose(qe.displacements, artist, atol=EXACT_FLOAT64)
+    assert qe.relative_move.max() < EXACT_FLOAT64
 
 
 def test_shape_orthogonal_to_span_maps_to_mean():
     pca, rng = make_pca(), np.random.default_rng(3)
     artist = np.stack([pca.mean + orthogonal_offset(pca, rng) for _ in range(2)])
     qe = quasi_eigen(pca, artist)
-    np.testing.assert_allclose(qe.displacements, np.stack([pca.mean] * 2), atol=1e-12)
-    np.testing.assert_allclose(qe.weights, 0, atol=1e-12)
+    np.testing.assert_allclose(qe.displacements, np.stack([pca.mean] * 2), atol=EXACT_FLOAT64)
+    np.testing.assert_allclose(qe.weights, 0, atol=EXACT_FLOAT64)
 
 
 def test_span_within_mean_plus_pca_span():
@@ -72,7 +72,7 @@ def test_span_within_mean_plus_pca_span():
     offsets = (qe.displacements - pca.mean).reshape(7, -1)
     kept = flat(pca)[:3]
     residual = offsets - (offsets @ kept.T) @ kept
-    assert np.abs(residual).max() < 1e-12
+    assert np.abs(residual).max() < EXACT_FLOAT64
     assert qe.weights.shape == (7, 3)
 
 
@@ -89,7 +89,7 @@ def constructed_missing_case():
 def test_missing_axis_detected():
     pca, artist, coef = constructed_missing_case()
     qe = quasi_eigen(pca, artist, missing_eps=0.05)
-    np.testing.assert_allclose(qe.column_sums, np.abs(coef).sum(axis=0), rtol=1e-9)
+    np.testing.assert_allclose(qe.column_sums, np.abs(coef).sum(axis=0), rtol=QE_COLUMN_SUMS_RTOL)
     assert qe.missing_axes.tolist() == [2]
     assert quasi_eigen(pca, artist, missing_eps=0.0).missing_axes.tolist() == []
     # a threshold above every column sum but the largest flags all others
@@ -120,15 +120,14 @@ def test_training_frames_are_unchanged_with_real_pca():
     pca = pca_from_operator(operator, disp)
     frames = np.einsum("nk,tkc->tnc", operator, disp[[3, 17, 40]])
     qe = quasi_eigen(pca, frames)
-    np.testing.assert_allclose(qe.displacements, frames, atol=1e-10)
+    np.testing.assert_allclose(qe.displacements, frames, atol=PCA_EXACT_RTOL)
 
 
-def test_ict_expressions_in_capture_span_are_unchanged(shared_data):
+def test_ict_expressions_in_capture_span_are_unchanged(ict_neutral_path, ict_expressions_dir):
     """Real shapes: a capture blending 4 ICT expressions; those stay, a 5th one moves."""
     import trimesh
-    root = shared_data / "ict-face"
-    neutral = trimesh.load(root / "generic_neutral_mesh.obj", process=False).vertices
-    shapes = np.stack([trimesh.load(root / "expressions" / f"{name}.obj",
+    neutral = trimesh.load(ict_neutral_path, process=False).vertices
+    shapes = np.stack([trimesh.load(ict_expressions_dir / f"{name}.obj",
                                     process=False).vertices - neutral
                        for name in ("jawOpen", "mouthSmile_L", "browInnerUp_L",
                                     "eyeBlink_R", "mouthPucker")])
@@ -136,7 +135,7 @@ def test_ict_expressions_in_capture_span_are_unchanged(shared_data):
     capture = np.einsum("ti,ivc->tvc", weights, shapes[:4])
     pca = pca_streaming(capture, n_components=4, chunk_frames=100)
     qe = quasi_eigen(pca, shapes)
-    assert qe.relative_move[:4].max() < 1e-8
+    assert qe.relative_move[:4].max() < QE_IN_SPAN_REL
     assert qe.relative_move[4] > 0.1
     assert qe.missing_axes.tolist() == []
 

@@ -7,15 +7,24 @@ import warnings
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from helpers import slit_grid
 from scipy.interpolate import BSpline, RBFInterpolator
 from scipy.spatial.distance import cdist
+from tolerances import (
+    EXACT_FLOAT64,
+    FEW_ULPS,
+    RBF_ACROSS_CUT,
+    RBF_AFFINE_EXACT,
+    RBF_AFFINE_ICT_CM,
+    RBF_APPLY_FLOAT32,
+    RBF_REGION_SUM,
+    RBF_VS_SCIPY_RTOL,
+)
 
 from mocap import InputError
+from mocap.mesh.regions import painted_region_weights, region_weights
 from mocap.retarget._kernels import COMPACT_KERNELS, KERNELS, MIN_DEGREE, evaluate
 from mocap.retarget.rbf import build_rbf_operator
-from mocap.mesh.regions import painted_region_weights, region_weights
-from test_geodesic import slit_grid  # the grid-with-a-cut mesh builder
-from tolerances import RBF_VS_SCIPY_RTOL
 
 SCIPY_KERNELS = tuple(k for k in KERNELS if k not in COMPACT_KERNELS)
 RNG = np.random.default_rng(11)
@@ -68,11 +77,13 @@ def test_default_epsilon_and_degree_match_scipy(kernel):
 def test_affine_fields_reproduced(kernel, degree):
     a, b = RNG.normal(size=(3, 3)), RNG.normal(size=3)
     op = build_rbf_operator(CENTERS, POINTS, kernel=kernel, epsilon=0.9, degree=degree)
-    np.testing.assert_allclose(op.matrix @ (CENTERS @ a.T + b), POINTS @ a.T + b, atol=1e-9)
+    np.testing.assert_allclose(op.matrix @ (CENTERS @ a.T + b), POINTS @ a.T + b,
+                               atol=RBF_AFFINE_EXACT)
 
 
 @pytest.mark.parametrize("kernel", ["thin_plate_spline", "wendland_c2"])
-@pytest.mark.parametrize("dtype, atol", [(np.float64, 1e-12), (np.float32, 1e-4)])
+@pytest.mark.parametrize("dtype, atol", [(np.float64, EXACT_FLOAT64), (np.float32,
+                                                                       RBF_APPLY_FLOAT32)])
 def test_apply_equals_per_frame_loop(kernel, dtype, atol):
     op = build_rbf_operator(CENTERS, POINTS, kernel=kernel, epsilon=0.8)
     d = RNG.normal(size=(23, len(CENTERS), 3))
@@ -108,7 +119,7 @@ def test_wendland_is_sparse_positive_definite_and_interpolates():
     np.testing.assert_allclose(op.diagnostics[0].min_eigenvalue, np.linalg.eigvalsh(k)[0])
     assert sp.issparse(op.matrix)
     data = RNG.normal(size=(len(CENTERS), 3))
-    np.testing.assert_allclose(op.matrix[:len(CENTERS)] @ data, data, atol=1e-12)
+    np.testing.assert_allclose(op.matrix[:len(CENTERS)] @ data, data, atol=EXACT_FLOAT64)
     far = np.min(cdist(POINTS, CENTERS), axis=1) >= 1 / epsilon
     assert far.any()
     assert op.matrix[len(CENTERS):][far].nnz == 0
@@ -118,14 +129,14 @@ def test_wendland_formula_is_c2_at_the_support_edge():
     r = np.array([0.0, 0.5, 1.0 - 1e-4, 1.0, 1.3])
     values = evaluate("wendland_c2", r)
     np.testing.assert_allclose(values[:2], [1.0, 0.5 ** 4 * 3.0])
-    assert values[2] < 1e-14 and values[3] == values[4] == 0.0
+    assert values[2] < FEW_ULPS and values[3] == values[4] == 0.0
 
 
 def test_bspline_bell_is_the_cubic_bspline_with_compact_support():
     r = np.linspace(0.0, 1.5, 301)
     bell = BSpline.basis_element([-2, -1, 0, 1, 2], extrapolate=False)   # oracle
     expected = np.nan_to_num(bell(2 * r)) / bell(0.0)
-    np.testing.assert_allclose(evaluate("bspline_bell", r), expected, atol=1e-14)
+    np.testing.assert_allclose(evaluate("bspline_bell", r), expected, atol=FEW_ULPS)
     assert np.all(evaluate("bspline_bell", r[r >= 1.0]) == 0.0)
     assert np.all(evaluate("bspline_bell", r[r < 1.0]) > 0.0)
 
@@ -167,11 +178,11 @@ def test_geodesic_operator_interpolates_and_respects_the_slit():
     op = build_rbf_operator(v[centers], v, kernel="wendland_c2", epsilon=1 / 0.15,
                             distance="geodesic", mesh=(v, f), **_surface(f, centers))
     data = RNG.normal(size=(len(centers), 3))
-    np.testing.assert_allclose(op.matrix[centers] @ data, data, atol=1e-12)
+    np.testing.assert_allclose(op.matrix[centers] @ data, data, atol=EXACT_FLOAT64)
     # Upper-lip centers do not reach across the cut (support 0.15 < the way around).
     below = np.abs(_dense(op.matrix)[lower[4], :4]).max()
     euclid = build_rbf_operator(v[centers], v, kernel="wendland_c2", epsilon=1 / 0.15)
-    assert below < 1e-9 < 1e-3 < np.abs(_dense(euclid.matrix)[lower[4], :4]).max()
+    assert below < RBF_ACROSS_CUT < 1e-3 < np.abs(_dense(euclid.matrix)[lower[4], :4]).max()
 
 
 def _lip_regions():
@@ -213,7 +224,7 @@ def test_region_operator_is_the_weighted_sum_of_region_operators():
         subset = np.union1d(regions[name], regions["other"])
         w_r = build_rbf_operator(v[centers[subset]], v, **options).matrix
         expected[:, subset] += weights[:, col, None] * w_r
-    np.testing.assert_allclose(op.matrix, expected, atol=1e-10)
+    np.testing.assert_allclose(op.matrix, expected, atol=RBF_REGION_SUM)
 
 
 def test_region_weights_blend_smoothly():
@@ -301,7 +312,7 @@ def test_painted_mask_errors():
         painted_region_weights([[1.0, 0.0]], ["a", "a"])
 
 
-def test_geodesic_thin_plate_spline_on_the_ict_face(shared_data):
+def test_geodesic_thin_plate_spline_on_the_ict_face(ict_neutral_path):
     """Heat-method distances of ~-1e-16 at a source must not turn the TPS log into NaN.
 
     The geodesic TPS kernel is indefinite on this mesh, so it is shifted (and no
@@ -310,7 +321,7 @@ def test_geodesic_thin_plate_spline_on_the_ict_face(shared_data):
     """
     import trimesh
 
-    mesh = trimesh.load(shared_data / "ict-face" / "generic_neutral_mesh.obj", process=False)
+    mesh = trimesh.load(ict_neutral_path, process=False)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     idx = np.random.default_rng(0).choice(len(vertices), 30, replace=False)
     with pytest.warns(UserWarning, match="positive definite"):
@@ -319,4 +330,4 @@ def test_geodesic_thin_plate_spline_on_the_ict_face(shared_data):
     assert np.isfinite(op.matrix).all()
     affine = np.random.default_rng(1).normal(size=(3, 3))
     field = op.apply((vertices[idx] @ affine)[None], dtype=np.float64)[0]
-    np.testing.assert_allclose(field, vertices @ affine, atol=1e-8)
+    np.testing.assert_allclose(field, vertices @ affine, atol=RBF_AFFINE_ICT_CM)

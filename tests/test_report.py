@@ -9,31 +9,28 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from tolerances import EXACT_FLOAT64
 
-import mocap
+from basis.coverage import plot_coverage
 from basis.pca import pca_streaming
 from fit.metrics import reconstruction_errors
 from fit.report import build_report
 from fit.report.html import render_report
-from basis.coverage import plot_coverage
 from fit.report.plots import region_groups
 from fit.report.video import write_overlay_video
-from fit.report.views import (CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_views,
-                              view_axes)
+from fit.report.views import CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_views, view_axes
 from mocap.errors import InputError
-from mocap.markerset import load_markerset
 from mocap.stabilize import stabilize
 
-MARKERSET = Path(__file__).parent / "facial_sing_markerset.toml"
 N_FRAMES = 600
 
 
 @pytest.fixture(scope="module")
-def case(shared_data):
+def sing_case(facial_sing_take, facial_sing_markerset):
     """The first frames of facial-sing, stabilized, and two 'reconstructions':
     the capture plus smooth error fields of a few mm (one on the lips only)."""
-    ms = load_markerset(MARKERSET)
-    take = mocap.read(shared_data / "captures" / "facial-sing.c3d")
+    ms = facial_sing_markerset
+    take = facial_sing_take
     take = take.replace(positions=take.positions[:N_FRAMES], filled=take.filled[:N_FRAMES])
     face = stabilize(take, ms.head).take.select(ms.face_markers)
     rng = np.random.default_rng(0)
@@ -48,8 +45,8 @@ def case(shared_data):
 
 
 @pytest.fixture(scope="module")
-def report(case, tmp_path_factory):
-    ms, face, recs, neutral = case
+def report(sing_case, tmp_path_factory):
+    ms, face, recs, neutral = sing_case
     disp = np.nan_to_num(face.positions - neutral)
     pca = pca_streaming(disp.reshape(face.n_frames, -1, 3), n_components=25)
     out = tmp_path_factory.mktemp("report")
@@ -65,8 +62,8 @@ def _png_size(path: Path) -> tuple[int, int]:
     return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
 
 
-def test_region_groups_follow_the_markerset(case):
-    ms, face, _, _ = case
+def test_region_groups_follow_the_markerset(sing_case):
+    ms, face, _, _ = sing_case
     labels = list(face.labels[::-1]) + ["extra"]
     order, groups = region_groups(labels, ms)
     shown = [labels[i] for i in order]
@@ -76,10 +73,10 @@ def test_region_groups_follow_the_markerset(case):
     assert sorted(order.tolist()) == list(range(len(labels)))
 
 
-def test_front_view_puts_the_subjects_left_on_the_viewers_right(case):
-    ms, face, _, neutral = case
+def test_front_view_puts_the_subjects_left_on_the_viewers_right(sing_case):
+    ms, face, _, neutral = sing_case
     axes = view_axes(neutral, face.labels, ms)
-    np.testing.assert_allclose(axes @ axes.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(axes @ axes.T, np.eye(3), atol=EXACT_FLOAT64)
     screen = neutral @ axes.T
     col = {label: i for i, label in enumerate(face.labels)}
     for left, right in (("section1-1", "section2-1"), ("section11-1", "section12-1"),
@@ -198,8 +195,8 @@ def test_html_errors(report):
 
 
 @pytest.mark.parametrize("step,fps", [(1, None), (3, 24.0)])
-def test_video_round_trip(case, tmp_path, step, fps):
-    ms, face, recs, neutral = case
+def test_video_round_trip(sing_case, tmp_path, step, fps):
+    ms, face, recs, neutral = sing_case
     n = 150
     path = tmp_path / "overlay.mp4"
     written = write_overlay_video(face.positions[:n], recs["H"][:n], path, neutral=neutral,
@@ -227,8 +224,8 @@ def test_video_round_trip(case, tmp_path, step, fps):
     assert [p.name for p in tmp_path.iterdir()] == ["overlay.mp4"]   # no temp file left
 
 
-def test_view_and_video_errors(case, tmp_path):
-    ms, face, recs, neutral = case
+def test_view_and_video_errors(sing_case, tmp_path):
+    ms, face, recs, neutral = sing_case
     with pytest.raises(InputError, match="frames must be 1 or more indices"):
         plot_frame_views(face.positions, recs["H"], [N_FRAMES], tmp_path / "v.png",
                          neutral=neutral)

@@ -8,32 +8,36 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import ICT_MARKERSET_TOML, jaw_open_peak_time
 from scipy.spatial.transform import Rotation
+from tolerances import (
+    EXACT_FLOAT64,
+    FLOAT32_REL,
+    OBJ_TEXT,
+    RBF_AFFINE_EXACT,
+    RETARGET_CLI_SIM_REL,
+    RETARGET_EXACT,
+    RETARGET_HEAD_ALIGN,
+)
 
 import mocap
-from basis.artist import load_artist_basis
 from fit.cli.main import main
-from mocap.bind import bind_take
-from mocap.neutral import neutral_pose
-from mocap.retarget.archive import CONTENTS, save_npz, save_obj_sequence
-from mocap.retarget.retargeting import (RetargetOptions, align_head_frame,
-                                        build_retarget_operator, marker_displacements, retarget)
-from mocap.bind import Binding
-from mocap.neutral import hold_window
+from mocap.bind import Binding, bind_take
 from mocap.errors import InputError, MarkerError
-from mocap.mesh.layout import load_marker_layout
-from mocap.markerset import MarkerSet, load_markerset
+from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh, load_mesh
-from mocap.mesh.landmarks import load_mesh_landmarks
-from mocap.synth.performance import read_performance
+from mocap.neutral import hold_window, neutral_pose
+from mocap.retarget.archive import CONTENTS, save_npz, save_obj_sequence
+from mocap.retarget.retargeting import (
+    RetargetOptions,
+    align_head_frame,
+    build_retarget_operator,
+    marker_displacements,
+    retarget,
+)
 from mocap.synth.capture import simulate_capture
 from mocap.take import Take
-from tolerances import EXPORT_FLOAT32_REL, RETARGET_CLI_SIM_REL, RETARGET_EXACT
 
-HERE = Path(__file__).resolve().parent
-ICT_MARKERSET = HERE / "ict_markerset.toml"
-ICT_LANDMARKS = HERE / "ict_landmarks.toml"
-LAYOUT = HERE / "ict_marker_layout.toml"
 MM_PER_CM = 10.0
 
 
@@ -100,7 +104,7 @@ def test_marker_displacements_match_a_hand_computation():
     for t in range(6):                                   # brute force, marker by marker
         for m in range(4):
             expected[t, m] = SCALE * ROTATION @ extra @ (positions[t, m] - positions[1, m])
-    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=EXACT_FLOAT64)
     assert np.isnan(got[4, 2]).all() and np.isfinite(np.delete(got, 2, axis=1)).all()
     np.testing.assert_array_equal(take.positions, positions)        # input untouched
 
@@ -112,7 +116,8 @@ def test_marker_displacements_from_the_mean_of_a_neutral_window():
     for frame, window, frames in ((3, 5, [1, 2, 3, 4, 5]), (0, 5, [0, 1, 2]), (7, 3, [6, 7])):
         got = marker_displacements(take, BINDING, neutral_frame=frame, neutral_window=window)
         rest = positions[frames].mean(axis=0)                       # cut at the ends
-        np.testing.assert_allclose(got, SCALE * (positions - rest) @ ROTATION.T, atol=1e-12)
+        np.testing.assert_allclose(got, SCALE * (positions - rest) @ ROTATION.T,
+                                   atol=EXACT_FLOAT64)
     positions[5, 1] = np.nan
     with pytest.raises(MarkerError,
                        match=r"'m1'.*in the 5 frames around the neutral frame \d+ \(index 3\)"):
@@ -148,7 +153,7 @@ def test_align_head_frame_recovers_the_capture_rotation():
     take = _take_from_mesh_displacements(np.zeros((2, len(FACE_LABELS), 3)))
     head = take.replace(positions=take.positions @ turn)          # p_head = turn^T p
     np.testing.assert_allclose(align_head_frame(head, BINDING, GRID, neutral_frame=0), turn,
-                               atol=1e-9)
+                               atol=RETARGET_HEAD_ALIGN)
 
 
 # -- the operator ------------------------------------------------------------------------
@@ -191,8 +196,8 @@ def test_retarget_reproduces_an_affine_field(distance, use_regions):
     result = retarget(take, BINDING, GRID, MARKERSET, options=options, neutral_frame=0)
     xi = result.vertex_displacements(dtype=np.float64)[1:]
     np.testing.assert_allclose(xi, GRID.vertices @ a.transpose(0, 2, 1) + b, rtol=0,
-                               atol=1e-9)
-    np.testing.assert_allclose(result.rotation, np.eye(3), atol=1e-12)
+                               atol=RBF_AFFINE_EXACT)
+    np.testing.assert_allclose(result.rotation, np.eye(3), atol=EXACT_FLOAT64)
 
 
 def test_retarget_names_the_first_missing_marker_and_frame():
@@ -225,9 +230,9 @@ def test_npz_output_reads_back(small_result, tmp_path, content):
     with np.load(path) as data:
         assert data[content].dtype == np.float32 and data[content].shape == expected.shape
         np.testing.assert_allclose(data[content], expected, rtol=0,
-                                   atol=EXPORT_FLOAT32_REL * np.abs(GRID.vertices).max())
+                                   atol=FLOAT32_REL * np.abs(GRID.vertices).max())
         np.testing.assert_array_equal(data["faces"], GRID.faces)
-        np.testing.assert_allclose(data["neutral"], GRID.vertices, rtol=EXPORT_FLOAT32_REL)
+        np.testing.assert_allclose(data["neutral"], GRID.vertices, rtol=FLOAT32_REL)
         assert float(data["rate"]) == 30.0 and int(data["first_frame"]) == 98
         assert tuple(data["labels"]) == FACE_LABELS
 
@@ -238,7 +243,7 @@ def test_obj_sequence_reads_back(small_result, tmp_path):
     expected = small_result.vertex_displacements(dtype=np.float64) + GRID.vertices
     for path, vertices in zip(paths, expected):
         mesh = load_mesh(path)
-        np.testing.assert_allclose(mesh.vertices, vertices, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(mesh.vertices, vertices, rtol=OBJ_TEXT, atol=OBJ_TEXT)
         np.testing.assert_array_equal(mesh.faces, GRID.faces)
 
 
@@ -256,14 +261,12 @@ def test_options_validate_choices():
 # -- the command line on a simulated ICT capture -------------------------------------------
 
 @pytest.fixture(scope="module")
-def ict_capture(shared_data, tmp_path_factory):
+def ict_capture(ict_basis, ict_markerset, ict_layout, ict_landmarks, ict_neutral_path,
+                arkit_performance, tmp_path_factory):
     """A 1.2 s simulated capture (30 Hz, 0.2 mm noise, head motion, gaps) and its binding."""
-    ict = shared_data / "ict-face"
-    basis = load_artist_basis(ict / "generic_neutral_mesh.obj", ict / "expressions", units="cm")
-    markerset = load_markerset(ICT_MARKERSET)
-    layout = load_marker_layout(LAYOUT, basis.neutral)
-    full = read_performance(shared_data / "arkit-performances" / "alex_rom_3.csv")
-    peak = full.times[np.argmax(full.weights[:, full.names.index("JawOpen")])]
+    basis, markerset, layout = ict_basis, ict_markerset, ict_layout
+    full = arkit_performance
+    peak = jaw_open_peak_time(full)
     with pytest.warns(UserWarning, match="match no shape"):
         sim = simulate_capture(basis, full, layout, markerset.head, rate=30.0,
                                start=peak - 1.0, duration=1.2, noise_mm=0.2, n_gaps=4,
@@ -273,27 +276,26 @@ def ict_capture(shared_data, tmp_path_factory):
     mocap.write(sim.take, capture)
     with warnings.catch_warnings():    # an expressive clip: some markers sit off the mesh
         warnings.simplefilter("ignore")
-        binding = bind_take(mocap.read(capture), markerset, basis.neutral,
-                            load_mesh_landmarks(ICT_LANDMARKS, basis.neutral),
+        binding = bind_take(mocap.read(capture), markerset, basis.neutral, ict_landmarks,
                             skin_offset=2.0, head_frame=True).binding
     binding.save(binding_path)
-    return basis, sim, capture, binding_path, ict / "generic_neutral_mesh.obj"
+    return basis, sim, capture, binding_path, ict_neutral_path
 
 
 def _retarget_args(ict_capture, output, *extra, binding=None):
     _, _, capture, binding_path, mesh = ict_capture
-    return ["retarget", str(capture), "--markerset", str(ICT_MARKERSET), "--mesh", str(mesh),
+    return ["retarget", str(capture), "--markerset", str(ICT_MARKERSET_TOML), "--mesh", str(mesh),
             "--binding", str(binding or binding_path), "-o", str(output), *extra]
 
 
-def test_cli_retargets_a_simulated_capture(ict_capture, tmp_path):
+def test_cli_retargets_a_simulated_capture(ict_capture, ict_layout, ict_markerset, tmp_path):
     basis, sim, *_ = ict_capture
     output = tmp_path / "face.npz"
     assert main(_retarget_args(ict_capture, output, "--neutral-frame", "0")) == 0
     with np.load(output) as data:
         moved = data["vertices"].astype(np.float64) - basis.neutral.vertices
-    layout = load_marker_layout(LAYOUT, basis.neutral)
-    face = [layout.index(x) for x in load_markerset(ICT_MARKERSET).face_markers]
+    layout = ict_layout
+    face = [layout.index(x) for x in ict_markerset.face_markers]
     # the marker points (on the skin) of the retargeted and of the true mesh, frame 0 as rest
     truth = layout.positions(basis.evaluate(sim.truth.weights), offset=False)[:, face]
     truth -= truth[0]
@@ -360,14 +362,14 @@ def test_neutral_pose_is_the_window_mean_and_checks_its_arguments():
         neutral_pose(positions.reshape(20, 12), 3)
 
 
-def test_bind_capture_names_a_frame_of_no_kind(ict_capture):
+def test_bind_capture_names_a_frame_of_no_kind(ict_capture, ict_markerset, ict_landmarks):
     basis, sim = ict_capture[:2]
     with pytest.raises(InputError, match=r"frame must be an integer, got 'still'"):
-        bind_take(sim.take, load_markerset(ICT_MARKERSET), basis.neutral,
-                  load_mesh_landmarks(ICT_LANDMARKS, basis.neutral), frame="still")
+        bind_take(sim.take, ict_markerset, basis.neutral, ict_landmarks, frame="still")
 
 
-def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, shared_data,
+def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, ict_markerset,
+                                                                   ict_layout, arkit_performance,
                                                                    tmp_path):
     """``--neutral-frame hold``: the rest pose is the mean of the hold window, not one frame.
 
@@ -376,16 +378,15 @@ def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, 
     frame as the rest pose, that frame's displacements would be exactly 0).
     """
     basis, _, _, binding_path, mesh = ict_capture
-    markerset = load_markerset(ICT_MARKERSET)
-    layout = load_marker_layout(LAYOUT, basis.neutral)
-    full = read_performance(shared_data / "arkit-performances" / "alex_rom_3.csv")
+    markerset, layout = ict_markerset, ict_layout
+    full = arkit_performance
     with pytest.warns(UserWarning, match="match no shape"):
         sim = simulate_capture(basis, full, layout, markerset.head, rate=30.0, duration=0.6,
                                noise_mm=0.2, n_gaps=0, neutral_lead_s=1.0, seed=7)
     capture = tmp_path / "held.c3d"
     mocap.write(sim.take, capture)
     output = tmp_path / "held.npz"
-    assert main(["retarget", str(capture), "--markerset", str(ICT_MARKERSET), "--mesh",
+    assert main(["retarget", str(capture), "--markerset", str(ICT_MARKERSET_TOML), "--mesh",
                  str(mesh), "--binding", str(binding_path), "-o", str(output),
                  "--neutral-frame", "hold", "--content", "displacements"]) == 0
     with np.load(output) as data:
@@ -394,6 +395,6 @@ def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, 
     means = np.abs(np.stack([moved[s:s + window].mean(axis=0)
                              for s in range(len(moved) - window + 1)])).max(axis=(1, 2))
     start = int(np.argmin(means))
-    assert means[start] < 1e-6                            # float32 storage
+    assert means[start] < FLOAT32_REL                     # float32 storage
     assert start + window <= 30                           # inside the 1 s lead at 30 Hz
     assert np.abs(moved).max(axis=(1, 2)).min() > 1e-3    # no frame is the rest pose

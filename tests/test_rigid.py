@@ -3,10 +3,21 @@
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from tolerances import (
+    EXACT_FLOAT64,
+    RIGID_DROPPED_MM,
+    RIGID_DROPPED_ROT,
+    RIGID_EXACT_DEG,
+    RIGID_EXACT_MM,
+    RIGID_MIRRORED_SCALE,
+    RIGID_RMS_MM,
+    RIGID_VS_ORACLE,
+    RIGID_VS_ORACLE_MM,
+    RIGID_VS_ORACLE_SCALE,
+)
 
 from mocap import InputError
 from mocap.rigid import fit_rigid
-from tolerances import RIGID_EXACT_DEG, RIGID_EXACT_MM
 
 
 def svd_oracle(x, y, w, scale):
@@ -40,11 +51,11 @@ def test_batched_fit_matches_per_frame_svd(scale, shared):
     fit = fit_rigid(x, y, w, scale=scale)
     for t in range(len(y)):
         rot, trans, s = svd_oracle(x if shared else x[t], y[t], w[t], scale)
-        np.testing.assert_allclose(fit.rotation[t], rot, atol=1e-9)
-        np.testing.assert_allclose(fit.translation[t], trans, atol=1e-7)
-        np.testing.assert_allclose(fit.scale[t], s, rtol=1e-10)
+        np.testing.assert_allclose(fit.rotation[t], rot, atol=RIGID_VS_ORACLE)
+        np.testing.assert_allclose(fit.translation[t], trans, atol=RIGID_VS_ORACLE_MM)
+        np.testing.assert_allclose(fit.scale[t], s, rtol=RIGID_VS_ORACLE_SCALE)
     assert fit.valid.all()
-    np.testing.assert_allclose(np.linalg.det(fit.rotation), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(fit.rotation), 1.0, atol=EXACT_FLOAT64)
 
 
 def test_rigid_fit_matches_scipy_align_vectors_weighted():
@@ -55,7 +66,7 @@ def test_rigid_fit_matches_scipy_align_vectors_weighted():
         cx = w[t] @ x[t] / w[t].sum()
         cy = w[t] @ y[t] / w[t].sum()
         rot, _ = Rotation.align_vectors(y[t] - cy, x[t] - cx, weights=w[t])
-        np.testing.assert_allclose(fit.rotation[t], rot.as_matrix(), atol=1e-9)
+        np.testing.assert_allclose(fit.rotation[t], rot.as_matrix(), atol=RIGID_VS_ORACLE)
 
 
 def test_rms_is_the_weighted_residual():
@@ -64,7 +75,7 @@ def test_rms_is_the_weighted_residual():
     fit = fit_rigid(x, y, w)
     resid = fit.apply(x) - y
     rms = np.sqrt((w * (resid ** 2).sum(axis=-1)).sum(axis=1) / w.sum(axis=1))
-    np.testing.assert_allclose(fit.rms, rms, atol=1e-6)
+    np.testing.assert_allclose(fit.rms, rms, atol=RIGID_RMS_MM)
 
 
 @pytest.mark.parametrize("shared", [False, True])
@@ -88,7 +99,7 @@ def test_half_turn_is_recovered():
     for axis in np.eye(3):
         rot = Rotation.from_rotvec(np.pi * axis)
         fit = fit_rigid(x, rot.apply(x))
-        np.testing.assert_allclose(fit.rotation, rot.as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(fit.rotation, rot.as_matrix(), atol=EXACT_FLOAT64)
 
 
 def test_reflection_is_never_returned():
@@ -97,11 +108,11 @@ def test_reflection_is_never_returned():
     mirror = np.diag([1.0, 1.0, -1.0])
     y = x @ mirror                                   # best orthogonal map has det -1
     fit = fit_rigid(x, y, scale=True)
-    np.testing.assert_allclose(np.linalg.det(fit.rotation), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(fit.rotation), 1.0, atol=EXACT_FLOAT64)
     for t in range(30):
         rot, trans, s = svd_oracle(x[t], y[t], np.ones(5), True)
-        np.testing.assert_allclose(fit.rotation[t], rot, atol=1e-9)
-        np.testing.assert_allclose(fit.scale[t], s, rtol=1e-9)
+        np.testing.assert_allclose(fit.rotation[t], rot, atol=RIGID_VS_ORACLE)
+        np.testing.assert_allclose(fit.scale[t], s, rtol=RIGID_MIRRORED_SCALE)
 
 
 def test_zero_weight_and_nan_points_are_dropped():
@@ -113,8 +124,8 @@ def test_zero_weight_and_nan_points_are_dropped():
     keep = [0, 1, 2, 4, 5, 6]
     dropped = fit_rigid(x[:, keep], y[:, keep], w[:, keep])
     for fit in (fit_rigid(x, y, w), fit_rigid(x, y_nan, np.where(w > 0, w, 1.0))):
-        np.testing.assert_allclose(fit.rotation, dropped.rotation, atol=1e-10)
-        np.testing.assert_allclose(fit.translation, dropped.translation, atol=1e-8)
+        np.testing.assert_allclose(fit.rotation, dropped.rotation, atol=RIGID_DROPPED_ROT)
+        np.testing.assert_allclose(fit.translation, dropped.translation, atol=RIGID_DROPPED_MM)
         assert (fit.n_points == 6).all()
 
 
@@ -129,7 +140,7 @@ def test_too_few_or_collinear_points_have_no_fit():
     fit = fit_rigid(xs, y, w)
     assert fit.valid.tolist() == [False, False, True]
     assert np.isnan(fit.rotation[:2]).all() and np.isnan(fit.translation[:2]).all()
-    np.testing.assert_allclose(fit.rotation[2], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(fit.rotation[2], np.eye(3), atol=EXACT_FLOAT64)
 
 
 @pytest.mark.parametrize("args, kwargs, match", [

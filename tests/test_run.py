@@ -12,11 +12,10 @@ import pytest
 
 import mocap
 from fit.cli.main import main
-from fit.demo import demo_config_toml
-from fit.pipeline.session import run_takes
-from fit.demo import make_demo_session
+from fit.demo import demo_config_toml, make_demo_session
 from fit.pipeline import BASES
 from fit.pipeline.config import load_run_config
+from fit.pipeline.session import run_takes
 from mocap.errors import FileFormatError, InputError
 
 PER_BASIS = ("basis-{}.npz", "weights-{}.csv", "mesh-{}.npz", "face-{}.glb")

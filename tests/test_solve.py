@@ -5,10 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
+from tolerances import (
+    EXACT_FLOAT64,
+    SOLVE_AT_BOUND,
+    SOLVE_KKT_LOOP_REL,
+    SOLVE_KKT_RECOMPUTED,
+    SOLVE_KKT_REL,
+    SOLVE_OBJECTIVE_REL,
+    SOLVE_REFINED_STATIONARITY,
+    SOLVE_ROUTES,
+    SOLVE_ROUTES_ILL_CONDITIONED,
+    SOLVE_SAME_MINIMIZER,
+    SOLVE_TOL,
+)
 
 from fit.solve.weights import WeightSolution, solve_weights
 from mocap.errors import InputError
-from tests.tolerances import SOLVE_KKT_REL, SOLVE_OBJECTIVE_REL
 
 N_SHAPES, N_ROWS, N_FRAMES = 12, 30, 60
 
@@ -59,7 +71,8 @@ def assert_kkt(basis, data, w, lo, hi):
     grad = (w @ basis.T - data) @ basis
     size = np.abs(w) @ np.abs(basis.T @ basis) + np.abs(data @ basis)
     rel = grad / size
-    at_lo, at_hi = np.isclose(w, lo, rtol=0, atol=1e-12), np.isclose(w, hi, rtol=0, atol=1e-12)
+    at_lo, at_hi = np.isclose(w, lo, rtol=0, atol=SOLVE_AT_BOUND), np.isclose(w, hi, rtol=0,
+                                                                              atol=SOLVE_AT_BOUND)
     interior = ~at_lo & ~at_hi
     assert np.abs(rel[interior]).max(initial=0) < SOLVE_KKT_REL
     assert rel[at_lo].min(initial=0) > -SOLVE_KKT_REL
@@ -78,7 +91,7 @@ def test_objective_equals_oracle(kind, bounds):
     assert isinstance(sol, WeightSolution)
     assert sol.status == 0 and sol.converged.all()
     assert sol.rank == (10 if kind == "rank-deficient" else N_SHAPES)
-    np.testing.assert_allclose(sol.cost, half_cost(basis, sol.weights, data), rtol=1e-12)
+    np.testing.assert_allclose(sol.cost, half_cost(basis, sol.weights, data), rtol=EXACT_FLOAT64)
     np.testing.assert_allclose(sol.cost, oracle_cost(basis, data, lo, hi),
                                rtol=SOLVE_OBJECTIVE_REL)
     assert_kkt(basis, data, sol.weights, lo, hi)
@@ -113,8 +126,8 @@ def test_marker_layout_equals_flat_layout():
     flat = solve_weights(basis, data, lower=0, upper=1)
     markers = solve_weights(basis.T.reshape(N_SHAPES, N_ROWS // 3, 3),
                             data.reshape(N_FRAMES, N_ROWS // 3, 3), lower=0, upper=1)
-    np.testing.assert_allclose(markers.cost, flat.cost, rtol=1e-12)
-    np.testing.assert_allclose(markers.weights, flat.weights, atol=1e-9)
+    np.testing.assert_allclose(markers.cost, flat.cost, rtol=EXACT_FLOAT64)
+    np.testing.assert_allclose(markers.weights, flat.weights, atol=SOLVE_SAME_MINIMIZER)
 
 
 def test_mask_leaves_rows_out_exactly():
@@ -152,7 +165,7 @@ def test_unconverged_frames_are_reported():
         sol = solve_weights(basis, data, lower=0, upper=1, max_iter=1, warm_start=False)
     assert sol.status == 1
     assert not sol.converged.all()
-    assert np.all(sol.kkt_residual[~sol.converged] > 1e-9)
+    assert np.all(sol.kkt_residual[~sol.converged] > SOLVE_TOL)
     assert np.all((sol.weights >= 0) & (sol.weights <= 1))
 
 
@@ -207,12 +220,11 @@ def test_bad_input_raises(change, message):
 
 
 @pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
-def test_real_basis_against_bvls(shared_data):
+def test_real_basis_against_bvls(ict_neutral_path, ict_expressions_dir):
     """The 53 ICT shapes at 30 vertices (mm), sparse weights in [0, 1]."""
     import trimesh
-    face = shared_data / "ict-face"
-    paths = sorted((face / "expressions").glob("*.obj"))
-    neutral = trimesh.load(face / "generic_neutral_mesh.obj", process=False).vertices
+    paths = sorted(ict_expressions_dir.glob("*.obj"))
+    neutral = trimesh.load(ict_neutral_path, process=False).vertices
     rng = np.random.default_rng(10)
     picked = rng.choice(len(neutral), 30, replace=False)
     basis = 10.0 * np.stack([trimesh.load(p, process=False).vertices[picked] - neutral[picked]
@@ -241,14 +253,14 @@ def test_reduced_solve_matches_dense_solve(kind, bound_fraction):
     state = np.where(bound, np.where(rng.random(c.shape) < 0.5, -1, 1), 0).astype(np.int8)
     w, grad = reduced_solve(qp, state, c, refine=True)
     np.testing.assert_array_equal(w[bound], np.where(state[bound] < 0, 0.0, 1.0))
-    np.testing.assert_allclose(grad, w @ G - c, rtol=0, atol=1e-12 * np.abs(c).max())
+    np.testing.assert_allclose(grad, w @ G - c, rtol=0, atol=EXACT_FLOAT64 * np.abs(c).max())
     scale = np.abs(w) @ np.abs(G) + np.abs(c)
-    assert np.all(np.abs(grad[~bound]) <= 1e-11 * scale[~bound])
+    assert np.all(np.abs(grad[~bound]) <= SOLVE_REFINED_STATIONARITY * scale[~bound])
     if kind == "random":
         for t in range(len(c)):
             f, a = ~bound[t], bound[t]
             wf = np.linalg.solve(G[np.ix_(f, f)], c[t, f] - G[np.ix_(f, a)] @ w[t, a])
-            np.testing.assert_allclose(w[t, f], wf, rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(w[t, f], wf, rtol=SOLVE_ROUTES, atol=EXACT_FLOAT64)
 
 
 def test_mostly_bound_frames_against_bvls():
@@ -279,7 +291,7 @@ def test_frames_are_solved_independently():
     weights = np.empty_like(whole.weights)
     for idx, part in zip(np.array_split(order, 7), parts):
         weights[idx] = part.weights
-    np.testing.assert_allclose(weights, whole.weights, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(weights, whole.weights, rtol=0, atol=SOLVE_ROUTES)
 
 
 @pytest.mark.parametrize("bounds", BOUNDS, ids=str)
@@ -300,8 +312,8 @@ def test_kkt_residual_matches_elementwise_loop(bounds):
     scale = np.abs(g) + rng.uniform(0.1, 2.0, w.shape)
     expected = np.zeros(len(w))
     for t, j in np.ndindex(*w.shape):
-        at_lo = np.isfinite(lo[j]) and w[t, j] <= lo[j] + 1e-12 * max(1.0, abs(lo[j]))
-        at_hi = np.isfinite(hi[j]) and w[t, j] >= hi[j] - 1e-12 * max(1.0, abs(hi[j]))
+        at_lo = np.isfinite(lo[j]) and w[t, j] <= lo[j] + SOLVE_AT_BOUND * max(1.0, abs(lo[j]))
+        at_hi = np.isfinite(hi[j]) and w[t, j] >= hi[j] - SOLVE_AT_BOUND * max(1.0, abs(hi[j]))
         if at_lo and at_hi:
             viol = 0.0
         elif at_lo:
@@ -312,7 +324,8 @@ def test_kkt_residual_matches_elementwise_loop(bounds):
             viol = abs(g[t, j])
         feas = max(lo[j] - w[t, j], w[t, j] - hi[j], 0.0) / max(1.0, abs(w[t, j]))
         expected[t] = max(expected[t], viol / scale[t, j], feas)
-    np.testing.assert_allclose(kkt_residual(w, g, scale, lo, hi), expected, rtol=1e-15, atol=0)
+    np.testing.assert_allclose(kkt_residual(w, g, scale, lo, hi), expected,
+                               rtol=SOLVE_KKT_LOOP_REL, atol=0)
 
 
 @pytest.mark.parametrize("kind", ["random", "ill-conditioned"])
@@ -349,7 +362,7 @@ def test_update_by_one_variable_matches_fresh_solve(kind):
     expected_w, expected_grad = reduced_solve(qp, new, c[updated], refine=True)
     scale = np.abs(expected_w) @ np.abs(G) + np.abs(c[updated])
     np.testing.assert_array_equal(w[new != 0], qp.bound_values(new)[new != 0])
-    tol = 1e-10 if kind == "random" else 1e-6
+    tol = SOLVE_ROUTES if kind == "random" else SOLVE_ROUTES_ILL_CONDITIONED
     np.testing.assert_allclose(w, expected_w, rtol=0, atol=tol * np.abs(expected_w).max())
     assert np.all(lam[new == 0] == 0)
     assert np.all(np.abs(lam - expected_grad)[new != 0] <= tol * scale[new != 0])
@@ -393,13 +406,12 @@ def test_fixed_weights_against_bvls_on_the_rest():
 
 
 @pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
-def test_many_real_frames_against_bvls(shared_data):
+def test_many_real_frames_against_bvls(ict_neutral_path, ict_expressions_dir):
     """The 53 ICT shapes at 66 vertices, 300 noisy frames of sparse weights: most
     frames go through the monotone phase (factored and updated systems)."""
     import trimesh
-    face = shared_data / "ict-face"
-    paths = sorted((face / "expressions").glob("*.obj"))
-    neutral = trimesh.load(face / "generic_neutral_mesh.obj", process=False).vertices
+    paths = sorted(ict_expressions_dir.glob("*.obj"))
+    neutral = trimesh.load(ict_neutral_path, process=False).vertices
     rng = np.random.default_rng(18)
     picked = rng.choice(len(neutral), 66, replace=False)
     flat = 10.0 * np.stack([(trimesh.load(p, process=False).vertices[picked]
@@ -427,8 +439,8 @@ def test_reported_kkt_residual_is_that_of_the_weights(kind):
     sol = solve_weights(basis, data, lower=0, upper=1)
     qp = BoxQP.build(basis.T @ basis, np.zeros(N_SHAPES), np.ones(N_SHAPES))
     expected = residual(qp, sol.weights, data @ basis)
-    np.testing.assert_allclose(sol.kkt_residual, expected, rtol=0, atol=1e-13)
-    assert np.all(expected <= 1e-9)
+    np.testing.assert_allclose(sol.kkt_residual, expected, rtol=0, atol=SOLVE_KKT_RECOMPUTED)
+    assert np.all(expected <= SOLVE_TOL)
 
 
 def test_update_leaves_frames_with_nothing_bound_alone():
@@ -451,4 +463,4 @@ def test_update_leaves_frames_with_nothing_bound_alone():
     np.testing.assert_array_equal(updated, np.arange(len(c)) >= 600)
     w = schur_weights(qp, new[updated], lam[updated], systems.unconstrained[updated])
     np.testing.assert_allclose(w, reduced_solve(qp, new[updated], c[updated])[0],
-                               rtol=0, atol=1e-10)
+                               rtol=0, atol=SOLVE_ROUTES)

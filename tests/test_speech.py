@@ -5,9 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.io.wavfile
+from tolerances import SPEECH_EXACT_DB, SPEECH_TONE_DB, WAV_DB, WAV_UINT8_DB
 
-from fit.gestures.speech import (FLOOR_DB, analog_intensity, opening_intensity, read_wav,
-                                 speech_intensity, wav_intensity)
+from fit.gestures.speech import (
+    FLOOR_DB,
+    analog_intensity,
+    opening_intensity,
+    read_wav,
+    speech_intensity,
+    wav_intensity,
+)
 from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.take import Analog, Take
 
@@ -40,7 +47,7 @@ def test_tone_burst_level_matches_the_analytic_rms():
     inside = (times - WINDOW / 2 >= ONSET) & (times + WINDOW / 2 <= OFFSET)
     outside = (times + WINDOW / 2 < ONSET) | (times - WINDOW / 2 > OFFSET)
     expected = 20 * np.log10(AMPLITUDE / np.sqrt(2))
-    np.testing.assert_allclose(s[inside], expected, atol=0.02)
+    np.testing.assert_allclose(s[inside], expected, atol=SPEECH_TONE_DB)
     np.testing.assert_array_equal(s[outside], FLOOR_DB)
 
 
@@ -55,7 +62,7 @@ def test_intensity_matches_a_loop_over_frames():
     x = _burst() * (1 + 0.3 * rng.standard_normal(2 * RATE))
     np.testing.assert_allclose(speech_intensity(x, RATE, frame_rate=FPS, window=WINDOW,
                                                 n_frames=70),
-                               _loop_oracle(x, 70), atol=1e-9)
+                               _loop_oracle(x, 70), atol=SPEECH_EXACT_DB)
 
 
 @pytest.mark.parametrize("dtype", ["int16", "int32", "float32", "uint8"])
@@ -73,7 +80,7 @@ def test_wav_encodings_and_stereo_give_the_same_intensity(tmp_path, dtype):
     got = wav_intensity(path, frame_rate=FPS, window=WINDOW)
     want = speech_intensity(x, RATE, frame_rate=FPS, window=WINDOW)
     loud = want > -20
-    tol = 0.1 if dtype == "uint8" else 1e-3
+    tol = WAV_UINT8_DB if dtype == "uint8" else WAV_DB
     np.testing.assert_allclose(got[loud], want[loud], atol=tol)
 
 
@@ -123,7 +130,7 @@ def _mouth_take(open_mm=6.0, hidden=()):
 def test_mouth_opening_reads_as_the_loudness_of_a_constant_opening():
     s = opening_intensity(_mouth_take(6.0), "upper", "lower", window=0.2)
     half = int(np.round(0.1 * FPS))
-    np.testing.assert_allclose(s[30 + half:90 - half], 20 * np.log10(6.0), atol=1e-9)
+    np.testing.assert_allclose(s[30 + half:90 - half], 20 * np.log10(6.0), atol=SPEECH_EXACT_DB)
     np.testing.assert_array_equal(s[:30 - half], FLOOR_DB)
     np.testing.assert_array_equal(s[90 + half:], FLOOR_DB)
 
@@ -132,7 +139,7 @@ def test_missing_lip_frames_count_as_closed():
     hidden = range(50, 70)
     s = opening_intensity(_mouth_take(6.0, hidden), "upper", "lower", window=1.5 / FPS)
     np.testing.assert_array_equal(s[51:70], FLOOR_DB)     # frames k-1 and k both hidden
-    np.testing.assert_allclose(s[[40, 80]], 20 * np.log10(6.0), atol=1e-9)
+    np.testing.assert_allclose(s[[40, 80]], 20 * np.log10(6.0), atol=SPEECH_EXACT_DB)
 
 
 def test_mouth_opening_names_a_missing_marker():

@@ -2,19 +2,15 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from tolerances import SWAP_RESIDUAL_FRACTION
 
-import mocap
 from mocap.clean.swaps import LabelSwap, find_label_swaps, fix_label_swaps
 from mocap.errors import InputError, MarkerError
-from mocap.markerset import load_markerset
 from mocap.stabilize import stabilize
 from mocap.take import Take
 
-HERE = Path(__file__).resolve().parent
 N_FRAMES = 400
 LABELS = ("m0", "m1", "m2", "m3", "m4", "m5")
 
@@ -99,7 +95,7 @@ def test_injected_swaps_found_exactly_and_repaired(case, head_frame):
         want = [("m2", "m5", 100, 150)]
     assert found(result) == sorted(want, key=lambda s: (s[2], s[0], s[1]))
     for swap in result:
-        assert swap.residual_mm < 0.25 * swap.jump_mm
+        assert swap.residual_mm < SWAP_RESIDUAL_FRACTION * swap.jump_mm
         assert swap.score > 10
     repaired = fix_label_swaps(dirty, result)
     np.testing.assert_array_equal(repaired.positions, clean.positions)
@@ -168,18 +164,18 @@ def test_fix_rejects_bad_swaps(swap, error, match):
 # -- real data ------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def facial_sing(shared_data):
-    take = mocap.read(shared_data / "captures" / "facial-sing.c3d")
-    head = load_markerset(HERE / "facial_sing_markerset.toml").head
-    return take, stabilize(take, head).take
+def facial_sing_frames(facial_sing_take, facial_sing_markerset):
+    """facial-sing.c3d in the capture frame and in the head frame (stabilized)."""
+    take = facial_sing_take
+    return take, stabilize(take, facial_sing_markerset.head).take
 
 
 @pytest.mark.parametrize("frame", ["capture", "head"])
-def test_facial_sing_has_no_pairwise_swap(facial_sing, frame):
+def test_facial_sing_has_no_pairwise_swap(facial_sing_frames, frame):
     """The frames 819-863 event is a four-label mislabel (section3-1/3-2 labels on
     section4-1/4-2's markers, with interpolated ghost samples between), not a swap of
     two labels: at no frame do two labels each land where the other was."""
-    take = facial_sing[frame == "head"]
+    take = facial_sing_frames[frame == "head"]
     a, b = take.index("section3-1"), take.index("section3-2")
     step = np.linalg.norm(np.diff(take.positions[:, [a, b]], axis=0), axis=2)
     assert np.nanmax(step) > 60  # the event is there
@@ -192,9 +188,9 @@ def test_facial_sing_has_no_pairwise_swap(facial_sing, frame):
     (("section1-1", "section1-2"), 2500, 2501),
     (("section13-2", "section13-3"), 2900, 3000),
 ])
-def test_swap_injected_in_facial_sing_found_and_repaired(facial_sing, frame, pair, start,
+def test_swap_injected_in_facial_sing_found_and_repaired(facial_sing_frames, frame, pair, start,
                                                          stop):
-    take = facial_sing[frame == "head"]
+    take = facial_sing_frames[frame == "head"]
     dirty = inject(take, [(*pair, start, stop)])
     cols = take.indices(pair)
     assert not np.isnan(take.positions[start - 1:start + 1, cols]).any()
@@ -204,6 +200,6 @@ def test_swap_injected_in_facial_sing_found_and_repaired(facial_sing, frame, pai
     np.testing.assert_array_equal(repaired.positions, take.positions)
 
 
-def test_vicon_body_capture_has_no_swap(shared_data):
-    take = mocap.read(shared_data / "vicon-nexus" / "markers.c3d")
+def test_vicon_body_capture_has_no_swap(vicon_nexus_take):
+    take = vicon_nexus_take
     assert find_label_swaps(take) == ()

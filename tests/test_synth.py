@@ -2,26 +2,32 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import ezc3d
 import numpy as np
 import pytest
+from helpers import ICT_LAYOUT_TOML, jaw_open_peak_time
 from scipy.spatial.transform import Rotation
+from tolerances import (
+    CAPTURE_FILE_MM,
+    EXACT_FLOAT64,
+    EXACT_MM,
+    FLOAT32_REL,
+    SYNTH_HEAD_EXACT,
+    SYNTH_NOISE_MEAN_MM,
+    SYNTH_NOISE_STD_REL,
+    SYNTH_VS_DENSE_MM,
+)
 
 import mocap
 from basis.artist import load_artist_basis
 from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.gaps import find_gaps
 from mocap.mesh.layout import load_marker_layout, make_layout
-from mocap.markerset import load_markerset
 from mocap.mesh.mesh import Mesh
-from mocap.synth.performance import Performance, read_performance
 from mocap.stabilize import stabilize
 from mocap.synth.capture import CaptureTruth, load_capture_truth, simulate_capture
-from tolerances import SYNTH_HEAD_EXACT, SYNTH_VS_DENSE_MM
+from mocap.synth.performance import Performance
 
-HERE = Path(__file__).resolve().parent
 SHAPES = ["browInnerUp_L", "browInnerUp_R", "cheekPuff_L", "cheekPuff_R", "eyeBlink_L",
           "eyeBlink_R", "jawOpen", "mouthSmile_L"]
 COLUMNS = ["BrowInnerUp", "CheekPuff", "EyeBlinkLeft", "EyeBlinkRight", "JawOpen",
@@ -30,28 +36,22 @@ MM_PER_CM = 10.0
 
 
 @pytest.fixture(scope="module")
-def basis(shared_data):
-    ict = shared_data / "ict-face"
-    return load_artist_basis(ict / "generic_neutral_mesh.obj", ict / "expressions",
-                             names=SHAPES, units="cm")
+def synth_basis(ict_neutral_path, ict_expressions_dir):
+    """The ArtistBasis of the ICT expressions in SHAPES (cm)."""
+    return load_artist_basis(ict_neutral_path, ict_expressions_dir, names=SHAPES, units="cm")
 
 
 @pytest.fixture(scope="module")
-def layout(basis):
-    return load_marker_layout(HERE / "ict_marker_layout.toml", basis.neutral)
+def head(ict_markerset):
+    return ict_markerset.head
 
 
 @pytest.fixture(scope="module")
-def head():
-    return load_markerset(HERE / "ict_markerset.toml").head
-
-
-@pytest.fixture(scope="module")
-def performance(shared_data) -> Performance:
+def performance(arkit_performance) -> Performance:
     """The columns of a real performance that drive SHAPES, 2 s around its widest jaw opening."""
-    full = read_performance(shared_data / "arkit-performances" / "alex_rom_3.csv")
+    full = arkit_performance
     cols = [full.names.index(c) for c in COLUMNS]
-    peak = full.times[np.argmax(full.weights[:, full.names.index("JawOpen")])]
+    peak = jaw_open_peak_time(full)
     keep = np.abs(full.times - peak) <= 1.0
     return Performance(tuple(COLUMNS), full.times[keep], full.weights[keep][:, cols],
                        full.rate, path=full.path)
@@ -64,15 +64,16 @@ def _simulate(basis, performance, layout, head, **options):
     return simulate_capture(basis, performance, layout, head, **kwargs)
 
 
-def test_still_capture_equals_the_layout_on_the_dense_mesh(basis, performance, layout, head):
-    sim = _simulate(basis, performance, layout, head)
+def test_still_capture_equals_the_layout_on_the_dense_mesh(synth_basis, performance, ict_layout,
+                                                           head):
+    sim = _simulate(synth_basis, performance, ict_layout, head)
     truth = sim.truth
     assert truth.weights[:, SHAPES.index("jawOpen")].max() > 0.5       # a real expression
     np.testing.assert_array_equal(truth.weights[:, SHAPES.index("browInnerUp_L")],
                                   truth.weights[:, SHAPES.index("browInnerUp_R")])
-    dense = layout.positions(basis.evaluate(truth.weights))              # (T, M, 3) cm
-    rigid = [layout.index(h) for h in head]
-    dense[:, rigid] = layout.positions(basis.neutral.vertices)[rigid]
+    dense = ict_layout.positions(synth_basis.evaluate(truth.weights))    # (T, M, 3) cm
+    rigid = [ict_layout.index(h) for h in head]
+    dense[:, rigid] = ict_layout.positions(synth_basis.neutral.vertices)[rigid]
     np.testing.assert_allclose(truth.markers_head, MM_PER_CM * dense, rtol=0,
                                atol=SYNTH_VS_DENSE_MM)
     # without motion the world pose is the constant home pose
@@ -80,35 +81,35 @@ def test_still_capture_equals_the_layout_on_the_dense_mesh(basis, performance, l
                                                                                    3, 3)))
     world = np.einsum("ij,tmj->tmi", truth.rotation[0], truth.markers_head) + \
         truth.translation[0]
-    np.testing.assert_allclose(sim.take.positions, world, atol=1e-9)
+    np.testing.assert_allclose(sim.take.positions, world, atol=EXACT_MM)
     np.testing.assert_array_equal(sim.take.positions, truth.markers_world)
-    assert sim.take.labels == layout.labels and sim.take.rate == 100.0
+    assert sim.take.labels == ict_layout.labels and sim.take.rate == 100.0
     assert not sim.take.missing.any()
 
 
-def test_face_markers_move_and_head_markers_do_not(basis, performance, layout, head):
-    truth = _simulate(basis, performance, layout, head).truth
+def test_face_markers_move_and_head_markers_do_not(synth_basis, performance, ict_layout, head):
+    truth = _simulate(synth_basis, performance, ict_layout, head).truth
     travel = np.ptp(truth.markers_head, axis=0).max(axis=1)              # (M,) mm
-    rigid = np.isin(layout.labels, head)
+    rigid = np.isin(ict_layout.labels, head)
     assert travel[rigid].max() == 0.0
-    assert travel[layout.index("chin")] > 5.0                            # the jaw opened
+    assert travel[ict_layout.index("chin")] > 5.0                        # the jaw opened
 
 
 @pytest.mark.parametrize("seed", [0, 7])
-def test_head_motion_is_rigid_and_recovered_by_stabilize(basis, performance, layout, head,
-                                                         seed):
+def test_head_motion_is_rigid_and_recovered_by_stabilize(synth_basis, performance, ict_layout,
+                                                         head, seed):
     deg, mm = 18.0, 40.0
-    sim = _simulate(basis, performance, layout, head, head_rotation_deg=deg,
+    sim = _simulate(synth_basis, performance, ict_layout, head, head_rotation_deg=deg,
                     head_translation_mm=mm, head_cutoff_hz=2.0, seed=seed)
     rot, trans = sim.truth.rotation, sim.truth.translation
-    np.testing.assert_allclose(np.linalg.det(rot), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(rot), 1.0, atol=EXACT_FLOAT64)
     np.testing.assert_allclose(rot @ rot.transpose(0, 2, 1), np.broadcast_to(np.eye(3),
                                                                                rot.shape),
-                               atol=1e-12)
+                               atol=EXACT_FLOAT64)
     angle = np.rad2deg(Rotation.from_matrix(rot[0].T @ rot).magnitude())
     assert deg / 4 < angle.max() <= 2 * np.sqrt(3) * deg          # moves, within its peaks
     travel = np.ptp(trans, axis=0)
-    assert mm <= travel.max() and travel.max() <= 2 * mm + 1e-9
+    assert mm <= travel.max() and travel.max() <= 2 * mm + EXACT_MM
     st = stabilize(sim.take, head, reference="frame", reference_frame=0, robust=False)
     expected_r = rot @ rot[0].T                    # the stabilized head frame is frame 0's
     expected_t = trans - np.einsum("tij,j->ti", expected_r, trans[0])
@@ -118,10 +119,10 @@ def test_head_motion_is_rigid_and_recovered_by_stabilize(basis, performance, lay
     np.testing.assert_allclose(back, sim.truth.markers_head, atol=SYNTH_HEAD_EXACT)
 
 
-def test_gaps_are_nan_and_noise_has_its_level(basis, performance, layout, head):
+def test_gaps_are_nan_and_noise_has_its_level(synth_basis, performance, ict_layout, head):
     n_gaps, max_frames = 150, 20
-    sim = _simulate(basis, performance, layout, head, noise_mm=0.5, n_gaps=n_gaps, seed=3,
-                    max_gap_s=max_frames / 100, head_rotation_deg=10.0,
+    sim = _simulate(synth_basis, performance, ict_layout, head, noise_mm=0.5, n_gaps=n_gaps,
+                    seed=3, max_gap_s=max_frames / 100, head_rotation_deg=10.0,
                     head_translation_mm=20.0)
     take, truth = sim.take, sim.truth
     np.testing.assert_array_equal(take.missing, truth.missing)
@@ -129,30 +130,31 @@ def test_gaps_are_nan_and_noise_has_its_level(basis, performance, layout, head):
     lengths = find_gaps(truth.missing).length                   # overlapping gaps merge
     assert len(lengths) <= n_gaps and truth.missing.sum() <= n_gaps * max_frames
     assert len(lengths) > n_gaps / 2 and np.median(lengths) < max_frames / 2   # mostly short
-    rigid = np.isin(layout.labels, head)
+    rigid = np.isin(ict_layout.labels, head)
     assert truth.missing[:, rigid].sum(axis=1).max() <= 1                 # >= 5 head markers seen
     assert truth.missing[:, rigid].mean() < truth.missing[:, ~rigid].mean()
     error = (take.positions - truth.markers_world)[~truth.missing]
-    assert error.std() == pytest.approx(0.5, rel=0.05)
-    assert abs(error.mean()) < 0.05
+    assert error.std() == pytest.approx(0.5, rel=SYNTH_NOISE_STD_REL)
+    assert abs(error.mean()) < SYNTH_NOISE_MEAN_MM
 
 
-def test_seeded_and_deterministic(basis, performance, layout, head):
+def test_seeded_and_deterministic(synth_basis, performance, ict_layout, head):
     options = dict(noise_mm=0.3, n_gaps=40, head_rotation_deg=15.0, head_translation_mm=30.0)
-    a = _simulate(basis, performance, layout, head, seed=5, **options)
-    b = _simulate(basis, performance, layout, head, seed=5, **options)
-    c = _simulate(basis, performance, layout, head, seed=6, **options)
+    a = _simulate(synth_basis, performance, ict_layout, head, seed=5, **options)
+    b = _simulate(synth_basis, performance, ict_layout, head, seed=5, **options)
+    c = _simulate(synth_basis, performance, ict_layout, head, seed=6, **options)
     np.testing.assert_array_equal(a.take.positions, b.take.positions)
     assert not np.array_equal(a.truth.rotation, c.truth.rotation)
     assert not np.array_equal(a.truth.missing, c.truth.missing)
     # the noise level does not change the motion or the gaps (independent streams)
-    d = _simulate(basis, performance, layout, head, seed=5, **{**options, "noise_mm": 0.0})
+    d = _simulate(synth_basis, performance, ict_layout, head, seed=5, **{**options,
+                                                                         "noise_mm": 0.0})
     np.testing.assert_array_equal(a.truth.rotation, d.truth.rotation)
     np.testing.assert_array_equal(a.truth.missing, d.truth.missing)
 
 
-def test_truth_round_trip(basis, performance, layout, head, tmp_path):
-    truth = _simulate(basis, performance, layout, head, noise_mm=0.2, n_gaps=20,
+def test_truth_round_trip(synth_basis, performance, ict_layout, head, tmp_path):
+    truth = _simulate(synth_basis, performance, ict_layout, head, noise_mm=0.2, n_gaps=20,
                       head_rotation_deg=5.0, duration=0.5).truth
     truth.save(tmp_path / "truth.npz")
     back = load_capture_truth(tmp_path / "truth.npz")
@@ -176,28 +178,29 @@ def test_truth_file_errors(tmp_path):
 
 
 @pytest.mark.parametrize("ext", [".c3d", ".csv"])
-def test_written_capture_reads_back_with_the_same_gaps(basis, performance, layout, head,
+def test_written_capture_reads_back_with_the_same_gaps(synth_basis, performance, ict_layout, head,
                                                        tmp_path, ext):
-    take = _simulate(basis, performance, layout, head, noise_mm=0.2, n_gaps=60,
+    take = _simulate(synth_basis, performance, ict_layout, head, noise_mm=0.2, n_gaps=60,
                      head_rotation_deg=15.0, head_translation_mm=30.0, seed=2).take
     path = tmp_path / f"capture{ext}"
     mocap.write(take, path)
     back = mocap.read(path)
     assert back.labels == take.labels and back.rate == take.rate
     np.testing.assert_array_equal(back.missing, take.missing)
-    np.testing.assert_allclose(back.positions, take.positions, atol=5e-3, equal_nan=True)
+    np.testing.assert_allclose(back.positions, take.positions, atol=CAPTURE_FILE_MM,
+                               equal_nan=True)
     if ext == ".c3d":                                        # an independent reader
         ez = ezc3d.c3d(str(path))
         points = ez["data"]["points"][:3].transpose(2, 1, 0)
         np.testing.assert_array_equal(np.isnan(points[..., 0]), take.missing)
-        np.testing.assert_allclose(points, take.positions, rtol=1e-6, equal_nan=True)
+        np.testing.assert_allclose(points, take.positions, rtol=FLOAT32_REL, equal_nan=True)
         assert tuple(ez["parameters"]["POINT"]["LABELS"]["value"]) == take.labels
 
 
 def test_neutral_lead_in_holds_the_neutral_then_blends_into_the_performance(
-        basis, performance, layout, head):
-    plain = _simulate(basis, performance, layout, head).truth
-    led = _simulate(basis, performance, layout, head, neutral_lead_s=0.8).truth
+        synth_basis, performance, ict_layout, head):
+    plain = _simulate(synth_basis, performance, ict_layout, head).truth
+    led = _simulate(synth_basis, performance, ict_layout, head, neutral_lead_s=0.8).truth
     n_lead, n_blend = 80, 40                       # 0.8 s at 100 Hz; the last 0.5 s, at most half
     assert led.n_frames == plain.n_frames + n_lead
     np.testing.assert_array_equal(led.weights[n_lead:], plain.weights)
@@ -210,34 +213,34 @@ def test_neutral_lead_in_holds_the_neutral_then_blends_into_the_performance(
     assert 0 < ramp[0] < 0.01 and 0.99 < ramp[-1] < 1 and (np.diff(ramp) > 0).all()
     # the hold is the neutral face: the layout on the neutral mesh
     np.testing.assert_allclose(led.markers_head[:n_lead - n_blend],
-                               np.broadcast_to(MM_PER_CM * layout.positions(
-                                   basis.neutral.vertices), (n_lead - n_blend,
-                                                              layout.n_markers, 3)),
+                               np.broadcast_to(MM_PER_CM * ict_layout.positions(
+                                   synth_basis.neutral.vertices), (n_lead - n_blend,
+                                                              ict_layout.n_markers, 3)),
                                rtol=0, atol=SYNTH_VS_DENSE_MM)
     with pytest.raises(InputError, match=r"neutral_lead_s must be >= 0, got -1.0"):
-        _simulate(basis, performance, layout, head, neutral_lead_s=-1.0)
+        _simulate(synth_basis, performance, ict_layout, head, neutral_lead_s=-1.0)
 
 
-def test_simulation_errors(basis, performance, layout, head):
-    other = Mesh(basis.neutral.vertices, basis.neutral.faces)          # units unknown
+def test_simulation_errors(synth_basis, performance, ict_layout, head):
+    other = Mesh(synth_basis.neutral.vertices, synth_basis.neutral.faces)          # units unknown
     tiny = make_layout(_triangle(), {"a": {"vertex": 0}, "b": {"vertex": 1},
                                      "c": {"vertex": 2}})
     with pytest.raises(InputError, match=r"layout '' was made for a mesh of 3 vertices"):
-        simulate_capture(basis, performance, tiny, ["a", "b", "c"])
+        simulate_capture(synth_basis, performance, tiny, ["a", "b", "c"])
     with pytest.raises(MarkerError, match=r"marker 'nose-top': not in layout"):
-        simulate_capture(basis, performance, layout, ["nose-top", "head-1", "head-2"])
-    unitless = load_marker_layout(HERE / "ict_marker_layout.toml", other)
+        simulate_capture(synth_basis, performance, ict_layout, ["nose-top", "head-1", "head-2"])
+    unitless = load_marker_layout(ICT_LAYOUT_TOML, other)
     with pytest.raises(InputError, match=r"units of layout 'ict-layout' .* are unknown"):
-        simulate_capture(basis, performance, unitless, head)
+        simulate_capture(synth_basis, performance, unitless, head)
     with pytest.raises(InputError, match=r"n_gaps must be at least 0"):
-        simulate_capture(basis, performance, layout, head, n_gaps=-1)
+        simulate_capture(synth_basis, performance, ict_layout, head, n_gaps=-1)
     with pytest.raises(InputError, match=r"noise_mm, head_rotation_deg and .* must be >= 0"):
-        simulate_capture(basis, performance, layout, head, noise_mm=-0.1)
+        simulate_capture(synth_basis, performance, ict_layout, head, noise_mm=-0.1)
     unknown = Performance(("Foo",), [0.0, 1.0], [[0.0], [1.0]], rate=1.0, path="foo.csv")
     with pytest.raises(InputError, match=r"foo\.csv: none of its weight columns \(Foo\)"):
-        simulate_capture(basis, unknown, layout, head)
+        simulate_capture(synth_basis, unknown, ict_layout, head)
     with pytest.raises(InputError, match=r"basis must have names, neutral and displacements"):
-        simulate_capture(object(), performance, layout, head)
+        simulate_capture(object(), performance, ict_layout, head)
 
 
 def _triangle():

@@ -7,13 +7,20 @@ import warnings
 import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
+from tolerances import (
+    EXACT_FLOAT64,
+    LOOP_ORACLE,
+    SMOOTH_VS_STACKED,
+    SOLVE_KKT_REL,
+    SOLVE_OBJECTIVE_REL,
+    SOLVE_SAME_MINIMIZER,
+)
 
 import fit.solve._smooth
 from fit.solve.sampling_estimator import estimate_weights_by_sampling
-from fit.solve.weights import solve_weights
 from fit.solve.temporal import EDGE_MODES, moving_average
+from fit.solve.weights import solve_weights
 from mocap.errors import InputError
-from tests.tolerances import SOLVE_KKT_REL, SOLVE_OBJECTIVE_REL
 
 
 def brute_moving_average(data, window, edge):
@@ -39,7 +46,7 @@ def test_moving_average_matches_loop(edge, window):
     data[rng.random((90, 4)) < 0.2] = np.nan
     data[10:70, 1] = np.nan  # a gap longer than the window
     got = moving_average(data, window=window, edge=edge)
-    np.testing.assert_allclose(got, brute_moving_average(data, window, edge), atol=1e-9)
+    np.testing.assert_allclose(got, brute_moving_average(data, window, edge), atol=LOOP_ORACLE)
     assert np.isnan(got).any() == (window < 60)
 
 
@@ -140,7 +147,7 @@ def test_smoothness_matches_stacked_oracle_hard_cases(case, lam):
     got = sequence_cost(basis, data, lam, sol.weights)
     assert got - expected <= SOLVE_OBJECTIVE_REL * expected
     if case != "singular":                         # unique minimizer
-        np.testing.assert_allclose(sol.weights, ref, atol=1e-6)
+        np.testing.assert_allclose(sol.weights, ref, atol=SMOOTH_VS_STACKED)
 
 
 @pytest.mark.parametrize("admm_steps", [0, fit.solve._smooth._ADMM_ITER])
@@ -183,7 +190,7 @@ def test_smooth_start_changes_the_work_not_the_result(start):
              "zeros": np.zeros((T, n)), "ones": np.ones((T, n)), "answer": ref.weights}[start]
     sol = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0, start=given)
     assert sol.status == 0
-    np.testing.assert_allclose(sol.weights, ref.weights, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(sol.weights, ref.weights, rtol=0, atol=SOLVE_SAME_MINIMIZER)
     if start == "answer":           # the optimal active set: one global solve
         assert sol.n_iter.max() == 1
 
@@ -206,7 +213,7 @@ def test_sampling_estimator_is_feasible_and_never_beats_exact(eps):
     est = estimate_weights_by_sampling(basis, data, lower=-eps, upper=1 + eps, seed=1)
     exact = solve_weights(basis, data, lower=-eps, upper=1 + eps)
     assert np.all((est.weights >= -eps) & (est.weights <= 1 + eps))
-    assert np.all(est.cost >= exact.cost * (1 - 1e-12))
+    assert np.all(est.cost >= exact.cost * (1 - EXACT_FLOAT64))
     again = estimate_weights_by_sampling(basis, data, lower=-eps, upper=1 + eps, seed=1)
     np.testing.assert_array_equal(again.weights, est.weights)
 
@@ -221,8 +228,8 @@ def test_sampling_estimator_matches_brute_force_neighbours():
     near = np.argsort(dist, axis=1)[:, :5]
     inv = 1.0 / np.take_along_axis(dist, near, axis=1)
     expected = np.einsum("tk,tkn->tn", inv / inv.sum(1, keepdims=True), samples[near])
-    np.testing.assert_allclose(est.weights, expected, rtol=1e-12)
-    np.testing.assert_allclose(est.distance, dist.min(axis=1), rtol=1e-12)
+    np.testing.assert_allclose(est.weights, expected, rtol=EXACT_FLOAT64)
+    np.testing.assert_allclose(est.distance, dist.min(axis=1), rtol=EXACT_FLOAT64)
 
 
 @pytest.mark.parametrize("kwargs, message", [

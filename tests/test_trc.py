@@ -2,15 +2,16 @@
 written here from ezc3d's reading of markers.c3d, every error message, and the writer."""
 
 import csv
+import functools
 
-import ezc3d
 import numpy as np
 import pytest
+from helpers import write_utf8
+from tolerances import EXACT_MM, TRC_BOX_VS_C3D_MM
 
 import mocap.io
 from mocap import FileFormatError, InputError, MarkerError, Take
 from mocap.io.trc import read_trc, write_trc
-from tolerances import TRC_BOX_VS_C3D_MM
 
 
 def trc_text(labels, positions, *, rate=100.0, first_frame=1, units="mm", sep="\t",
@@ -34,16 +35,14 @@ def trc_text(labels, positions, *, rate=100.0, first_frame=1, units="mm", sep="\
     return "".join(sep.join(cells) + newline for cells in lines)
 
 
-def write_bytes(tmp_path, text, name="take.trc"):
-    path = tmp_path / name
-    path.write_bytes(text.encode("utf-8"))
-    return path
+#: A TRC file of the given text in tmp_path (newlines kept as written).
+write_bytes = functools.partial(write_utf8, name="take.trc")
 
 
 @pytest.fixture(scope="module")
-def c3d(shared_data):
+def c3d(vicon_nexus_ezc3d):
     """Labels, positions (n_frames, n_markers, 3) and first frame of markers.c3d via ezc3d."""
-    c = ezc3d.c3d(str(shared_data / "vicon-nexus" / "markers.c3d"))
+    c = vicon_nexus_ezc3d
     return (tuple(c["parameters"]["POINT"]["LABELS"]["value"]),
             c["data"]["points"][:3].transpose(2, 1, 0),
             int(c["parameters"]["TRIAL"]["ACTUAL_START_FIELD"]["value"][0]))
@@ -51,8 +50,8 @@ def c3d(shared_data):
 
 # -- the real file -----------------------------------------------------------
 @pytest.fixture(scope="module")
-def real_trc(shared_data):
-    path = shared_data / "vicon-nexus" / "markers.trc"
+def real_trc(vicon_nexus_dir):
+    path = vicon_nexus_dir / "markers.trc"
     with pytest.warns(UserWarning, match="the header says NumFrames 652 but 93 data rows"):
         return path, read_trc(path)
 
@@ -156,7 +155,7 @@ def test_writer_round_trips_to_the_printed_precision(tmp_path, c3d, decimals):
     back = read_trc(first)
     assert (back.labels, back.rate, back.first_frame) == (labels, 100, first_frame)
     np.testing.assert_array_equal(back.missing, take.missing)
-    assert np.nanmax(np.abs(back.positions - positions)) <= 0.5 * 10.0 ** -decimals + 1e-9
+    assert np.nanmax(np.abs(back.positions - positions)) <= 0.5 * 10.0 ** -decimals + EXACT_MM
     write_trc(back, second, decimals=decimals)
     assert first.read_bytes() == second.read_bytes()
 

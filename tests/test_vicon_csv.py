@@ -2,16 +2,17 @@
 edge-case files written here by a plain loop, every error message, and the writer."""
 
 import csv
+import functools
 
-import ezc3d
 import numpy as np
 import pytest
+from helpers import write_utf8
+from tolerances import CSV_VS_C3D_MM, EXACT_MM, VICON_CSV_CELL_MM
 
 import mocap.io
 from mocap import FileFormatError, InputError, MarkerError, Take
-from mocap.units import UNITS_TO_MM
 from mocap.io.vicon_csv import read_vicon_csv, write_vicon_csv
-from tolerances import CSV_VS_C3D_MM
+from mocap.units import UNITS_TO_MM
 
 DEVICES = ("Devices\n1000\n,,Force Plate 1 - Force,,\nFrame,Sub Frame,Fx,Fy,Fz\n"
            ",,N,N,N\n1,0,1.5,2.5,3.5\n1,1,1.6,2.6,3.6\n")
@@ -52,17 +53,15 @@ def random_positions(n_frames, n_markers, seed=0):
     return pos
 
 
-def write_bytes(tmp_path, text, name="take.csv"):
-    path = tmp_path / name
-    path.write_bytes(text.encode("utf-8"))
-    return path
+#: A Vicon CSV file of the given text in tmp_path (newlines kept as written).
+write_bytes = functools.partial(write_utf8, name="take.csv")
 
 
 # -- the real export against ezc3d ------------------------------------------
 @pytest.fixture(scope="module")
-def nexus(shared_data):
-    folder = shared_data / "vicon-nexus"
-    return read_vicon_csv(folder / "markers.csv"), ezc3d.c3d(str(folder / "markers.c3d"))
+def nexus(vicon_nexus_dir, vicon_nexus_ezc3d):
+    """markers.csv read by our reader, and the same trial's markers.c3d read by ezc3d."""
+    return read_vicon_csv(vicon_nexus_dir / "markers.csv"), vicon_nexus_ezc3d
 
 
 def test_real_csv_agrees_with_ezc3d(nexus):
@@ -85,8 +84,8 @@ def test_real_csv_source_and_subjects(nexus):
             take.source.storage) == ("vicon-csv", "mm", "Vicon Nexus", "text")
 
 
-def test_io_read_dispatches_to_the_csv_reader(shared_data, nexus):
-    take = mocap.io.read(shared_data / "vicon-nexus" / "markers.csv")
+def test_io_read_dispatches_to_the_csv_reader(vicon_nexus_dir, nexus):
+    take = mocap.io.read(vicon_nexus_dir / "markers.csv")
     np.testing.assert_array_equal(take.positions, nexus[0].positions)
 
 
@@ -197,7 +196,7 @@ def test_writer_round_trips_to_the_printed_precision(tmp_path, nexus, decimals):
     assert (back.labels, back.rate, back.first_frame) == (take.labels, take.rate,
                                                           take.first_frame)
     np.testing.assert_array_equal(back.missing, take.missing)
-    assert np.nanmax(np.abs(back.positions - take.positions)) <= 0.5 * 10.0 ** -decimals + 1e-9
+    assert np.nanmax(np.abs(back.positions - take.positions)) <= 0.5 * 10.0 ** -decimals + EXACT_MM
     write_vicon_csv(back, second, decimals=decimals)
     assert first.read_bytes() == second.read_bytes()
 
@@ -222,7 +221,8 @@ def test_writer_layout_is_nexus(tmp_path):
             if np.isnan(pos[t, m, 0]):
                 assert cells == ["", "", ""]
             else:
-                np.testing.assert_allclose([float(c) for c in cells], pos[t, m], atol=5e-6)
+                np.testing.assert_allclose([float(c) for c in cells], pos[t, m],
+                                           atol=VICON_CSV_CELL_MM)
     assert read_vicon_csv(path).rate == 119.88
 
 
@@ -230,7 +230,7 @@ def test_io_write_dispatches_to_the_csv_writer(tmp_path):
     take = Take(("a",), random_positions(3, 1), rate=50)
     mocap.io.write(take, tmp_path / "t.csv")
     np.testing.assert_allclose(mocap.io.read(tmp_path / "t.csv").positions, take.positions,
-                               atol=5e-6)
+                               atol=VICON_CSV_CELL_MM)
 
 
 def test_writer_refuses_to_overwrite_an_input(tmp_path):
