@@ -29,6 +29,7 @@ from basis.artist import ArtistBasis, load_artist_basis
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh, save_obj
 from mocap.util.atomic import atomic_path
+from mocap.util.npz import read_npz
 from mocap.util.validation import as_choice
 
 __all__ = ["BASIS_DTYPES", "save_basis", "load_basis", "load_any_basis", "shape_file_stems"]
@@ -227,17 +228,8 @@ def load_basis(path, *, units: str | None = None) -> ArtistBasis:
 
 
 def _load_npz(path: Path, units) -> ArtistBasis:
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in _NPZ_KEYS if k in data.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise FileFormatError(path, f"cannot read basis archive: {exc}") from None
-    absent = [k for k in _NPZ_KEYS if k not in arrays]
-    if absent:
-        raise FileFormatError(path, f"not a saved basis: keys {', '.join(absent)} missing")
-    if int(arrays["format_version"]) != _VERSION:
-        raise FileFormatError(path, f"basis format version {int(arrays['format_version'])}; "
-                                    f"this reader knows {_VERSION}")
+    arrays = read_npz(path, "basis archive", required=_NPZ_KEYS,
+                      version=("format_version", _VERSION))
     try:
         neutral = Mesh(arrays["neutral_vertices"], arrays["faces"], arrays["face_polygon"],
                        arrays["polygon_sizes"], units=str(arrays["units"]) or units,

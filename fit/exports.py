@@ -21,6 +21,7 @@ from fit.solve.weights import WeightSolution
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh
 from mocap.util.atomic import atomic_path
+from mocap.util.npz import read_npz
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["weights_frame", "write_weights_csv", "read_weights_csv", "MeshSequence",
@@ -275,17 +276,13 @@ def read_mesh_sequence(path) -> MeshSequence:
         Unreadable archive, missing keys, inconsistent shapes.
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            z = {k: data[k] for k in data.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise FileFormatError(path, f"cannot read mesh sequence: {exc}") from None
+    z = read_npz(path, "mesh sequence")
     compact = ("neutral", "displacements", "weights")
     need = ["faces", "units", "rate", "first_frame", "names"]
     need += ["vertices"] if "vertices" in z else list(compact)
     absent = [k for k in need if k not in z]
     if absent:
-        raise FileFormatError(path, f"not a mesh sequence: keys {', '.join(absent)} missing")
+        raise FileFormatError(path, f"not a mesh sequence: members {', '.join(absent)} missing")
     if "vertices" in z:
         n_vertices, consistent = z["vertices"].shape[1:2], z["vertices"].ndim == 3
     else:

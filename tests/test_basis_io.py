@@ -166,7 +166,7 @@ def test_load_errors_name_the_file(small_basis, tmp_path):
         load_basis(junk)
     partial = tmp_path / "partial.npz"
     np.savez(partial, names=np.array(["a"]))
-    with pytest.raises(FileFormatError, match="partial.npz: not a saved basis: keys"):
+    with pytest.raises(FileFormatError, match="partial.npz: not a basis archive: members"):
         load_basis(partial)
     path = tmp_path / "bad.npz"
     save_basis(small_basis, path)

@@ -174,7 +174,7 @@ def test_malformed_files_are_reported(tmp_path):
         read_weights_csv(tmp_path / "absent.csv")
     seq = tmp_path / "seq.npz"
     np.savez(seq, faces=np.zeros((1, 3), int))
-    with pytest.raises(FileFormatError, match="seq.npz: not a mesh sequence: keys"):
+    with pytest.raises(FileFormatError, match="seq.npz: not a mesh sequence: members"):
         read_mesh_sequence(seq)
     seq.write_bytes(b"junk")
     with pytest.raises(FileFormatError, match="seq.npz: cannot read mesh sequence"):

@@ -173,7 +173,7 @@ def test_truth_file_errors(tmp_path):
     with pytest.raises(FileFormatError, match=r"take\.npz: not a capture-truth archive"):
         load_capture_truth(tmp_path / "take.npz")
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(FileFormatError, match=r"junk\.npz: cannot read capture truth"):
+    with pytest.raises(FileFormatError, match=r"junk\.npz: cannot read capture-truth archive"):
         load_capture_truth(tmp_path / "junk.npz")
 
 

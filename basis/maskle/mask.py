@@ -30,6 +30,7 @@ from mocap.anatomy import MASKLE_POINTS
 from mocap.errors import FileFormatError, InputError
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
+from mocap.util.npz import read_npz
 from mocap.util.validation import as_float_array
 
 __all__ = ["Mask", "CHANNEL_KINDS", "load_mask", "save_mask", "load_default_mask",
@@ -240,17 +241,8 @@ def load_mask(path) -> Mask:
         that does not make a valid :class:`Mask`.
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as doc:
-            data = {k: doc[k] for k in doc.files}
-    except (OSError, ValueError) as exc:
-        raise FileFormatError(path, f"cannot read mask: {exc}") from None
-    absent = [k for k in _ARRAYS if k not in data]
-    if absent:
-        raise FileFormatError(path, f"not a mask file: lacks {', '.join(absent)}")
-    if int(data["format_version"]) != _FORMAT_VERSION:
-        raise FileFormatError(path, f"mask format version {int(data['format_version'])}, "
-                                    f"this program reads {_FORMAT_VERSION}")
+    data = read_npz(path, "mask file", required=_ARRAYS,
+                    version=("format_version", _FORMAT_VERSION))
     try:
         return Mask(data["vertices"], data["polygons"], tuple(data["channel_names"].tolist()),
                     tuple(data["channel_kinds"].tolist()), data["weights"], data["origins"],

@@ -21,6 +21,7 @@ from mocap.errors import FileFormatError, InputError
 from mocap.synth.performance import Performance, performance_weights, resample_performance
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
+from mocap.util.npz import read_npz
 from mocap.util.validation import as_float_array, as_positive_float
 
 __all__ = ["GestureClip", "clip_from_analysis", "clip_from_performance", "save_clip",
@@ -228,15 +229,7 @@ def load_clip(path) -> GestureClip:
         Missing or unreadable file, not a gesture clip, inconsistent arrays.
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise FileFormatError(path, "no such file") from None
-    except (OSError, ValueError, EOFError) as exc:
-        raise FileFormatError(path, f"cannot read gesture clip: {exc}") from None
-    if str(data.get("format", "")) != _FORMAT:
-        raise FileFormatError(path, f"not a gesture clip (expected format {_FORMAT!r})")
+    data = read_npz(path, "gesture clip", version=("format", _FORMAT))
     groups = [k.split(".", 1)[1] for k in data if k.startswith("details.")]
     try:
         return GestureClip(

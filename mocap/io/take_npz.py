@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +10,7 @@ import numpy as np
 from mocap.errors import FileFormatError
 from mocap.take import Analog, SourceInfo, Take
 from mocap.util.atomic import atomic_path
+from mocap.util.npz import read_npz_with_meta
 
 __all__ = ["read_take_npz", "write_take_npz"]
 
@@ -47,21 +47,16 @@ def read_take_npz(path) -> Take:
         If the file is not such an archive or is damaged.
     """
     path = Path(path)
+    meta, z = read_npz_with_meta(path, "mocap2mesh take archive", _FORMAT,
+                                 required=("labels", "positions", "filled"))
     try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["meta"]))
-            if meta.get("format") != _FORMAT:
-                raise FileFormatError(path, f"not a mocap2mesh take archive "
-                                            f"(format {meta.get('format')!r})")
-            analog = None
-            if "analog_values" in z:
-                analog = Analog(z["analog_values"], float(z["analog_rate"]),
-                                tuple(z["analog_labels"]), tuple(z["analog_units"]))
-            source = SourceInfo(**{**meta["source"], "path": str(path)})
-            return Take(tuple(z["labels"]), z["positions"], meta["rate"],
-                        first_frame=meta["first_frame"], filled=z["filled"],
-                        source=source, analog=analog)
-    except FileFormatError:
-        raise
-    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError) as exc:
+        analog = None
+        if "analog_values" in z:
+            analog = Analog(z["analog_values"], float(z["analog_rate"]),
+                            tuple(z["analog_labels"]), tuple(z["analog_units"]))
+        source = SourceInfo(**{**meta["source"], "path": str(path)})
+        return Take(tuple(z["labels"]), z["positions"], meta["rate"],
+                    first_frame=meta["first_frame"], filled=z["filled"],
+                    source=source, analog=analog)
+    except (ValueError, KeyError, TypeError) as exc:
         raise FileFormatError(path, f"cannot read take archive: {exc}") from None

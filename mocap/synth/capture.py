@@ -23,6 +23,7 @@ from mocap.take import SourceInfo, Take
 from mocap.units import mm_per_unit as _mm_per_unit
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
+from mocap.util.npz import read_npz_with_meta
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["CaptureTruth", "SimulatedCapture", "simulate_capture", "load_capture_truth"]
@@ -131,17 +132,7 @@ def load_capture_truth(path) -> CaptureTruth:
         Not such an archive, damaged, or with inconsistent shapes.
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["meta"]))
-            if not isinstance(meta, dict) or meta.get("format") != _FORMAT:
-                raise FileFormatError(path, f"not a capture-truth archive (expected format "
-                                            f"{_FORMAT!r})")
-            arrays = {name: z[name] for name in z.files if name != "meta"}
-    except FileFormatError:
-        raise
-    except (OSError, ValueError, KeyError, EOFError) as exc:
-        raise FileFormatError(path, f"cannot read capture truth: {exc}") from None
+    meta, arrays = read_npz_with_meta(path, "capture-truth archive", _FORMAT)
     try:
         return CaptureTruth(rate=float(meta["rate"]), mm_per_unit=float(meta["mm_per_unit"]),
                             noise_mm=float(meta["noise_mm"]), seed=int(meta["seed"]),
