@@ -5,7 +5,9 @@ to the synthesis rate and head-stabilized (:func:`mocap.clean.ingest.ingest`); t
 expression shapes are sampled at the bound markers (:func:`fit.solve.marker_basis.marker_basis`); the
 take is decomposed (:func:`analyze_gestures`); S(t) comes from a WAV file
 recorded with the take, from one of its analog channels, or, failing both,
-from a stand-in: the loudness of the lip opening.
+from a stand-in: the loudness of the lip opening. A WAV's S(t) is Praat's
+intensity when the ``speech`` extra is installed, its RMS level otherwise
+(:func:`fit.gestures.prosody.speech_prosody`).
 """
 
 from __future__ import annotations
@@ -17,12 +19,12 @@ from dataclasses import dataclass
 from basis.artist import ArtistBasis
 from fit.gestures.analysis import GestureAnalysis, analyze_gestures
 from fit.gestures.clip import GestureClip, clip_from_analysis
+from fit.gestures.prosody import speech_prosody
 from fit.gestures.speech import (
     DEFAULT_WINDOW_S,
     OPENING_WINDOW_S,
     analog_intensity,
     opening_intensity,
-    wav_intensity,
 )
 from fit.solve.marker_basis import marker_basis
 from mocap.bind import Binding
@@ -69,9 +71,9 @@ def _intensity(markerset, cleaned: Take, stabilized: Take, wav, analog, opening,
         raise InputError("give one source of speech intensity: a WAV file, an analog channel "
                          "or a lip-marker pair")
     if wav is not None:
-        return (wav_intensity(wav, frame_rate=cleaned.rate, n_frames=cleaned.n_frames,
-                              window=window or DEFAULT_WINDOW_S),
-                f"speech: RMS dB of {wav}")
+        prosody = speech_prosody(wav, frame_rate=cleaned.rate, n_frames=cleaned.n_frames,
+                                 window=window or DEFAULT_WINDOW_S)
+        return prosody.intensity, f"{prosody.source} of {wav}"
     if analog is not None:
         return (analog_intensity(cleaned, analog, window=window or DEFAULT_WINDOW_S),
                 f"speech: RMS dB of analog channel {analog!r}")
