@@ -286,8 +286,8 @@ def run_synthesize(args) -> int:
         raise InputError(f"{args.output}: the output directory does not exist")
     basis = None if args.mesh is None else load_artist_basis(args.mesh, args.shapes,
                                                              units=args.units)
-    visemes = None if basis is None or args.no_lips else _viseme_basis(basis, args)
     binding = None if args.binding is None else load_binding(args.binding)
+    visemes = None if basis is None or args.no_lips else _viseme_basis(basis, args)
     rate = args.rate
     clips = load_palette(args.palette, rate=rate,
                          shapes=None if basis is None else basis.names)
