@@ -155,7 +155,11 @@ def read_transcript(value) -> str:
     text = str(value)
     path = Path(text)
     where = "the transcript"
-    if len(text) < 4096 and "\n" not in text and path.is_file():
+    try:
+        is_file = "\n" not in text and path.is_file()
+    except OSError:                      # a long text is no file name
+        is_file = False
+    if is_file:
         where = str(path)
         try:
             text = path.read_text(encoding="utf-8")
