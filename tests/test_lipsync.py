@@ -13,6 +13,7 @@ import re
 import sys
 
 import numpy as np
+import pygltflib
 import pytest
 import scipy.io.wavfile
 from tolerances import (
@@ -386,6 +387,9 @@ def test_synthesize_a_talking_face_with_its_video(shared_data, ict_neutral_path,
     assert frames == seq.n_frames
     rate, pcm = scipy.io.wavfile.read(wav)
     assert abs(samples / 48000 - len(pcm) / rate) < 0.03
+    gltf = pygltflib.GLTF2().load(str(out / "gestures.glb"))
+    targets = gltf.meshes[0].extras["targetNames"]
+    assert "viseme:closed" in targets and targets == list(seq.names)
     page = (out / "index.html").read_text(encoding="utf-8")
     assert "<video" in page and "talking.webm" in page
 

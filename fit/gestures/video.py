@@ -21,6 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import scipy.signal
+from tqdm import tqdm
 
 from fit.gestures.speech import read_wav
 from mocap.errors import InputError
@@ -146,6 +147,8 @@ def _write_frames(path: Path, neutral, displacements, weights, camera, rate, rot
                                  camera.size)
     if not writer.isOpened():
         raise InputError(f"{path}: cannot write: OpenCV has no VP9 (WebM) writer")
+    progress = tqdm(total=len(weights), unit="frame", desc="talking video", disable=None,
+                    leave=False)
     try:
         flat = displacements.reshape(len(displacements), -1)
         for lo in range(0, len(weights), _CHUNK_FRAMES):  # chunks of frames
@@ -158,7 +161,9 @@ def _write_frames(path: Path, neutral, displacements, weights, camera, rate, rot
             for vertices in chunk:                              # rasterize each frame
                 image = render_mesh(vertices, neutral.faces, camera=camera, supersample=1)
                 writer.write(cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+            progress.update(len(chunk))
     finally:
+        progress.close()
         writer.release()
 
 
