@@ -408,3 +408,23 @@ def test_analyze_speech_refuses_contradictions(tmp_path):
         analyze_speech(wav, rate=30.0, lips=False, transcript="a")
     with pytest.raises(InputError, match="not both"):
         analyze_speech(wav, rate=30.0, transcript="a", phones=tmp_path / "p.csv")
+
+
+def test_lips_from_a_phones_csv_need_no_extra(without_speech_extra, shared_data,
+                                              arkit_performance_path, tmp_path):
+    """The core install lip-syncs from given phone segments (the RMS level as S(t))."""
+    import pandas as pd
+
+    wav, _, ref = _recording(shared_data, "0930")
+    phones = tmp_path / "p.csv"
+    write_phones_csv(phones, read_sphinx_alignment(ref))
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.warns(UserWarning, match="praat-parselmouth is not installed"):
+        assert main(["gestures", "synthesize", str(wav), "--palette",
+                     str(arkit_performance_path), "-o", str(out), "--phones",
+                     str(phones)]) == 0
+    table = pd.read_csv(out / "visemes.csv")
+    want = viseme_curves(read_phones_csv(phones), rate=30.0, n_frames=len(table))
+    np.testing.assert_allclose(table[list(VISEMES)].to_numpy(), want.weights, atol=1e-5)
+    assert pd.read_csv(out / "prosody.csv")["pitch_hz"].isna().all()

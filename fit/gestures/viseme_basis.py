@@ -155,7 +155,8 @@ def viseme_basis_from_shapes(basis: ArtistBasis,
             if not cols:
                 raise InputError(f"viseme {viseme!r} needs the shape {shape!r}, which the "
                                  f"basis of {basis.n_shapes} shapes does not have (nor its "
-                                 "_L/_R or Left/Right sides): give the visemes as OBJs (--visemes DIR)")
+                                 "_L/_R or Left/Right sides): give the visemes as OBJs "
+                                 "(--visemes DIR)")
             mix[VISEMES.index(viseme), cols] += float(weight)
     disp = np.tensordot(mix, basis.displacements, axes=1)
     return VisemeBasis(VISEMES, basis.neutral, disp,

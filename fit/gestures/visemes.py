@@ -176,8 +176,8 @@ def viseme_curves(segments: PhoneSegments, *, rate: float, n_frames: int | None 
     >>> segs = PhoneSegments([0.0, 0.3, 0.4], [0.3, 0.4, 0.8], ["AA", "M", "AA"],
     ...                      [1.0, 1.0, 1.0])
     >>> d = viseme_curves(segs, rate=10)
-    >>> d.weights[3:5, d.names.index("closed")].round(2).tolist()   # 0.3 s: inside the /m/
-    [1.0, 0.0]
+    >>> d.weights[[3, 4, 6], d.names.index("closed")].round(2).tolist()   # 0.3, 0.4, 0.6 s
+    [1.0, 0.45, 0.0]
     >>> bool(np.allclose(d.weights.sum(axis=1), 1))
     True
     """

@@ -95,6 +95,7 @@ def _add_analyze(actions) -> None:
                              "upper_lip_top and lower_lip_bottom landmarks)")
     p.add_argument("--intensity-window", type=float, metavar="S",
                    help="RMS window of S(t) (default 0.05 for speech, 0.25 for the stand-in)")
+    _add_intensity(p)
     p.add_argument("--rate", type=float, default=30.0, metavar="HZ",
                    help="frame rate of the clip: the synthesis rate (default 30)")
     p.add_argument("--window", type=int, default=41, metavar="FRAMES",
@@ -149,9 +150,7 @@ def _add_synthesize(actions) -> None:
                 help="binding .json of the reference capture to --mesh (head frame): places "
                      "the details and the head motion on the mesh")
     p.add_argument("--support", type=float, help="RBF support radius, mesh units")
-    p.add_argument("--intensity", choices=PROSODY_METHODS, default="auto",
-                   help="loudness S(t): Praat's intensity (the 'speech' extra), the RMS level, "
-                        "or 'auto' (default): Praat when installed, else RMS with a warning")
+    _add_intensity(p)
     lips = p.add_mutually_exclusive_group()
     _add_transcript(lips)
     lips.add_argument("--phones", type=Path, metavar="CSV",
@@ -169,6 +168,13 @@ def _add_synthesize(actions) -> None:
     p.add_argument("--video-size", type=int, nargs=2, default=(480, 480),
                    metavar=("W", "H"), help="video size in pixels (default 480 480)")
     p.set_defaults(run=run_synthesize)
+
+
+def _add_intensity(p) -> None:
+    p.add_argument("--intensity", choices=PROSODY_METHODS, default="auto",
+                   help="loudness S(t) of a WAV: Praat's intensity (the 'speech' extra), the "
+                        "RMS level, or 'auto' (default): Praat when installed, else RMS with a "
+                        "warning")
 
 
 def _add_transcript(group) -> None:
@@ -229,6 +235,7 @@ def run_analyze(args) -> int:
     made = clip_from_capture(take, markerset, binding, basis, name=args.name or args.output.stem,
                              rate=args.rate, wav=args.speech, analog=args.analog,
                              opening=args.opening, intensity_window=args.intensity_window,
+                             intensity=args.intensity,
                              options=options, neutral_frame=args.neutral_frame,
                              epsilon=args.epsilon, window=args.window,
                              estimator=args.estimator, seed=args.seed)
