@@ -21,6 +21,8 @@ GLB ?= $(DEMO_DIR)
 
 .PHONY: test demo bench env clean blender-check
 
+# `.[test]` includes the optional `speech` extra (Praat, PocketSphinx and its model, PyAV),
+# so that the tests run the real speech tools; the core install needs none of them.
 env: $(STAMP)
 
 $(STAMP): pyproject.toml
