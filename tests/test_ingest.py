@@ -123,3 +123,15 @@ def test_run_config_names_the_ingest_key(tmp_path):
     with pytest.raises(InputError, match=r"run\.toml: ingest\.extra_markers: extra_markers "
                                          r"must be one of"):
         load_run_config(path)
+
+
+@pytest.mark.parametrize("extra, match", [
+    (["--max-gap", "0"], r"max_gap must be at least 1, got 0"),
+])
+def test_ingest_cli_error_is_one_line(facial_sing_path, tmp_path, capsys, extra, match):
+    from fit.cli.main import main
+
+    code = main(["ingest", str(facial_sing_path), "-o", str(tmp_path / "out.c3d"), *extra])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1
+    assert re.fullmatch(r"mocap2mesh ingest: error: " + match, err[0])
