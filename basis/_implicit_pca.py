@@ -89,7 +89,8 @@ def operator_pca(operator: np.ndarray, displacements: np.ndarray, *,
                            n_components=n_components)
 
 
-def pooled_spectrum(operators, moments, *, n_components: int | None) -> Spectrum:
+def pooled_spectrum(operators, moments, *, n_components: int | None,
+                    coverage: float | None = None) -> Spectrum:
     """Exact PCA of the pooled mesh sequences of several takes; see the module notes.
 
     Parameters
@@ -99,6 +100,9 @@ def pooled_spectrum(operators, moments, *, n_components: int | None) -> Spectrum
         Each take's marker moments (:func:`marker_moments`), 1/T_k convention.
     n_components : int or None
         As :func:`operator_pca`; at most 3r exist.
+    coverage : float in (0, 1], optional
+        Instead of `n_components`: the fewest components whose share of the
+        total variance reaches it (only those are lifted to the mesh).
     """
     counts = np.array([m[0] for m in moments], dtype=np.float64)
     n_frames = int(counts.sum())
@@ -124,7 +128,11 @@ def pooled_spectrum(operators, moments, *, n_components: int | None) -> Spectrum
     small = (small + small.T) / 2
     evals, vecs = np.linalg.eigh(small)
     evals, vecs = np.clip(evals[::-1], 0, None), vecs[:, ::-1]
-    if n_components is None:
+    if coverage is not None:
+        share = np.cumsum(evals) / max(float(np.trace(small)), np.finfo(np.float64).tiny)
+        n_components = int(np.searchsorted(share, coverage * (1 - 1e-12))) + 1
+        n_components = min(n_components, 3 * k)
+    elif n_components is None:
         cutoff = evals[0] * 3 * k * np.finfo(np.float64).eps
         n_components = max(int(np.count_nonzero(evals > cutoff)), 1)
     elif n_components > 3 * k:

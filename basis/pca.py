@@ -320,8 +320,8 @@ def marker_moments(displacements, *, chunk_frames: int = 4096) -> MarkerMoments:
     return MarkerMoments(len(displacements), mean, cov)
 
 
-def pca_from_operators(operators, displacements, *,
-                       n_components: int | None = None) -> PCAModel:
+def pca_from_operators(operators, displacements, *, n_components: int | None = None,
+                       coverage: float | None = None) -> PCAModel:
     """Exact PCA of the mesh sequences of several takes pooled, Ξ_k(t) = W_k · D_k(t).
 
     The PCA of a session: every frame of every take counts once, each take
@@ -338,19 +338,24 @@ def pca_from_operators(operators, displacements, *,
     n_components : int, optional
         Components to keep; default every component above the numerical-rank
         cutoff (as :func:`pca_from_operator`).
+    coverage : float in (0, 1], optional
+        Instead of `n_components`: keep the fewest components whose coverage
+        (:meth:`PCAModel.coverage`) reaches it; only those are computed on
+        the mesh, the costly part for a long session.
 
     Returns
     -------
     PCAModel
         Of the concatenated sequences: mean Σ_k (T_k/T) W_k d̄_k, covariance
-        with the 1/T convention over all T = Σ T_k frames.
+        with the 1/T convention over all T = Σ T_k frames, exact total variance.
 
     Raises
     ------
     InputError
         No take, operators and displacements of different counts, operators of
         different meshes, a shape mismatch (the take is named by its index),
-        a non-finite operator, a frame with NaN.
+        a non-finite operator, a frame with NaN, both `n_components` and
+        `coverage`, a coverage outside (0, 1].
 
     Notes
     -----
@@ -394,7 +399,13 @@ def pca_from_operators(operators, displacements, *,
         raise InputError("every operator is all zeros: no mesh motion to analyse")
     if n_components is not None:
         n_components = as_int(n_components, "n_components", minimum=1)
-    return _model(pooled_spectrum(dense, moments, n_components=n_components), "implicit")
+    if coverage is not None:
+        if n_components is not None:
+            raise InputError("give n_components or coverage, not both")
+        if isinstance(coverage, bool) or not 0 < coverage <= 1:
+            raise InputError(f"coverage must be in (0, 1], got {coverage!r}")
+    return _model(pooled_spectrum(dense, moments, n_components=n_components,
+                                  coverage=coverage), "implicit")
 
 
 def pca_streaming(frames, *, n_components: int, chunk_frames: int = 512,

@@ -14,6 +14,8 @@ import pytest
 from helpers import FACIAL_SING_MARKERSET_TOML
 from tolerances import EXACT_MM
 
+import mocap
+from fit.cli.main import main
 from fit.pipeline.config import load_run_config
 from mocap.clean.ingest import IngestOptions, ingest
 from mocap.errors import InputError
@@ -127,11 +129,21 @@ def test_run_config_names_the_ingest_key(tmp_path):
 
 @pytest.mark.parametrize("extra, match", [
     (["--max-gap", "0"], r"max_gap must be at least 1, got 0"),
+    (["--min-visible", "1.5"], r"min_visible must be in \[0, 1\], got 1.5"),
 ])
 def test_ingest_cli_error_is_one_line(facial_sing_path, tmp_path, capsys, extra, match):
-    from fit.cli.main import main
-
     code = main(["ingest", str(facial_sing_path), "-o", str(tmp_path / "out.c3d"), *extra])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1
     assert re.fullmatch(r"mocap2mesh ingest: error: " + match, err[0])
+
+
+def test_ingest_cli_drops_or_carries_the_markers_outside_the_set(facial_sing_path, tmp_path):
+    args = ["ingest", str(facial_sing_path), "--markerset", str(FACIAL_SING_MARKERSET_TOML)]
+    with pytest.warns(UserWarning, match="dropped"):
+        assert main(args + ["-o", str(tmp_path / "d.c3d"), "--extra-markers", "drop"]) == 0
+    with pytest.warns(UserWarning, match="carried unfilled"):
+        assert main(args + ["-o", str(tmp_path / "c.c3d")]) == 0
+    assert "Unlabeled1" not in mocap.read(tmp_path / "d.c3d").labels
+    carried = mocap.read(tmp_path / "c.c3d")
+    assert (~carried.missing[:, carried.index("Unlabeled1")]).sum() == 35

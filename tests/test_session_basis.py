@@ -110,11 +110,16 @@ def test_pooled_pca_errors(edit, match):
         pca_from_operators(*edit(*random_session()))
 
 
-def test_pooled_pca_too_many_components():
+@pytest.mark.parametrize("options, match", [
+    ({"n_components": 55}, r"the operators of the takes have numerical rank 18: at most 54 "
+                           r"components exist, got n_components=55"),
+    ({"n_components": 5, "coverage": 0.9}, "give n_components or coverage, not both"),
+    ({"coverage": 0.0}, r"coverage must be in \(0, 1\], got 0.0"),
+])
+def test_pooled_pca_component_errors(options, match):
     ops, disps = random_session()
-    with pytest.raises(InputError, match=r"the operators of the takes have numerical rank 18: "
-                                         r"at most 54 components exist, got n_components=55"):
-        pca_from_operators(ops, disps, n_components=55)
+    with pytest.raises(InputError, match=match):
+        pca_from_operators(ops, disps, **options)
 
 
 def test_session_basis_errors():
@@ -126,11 +131,16 @@ def test_session_basis_errors():
     with pytest.raises(InputError, match=r"different numbers of face markers \[5, 6\]"):
         session_basis(takes + [odd])
     with pytest.raises(InputError, match=r"basis.pca_components = 60 is more than the 54 "
-                                         r"components of the session's mesh sequences \(3 takes\)"):
+                                         r"components the session's mesh sequences can have "
+                                         r"\(3 takes\)"):
         session_basis(takes, BasisOptions(pca_components=60))
     basis = session_basis(takes, BasisOptions(pca_components=7))
     assert basis.pca.n_components == 7 and basis.takes == TAKES and basis.frames == (50, 30, 20)
-    assert len(basis.eigenvalues) == 54
+    full = pca_from_operators(ops, disps)
+    by_coverage = session_basis(takes, BasisOptions(pca_coverage=0.9))
+    assert by_coverage.pca.n_components == full.n_for_coverage(0.9)
+    np.testing.assert_array_equal(by_coverage.pca.components,
+                                  full.components[:by_coverage.pca.n_components])
     with pytest.raises(InputError, match="scope must be one of"):
         BasisOptions(scope="shot")
 
@@ -289,7 +299,7 @@ def test_run_refuses_more_components_than_the_session_has(session, tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and re.fullmatch(
         r"mocap2mesh run: error: basis\.pca_components = 100000 is more than the \d+ "
-        r"components of the session's mesh sequences \(2 takes\)", err[0])
+        r"components the session's mesh sequences can have \(2 takes\)", err[0])
 
 
 def test_run_refuses_an_unknown_scope(session, capsys):
@@ -300,3 +310,34 @@ def test_run_refuses_an_unknown_scope(session, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"mocap2mesh run: error: {path}: basis.scope: scope must be one of "
                    "['session', 'take'], got 'shot'"]
+
+
+def test_a_failed_take_keeps_the_warnings_that_say_why(session, tmp_path):
+    text = session["path"].read_text().replace('"a.c3d", "b.c3d", "c.c3d"', '"a.c3d"')
+    text = re.sub(r"(?m)^max_gap = .*$", "max_gap = 3", text)
+    path = session["root"] / "short-gaps.toml"
+    path.write_text(text.replace('directory = "out"', f'directory = "{tmp_path / "out"}"'))
+    stderr = io.StringIO()
+    with contextlib.redirect_stderr(stderr):
+        assert main(["run", str(path)]) == 1
+    record = json.loads((tmp_path / "out" / "manifest.json").read_text())["takes"]["a"]
+    assert record["status"] == "failed"
+    assert re.search(r"missing in frames \d+-\d+ .* \(longer than max_gap=3\); .* set \[ingest\] "
+                     r"max_gap = \d+ or more to fill it", record["error"])
+    assert any("left unfilled" in m for m in record["warnings"])
+    lines = stderr.getvalue().strip().splitlines()
+    assert lines[-1].startswith("mocap2mesh run: take a (") and "failed: marker" in lines[-1]
+    assert lines[:-1] == [f"mocap2mesh: warning: take a: {m}" for m in record["warnings"]]
+
+
+def test_unconverged_fits_are_warned_with_their_frame_numbers():
+    from fit.pipeline.take_warnings import warn_unconverged
+
+    class Solution:
+        def __init__(self, status, message):
+            self.status, self.message = status, message
+
+    with pytest.warns(UserWarning, match=r"^fit of basis QE: 2 of 9 frames did not converge "
+                                         r"\(frames counted from 0 at frame number 41\)$"):
+        warn_unconverged({"H": Solution(0, "all converged"),
+                          "QE": Solution(1, "2 of 9 frames did not converge")}, first_frame=41)

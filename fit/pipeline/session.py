@@ -89,7 +89,7 @@ def _guarded(capture: Path, config: RunConfig, session_basis=None) -> dict:
     """:func:`process_take` that turns an exception into a failed record."""
     start = time.perf_counter()
     try:
-        with capture_warnings() as caught:
+        with capture_warnings(reemit=False) as caught:
             record = process_take(capture, config, session_basis)
         record["warnings"] = list(dict.fromkeys(record["warnings"] + caught))
         return record

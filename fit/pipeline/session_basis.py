@@ -44,7 +44,6 @@ from fit.pipeline.config import RunConfig
 from fit.pipeline.options import BasisOptions
 from fit.pipeline.reconstruction import Reconstruction
 from mocap.errors import InputError, Mocap2MeshError
-from mocap.util.arrays import read_only
 
 __all__ = ["TakeMoments", "SessionBasis", "take_moments", "session_basis",
            "uses_session_basis", "session_input", "build_session_basis"]
@@ -83,8 +82,6 @@ class SessionBasis:
         The takes pooled, in the run's order.
     frames : tuple of int
         Frames each take contributed (after ingestion and trimming).
-    eigenvalues : ndarray, shape (n,), mesh units²
-        The whole spectrum of the pooled covariance (for the record).
     seconds : float
         Wall time of the pooling and eigenproblem (not of the takes' stages).
     """
@@ -92,11 +89,7 @@ class SessionBasis:
     pca: PCAModel
     takes: tuple
     frames: tuple
-    eigenvalues: np.ndarray
     seconds: float = 0.0
-
-    def __post_init__(self):
-        object.__setattr__(self, "eigenvalues", read_only(np.asarray(self.eigenvalues, float)))
 
     @property
     def sha256(self) -> str:
@@ -161,14 +154,16 @@ def session_basis(takes, options: BasisOptions = BasisOptions()) -> SessionBasis
     if len(markers) > 1:
         raise InputError(f"the takes have different numbers of face markers {sorted(markers)}: "
                          "a session shares one marker set")
-    full = pca_from_operators([t.operator for t in takes], [t.moments for t in takes])
-    m = options.pca_components or full.n_for_coverage(options.pca_coverage)
-    if m > full.n_components:
-        raise InputError(f"basis.pca_components = {m} is more than the {full.n_components} "
-                         f"components of the session's mesh sequences ({len(takes)} takes)")
-    return SessionBasis(pca=full.truncate(m), takes=tuple(t.name for t in takes),
+    m = options.pca_components
+    most = 3 * min(len(takes[0].operator), sum(t.moments.n_markers for t in takes))
+    if m is not None and m > most:
+        raise InputError(f"basis.pca_components = {m} is more than the {most} components "
+                         f"the session's mesh sequences can have ({len(takes)} takes)")
+    pca = pca_from_operators([t.operator for t in takes], [t.moments for t in takes],
+                             n_components=m, coverage=None if m else options.pca_coverage)
+    return SessionBasis(pca=pca, takes=tuple(t.name for t in takes),
                         frames=tuple(t.moments.n_frames for t in takes),
-                        eigenvalues=full.eigenvalues, seconds=time.perf_counter() - tic)
+                        seconds=time.perf_counter() - tic)
 
 
 def uses_session_basis(config: RunConfig) -> bool:

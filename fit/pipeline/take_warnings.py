@@ -20,13 +20,14 @@ __all__ = ["capture_warnings", "print_warnings", "warn_unconverged"]
 
 
 @contextmanager
-def capture_warnings():
+def capture_warnings(*, reemit: bool = True):
     """Catch every warning raised inside; yields the list of their messages.
 
     The list is filled when the block ends: each distinct message once, in
-    the order first raised. When the block raises, the messages are warned
-    again (same category) before the exception goes on, so that an enclosing
-    catch still sees why a take failed.
+    the order first raised. When the block raises and `reemit` is true, the
+    messages are warned again (same category) before the exception goes on,
+    so that an enclosing catch still sees why a take failed; the outermost
+    catch, which records them, passes ``reemit=False``.
 
     Examples
     --------
@@ -51,7 +52,7 @@ def capture_warnings():
                     seen.setdefault(str(w.message), w.category)
                 messages.extend(seen)
     finally:
-        if failed:
+        if failed and reemit:
             for message, category in seen.items():
                 warnings.warn(message, category, stacklevel=3)
 
