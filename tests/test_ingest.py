@@ -8,6 +8,7 @@ marker removed beforehand (filling must not read it), runs of NaN counted here.
 """
 
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ import mocap
 from fit.cli.main import main
 from fit.pipeline.config import load_run_config
 from mocap.clean.ingest import IngestOptions, ingest
-from mocap.errors import InputError
+from mocap.errors import InputError, MarkerError
 from mocap.markerset import load_markerset
 
 
@@ -147,3 +148,36 @@ def test_ingest_cli_drops_or_carries_the_markers_outside_the_set(facial_sing_pat
     assert "Unlabeled1" not in mocap.read(tmp_path / "d.c3d").labels
     carried = mocap.read(tmp_path / "c.c3d")
     assert (~carried.missing[:, carried.index("Unlabeled1")]).sum() == 35
+
+
+@pytest.mark.parametrize("options, remedy", [
+    ({"max_gap": 5}, r"after gap filling \(longer than max_gap=5\); 1 face marker\(s\) have gaps left, .*: set "
+                     r"\[ingest\] max_gap = 40 or more to fill it"),
+    ({"max_gap": 50, "min_visible": 0.95},
+     r"after gap filling \(visible in 360 of 400 frames \(90\.0 %\), under min_visible = 0\.95\); .*: lower "
+     r"\[ingest\] min_visible to fill it anyway"),
+    ({"fill": "none"}, r"after gap filling; .*: fill it \(\[ingest\] fill, max_gap, "
+                       r"min_visible\)"),
+])
+def test_the_chain_names_a_face_marker_left_with_gaps(options, remedy):
+    """require_complete: the marker, its frames (numbers) and the option that would fill it."""
+    from fit.pipeline.gaps import require_complete
+    from mocap import Take
+    from mocap.markerset import MarkerSet
+
+    t = np.arange(400) / 100.0
+    pos = np.stack([np.stack([np.sin(t + k), np.cos(t + k), t], axis=1) * 10 + 50 * k
+                    for k in range(6)], axis=1)
+    pos[100:140, 2] = np.nan
+    take = Take(tuple(f"m{k}" for k in range(6)), pos, rate=100.0, first_frame=7)
+    markerset = MarkerSet("toy", head=("m0", "m1", "m5"), regions={"other": ("m2", "m3", "m4")})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = ingest(take, markerset=markerset, options=IngestOptions(**options)) \
+            if options.get("fill") != "none" else None
+    cleaned = take if result is None else result.cleaned
+    with pytest.raises(MarkerError, match=r"marker 'm2': the take: missing in frames 107-146 "
+                                          r"\(0\.40 s\) " + remedy), \
+            warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        require_complete(cleaned, markerset.face_markers, None if result is None else result.fill)

@@ -341,3 +341,9 @@ def test_unconverged_fits_are_warned_with_their_frame_numbers():
                                          r"\(frames counted from 0 at frame number 41\)$"):
         warn_unconverged({"H": Solution(0, "all converged"),
                           "QE": Solution(1, "2 of 9 frames did not converge")}, first_frame=41)
+
+
+def test_marker_moments_refuse_a_take_without_frames():
+    with pytest.raises(InputError, match=r"displacements must have shape \(T, M, 3\) with "
+                                         r"T >= 1, got \(0, 4, 3\)"):
+        marker_moments(np.zeros((0, 4, 3)))
