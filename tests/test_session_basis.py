@@ -164,7 +164,7 @@ def session(tmp_path_factory):
     path.write_text(text, encoding="utf-8")
     stderr = io.StringIO()
     with contextlib.redirect_stderr(stderr):
-        code = main(["run", str(path), "-j", "1"])
+        code = main(["run", str(path), "-j", "2"])     # the shared basis pickled to workers
     manifest = json.loads((root / "out" / "manifest.json").read_text())
     return dict(root=root, path=path, code=code, manifest=manifest, stderr=stderr.getvalue())
 
