@@ -24,7 +24,7 @@ from tolerances import (
 
 import mocap
 from basis.basis_io import load_basis
-from fit.demo import make_demo_session
+from fit.demo import DEMO_MAX_GAP, make_demo_session
 from fit.pipeline import (
     BASES,
     SPACES,
@@ -60,7 +60,8 @@ def chain(tmp_path_factory):
     markerset = load_markerset(paths["markerset"])
     mesh = load_mesh(paths["neutral"])
     landmarks = load_mesh_landmarks(paths["landmarks"], mesh)
-    ingested = ingest_stage(mocap.read(paths["capture"]), markerset, IngestOptions())
+    ingested = ingest_stage(mocap.read(paths["capture"]), markerset,
+                            IngestOptions(max_gap=DEMO_MAX_GAP))
     take = complete_span(ingested.take, markerset.face_markers)
     bound = bind_stage(take, markerset, mesh, landmarks, options=BindOptions(skin_offset=2.0))
     retargeted = retarget_stage(take, bound, mesh, markerset)

@@ -38,7 +38,7 @@ def _config(root, captures, *, extra=""):
 @pytest.fixture(scope="module")
 def session_root(tmp_path_factory):
     root = tmp_path_factory.mktemp("run")
-    make_demo_session(root / "session", seconds=2.0)
+    make_demo_session(root / "session", seconds=2.0, n_gaps=20)   # 10 gaps/s
     (root / "session" / "broken.c3d").write_bytes(b"\x02\x50" + bytes(range(256)) * 4)
     return root
 
@@ -116,7 +116,7 @@ def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     """Skip logic alone: the chain is replaced by a stub that records its calls."""
     calls = []
 
-    def fake(capture, config):
+    def fake(capture, config, session_basis=None):
         calls.append(capture.name)
         (config.output / capture.stem).mkdir(parents=True, exist_ok=True)
         (config.output / capture.stem / "out.txt").write_text("x")
@@ -130,7 +130,8 @@ def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
         shutil.copy(session_root / "session" / name, tmp_path / name)
     shutil.copytree(session_root / "session" / "shapes", tmp_path / "shapes")
     path = tmp_path / "run.toml"
-    path.write_text(demo_config_toml(".", "out").replace("./capture.c3d", "a.c3d\", \"b.c3d"))
+    path.write_text(demo_config_toml(".", "out").replace("./capture.c3d", "a.c3d\", \"b.c3d")
+                    .replace("pca_coverage = 0.995", 'pca_coverage = 0.995\nscope = "take"'))
     config = load_run_config(path)
     assert config.captures[1].name == "b.c3d"
     run_takes(config, workers=1, progress=False)

@@ -77,12 +77,13 @@ def add_units(parser, *, help: str = "units of the mesh file (e.g. cm)") -> None
     parser.add_argument("--units", help=help)
 
 
-def add_fill(parser, *, max_gap: bool = True,
+def add_fill(parser, *,
              help: str = "gap-filling method (default auto; 'none' keeps the gaps)") -> None:
-    """``--fill`` and, with `max_gap`, ``--max-gap``."""
+    """``--fill`` and ``--max-gap``."""
     parser.add_argument("--fill", choices=FILL_CHOICES, default="auto", help=help)
-    if max_gap:
-        parser.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")
+    parser.add_argument("--max-gap", type=int, metavar="FRAMES",
+                        help="longest gap to fill (default 0.1 s of frames at the take's "
+                             "rate; longer gaps are reported, not filled)")
 
 
 def add_neutral_frame(parser, flag: str = "--frame", *, help: str = NEUTRAL_FRAME_HELP) -> None:

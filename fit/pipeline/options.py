@@ -19,8 +19,8 @@ from mocap.errors import InputError
 from mocap.neutral import PICKED_FRAMES
 from mocap.util.validation import as_choice, as_int, as_positive_float
 
-__all__ = ["BASES", "SPACES", "H_SOLVERS", "CENTRE_MODELS", "BindOptions", "BasisOptions",
-           "FitOptions", "ReportOptions"]
+__all__ = ["BASES", "SPACES", "H_SOLVERS", "CENTRE_MODELS", "BASIS_SCOPES", "BindOptions",
+           "BasisOptions", "FitOptions", "ReportOptions"]
 
 #: The bases every take is fitted with: hand-made (artist), quasi-eigen, PCA.
 BASES = ("H", "QE", "PCA")
@@ -31,6 +31,9 @@ H_SOLVERS = ("exact", "sampling")
 #: How the artist shapes move the marker centres in a marker-space fit
 #: (:attr:`FitOptions.marker_centres`).
 CENTRE_MODELS = ("exact", "linear")
+#: What the PCA and quasi-eigen bases of a take are made from (:attr:`BasisOptions.scope`):
+#: every take of the session pooled, or the take alone.
+BASIS_SCOPES = ("session", "take")
 
 
 @dataclass(frozen=True)
@@ -82,14 +85,22 @@ class BasisOptions:
         One of :data:`basis.quasi_eigen.MISSING_POLICIES`.
     missing_eps : float
         Threshold of a missing PCA axis (:func:`basis.quasi_eigen.quasi_eigen`).
+    scope : str
+        One of :data:`BASIS_SCOPES`. ``"session"`` (default): one PCA of the
+        mesh sequences of every take of the run pooled, and its quasi-eigen
+        faces, fit every take, so that their weights share one basis
+        (:mod:`fit.pipeline.session_basis`; a run of one take is its own
+        session). ``"take"``: each take's own PCA and quasi-eigen faces.
     """
 
     pca_components: int | None = None
     pca_coverage: float = 0.995
     qe_missing: str = "report"
     missing_eps: float = 0.05
+    scope: str = "session"
 
     def __post_init__(self):
+        as_choice(self.scope, "scope", BASIS_SCOPES)
         if self.pca_components is not None:
             as_int(self.pca_components, "pca_components", minimum=1)
         if not 0 < self.pca_coverage <= 1:

@@ -35,6 +35,8 @@ from basis.gltf import write_gltf
 from fit.exports import MeshSequence, weights_frame, write_mesh_sequence, write_weights_csv
 from fit.metrics import reconstruction_errors
 from fit.pipeline.config import STAGE_TABLES, RunConfig, load_run_config, stage_options
+from fit.pipeline.gaps import require_complete
+from fit.pipeline.take_warnings import warn_unconverged
 from fit.pipeline.options import BasisOptions, BindOptions, FitOptions, ReportOptions
 from fit.pipeline.stages import (
     BasisResult,
@@ -57,7 +59,7 @@ from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
 
-__all__ = ["Reconstruction", "ReconstructionResult"]
+__all__ = ["Reconstruction", "PreparedTake", "ReconstructionResult"]
 
 
 def _options(name: str, value):
@@ -148,13 +150,54 @@ class Reconstruction:
                    bind=config.bind, retarget=config.retarget,
                    basis_options=config.basis_options, fit=config.fit, report=config.report)
 
-    def process(self, capture) -> "ReconstructionResult":
-        """Run one capture through the chain.
+    def prepare(self, capture) -> "PreparedTake":
+        """Run one capture through ingest, bind and retarget (the stages before the bases).
 
         Parameters
         ----------
         capture : path or Take
             A capture file (C3D, Vicon CSV, TRC, take ``.npz``) or a take read already.
+
+        Returns
+        -------
+        PreparedTake
+
+        Raises
+        ------
+        Mocap2MeshError
+            Any stage's error, naming the file, marker or frame at fault (a
+            face marker left with gaps by ingestion: :func:`fit.pipeline.gaps.require_complete`).
+        """
+        seconds = {}
+        tic = time.perf_counter()
+        raw = capture if isinstance(capture, Take) else mocap.read(capture)
+        ingested = ingest_stage(raw, self.markerset, self.ingest)
+        take = complete_span(ingested.take, self.markerset.face_markers)
+        require_complete(take, self.markerset.face_markers, ingested.fill)
+        seconds["ingest"] = time.perf_counter() - tic
+        tic = time.perf_counter()
+        bound = bind_stage(take, self.markerset, self.mesh, self.landmarks, options=self.bind)
+        seconds["bind"] = time.perf_counter() - tic
+        tic = time.perf_counter()
+        retargeted = retarget_stage(take, bound, self.mesh, self.markerset, self.retarget)
+        seconds["retarget"] = time.perf_counter() - tic
+        source = raw.source.path
+        return PreparedTake(name=Path(source).stem if source else "take", ingested=ingested,
+                            take=take, bound=bound, retargeted=retargeted,
+                            stage_seconds=seconds)
+
+    def process(self, capture, *, session_basis=None) -> "ReconstructionResult":
+        """Run one capture through the chain.
+
+        Parameters
+        ----------
+        capture : path, Take or PreparedTake
+            A capture file (C3D, Vicon CSV, TRC, take ``.npz``), a take read
+            already, or a take through :meth:`prepare`.
+        session_basis : fit.pipeline.session_basis.SessionBasis, optional
+            The PCA shared by the takes of a session (``[basis] scope =
+            "session"``); its PCA and quasi-eigen bases replace the take's own.
+            Default: the take's own PCA.
 
         Returns
         -------
@@ -164,30 +207,54 @@ class Reconstruction:
         ------
         Mocap2MeshError
             Any stage's error, naming the file, marker or frame at fault.
+
+        Warns
+        -----
+        UserWarning
+            The stages' own (gap filling, binding distances) and a basis whose
+            weights did not converge in every frame.
         """
-        seconds = {}
+        prepared = capture if isinstance(capture, PreparedTake) else self.prepare(capture)
+        seconds = dict(prepared.stage_seconds)
         tic = time.perf_counter()
-        raw = capture if isinstance(capture, Take) else mocap.read(capture)
-        ingested = ingest_stage(raw, self.markerset, self.ingest)
-        take = complete_span(ingested.take, self.markerset.face_markers)
-        seconds["ingest"] = time.perf_counter() - tic
-        tic = time.perf_counter()
-        bound = bind_stage(take, self.markerset, self.mesh, self.landmarks, options=self.bind)
-        seconds["bind"] = time.perf_counter() - tic
-        tic = time.perf_counter()
-        retargeted = retarget_stage(take, bound, self.mesh, self.markerset, self.retarget)
-        seconds["retarget"] = time.perf_counter() - tic
-        tic = time.perf_counter()
-        bases = basis_stage(retargeted, self.basis, options=self.basis_options)
+        bases = basis_stage(prepared.retargeted, self.basis, options=self.basis_options,
+                            pca=None if session_basis is None else session_basis.pca)
         seconds["basis"] = time.perf_counter() - tic
         tic = time.perf_counter()
-        fitted = fit_stage(take, bound, retargeted, bases, options=self.fit)
+        fitted = fit_stage(prepared.take, prepared.bound, prepared.retargeted, bases,
+                           options=self.fit)
+        warn_unconverged(fitted.solutions, first_frame=prepared.take.first_frame)
         seconds["fit"] = time.perf_counter() - tic
-        source = raw.source.path
-        name = Path(source).stem if source else "take"
-        return ReconstructionResult(reconstruction=self, name=name, ingested=ingested,
-                                    take=take, bound=bound, retargeted=retargeted,
-                                    bases=bases, fitted=fitted, stage_seconds=seconds)
+        return ReconstructionResult(reconstruction=self, name=prepared.name,
+                                    ingested=prepared.ingested, take=prepared.take,
+                                    bound=prepared.bound, retargeted=prepared.retargeted,
+                                    bases=bases, fitted=fitted, stage_seconds=seconds,
+                                    session_basis=session_basis)
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedTake:
+    """One capture through the stages before the bases (:meth:`Reconstruction.prepare`).
+
+    Attributes
+    ----------
+    name : str
+        The capture's file stem.
+    ingested : IngestResult
+    take : Take
+        Head-stabilized, cut to the frames where every face marker is present.
+    bound : BoundTake
+    retargeted : Retargeting
+        The take's operator W and marker displacements D (mesh units).
+    stage_seconds : dict of str to float
+    """
+
+    name: str
+    ingested: IngestResult
+    take: Take
+    bound: BoundTake
+    retargeted: Retargeting
+    stage_seconds: dict
 
 
 @dataclass(frozen=True, eq=False)
@@ -209,6 +276,8 @@ class ReconstructionResult:
     fitted : FitResult
     stage_seconds : dict of str to float
         Wall time of each stage.
+    session_basis : SessionBasis or None
+        The session's shared PCA the take was fitted in (None: its own).
     """
 
     reconstruction: Reconstruction
@@ -220,6 +289,7 @@ class ReconstructionResult:
     bases: BasisResult
     fitted: FitResult
     stage_seconds: dict
+    session_basis: object = None
 
     @property
     def binding(self) -> Binding:
@@ -298,8 +368,11 @@ class ReconstructionResult:
             files += paths
         return files
 
-    def report(self, directory) -> list:
-        """Write the QA pictures, videos and ``<name>.html`` into `directory`; returns the paths."""
+    def report(self, directory, *, warnings=()) -> list:
+        """Write the QA pictures, videos and ``<name>.html`` into `directory`; returns the paths.
+
+        `warnings` (messages) are listed in a section of the page of their own.
+        """
         qa = Path(directory)
         qa.mkdir(parents=True, exist_ok=True)
         options = self.reconstruction.report
@@ -313,7 +386,8 @@ class ReconstructionResult:
                               pictures={"gaps: present, missing, filled by method": files[0],
                                         "head-marker residuals": files[1]},
                               video_step=options.video_step, n_worst=options.n_worst,
-                              exaggerate=options.exaggerate, name=self.name).values()
+                              exaggerate=options.exaggerate, name=self.name,
+                              warnings=warnings).values()
         return files
 
     def summary(self) -> dict:
@@ -330,6 +404,8 @@ class ReconstructionResult:
                 "binding_rms_mm": self.binding.rms,
                 "pca_components": self.bases.n_components,
                 "qe_missing_axes": self.bases.qe.missing_axes.tolist(),
+                "basis": {"scope": self.bases.scope,
+                          "pca_sha256": self.bases.pca.truncate(self.bases.n_components).sha256()},
                 "fit": {name: {"status": s.status, "message": s.message}
                         for name, s in self.fitted.solutions.items()},
                 "metrics": {name: finite(errors.summary()

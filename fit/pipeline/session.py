@@ -13,7 +13,6 @@ from __future__ import annotations
 import sys
 import time
 import traceback
-import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +30,8 @@ from fit.pipeline.manifest import (
     write_manifest,
 )
 from fit.pipeline.reconstruction import Reconstruction
+from fit.pipeline.session_basis import build_session_basis, session_input, uses_session_basis
+from fit.pipeline.take_warnings import capture_warnings, print_warnings
 from mocap.errors import InputError, Mocap2MeshError
 
 __all__ = ["RunOutcome", "process_take", "run_takes"]
@@ -54,46 +55,50 @@ class RunOutcome:
     n_skipped: int
 
 
-def process_take(capture, config: RunConfig) -> dict:
+def process_take(capture, config: RunConfig, session_basis=None) -> dict:
     """Run one take through the chain and write its folder; returns its manifest record.
 
     Files (relative to ``config.output``): ``<take>/`` with the exports of
     :meth:`~fit.pipeline.reconstruction.ReconstructionResult.save` and
     ``<take>/report/`` with the QA pictures, videos and ``<take>.html``.
+    `session_basis` (:class:`fit.pipeline.session_basis.SessionBasis`) is
+    the PCA shared by the session's takes (None: the take's own). The
+    warnings of the chain are in the record (``"warnings"``) and the report.
     """
     capture = Path(capture)
     start = time.perf_counter()
     out = config.output / capture.stem
-    result = Reconstruction.from_config(config).process(capture)
+    with capture_warnings() as caught:
+        result = Reconstruction.from_config(config).process(capture, session_basis=session_basis)
     stages = dict(result.stage_seconds)
     tic = time.perf_counter()
     files = result.save(out, inputs=[capture])
     stages["exports"] = time.perf_counter() - tic
     tic = time.perf_counter()
-    files += result.report(out / "report")
+    files += result.report(out / "report", warnings=caught)
     stages["report"] = time.perf_counter() - tic
     return {"status": "ok", "skipped": False, "error": None,
             "seconds": round(time.perf_counter() - start, 3),
             "stage_seconds": {k: round(v, 3) for k, v in stages.items()},
             **result.summary(),
-            "files": sorted(str(Path(f).relative_to(config.output)) for f in files)}
+            "files": sorted(str(Path(f).relative_to(config.output)) for f in files),
+            "warnings": list(caught)}
 
 
-def _guarded(capture: Path, config: RunConfig) -> dict:
+def _guarded(capture: Path, config: RunConfig, session_basis=None) -> dict:
     """:func:`process_take` that turns an exception into a failed record."""
     start = time.perf_counter()
     try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            record = process_take(capture, config)
-        record["warnings"] = sorted({str(w.message) for w in caught})
+        with capture_warnings(reemit=False) as caught:
+            record = process_take(capture, config, session_basis)
+        record["warnings"] = list(dict.fromkeys(record["warnings"] + caught))
         return record
     except Exception as exc:  # noqa: BLE001 - one take's failure must not stop the others
         expected = isinstance(exc, Mocap2MeshError)
         return {"status": "failed", "skipped": False,
                 "error": str(exc) if expected else f"{type(exc).__name__}: {exc}",
                 "traceback": None if expected else traceback.format_exc(),
-                "seconds": round(time.perf_counter() - start, 3)}
+                "seconds": round(time.perf_counter() - start, 3), "warnings": caught}
 def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = False,
               progress: bool | None = None) -> RunOutcome:
     """Run every take of `config` (skipping unchanged ones) and write ``manifest.json``.
@@ -120,10 +125,13 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
     previous = None if force else load_manifest(manifest_path)
     inputs = {role: {"path": str(p), "sha256": sha256_path(p)}
               for role, p in config.shared_inputs.items()}
+    digests = {capture: sha256_path(capture) for capture in config.captures}
+    if uses_session_basis(config):       # every take's basis depends on every capture
+        inputs["session"] = session_input(digests)
     parameters = config.parameters()
     takes, todo = {}, []
     for capture in config.captures:
-        digest = sha256_path(capture)
+        digest = digests[capture]
         key = take_key(digest, inputs, parameters)
         base = {"capture": {"path": str(capture), "sha256": digest}, "key": key}
         old = reusable_record(previous, capture.stem, key, config.output)
@@ -132,16 +140,25 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
         else:
             takes[capture.stem] = base
             todo.append(capture)
+    shared = None
+    session_record = (previous or {}).get("session_basis")
+    if todo and uses_session_basis(config):
+        shared, unprepared = build_session_basis(config, workers=workers, progress=progress)
+        session_record = None if shared is None else shared.record()
+        for capture in [c for c in todo if c.stem in unprepared]:
+            todo.remove(capture)
+            _collect(takes, capture, {"status": "failed", "skipped": False,
+                                      "error": unprepared[capture.stem]}, None)
     with tqdm(total=len(config.captures), initial=len(config.captures) - len(todo),
               desc="takes", unit="take", disable=None if progress is None else not progress,
               file=sys.stderr) as bar:
         if workers == 1 or len(todo) <= 1:
-            results = ((c, _guarded(c, config)) for c in todo)
+            results = ((c, _guarded(c, config, shared)) for c in todo)
             for capture, record in results:
                 _collect(takes, capture, record, bar)
         else:
             with ProcessPoolExecutor(max_workers=min(workers, len(todo))) as pool:
-                futures = {pool.submit(_guarded, c, config): c for c in todo}
+                futures = {pool.submit(_guarded, c, config, shared): c for c in todo}
                 for future in as_completed(futures):
                     try:
                         record = future.result()
@@ -151,7 +168,8 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
                     _collect(takes, futures[future], record, bar)
     write_manifest(manifest_path, config=config.path, versions=package_versions(),
                    parameters=parameters, inputs=inputs,
-                   takes={c.stem: takes[c.stem] for c in config.captures})
+                   takes={c.stem: takes[c.stem] for c in config.captures},
+                   session_basis=session_record if uses_session_basis(config) else None)
     failed = sum(t["status"] == "failed" for t in takes.values())
     skipped = sum(bool(t.get("skipped")) for t in takes.values())
     return RunOutcome(manifest=manifest_path, takes=takes, n_failed=failed, n_skipped=skipped)
@@ -159,9 +177,11 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
 
 def _collect(takes: dict, capture: Path, record: dict, bar) -> None:
     takes[capture.stem] = {**takes[capture.stem], **record}
+    print_warnings(capture.stem, record.get("warnings", ()))
     if record["status"] == "failed":
         tqdm.write(f"mocap2mesh run: take {capture.stem} ({capture}) failed: {record['error']}",
                    file=sys.stderr)
-    bar.update()
+    if bar is not None:
+        bar.update()
 
 

@@ -24,7 +24,7 @@ __all__ = ["build_report"]
 def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=None,
                  origin=None, pca=None, ingest=None, pictures=None, video: bool = False,
                  video_step: int = 1, n_worst: int = 5, exaggerate: float = 1.0,
-                 name: str | None = None) -> dict:
+                 name: str | None = None, warnings=()) -> dict:
     """Metrics, figures, (video) and the HTML report of one take.
 
     Parameters
@@ -61,6 +61,8 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         Error vectors drawn this many times longer in views and video.
     name : str, optional
         File stem and title; default the take's file stem or ``"take"``.
+    warnings : sequence of str
+        Warnings of the run of the take, listed in a section of their own.
 
     Returns
     -------
@@ -117,6 +119,7 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
     write_report(files["html"], results, images, title=f"Reconstruction QA: {name}",
                  first_frame=take.first_frame, worst=worst, markerset=markerset,
                  ingest=ingest_stats(ingest) if ingest is not None else None,
+                 warnings=warnings,
                  notes=f"{take.n_frames} frames at {take.rate:g} Hz, "
                        f"{len(first.labels)} markers, bases: {', '.join(results)}.")
     return files

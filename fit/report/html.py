@@ -17,6 +17,7 @@ from typing import Mapping
 import numpy as np
 
 from fit.metrics import ReconstructionErrors
+from fit.report.warning_list import warnings_section
 from mocap.errors import InputError
 from mocap.util.atomic import atomic_path
 
@@ -88,7 +89,7 @@ def ingest_stats(result) -> dict:
 
 def render_report(results, images: Mapping, *, title: str, first_frame: int = 0,
                   worst: Mapping | None = None, markerset=None,
-                  ingest: Mapping | None = None, notes: str = "") -> str:
+                  ingest: Mapping | None = None, notes: str = "", warnings=()) -> str:
     """The report page as a string.
 
     Parameters
@@ -108,6 +109,9 @@ def render_report(results, images: Mapping, *, title: str, first_frame: int = 0,
         Ingestion figures (see :func:`ingest_stats`).
     notes : str
         A paragraph of text under the title (escaped).
+    warnings : sequence of str
+        Warnings of the run, in a section of their own under the summary
+        (:func:`fit.report.warning_list.warnings_section`).
     """
     if isinstance(results, ReconstructionErrors):
         results = [results]
@@ -125,6 +129,7 @@ def render_report(results, images: Mapping, *, title: str, first_frame: int = 0,
                         [[name, *(r.totals[k] + (first_frame if k == "worst_frame" else 0)
                                   for k in _SUMMARY_COLUMNS)]
                          for name, r in results.items()], table_id="summary"))
+    parts.append(warnings_section(warnings))
     if ingest:
         parts.append("<h2>Ingestion</h2>")
         parts.append(_table(["quantity", "value"], list(ingest.items()), table_id="ingest"))
