@@ -9,13 +9,17 @@ import shutil
 
 import numpy as np
 import pytest
+from helpers import play_gltf
+from tolerances import FLOAT32_REL, GLB_PLAYED_MM
 
 import mocap
 from fit.cli.main import main
 from fit.demo import demo_config_toml, make_demo_session
+from fit.exports import read_mesh_sequence
 from fit.pipeline import BASES
 from fit.pipeline.config import load_run_config
 from fit.pipeline.session import run_takes
+from mocap.bind import load_binding
 from mocap.errors import FileFormatError, InputError
 
 PER_BASIS = ("basis-{}.npz", "weights-{}.csv", "mesh-{}.npz", "face-{}.glb")
@@ -82,6 +86,32 @@ def test_outputs_read_back(session_root, first_run):
     with np.load(out / "mesh-PCA.npz") as z:
         assert z["weights"].shape[0] == take.n_frames
         np.testing.assert_array_equal(z["weights"][:, 0], 1.0)
+
+
+@pytest.mark.parametrize("basis", BASES)
+def test_glb_plays_the_mesh_where_the_head_was(session_root, first_run, basis):
+    """face-B.glb played as a viewer does (weights clamped to [0, 1]) is the mesh sequence
+    we computed, moved as the stabilization says the head moved: each vertex taken to the
+    capture's head frame, moved by R(t), t(t) of head_motion.npz, taken back to the mesh;
+    keys on the capture's frame numbers."""
+    out = session_root / "results" / "capture"
+    played = play_gltf(out / f"face-{basis}.glb")
+    sequence = read_mesh_sequence(out / f"mesh-{basis}.npz")
+    binding = load_binding(out / "binding.json")
+    head = np.load(out / "head_motion.npz")
+    start = sequence.first_frame - mocap.read(session_root / "session" / "capture.c3d").first_frame
+    rotation = head["rotation"][start:start + sequence.n_frames]
+    translation = head["translation"][start:start + sequence.n_frames]
+    ours = sequence.vertices()                                      # mm, head frame
+    in_head = binding.to_capture(ours.reshape(-1, 3)).reshape(ours.shape)
+    moved = np.einsum("tij,tvj->tvi", rotation, in_head) + translation[:, None]
+    want = binding.to_mesh(moved.reshape(-1, 3)).reshape(moved.shape)
+    np.testing.assert_allclose(played["vertices"] * 1000.0, want, rtol=0, atol=GLB_PLAYED_MM)
+    np.testing.assert_allclose(sequence.placed_vertices(), want, rtol=0, atol=GLB_PLAYED_MM)
+    assert np.abs(want - ours).max() > 5.0                           # the head does move
+    np.testing.assert_allclose(played["times"] * sequence.rate,
+                               sequence.first_frame + np.arange(sequence.n_frames),
+                               rtol=FLOAT32_REL)
 
 
 def test_broken_take_is_reported_and_others_finish(first_run, capsys):

@@ -420,3 +420,7 @@ MASKLE_SIMILAR_HITS = 0.01
 MASKLE_SIMILAR_WEIGHTS = 1e-3
 #: The mouth side (1 upper lip, 0 lower) at the lip landmarks.
 MOUTH_SIDE_AT_LANDMARK = 0.05
+
+#: A glTF export played back (float32 targets and motion, shapes scaled up to their
+#: largest weight, tens of mm of head motion) against the float64 sequence, mm.
+GLB_PLAYED_MM = 1e-3

@@ -33,6 +33,7 @@ from basis.artist import ArtistBasis
 from basis.basis_io import load_any_basis, save_basis
 from basis.gltf import write_gltf
 from fit.exports import MeshSequence, weights_frame, write_mesh_sequence, write_weights_csv
+from fit.gestures.transfer import head_motion_on_mesh
 from fit.metrics import reconstruction_errors
 from fit.pipeline.config import STAGE_TABLES, RunConfig, load_run_config, stage_options
 from fit.pipeline.options import BasisOptions, BindOptions, FitOptions, ReportOptions
@@ -251,6 +252,24 @@ class ReconstructionResult:
                                             name=name)
                 for name, rec in self.fitted.reconstructed.items()}
 
+    @cached_property
+    def head_motion(self) -> tuple:
+        """The head motion of the take as a rigid motion of the mesh, one per frame.
+
+        Returns
+        -------
+        rotation : ndarray of shape (T, 3, 3)
+        translation : ndarray of shape (T, 3), mesh units
+            Frame t of a mesh sequence is placed at ``rotation[t] @ v + translation[t]``
+            (:func:`fit.gestures.transfer.head_motion_on_mesh` of the stabilization's
+            R(t), t(t) over the take's frames).
+        """
+        stab = self.ingested.stabilization
+        start = self.take.first_frame - stab.take.first_frame
+        frames = slice(start, start + self.take.n_frames)
+        return head_motion_on_mesh(self.binding, stab.rotation[frames],
+                                   stab.translation[frames])
+
     def meshes(self, basis: str) -> MeshSequence:
         """The mesh sequence of one basis, evaluated frame by frame on demand.
 
@@ -265,16 +284,18 @@ class ReconstructionResult:
                             displacements=named.displacements,
                             weights=np.array(self.fitted.weights[basis]), materialized=None,
                             names=named.names, units=mesh.units, rate=self.take.rate,
-                            first_frame=self.take.first_frame)
+                            first_frame=self.take.first_frame, rotation=self.head_motion[0],
+                            translation=self.head_motion[1])
 
     def save(self, directory, *, inputs=()) -> list:
         """Write the take's exports into `directory` (created); returns the paths.
 
         ``take.c3d`` (cleaned, head-stabilized), ``head_motion.npz``,
         ``binding.json``, and per basis B: ``basis-B.npz``, ``weights-B.csv``,
-        ``mesh-B.npz`` (compact sequence), ``face-B.glb`` (morph targets, weight
-        animation at the take's rate). Every file atomically; none over one of
-        `inputs`.
+        ``mesh-B.npz`` (compact sequence with the head motion), ``face-B.glb``
+        (morph targets, weight animation at the take's rate keyed on the
+        capture's frame numbers, the head motion as the node's rotation and
+        translation). Every file atomically; none over one of `inputs`.
         """
         out = Path(directory)
         out.mkdir(parents=True, exist_ok=True)
@@ -284,6 +305,7 @@ class ReconstructionResult:
         save_head_motion(self.ingested.stabilization, files[1], inputs=inputs)
         self.binding.save(files[2])
         timing = dict(rate=take.rate, first_frame=take.first_frame)
+        rotation, translation = self.head_motion
         for name, basis in self.bases.bases.items():
             weights = self.fitted.weights[name]
             paths = [out / f"basis-{name}.npz", out / f"weights-{name}.csv",
@@ -292,9 +314,11 @@ class ReconstructionResult:
                        dtype="float32", inputs=inputs)
             write_weights_csv(paths[1], weights, basis.names, inputs=inputs, **timing)
             write_mesh_sequence(paths[2], mesh, basis.displacements, weights,
-                                names=basis.names, inputs=inputs, **timing)
+                                names=basis.names, rotation=rotation, translation=translation,
+                                inputs=inputs, **timing)
             write_gltf(paths[3], mesh, basis.displacements, basis.names, weights=weights,
-                       rate=take.rate, name=f"{self.name}-{name}", inputs=inputs)
+                       rotation=rotation, translation=translation,
+                       name=f"{self.name}-{name}", inputs=inputs, **timing)
             files += paths
         return files
 

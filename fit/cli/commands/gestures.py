@@ -261,8 +261,6 @@ def _write_face(out: Path, syn, basis, binding, *, support, inputs) -> None:
         fields = np.concatenate([fields, extra])
         names = names + extra_names
         weights = np.concatenate([weights, transfer.weights(syn.details)], axis=1)
-    write_mesh_sequence(out / "mesh.npz", basis.neutral, fields, weights, names=names,
-                        rate=syn.rate, inputs=inputs)
     motion = {}
     if syn.head_rotation is not None and binding is None:
         warnings.warn("the head motion is in head.npz only: --binding places it on the mesh "
@@ -271,5 +269,8 @@ def _write_face(out: Path, syn, basis, binding, *, support, inputs) -> None:
         rotation, translation = head_motion_on_mesh(binding, syn.head_rotation,
                                                     syn.head_translation)
         motion = {"rotation": rotation, "translation": translation}
+    # frame numbers from 1, as weights.csv
+    write_mesh_sequence(out / "mesh.npz", basis.neutral, fields, weights, names=names,
+                        rate=syn.rate, first_frame=1, inputs=inputs, **motion)
     write_gltf(out / "gestures.glb", basis.neutral, fields, names, weights=weights,
-               rate=syn.rate, inputs=inputs, **motion)
+               rate=syn.rate, first_frame=1, inputs=inputs, **motion)
