@@ -19,7 +19,9 @@ BLENDER_STAMP := $(BLENDER_VENV)/.installed-stamp
 BPY_VERSION ?= 4.2.23
 GLB ?= $(DEMO_DIR)
 
-.PHONY: test demo bench env clean blender-check
+ICT_TAKE ?= bench/out/ict-take
+
+.PHONY: test demo bench env clean blender-check blender-check-ict
 
 env: $(STAMP)
 
@@ -44,11 +46,17 @@ $(BLENDER_STAMP):
 	$(BLENDER_VENV)/bin/python -m pip install --quiet 'bpy==$(BPY_VERSION)'
 	touch $(BLENDER_STAMP)
 
-# Checks every .glb under GLB (default: the demo's outputs, made if absent).
+# Opens every .glb under GLB (default: the demo's outputs, made if absent) in
+# Blender and compares the mesh it evaluates at every frame with ours.
 blender-check: $(STAMP) $(BLENDER_STAMP)
 	@if [ -z "$$(find $(GLB) -name '*.glb' 2>/dev/null | head -n 1)" ]; then \
 	    $(VENV)/bin/mocap2mesh demo -o $(DEMO_DIR); fi
 	$(BLENDER_VENV)/bin/python bench/blender_check.py $(GLB)
+
+# The same on a 9,409-vertex ICT take (needs ../shared/data), made by bench/ict_take.py.
+blender-check-ict: $(STAMP) $(BLENDER_STAMP)
+	$(PY) bench/ict_take.py $(ICT_TAKE)
+	$(BLENDER_VENV)/bin/python bench/blender_check.py $(ICT_TAKE)/results
 
 clean:
 	rm -rf $(VENV) $(BLENDER_VENV) $(DEMO_DIR) bench/out .pytest_cache

@@ -1,9 +1,13 @@
-"""MP4 overlay of captured (red) vs reconstructed (blue) markers over a take,
-front view with error vectors, drawn with OpenCV."""
+"""Overlay video of captured (red) vs reconstructed (blue) markers over a take,
+front view with error vectors, drawn and encoded with OpenCV: VP9 in WebM, which
+browsers play (Chromium, Firefox; the report embeds it in a ``<video>``)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
+import tempfile
 
 import cv2
 import numpy as np
@@ -13,7 +17,12 @@ from mocap.errors import InputError
 from mocap.util.atomic import atomic_path
 from mocap.util.validation import as_int, as_positions, as_positive_float
 
-__all__ = ["write_overlay_video"]
+__all__ = ["VIDEO_SUFFIX", "VIDEO_MIME", "write_overlay_video"]
+
+#: The container of the overlay videos, and its MIME type with the codec.
+VIDEO_SUFFIX = ".webm"
+VIDEO_MIME = 'video/webm; codecs="vp9"'
+_FOURCC = "VP90"
 
 # BGR colours.
 _RED = (40, 39, 214)
@@ -29,19 +38,41 @@ def _project(points: np.ndarray, axes: np.ndarray, scale: float, shift: np.ndarr
     return np.nan_to_num(px, nan=-1e6).round().astype(np.int32)
 
 
+@contextlib.contextmanager
+def _stderr_captured():
+    """Capture what C code writes to file descriptor 2 (a list, filled on exit).
+
+    OpenCV's FFmpeg writer prints that the 'VP90' tag "is not supported with
+    codec id 167 and format webm" and then writes VP9 all the same (the tag is
+    only the container's codec label); that notice must not reach the user.
+    """
+    said: list = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield said
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            said.append(sink.read().decode("utf-8", "replace"))
+
+
 def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
                         labels=None, markerset=None, fps: float | None = None,
                         step: int = 1, size: tuple = (512, 512), exaggerate: float = 1.0,
                         first_frame: int = 0, radius: int = 5) -> int:
-    """Write an MP4 of the take: captured and reconstructed markers, error vectors,
-    frame counter and per-frame RMS.
+    """Write a VP9 WebM video of the take: captured and reconstructed markers, error
+    vectors, the capture's frame number and the per-frame RMS.
 
     Parameters
     ----------
     captured, reconstructed : array_like, shape (T, M, 3), mm
         Head-stabilized positions, NaN where missing (not drawn, not counted).
     path : str or os.PathLike
-        Output ``.mp4`` (written atomically; codec ``mp4v``).
+        Output ``.webm`` (written atomically; VP9).
     neutral : array_like, shape (M, 3), mm
         Rest positions, drawn in grey; orient the front view (:func:`views.view_axes`).
     rate : float
@@ -72,13 +103,16 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     Raises
     ------
     InputError
-        Bad shapes or options, or OpenCV cannot open a writer for `path`.
+        Bad shapes or options, a suffix other than ``.webm``, or OpenCV cannot
+        open a VP9 writer for `path`.
     """
     captured = as_positions(captured, "captured")
     reconstructed = as_positions(reconstructed, "reconstructed")
     if reconstructed.shape != captured.shape:
         raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
                          f"got {reconstructed.shape}")
+    if os.path.splitext(os.fspath(path))[1].lower() != VIDEO_SUFFIX:
+        raise InputError(f"{path}: the overlay video is VP9 in WebM: name it *{VIDEO_SUFFIX}")
     rate = as_positive_float(rate, "rate")
     step = as_int(step, "step", minimum=1)
     fps = rate / step if fps is None else as_positive_float(fps, "fps")
@@ -128,12 +162,14 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     texts = [f"frame {i + first_frame}  t = {i / rate:.2f} s  RMS {r:.2f} mm"
              for i, r in zip(index, rms)]
     with atomic_path(path) as tmp:
-        video_tmp = tmp.with_name(tmp.name + ".mp4")   # OpenCV picks the container by suffix
+        video_tmp = tmp.with_name(tmp.name + VIDEO_SUFFIX)   # OpenCV: container by suffix
         try:
-            writer = cv2.VideoWriter(os.fspath(video_tmp), cv2.VideoWriter_fourcc(*"mp4v"),
-                                     fps, (width, height))
+            with _stderr_captured() as said:
+                writer = cv2.VideoWriter(os.fspath(video_tmp), cv2.VideoWriter_fourcc(*_FOURCC),
+                                         fps, (width, height))
             if not writer.isOpened():
-                raise InputError(f"{path}: cannot write: OpenCV has no mp4v writer for it")
+                raise InputError(f"{path}: cannot write: OpenCV has no VP9 (WebM) writer"
+                                 + (f" ({said[0].strip()})" if said and said[0].strip() else ""))
             try:
                 for k in range(len(cap)):
                     np.copyto(img, background)
