@@ -71,6 +71,10 @@ def test_every_promised_file_is_written(session_root, first_run):
         assert set(record["metrics"]) == set(BASES)
         assert all(record["metrics"][b]["smoothness"] == 0.0 for b in BASES)  # none asked
         assert record["frames"]["neutral_window"] == 1         # bind.frame "auto": one frame
+        first, count = record["frames"]["first"], record["frames"]["count"]
+        for b in BASES:      # the capture's frame numbers, as the report's worst-frame table
+            worst = record["metrics"][b]["worst_frame"]
+            assert first <= worst < first + count
         html = (out / take / "report" / f"{take}.html").read_text()
         for picture in ("gaps.png", "head_residuals.png"):       # ingestion QA embedded
             encoded = base64.b64encode((out / take / "report" / picture).read_bytes())

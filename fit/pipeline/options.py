@@ -40,7 +40,7 @@ class BindOptions:
     Attributes
     ----------
     frame : int, "auto" or "hold"
-        Neutral frame index (0-based), ``"auto"`` (the frame nearest the median
+        Neutral frame, the capture's own frame number, ``"auto"`` (the frame nearest the median
         pose) or ``"hold"`` (the take starts with a neutral hold): see
         :func:`mocap.neutral.pick_neutral_frame`. With "hold" the rest pose is
         the mean of the hold's window around that frame.
@@ -57,7 +57,7 @@ class BindOptions:
     def __post_init__(self):
         if isinstance(self.frame, str):
             if self.frame not in PICKED_FRAMES:
-                raise InputError(f"frame must be a frame index, 'auto' or 'hold', "
+                raise InputError(f"frame must be a frame number, 'auto' or 'hold', "
                                  f"got {self.frame!r}")
         else:
             as_int(self.frame, "frame", minimum=0)

@@ -357,5 +357,7 @@ class ReconstructionResult:
                 "fit": {name: {"status": s.status, "message": s.message}
                         for name, s in self.fitted.solutions.items()},
                 "metrics": {name: finite(errors.summary()
-                                         | {"smoothness": self.fitted.solutions[name].smoothness})
+                                         | {"worst_frame": take.first_frame
+                                            + errors.summary()["worst_frame"],
+                                            "smoothness": self.fitted.solutions[name].smoothness})
                             for name, errors in self.errors.items()}}
