@@ -21,7 +21,9 @@ GLB ?= $(DEMO_DIR)
 
 ICT_TAKE ?= bench/out/ict-take
 
-.PHONY: test demo bench env clean blender-check blender-check-ict
+REPORT ?= $(DEMO_DIR)/results
+
+.PHONY: test demo bench env clean blender-check blender-check-ict report-check
 
 env: $(STAMP)
 
@@ -57,6 +59,16 @@ blender-check: $(STAMP) $(BLENDER_STAMP)
 blender-check-ict: $(STAMP) $(BLENDER_STAMP)
 	$(PY) bench/ict_take.py $(ICT_TAKE)
 	$(BLENDER_VENV)/bin/python bench/blender_check.py $(ICT_TAKE)/results
+
+# Opens every report under REPORT (default: the demo's, made if absent) in a real
+# headless Chromium (Debian's package, installed here): no console error, every
+# <video> has a duration and plays; writes a full-page screenshot beside each.
+report-check: $(STAMP)
+	@command -v chromium > /dev/null || { apt-get update -qq && \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium > /dev/null; }
+	@if [ -z "$$(find $(REPORT) -name '*.html' 2>/dev/null | head -n 1)" ]; then \
+	    $(VENV)/bin/mocap2mesh demo -o $(DEMO_DIR); fi
+	$(PY) bench/report_check.py $(REPORT)
 
 clean:
 	rm -rf $(VENV) $(BLENDER_VENV) $(DEMO_DIR) bench/out .pytest_cache

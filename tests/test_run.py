@@ -25,15 +25,15 @@ from mocap.errors import FileFormatError, InputError
 PER_BASIS = ("basis-{}.npz", "weights-{}.csv", "mesh-{}.npz", "face-{}.glb")
 PER_TAKE = ("take.c3d", "head_motion.npz", "binding.json", "report/gaps.png",
             "report/head_residuals.png", "report/{take}.html", "report/{take}-alpha.png",
-            "report/{take}-coverage.png")
-REPORT_PER_BASIS = ("heatmap", "markers", "views")
+            "report/{take}-coverage.png", "report/{take}-held-out.png", "report/{take}-mesh-WD.png")
+REPORT_PER_BASIS = ("heatmap", "markers", "views", "mesh")
 
 
 def _config(root, captures, *, extra=""):
     text = demo_config_toml().replace('captures = ["session/capture.c3d"]',
                                       "captures = [" + ", ".join(f'"{c}"' for c in captures)
                                       + "]")
-    text = text.replace("video_step = 2", "video_step = 12")
+    text = text.replace("video_step = 4", "video_step = 12")
     path = root / "run.toml"
     path.write_text(text + extra, encoding="utf-8")
     return path
@@ -64,7 +64,7 @@ def test_every_promised_file_is_written(session_root, first_run):
         expected = [f.format(take=take) for f in PER_TAKE]
         expected += [f.format(b) for b in BASES for f in PER_BASIS]
         expected += [f"report/{take}-{kind}-{b}.png" for b in BASES for kind in REPORT_PER_BASIS]
-        expected += [f"report/{take}-video-{b}.mp4" for b in BASES]
+        expected.append(f"report/{take}-video.webm")
         for name in expected:
             assert (out / take / name).is_file(), name
             assert f"{take}/{name}" in record["files"]
@@ -180,7 +180,7 @@ def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     (tmp_path / "out" / "a" / "out.txt").unlink()          # a missing output: redo
     run_takes(config, workers=1, progress=False)
     assert calls[3:] == ["a.c3d"]
-    path.write_text(path.read_text().replace("video_step = 2", "video_step = 3"))
+    path.write_text(path.read_text().replace("video_step = 4", "video_step = 3"))
     run_takes(load_run_config(path), workers=1, progress=False)   # a parameter changed
     assert sorted(calls[4:]) == ["a.c3d", "b.c3d"]
 

@@ -47,7 +47,11 @@ from fit.pipeline.stages import (
     ingest_stage,
     retarget_stage,
 )
+from fit.pipeline.holdout import HeldOut, held_out_fits, time_blocked_splits
+from fit.pipeline.provenance import stage_grades, take_provenance
 from fit.report import build_report
+from fit.report.html import Figure
+from fit.report.mesh_views import MeshSpace
 from fit.report.ingest_plots import plot_gaps, plot_head_residuals
 from mocap.bind import Binding, BoundTake
 from mocap.clean.ingest import IngestOptions, IngestResult, save_head_motion
@@ -57,6 +61,7 @@ from mocap.mesh import Mesh, load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
+from mocap.units import mm_per_unit
 
 __all__ = ["Reconstruction", "ReconstructionResult"]
 
@@ -322,8 +327,41 @@ class ReconstructionResult:
             files += paths
         return files
 
-    def report(self, directory) -> list:
-        """Write the QA pictures, videos and ``<name>.html`` into `directory`; returns the paths."""
+    def held_out(self) -> HeldOut | None:
+        """Out-of-sample reconstructions of QE and PCA (time-blocked folds of the take), or
+        None when ``report.held_out_folds`` is 0 or the take is too short for them."""
+        options = self.reconstruction.report
+        guard = int(round(options.held_out_guard_s * self.take.rate))
+        folds = options.held_out_folds
+        if folds == 0 or self.take.n_frames < folds * (1 + 2 * guard):
+            return None
+        splits = time_blocked_splits(self.take.n_frames, folds, guard=guard)
+        label = (f"{folds} time-blocked folds, each block of ~{self.take.n_frames // folds} "
+                 f"frames reconstructed by QE and PCA built from the rest of the take less "
+                 f"{options.held_out_guard_s:g} s on either side")
+        return held_out_fits(self.take, self.bound, self.retargeted, self.reconstruction.basis,
+                             splits=splits, label=label,
+                             basis_options=self.reconstruction.basis_options,
+                             fit_options=self.reconstruction.fit)
+
+    def mesh_space(self) -> MeshSpace:
+        """What the report's mesh renders need (the bases, their weights, W and D)."""
+        mesh = self.reconstruction.mesh
+        return MeshSpace(faces=mesh.faces, neutral=mesh.vertices,
+                         mm_per_unit=(mm_per_unit(mesh.units) if mesh.units
+                                      else 1.0 / self.binding.scale),
+                         bases={n: (b.displacements, self.fitted.weights[n])
+                                for n, b in self.bases.bases.items()},
+                         operator=np.asarray(self.retargeted.operator.matrix),
+                         displacements=self.retargeted.displacements,
+                         to_mesh=self.binding.to_mesh)
+
+    def report(self, directory, *, inputs=None) -> list:
+        """Write the QA pictures, videos and ``<name>.html`` into `directory`; returns the paths.
+
+        `inputs` (role to path) are hashed into the report's provenance (default
+        the capture, the mesh and the marker set).
+        """
         qa = Path(directory)
         qa.mkdir(parents=True, exist_ok=True)
         options = self.reconstruction.report
@@ -331,13 +369,24 @@ class ReconstructionResult:
         plot_gaps(self.ingested.cleaned, qa / "gaps.png")
         plot_head_residuals(self.ingested.stabilization, qa / "head_residuals.png")
         files = [qa / "gaps.png", qa / "head_residuals.png"]
-        files += build_report(face, self.fitted.reconstructed, self.bound.neutral_pose(face.positions),
-                              qa, markerset=self.reconstruction.markerset, pca=self.bases.pca,
-                              ingest=self.ingested, video=options.video,
-                              pictures={"gaps: present, missing, filled by method": files[0],
-                                        "head-marker residuals": files[1]},
+        pictures = {
+            "gaps": Figure(files[0], "Gaps: present, missing, filled by method",
+                           "One row per marker over time: grey present, black still missing, "
+                           "coloured where a gap was filled (by the method in the legend)."),
+            "head": Figure(files[1], "Head-marker residuals",
+                           "Distance of each head marker from its place on the rigidly fitted "
+                           "head; shaded spans are slips, numbered as in the provenance's slip "
+                           "table. Residuals near the noise level mean a clean stabilization.")}
+        files += build_report(face, self.fitted.reconstructed,
+                              self.bound.neutral_pose(face.positions), qa,
+                              markerset=self.reconstruction.markerset, pca=self.bases.pca,
+                              ingest=self.ingested, video=options.video, pictures=pictures,
                               video_step=options.video_step, n_worst=options.n_worst,
-                              exaggerate=options.exaggerate, name=self.name).values()
+                              exaggerate=options.exaggerate, name=self.name,
+                              provenance=take_provenance(self, inputs=inputs),
+                              grades=stage_grades(self), held_out=self.held_out(),
+                              mesh_space=self.mesh_space() if options.mesh_views else None
+                              ).values()
         return files
 
     def summary(self) -> dict:
