@@ -71,12 +71,17 @@ class DevTools:
         self.profile = tempfile.mkdtemp(prefix="report-check-")
         to_child_r, self._write = os.pipe()
         self._read, from_child_w = os.pipe()
-        # Chromium reads commands on fd 3 and writes replies on fd 4.
+        def as_fds_3_and_4():
+            # Chromium reads commands on fd 3 and writes replies on fd 4 (copies first:
+            # either pipe end may already be 3 or 4).
+            commands, replies = os.dup(to_child_r), os.dup(from_child_w)
+            os.dup2(commands, 3)
+            os.dup2(replies, 4)
+
         self.process = subprocess.Popen(
             [chromium, *FLAGS, f"--user-data-dir={self.profile}", f"--window-size={WIDTH},900"],
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            pass_fds=(to_child_r, from_child_w),
-            preexec_fn=lambda: (os.dup2(to_child_r, 3), os.dup2(from_child_w, 4)))
+            pass_fds=(3, 4), preexec_fn=as_fds_3_and_4)
         os.close(to_child_r)
         os.close(from_child_w)
         self._buffer, self._id, self.events = b"", 0, []

@@ -40,9 +40,9 @@ def _parameters(result) -> Table:
     rows = []
     for table in STAGE_TABLES:
         options = getattr(recon, "basis_options" if table == "basis" else table)
-        rows += [[f"{table}.{key}", str(value)]
-                 for key, value in dataclasses.asdict(options).items()]
-    return Table(("option", "value"), tuple(rows), "provenance-parameters")
+        rows.append([f"[{table}]", "; ".join(f"{key} = {value!r}" for key, value
+                                            in dataclasses.asdict(options).items())])
+    return Table(("run.toml table", "options"), tuple(rows), "provenance-parameters")
 
 
 def _slips(stab, first_frame: int) -> Table:

@@ -8,6 +8,7 @@ beside it draw each piece on its own. The page is a list of sections
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Mapping
 
@@ -123,6 +124,47 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         files[key] = out_dir / f"{name}-{key}{suffix}"
         return files[key]
 
+    # The video's VP9 encoding is the report's longest part and runs in OpenCV without the
+    # GIL: it goes on beside the figures.
+    encoder = ThreadPoolExecutor(max_workers=1)
+    encoding = None if not video else encoder.submit(
+        write_overlay_video, take.positions, reconstructions, out("video", VIDEO_SUFFIX),
+        neutral=neutral, rate=take.rate, labels=take.labels, markerset=markerset,
+        step=video_step, exaggerate=exaggerate, first_frame=number)
+    try:
+        page = _figures(take, neutral, results, worst, reconstructions, out, files, number,
+                        markerset=markerset, pca=pca, pictures=pictures, video=video,
+                        exaggerate=exaggerate, held_out=held_out, mesh_space=mesh_space,
+                        origin=origin)
+    finally:
+        if encoding is not None:
+            encoding.result()               # its error, if any, is the report's
+        encoder.shutdown()
+    held, page = page
+    page += list(sections)
+    graded = []
+    for basis, res in results.items():
+        graded += [(f"{basis}: marker RMS (mm)", "rms_mm", res.totals["rms_mm"]),
+                   (f"{basis}: 95th-percentile error (mm)", "p95_mm", res.totals["p95_mm"])]
+        if basis in held:
+            in_rms = res.totals["rms_mm"]
+            graded.append((f"{basis}: out-of-sample / in-sample RMS", "out_of_sample_ratio",
+                           held[basis].totals["rms_mm"] / in_rms if in_rms > 0 else np.nan))
+    files["html"] = out_dir / f"{name}.html"
+    write_report(files["html"], results, {}, title=f"Reconstruction QA: {name}",
+                 first_frame=number, worst=worst, markerset=markerset,
+                 ingest=ingest_stats(ingest) if ingest is not None else None,
+                 notes=f"{take.n_frames} frames at {take.rate:g} Hz (frames {number}–"
+                       f"{number + take.n_frames - 1}), {len(first.labels)} markers, bases: "
+                       f"{', '.join(results)}.",
+                 provenance=provenance, grades=[*grades, *graded], sections=page,
+                 held_out=held, held_out_label=held_out.label if held_out is not None else "")
+    return files
+
+
+def _figures(take, neutral, results, worst, reconstructions, out, files, number, *, markerset,
+             pca, pictures, video, exaggerate, held_out, mesh_space, origin):
+    """Every figure of the report, drawn once; returns (held-out errors, sections)."""
     page = []
     if pictures:
         page.append(Section("Ingestion and head stabilization", items=tuple(
@@ -158,10 +200,6 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
                    "(the error vectors); grey: the rest pose.")]
         page.append(Section(f"{basis}: marker-space errors", items=tuple(items)))
     if video:
-        write_overlay_video(take.positions, reconstructions, out("video", VIDEO_SUFFIX),
-                            neutral=neutral, rate=take.rate, labels=take.labels,
-                            markerset=markerset, step=video_step, exaggerate=exaggerate,
-                            first_frame=number)
         page.insert(2 if pictures else 1, Section("Overlay video", items=(Video(
             files["video"], "Captured vs reconstructed markers over the take",
             "One panel per basis, all on one scale, front view: captured (red) and "
@@ -191,25 +229,7 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
             files["coverage"], "PCA coverage",
             "The share of the take's mesh motion (variance of W·D) the first k components "
             "explain; the PCA and QE bases keep the k marked."),)))
-    page += list(sections)
-    graded = []
-    for basis, res in results.items():
-        graded += [(f"{basis}: marker RMS (mm)", "rms_mm", res.totals["rms_mm"]),
-                   (f"{basis}: 95th-percentile error (mm)", "p95_mm", res.totals["p95_mm"])]
-        if basis in held:
-            in_rms = res.totals["rms_mm"]
-            graded.append((f"{basis}: out-of-sample / in-sample RMS", "out_of_sample_ratio",
-                           held[basis].totals["rms_mm"] / in_rms if in_rms > 0 else np.nan))
-    files["html"] = out_dir / f"{name}.html"
-    write_report(files["html"], results, {}, title=f"Reconstruction QA: {name}",
-                 first_frame=number, worst=worst, markerset=markerset,
-                 ingest=ingest_stats(ingest) if ingest is not None else None,
-                 notes=f"{take.n_frames} frames at {take.rate:g} Hz (frames {number}–"
-                       f"{number + take.n_frames - 1}), {len(first.labels)} markers, bases: "
-                       f"{', '.join(results)}.",
-                 provenance=provenance, grades=[*grades, *graded], sections=page,
-                 held_out=held, held_out_label=held_out.label if held_out is not None else "")
-    return files
+    return held, page
 
 
 def _mesh_section(take, neutral, results, worst, space, markerset, out, files,

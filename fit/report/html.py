@@ -133,8 +133,9 @@ def _cell(value) -> str:
 
 def _table(header, rows, *, table_id: str) -> str:
     head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+    head = f"<thead><tr>{head}</tr></thead>" if any(header) else ""
     body = "".join("<tr>" + "".join(_cell(v) for v in row) + "</tr>" for row in rows)
-    return f'<table id="{table_id}"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
+    return f'<table id="{table_id}">{head}<tbody>{body}</tbody></table>'
 
 
 def _image(source) -> str:

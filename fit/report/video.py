@@ -64,7 +64,7 @@ def _stderr_captured():
 
 def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
                         labels=None, markerset=None, fps: float | None = None,
-                        step: int = 1, size: tuple = (320, 352), exaggerate: float = 1.0,
+                        step: int = 1, size: tuple = (288, 320), exaggerate: float = 1.0,
                         first_frame: int = 0, radius: int = 4) -> int:
     """Write a VP9 WebM video of the take: captured and reconstructed markers, error
     vectors, the capture's frame number and the per-frame RMS, one panel per basis.
