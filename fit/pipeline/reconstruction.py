@@ -331,14 +331,16 @@ class ReconstructionResult:
         """Out-of-sample reconstructions of QE and PCA (time-blocked folds of the take), or
         None when ``report.held_out_folds`` is 0 or the take is too short for them."""
         options = self.reconstruction.report
-        guard = int(round(options.held_out_guard_s * self.take.rate))
-        folds = options.held_out_folds
-        if folds == 0 or self.take.n_frames < folds * (1 + 2 * guard):
+        folds, n_frames = options.held_out_folds, self.take.n_frames
+        if folds == 0 or n_frames < 2 * folds:
             return None
-        splits = time_blocked_splits(self.take.n_frames, folds, guard=guard)
-        label = (f"{folds} time-blocked folds, each block of ~{self.take.n_frames // folds} "
-                 f"frames reconstructed by QE and PCA built from the rest of the take less "
-                 f"{options.held_out_guard_s:g} s on either side")
+        # a short take gets a shorter guard, so that every fold keeps training frames
+        guard = min(int(round(options.held_out_guard_s * self.take.rate)),
+                    n_frames // folds // 2)
+        splits = time_blocked_splits(n_frames, folds, guard=guard)
+        label = (f"{folds} time-blocked folds, each block of ~{n_frames // folds} frames "
+                 f"reconstructed by QE and PCA built from the rest of the take less "
+                 f"{guard} frames ({guard / self.take.rate:.2g} s) on either side")
         return held_out_fits(self.take, self.bound, self.retargeted, self.reconstruction.basis,
                              splits=splits, label=label,
                              basis_options=self.reconstruction.basis_options,
