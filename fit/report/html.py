@@ -59,12 +59,8 @@ class Figure:
 
 
 @dataclass(frozen=True)
-class Video:
+class Video(Figure):
     """A browser-playable video (VP9 WebM) embedded in a ``<video>`` element."""
-
-    source: object
-    caption: str
-    read: str = ""
 
 
 @dataclass(frozen=True)
@@ -305,7 +301,7 @@ def render_report(results, images: Mapping, *, title: str, first_frame: int = 0,
               "markers"]
     parts.append(_table(header, rows, table_id="worst"))
     if images:
-        items = tuple(v if isinstance(v, (Figure, Video)) else Figure(v, k)
+        items = tuple(v if isinstance(v, Figure) else Figure(v, k)
                       for k, v in images.items())
         sections = (Section("Figures", items=items), *sections)
     parts += [_section(section) for section in sections]
