@@ -3,6 +3,7 @@ per-marker errors by region."""
 
 from __future__ import annotations
 
+import textwrap
 from typing import Mapping
 
 import numpy as np
@@ -269,7 +270,8 @@ def plot_held_out(in_sample: dict, held_out: dict, path, *, label: str) -> None:
         ax.grid(axis="y", alpha=0.3)
     handles, texts = axes[0].get_legend_handles_labels()
     fig.legend(handles, texts, loc="outside lower center", ncol=2, fontsize=8, frameon=False)
-    fig.suptitle(f"In-sample vs out-of-sample ({label})", fontsize=9)
+    fig.suptitle("\n".join(textwrap.wrap(f"In-sample vs out-of-sample: {label}", 95)),
+                 fontsize=8)
     save_figure(fig, path)
 
 
