@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import importlib.util
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,6 +118,16 @@ def test_glb_plays_the_mesh_where_the_head_was(session_root, first_run, basis):
     np.testing.assert_allclose(played["times"] * sequence.rate,
                                sequence.first_frame + np.arange(sequence.n_frames),
                                rtol=FLOAT32_REL)
+    # make blender-check's reference (numpy only, beside Blender) is this mesh too
+    spec = importlib.util.spec_from_file_location(
+        "blender_check", Path(__file__).resolve().parents[1] / "bench" / "blender_check.py")
+    blender_check = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(blender_check)
+    glb = out / f"face-{basis}.glb"
+    assert blender_check.reference_for(glb) == out / f"mesh-{basis}.npz"
+    reference = blender_check.reference_mesh(out / f"mesh-{basis}.npz")
+    assert reference["first_frame"] == sequence.first_frame and reference["moving"]
+    np.testing.assert_allclose(reference["frames"], want, rtol=0, atol=GLB_PLAYED_MM)
 
 
 def test_broken_take_is_reported_and_others_finish(first_run, capsys):
