@@ -188,7 +188,7 @@ def check(path: Path, chromium: str) -> bool:
         version = tools.send("Browser.getVersion").get("product", "Chromium")
     finally:
         tools.close()
-    print(f"{path}: {version}, loaded in {loaded:.1f} s, page {WIDTH}x{height} px, "
+    print(f"{path}: {version}, loaded in {loaded:.1f} s, page {WIDTH}x{size['height']:.0f} px, "
           f"screenshot {picture.name}")
     ok = not issues
     print(f"  {'ok  ' if not issues else 'FAIL'} console errors, exceptions, failed loads: "
