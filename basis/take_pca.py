@@ -73,7 +73,8 @@ def pca_of_captures(paths, binding, neutral, markerset, *, fill: str = "auto",
         result = ingest(take, markerset=markerset,
                         options=IngestOptions(fill=fill, max_gap=max_gap, stabilize=True))
         retargeted = retarget(result.take, binding, neutral, markerset, options=options,
-                              neutral_frame=neutral_frame)
+                              neutral_frame=result.take.frame_index(neutral_frame,
+                                                                    "the neutral frame"))
         displacements.append(retargeted.displacements)
         operator = retargeted.operator.matrix if operator is None else operator
     return pca_from_operator(operator, np.concatenate(displacements))

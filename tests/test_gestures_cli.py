@@ -148,7 +148,9 @@ def _synthesize_and_check_the_glb(clip, bound_capture, out, wav):
     quat = read_gltf_accessor(gltf, samplers["rotation"].output).astype(float)
     move = read_gltf_accessor(gltf, samplers["translation"].output).astype(float) / 0.01  # m->cm
     times = read_gltf_accessor(gltf, samplers["rotation"].input)[:, 0]
-    np.testing.assert_allclose(times, np.arange(len(head["rotation"])) / RATE, rtol=FLOAT32_REL)
+    # keyed on frame numbers from 1, as weights.csv
+    np.testing.assert_allclose(times, (1 + np.arange(len(head["rotation"]))) / RATE,
+                               rtol=FLOAT32_REL)
     binding = load_binding(bound_capture["binding"])
     points = binding.marker_points(load_mesh(bound_capture["mesh"], units="cm").vertices)
     played = Rotation.from_quat(quat[:, None]).apply(points[None]) + move[:, None]

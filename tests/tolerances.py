@@ -442,3 +442,7 @@ LIP_OPEN_MM = 3.0
 #: The synthesized mesh read back from mesh.npz (float32) against the blend computed
 #: here in float64, cm.
 TALKING_MESH_CM = 1e-5
+
+#: A glTF export played back (float32 targets and motion, shapes scaled up to their
+#: largest weight, tens of mm of head motion) against the float64 sequence, mm.
+GLB_PLAYED_MM = 1e-3

@@ -53,7 +53,7 @@ space = "marker"
 
 [report]
 video = true
-video_step = 2
+video_step = 4
 """
 
 

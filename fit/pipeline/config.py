@@ -24,7 +24,8 @@ stage with the same name)::
                 #   missing_eps, scope ("session": one PCA/QE for all takes, or "take")
     [fit]       # fit.pipeline.stages.FitOptions: space, h_epsilon, smoothness, moving_average,
                 #   h_solver, n_samples, n_neighbors, marker_centres
-    [report]    # ReportOptions: video, video_step, n_worst, exaggerate
+    [report]    # ReportOptions: video, video_step, n_worst, exaggerate, held_out_folds,
+                #   held_out_guard_s, mesh_views
 
 Every error names the file and the key at fault (``run.toml: fit.space: ...``).
 """

@@ -43,7 +43,7 @@ class BindOptions:
     Attributes
     ----------
     frame : int, "auto" or "hold"
-        Neutral frame index (0-based), ``"auto"`` (the frame nearest the median
+        Neutral frame, the capture's own frame number, ``"auto"`` (the frame nearest the median
         pose) or ``"hold"`` (the take starts with a neutral hold): see
         :func:`mocap.neutral.pick_neutral_frame`. With "hold" the rest pose is
         the mean of the hold's window around that frame.
@@ -60,7 +60,7 @@ class BindOptions:
     def __post_init__(self):
         if isinstance(self.frame, str):
             if self.frame not in PICKED_FRAMES:
-                raise InputError(f"frame must be a frame index, 'auto' or 'hold', "
+                raise InputError(f"frame must be a frame number, 'auto' or 'hold', "
                                  f"got {self.frame!r}")
         else:
             as_int(self.frame, "frame", minimum=0)
@@ -186,12 +186,23 @@ class ReportOptions:
         Worst frames shown and listed.
     exaggerate : float
         Error vectors drawn this many times longer.
+    held_out_folds : int
+        Time-blocked folds of the out-of-sample QE and PCA errors
+        (:func:`fit.pipeline.holdout.time_blocked_splits`); 0: none.
+    held_out_guard_s : float
+        Seconds on each side of a test block left out of its training frames.
+    mesh_views : bool
+        Shaded renders of every basis's mesh and of W·D at the worst frames
+        and the take's extremes.
     """
 
     video: bool = True
     video_step: int = 1
     n_worst: int = 5
     exaggerate: float = 1.0
+    held_out_folds: int = 5
+    held_out_guard_s: float = 0.5
+    mesh_views: bool = True
 
     def __post_init__(self):
         if not isinstance(self.video, bool):
@@ -199,3 +210,11 @@ class ReportOptions:
         as_int(self.video_step, "video_step", minimum=1)
         as_int(self.n_worst, "n_worst", minimum=1)
         as_positive_float(self.exaggerate, "exaggerate")
+        folds = as_int(self.held_out_folds, "held_out_folds", minimum=0)
+        if folds == 1:
+            raise InputError("held_out_folds must be 0 (none) or at least 2")
+        if not np.isfinite(self.held_out_guard_s) or self.held_out_guard_s < 0:
+            raise InputError(f"held_out_guard_s must be a finite number >= 0, got "
+                             f"{self.held_out_guard_s!r}")
+        if not isinstance(self.mesh_views, bool):
+            raise InputError(f"mesh_views must be true or false, got {self.mesh_views!r}")

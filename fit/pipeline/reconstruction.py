@@ -33,6 +33,7 @@ from basis.artist import ArtistBasis
 from basis.basis_io import load_any_basis, save_basis
 from basis.gltf import write_gltf
 from fit.exports import MeshSequence, weights_frame, write_mesh_sequence, write_weights_csv
+from fit.gestures.transfer import head_motion_on_mesh
 from fit.metrics import reconstruction_errors
 from fit.pipeline.config import STAGE_TABLES, RunConfig, load_run_config, stage_options
 from fit.pipeline.gaps import require_complete
@@ -48,7 +49,11 @@ from fit.pipeline.stages import (
     ingest_stage,
     retarget_stage,
 )
+from fit.pipeline.holdout import HeldOut, held_out_fits, time_blocked_splits
+from fit.pipeline.provenance import stage_grades, take_provenance
 from fit.report import build_report
+from fit.report.html import Figure
+from fit.report.mesh_views import MeshSpace
 from fit.report.ingest_plots import plot_gaps, plot_head_residuals
 from mocap.bind import Binding, BoundTake
 from mocap.clean.ingest import IngestOptions, IngestResult, save_head_motion
@@ -58,6 +63,7 @@ from mocap.mesh import Mesh, load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
+from mocap.units import mm_per_unit
 
 __all__ = ["Reconstruction", "PreparedTake", "ReconstructionResult"]
 
@@ -321,6 +327,24 @@ class ReconstructionResult:
                                             name=name)
                 for name, rec in self.fitted.reconstructed.items()}
 
+    @cached_property
+    def head_motion(self) -> tuple:
+        """The head motion of the take as a rigid motion of the mesh, one per frame.
+
+        Returns
+        -------
+        rotation : ndarray of shape (T, 3, 3)
+        translation : ndarray of shape (T, 3), mesh units
+            Frame t of a mesh sequence is placed at ``rotation[t] @ v + translation[t]``
+            (:func:`fit.gestures.transfer.head_motion_on_mesh` of the stabilization's
+            R(t), t(t) over the take's frames).
+        """
+        stab = self.ingested.stabilization
+        start = self.take.first_frame - stab.take.first_frame
+        frames = slice(start, start + self.take.n_frames)
+        return head_motion_on_mesh(self.binding, stab.rotation[frames],
+                                   stab.translation[frames])
+
     def meshes(self, basis: str) -> MeshSequence:
         """The mesh sequence of one basis, evaluated frame by frame on demand.
 
@@ -335,16 +359,18 @@ class ReconstructionResult:
                             displacements=named.displacements,
                             weights=np.array(self.fitted.weights[basis]), materialized=None,
                             names=named.names, units=mesh.units, rate=self.take.rate,
-                            first_frame=self.take.first_frame)
+                            first_frame=self.take.first_frame, rotation=self.head_motion[0],
+                            translation=self.head_motion[1])
 
     def save(self, directory, *, inputs=()) -> list:
         """Write the take's exports into `directory` (created); returns the paths.
 
         ``take.c3d`` (cleaned, head-stabilized), ``head_motion.npz``,
         ``binding.json``, and per basis B: ``basis-B.npz``, ``weights-B.csv``,
-        ``mesh-B.npz`` (compact sequence), ``face-B.glb`` (morph targets, weight
-        animation at the take's rate). Every file atomically; none over one of
-        `inputs`.
+        ``mesh-B.npz`` (compact sequence with the head motion), ``face-B.glb``
+        (morph targets, weight animation at the take's rate keyed on the
+        capture's frame numbers, the head motion as the node's rotation and
+        translation). Every file atomically; none over one of `inputs`.
         """
         out = Path(directory)
         out.mkdir(parents=True, exist_ok=True)
@@ -354,6 +380,7 @@ class ReconstructionResult:
         save_head_motion(self.ingested.stabilization, files[1], inputs=inputs)
         self.binding.save(files[2])
         timing = dict(rate=take.rate, first_frame=take.first_frame)
+        rotation, translation = self.head_motion
         for name, basis in self.bases.bases.items():
             weights = self.fitted.weights[name]
             paths = [out / f"basis-{name}.npz", out / f"weights-{name}.csv",
@@ -362,16 +389,51 @@ class ReconstructionResult:
                        dtype="float32", inputs=inputs)
             write_weights_csv(paths[1], weights, basis.names, inputs=inputs, **timing)
             write_mesh_sequence(paths[2], mesh, basis.displacements, weights,
-                                names=basis.names, inputs=inputs, **timing)
+                                names=basis.names, rotation=rotation, translation=translation,
+                                inputs=inputs, **timing)
             write_gltf(paths[3], mesh, basis.displacements, basis.names, weights=weights,
-                       rate=take.rate, name=f"{self.name}-{name}", inputs=inputs)
+                       rotation=rotation, translation=translation,
+                       name=f"{self.name}-{name}", inputs=inputs, **timing)
             files += paths
         return files
 
-    def report(self, directory, *, warnings=()) -> list:
+    def held_out(self) -> HeldOut | None:
+        """Out-of-sample reconstructions of QE and PCA (time-blocked folds of the take), or
+        None when ``report.held_out_folds`` is 0 or the take is too short for them."""
+        options = self.reconstruction.report
+        folds, n_frames = options.held_out_folds, self.take.n_frames
+        if folds == 0 or n_frames < 2 * folds:
+            return None
+        # a short take gets a shorter guard, so that every fold keeps training frames
+        guard = min(int(round(options.held_out_guard_s * self.take.rate)),
+                    n_frames // folds // 2)
+        splits = time_blocked_splits(n_frames, folds, guard=guard)
+        label = (f"{folds} time-blocked folds, each block of ~{n_frames // folds} frames "
+                 f"reconstructed by QE and PCA built from the rest of the take less "
+                 f"{guard} frames ({guard / self.take.rate:.2g} s) on either side")
+        return held_out_fits(self.take, self.bound, self.retargeted, self.reconstruction.basis,
+                             splits=splits, label=label,
+                             basis_options=self.reconstruction.basis_options,
+                             fit_options=self.reconstruction.fit)
+
+    def mesh_space(self) -> MeshSpace:
+        """What the report's mesh renders need (the bases, their weights, W and D)."""
+        mesh = self.reconstruction.mesh
+        return MeshSpace(faces=mesh.faces, neutral=mesh.vertices,
+                         mm_per_unit=(mm_per_unit(mesh.units) if mesh.units
+                                      else 1.0 / self.binding.scale),
+                         bases={n: (b.displacements, self.fitted.weights[n])
+                                for n, b in self.bases.bases.items()},
+                         operator=np.asarray(self.retargeted.operator.matrix),
+                         displacements=self.retargeted.displacements,
+                         to_mesh=self.binding.to_mesh)
+
+    def report(self, directory, *, inputs=None, warnings=()) -> list:
         """Write the QA pictures, videos and ``<name>.html`` into `directory`; returns the paths.
 
-        `warnings` (messages) are listed in a section of the page of their own.
+        `inputs` (role to path) are hashed into the report's provenance (default
+        the capture, the mesh and the marker set); `warnings` (messages) are
+        listed in a section of the page of their own.
         """
         qa = Path(directory)
         qa.mkdir(parents=True, exist_ok=True)
@@ -380,14 +442,25 @@ class ReconstructionResult:
         plot_gaps(self.ingested.cleaned, qa / "gaps.png")
         plot_head_residuals(self.ingested.stabilization, qa / "head_residuals.png")
         files = [qa / "gaps.png", qa / "head_residuals.png"]
-        files += build_report(face, self.fitted.reconstructed, self.bound.neutral_pose(face.positions),
-                              qa, markerset=self.reconstruction.markerset, pca=self.bases.pca,
-                              ingest=self.ingested, video=options.video,
-                              pictures={"gaps: present, missing, filled by method": files[0],
-                                        "head-marker residuals": files[1]},
+        pictures = {
+            "gaps": Figure(files[0], "Gaps: present, missing, filled by method",
+                           "One row per marker over time: grey present, black still missing, "
+                           "coloured where a gap was filled (by the method in the legend)."),
+            "head": Figure(files[1], "Head-marker residuals",
+                           "Distance of each head marker from its place on the rigidly fitted "
+                           "head; shaded spans are slips, numbered as in the provenance's slip "
+                           "table. Residuals near the noise level mean a clean stabilization.")}
+        files += build_report(face, self.fitted.reconstructed,
+                              self.bound.neutral_pose(face.positions), qa,
+                              markerset=self.reconstruction.markerset, pca=self.bases.pca,
+                              ingest=self.ingested, video=options.video, pictures=pictures,
                               video_step=options.video_step, n_worst=options.n_worst,
                               exaggerate=options.exaggerate, name=self.name,
-                              warnings=warnings).values()
+                              warnings=warnings,
+                              provenance=take_provenance(self, inputs=inputs),
+                              grades=stage_grades(self), held_out=self.held_out(),
+                              mesh_space=self.mesh_space() if options.mesh_views else None
+                              ).values()
         return files
 
     def summary(self) -> dict:
@@ -409,5 +482,7 @@ class ReconstructionResult:
                 "fit": {name: {"status": s.status, "message": s.message}
                         for name, s in self.fitted.solutions.items()},
                 "metrics": {name: finite(errors.summary()
-                                         | {"smoothness": self.fitted.solutions[name].smoothness})
+                                         | {"worst_frame": take.first_frame
+                                            + errors.summary()["worst_frame"],
+                                            "smoothness": self.fitted.solutions[name].smoothness})
                             for name, errors in self.errors.items()}}

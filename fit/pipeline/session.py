@@ -75,7 +75,8 @@ def process_take(capture, config: RunConfig, session_basis=None) -> dict:
     files = result.save(out, inputs=[capture])
     stages["exports"] = time.perf_counter() - tic
     tic = time.perf_counter()
-    files += result.report(out / "report", warnings=caught)
+    files += result.report(out / "report", warnings=caught,
+                           inputs={"capture": capture, **config.shared_inputs})
     stages["report"] = time.perf_counter() - tic
     return {"status": "ok", "skipped": False, "error": None,
             "seconds": round(time.perf_counter() - start, 3),

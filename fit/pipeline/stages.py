@@ -179,7 +179,8 @@ def bind_stage(take: Take, markerset: MarkerSet, mesh: Mesh, mesh_landmarks, *,
     MarkerError
         A marker missing in the neutral frame (or its hold window).
     """
-    return bind_take(take, markerset, mesh, mesh_landmarks, frame=options.frame,
+    return bind_take(take, markerset, mesh, mesh_landmarks,
+                     frame=take.frame_index(options.frame, "bind.frame"),
                      stabilize="none", icp=options.icp, skin_offset=options.skin_offset,
                      max_distance_warn=options.max_distance_warn)
 

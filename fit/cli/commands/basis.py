@@ -60,7 +60,7 @@ def add_parser(sub) -> None:
     add_binding(capture, required=False)
     add_markerset(capture, required=False)
     add_fill(capture)
-    add_neutral_frame(capture, help="neutral frame of every capture: an index, 'auto' "
+    add_neutral_frame(capture, help="neutral frame of every capture: a frame number, 'auto' "
                                     "(default) or 'hold'")
     capture.add_argument("--kernel", choices=KERNELS, default="thin_plate_spline")
     capture.add_argument("--distance", choices=DISTANCES, default="euclidean")

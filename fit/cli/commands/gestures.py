@@ -363,8 +363,6 @@ def _write_face(out: Path, syn, basis, binding, speech, visemes, args, *, inputs
             fields = np.concatenate([fields, extra["extra"]])
             names = names + tuple(extra["extra_names"])
             weights = np.concatenate([weights, extra["extra_weights"]], axis=1)
-    write_mesh_sequence(out / "mesh.npz", basis.neutral, fields, weights, names=names,
-                        rate=syn.rate, inputs=inputs)
     motion = {}
     if syn.head_rotation is not None and binding is None:
         warnings.warn("the head motion is in head.npz only: --binding places it on the mesh "
@@ -373,8 +371,11 @@ def _write_face(out: Path, syn, basis, binding, speech, visemes, args, *, inputs
         rotation, translation = head_motion_on_mesh(binding, syn.head_rotation,
                                                     syn.head_translation)
         motion = {"rotation": rotation, "translation": translation}
+    # frame numbers from 1, as weights.csv
+    write_mesh_sequence(out / "mesh.npz", basis.neutral, fields, weights, names=names,
+                        rate=syn.rate, first_frame=1, inputs=inputs, **motion)
     write_gltf(out / "gestures.glb", basis.neutral, fields, names, weights=weights,
-               rate=syn.rate, inputs=inputs, **motion)
+               rate=syn.rate, first_frame=1, inputs=inputs, **motion)
     if args.video:
         _write_video(out, basis.neutral, fields, weights, motion, speech, syn, args,
                      inputs=inputs)
