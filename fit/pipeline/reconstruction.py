@@ -135,6 +135,12 @@ class Reconstruction:
         for name in STAGE_TABLES:
             attr = "basis_options" if name == "basis" else name
             fields[attr] = _options(name, getattr(self, attr))
+        markerset = fields["markerset"]
+        if (fields["ingest"].stabilize or "head") == "head" and not markerset.head:
+            raise InputError(f"ingest.stabilize = 'head', but marker set {markerset.name!r} "
+                             "names no head markers: set ingest.stabilize = 'auto' "
+                             "(stabilization markers found among the face markers) or 'none' "
+                             "(the takes are in the head frame already)")
         for attr, value in fields.items():
             object.__setattr__(self, attr, value)
 
@@ -281,7 +287,7 @@ class ReconstructionResult:
         mesh, take = self.reconstruction.mesh, self.take
         files = [out / "take.c3d", out / "head_motion.npz", out / "binding.json"]
         mocap.write(take, files[0], inputs=inputs)
-        save_head_motion(self.ingested.stabilization, files[1], inputs=inputs)
+        save_head_motion(self.ingested.head_frame, files[1], inputs=inputs)
         self.binding.save(files[2])
         timing = dict(rate=take.rate, first_frame=take.first_frame)
         for name, basis in self.bases.bases.items():
@@ -316,6 +322,22 @@ class ReconstructionResult:
                               exaggerate=options.exaggerate, name=self.name).values()
         return files
 
+    def _head_frame_summary(self) -> dict:
+        """How the head frame was found: method, markers and their median residuals (mm)."""
+        head = self.ingested.head_frame
+        st = head.stabilization
+        residuals = {label: (None if np.isnan(r) else float(r))
+                     for label, r in zip(st.head_markers,
+                                         np.nanmedian(st.head_residuals, axis=0)
+                                         if st.head_markers else [])}
+        out = {"method": head.method, "markers": list(st.head_markers),
+               "median_residual_mm": residuals, "slips": len(st.slips),
+               "robust": st.robust, "robust_disagreements": len(st.disagreements)}
+        if head.motion is not None:
+            out["face_motion"] = {"median_deg": head.motion.median_angle,
+                                  "median_mm": head.motion.median_shift}
+        return out
+
     def summary(self) -> dict:
         """What the manifest records of the take: frames, binding, bases, fit and metrics."""
         take, ingested = self.take, self.ingested
@@ -327,6 +349,7 @@ class ReconstructionResult:
                            "trimmed": ingested.take.n_frames - take.n_frames,
                            "neutral": take.first_frame + self.bound.frame,
                            "neutral_window": self.bound.window, "rate": take.rate},
+                "head_frame": self._head_frame_summary(),
                 "binding_rms_mm": self.binding.rms,
                 "pca_components": self.bases.n_components,
                 "qe_missing_axes": self.bases.qe.missing_axes.tolist(),

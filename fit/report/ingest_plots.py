@@ -73,6 +73,13 @@ def plot_head_residuals(stabilization, path) -> None:
     t = take.times
     fig = new_figure(11, 4.2)
     ax = fig.add_subplot()
+    if not stabilization.head_markers:             # stabilize = "none": nothing was fitted
+        ax.text(0.5, 0.5, "no stabilization markers: the take was taken as in the head frame "
+                          "(stabilize = 'none')", ha="center", va="center",
+                transform=ax.transAxes)
+        ax.set_axis_off()
+        save_figure(fig, path)
+        return
     for j, label in enumerate(stabilization.head_markers):
         ax.plot(t, res[:, j], lw=0.8, label=label)
     for slip in stabilization.slips:
