@@ -24,6 +24,9 @@ __all__ = ["StableMarkers", "find_stable_markers", "distance_variation", "MIN_PR
 #: A candidate must be visible in at least this fraction of the frames: a
 #: marker seen in under half the take cannot hold the head frame through it.
 MIN_PRESENCE = 0.5
+#: A set whose two smaller principal variances sum to less than this fraction of
+#: the largest is collinear (a 1 um offset over 100 mm).
+_COLLINEAR = 1e-10
 #: Bytes of pairwise-distance temporaries per block of frames.
 _BLOCK_BYTES = 64 * 2 ** 20
 
@@ -144,7 +147,9 @@ def _lever(shape: np.ndarray) -> float:
     """sqrt(l2 + l3), mm: the spread that pins a rotation about the set's longest axis."""
     centred = shape - shape.mean(axis=0)
     values = np.linalg.eigvalsh(centred.T @ centred / len(shape))
-    return float(np.sqrt(max(values[0] + values[1], 0.0)))
+    if values[0] + values[1] <= _COLLINEAR * values[2]:      # a line pins no rotation about it
+        return 0.0
+    return float(np.sqrt(values[0] + values[1]))
 
 
 def _criterion(deform2: np.ndarray, noise2: float, shape: np.ndarray,

@@ -18,7 +18,7 @@ import numpy as np
 
 from mocap.bind import closest_surface_points
 from mocap.errors import InputError
-from mocap.head_frame import find_head_frame
+from mocap.head_frame import JAW_REGIONS, find_head_frame
 from mocap.infer.alignment import Alignment, align_to_mesh
 from mocap.infer.axes import FaceAxes, face_axes
 from mocap.infer.landmark_pairs import LandmarkPair, pair_landmarks
@@ -276,7 +276,9 @@ def infer_capture(take: Take, mesh: Mesh, *, mesh_landmarks=None) -> Inference:
     distances to within :data:`RIGID_HEAD_MM` are head markers too (a
     headband), and the alignment is redone without them; the regions
     (:func:`mocap.infer.regions.classify_markers`) and the landmark pairs
-    (:func:`mocap.infer.landmark_pairs.pair_landmarks`).
+    (:func:`mocap.infer.landmark_pairs.pair_landmarks`); without head
+    markers, the stabilization markers among the face markers outside the
+    regions the jaw moves (:data:`mocap.head_frame.JAW_REGIONS`).
     """
     take = as_take(take)
     if not isinstance(mesh, Mesh):
@@ -326,7 +328,6 @@ def infer_capture(take: Take, mesh: Mesh, *, mesh_landmarks=None) -> Inference:
             f"the head markers {', '.join(head)} do not move as one rigid body (their "
             f"distances vary by up to {_rigid_spread(take, head):.1f} mm): keep them as "
             "head = [...] or move them to [regions] and use stabilize = 'auto'"))
-    stable = None if head else find_stable_markers(take, face)
     neutral = int(np.argmin(np.nanmean(np.sum((in_head - pose) ** 2, axis=-1), axis=1)))
 
     xy_face, _ = face_coordinates(alignment.on_mesh, marks)
@@ -341,6 +342,8 @@ def infer_capture(take: Take, mesh: Mesh, *, mesh_landmarks=None) -> Inference:
                              _closest(mesh, alignment.to_mesh(pose[len(face):]))])
     xy = np.vstack([xy_face, face_coordinates(on_mesh_all[len(face):], marks)[0]])
     region_of = {g.label: g.region for g in regions} | {x: "head" for x in head}
+    upper = [x for x in face if region_of[x] not in JAW_REGIONS]
+    stable = None if head else find_stable_markers(take, upper if len(upper) >= 3 else face)
     height = _height(marks)
     landmarks = pair_landmarks(all_rows, region_of, xy, on_mesh_all, marks, mesh.vertices,
                                hints=hints, height=height)

@@ -22,8 +22,8 @@ __all__ = ["LandmarkPair", "pair_landmarks", "marks_level"]
 #: Anatomical point -> (regions it may sit in, mesh point to be near or None
 #: for an extreme, how far from it in mouth-eye heights).
 _NEAR = {
-    "upper_lip_top": (("upper_lip",), "upper_lip_top", 0.15),
-    "lower_lip_bottom": (("lower_lip",), "lower_lip_bottom", 0.15),
+    "upper_lip_top": (("upper_lip",), "upper_lip_top", 0.25),
+    "lower_lip_bottom": (("lower_lip",), "lower_lip_bottom", 0.25),
     "nose_tip": (("nose",), "nose_tip", 0.15),
     "nose_bridge": (("nose", "forehead", "head"), "nose_bridge", 0.12),
     "chin": (("chin",), "chin", 0.25),

@@ -58,6 +58,10 @@ class MeshLandmarks:
         Vertex ids of the left and the right eye loop.
     coordinates : dict of str to ndarray of shape (3,)
         Face coordinates (left, up, forward) of each landmark, mesh units.
+    mouth_line : ndarray of shape (k, 2)
+        The lips' contact line from corner to corner: (left, up) face
+        coordinates, mesh units, midway between the mouth loop's upper and
+        lower arcs (empty when the landmarks were given).
     found : bool
         Found from the mesh (False: read from a landmark file).
     notes : tuple of str
@@ -68,6 +72,7 @@ class MeshLandmarks:
     axes: FaceAxes
     levels: dict
     coordinates: dict
+    mouth_line: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     mouth: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     eyes: tuple = ()
     found: bool = True
@@ -151,6 +156,19 @@ def _peaks(front, prominence) -> tuple:
 
 def _between(indices, grid, lo, hi) -> np.ndarray:
     return np.array([i for i in indices if min(lo, hi) < grid[i] < max(lo, hi)], dtype=int)
+
+
+def _mouth_line(loop: np.ndarray, n: int = 41) -> np.ndarray:
+    """Points (n, 2) midway between the upper and lower arcs of the mouth loop (x, y)."""
+    left, right = int(np.argmax(loop[:, 0])), int(np.argmin(loop[:, 0]))
+    a, b = sorted((left, right))
+    arcs = [loop[a:b + 1], np.vstack([loop[b:], loop[:a + 1]])]
+    xs = np.linspace(loop[right, 0], loop[left, 0], n)
+    ys = []
+    for arc in arcs:
+        order = np.argsort(arc[:, 0])
+        ys.append(np.interp(xs, arc[order, 0], arc[order, 1]))
+    return np.c_[xs, (ys[0] + ys[1]) / 2]
 
 
 def _nearest_vertex(vertices, coords_of_vertices, target, candidates=None) -> int:
@@ -298,7 +316,8 @@ def find_mesh_landmarks(mesh: Mesh) -> MeshLandmarks:
                  "the lips' contact, the labiomental fold)")
     ordered = {name: marks[name] for name in FOUND_POINTS}
     return MeshLandmarks(landmarks=ordered, axes=axes, levels=levels,
-                         coordinates={n: coords[v] for n, v in ordered.items()}, mouth=mouth,
+                         coordinates={n: coords[v] for n, v in ordered.items()},
+                         mouth_line=_mouth_line(coords[mouth, :2]), mouth=mouth,
                          eyes=(eye_left, eye_right), found=True, notes=tuple(notes))
 
 

@@ -145,8 +145,13 @@ def split_prefix(labels) -> tuple:
 
 def _words(name: str) -> list:
     """Canonical words of a name: split at separators and case changes, side letters unglued."""
-    raw = [t.lower() for part in re.split(r"[^A-Za-z0-9]+", name)
-           for t in _CAMEL.split(part) if t and not t.isdigit()]
+    raw = []
+    for part in re.split(r"[^A-Za-z0-9]+", name):
+        letters = part.rstrip("0123456789").lower()
+        if letters in WORDS:                       # a word as written: ULip, LLIP, LCRN
+            raw.append(letters)
+        else:
+            raw += [t.lower() for t in _CAMEL.split(part) if t and not t.isdigit()]
     words = []
     for token in raw:
         if token in WORDS:
@@ -219,6 +224,8 @@ def parse_name(label: str, prefix: str = "") -> NameHint:
     ('Mouth_Lend', 'left', 'mouth_corners', 'mouth_corner_left')
     >>> parse_name("Leye_Inside").point, parse_name("LCRN").point, parse_name("brow-R4").region
     ('eye_inner_left', 'mouth_corner_left', 'right_brow')
+    >>> parse_name("ULip_L").region, parse_name("LLip3").region
+    ('upper_lip', 'lower_lip')
     >>> parse_name("section11-1").region is None
     True
     """

@@ -19,7 +19,8 @@ eyes           eye opening bottom - 0.12 up to the brow band, from the inner
 nose           subnasale up to the brow band, within the inner eye corners
                (the alae are about as wide as the eyes are apart)
 mouth corners  within 0.15 of the lips' contact, beyond 0.8 of a mouth corner
-upper lip      lips' contact up to the subnasale, within 0.8 of a mouth corner
+upper lip      lips' contact (the mouth loop's middle line) up to the
+               subnasale, within 0.8 of a mouth corner
 lower lip      labiomental fold up to the lips' contact, within the same
 chin           below the labiomental fold, within a mouth corner + 0.1
 jaw            below the labiomental fold beyond that, or below 0.1 beyond
@@ -114,8 +115,9 @@ def face_coordinates(points_on_mesh, marks: MeshLandmarks) -> tuple:
         over the mouth-corner-to-eye-corner height.
     levels : dict of str to float
         stomion, subnasale, labiomental, nasion, eye_top, eye_bottom (y
-        units), mouth (the mouth corners' x) and inner_eye (the inner eye
-        corners' x).
+        units), mouth (the mouth corners' x), inner_eye (the inner eye
+        corners' x) and mouth_line (k, 2): the lips' contact from corner to
+        corner (the stomion's level across, without a mouth loop).
     """
     c = marks.coordinates
     mouth = (c["mouth_corner_left"] + c["mouth_corner_right"]) / 2
@@ -129,6 +131,10 @@ def face_coordinates(points_on_mesh, marks: MeshLandmarks) -> tuple:
     levels = {name: (marks.levels[name] - mouth[1]) / height if name in marks.levels else value
               for name, value in _DEFAULT_LEVELS.items()}
     levels["mouth"] = float((c["mouth_corner_left"][0] - c["mouth_corner_right"][0]) / 2 / width)
+    line = marks.mouth_line
+    levels["mouth_line"] = (np.c_[line[:, 0] / width, (line[:, 1] - mouth[1]) / height]
+                            if len(line) else np.array([[-1.0, levels["stomion"]],
+                                                        [1.0, levels["stomion"]]]))
     levels["inner_eye"] = float((c["eye_inner_left"][0] - c["eye_inner_right"][0]) / 2 / width)
     return xy, levels
 
@@ -151,7 +157,9 @@ def _geometry(x: float, y: float, lv: dict) -> str:
     if abs(y - lv["stomion"]) <= 0.15 and ax >= 0.8 * lv["mouth"] and ax <= lv["mouth"] + 0.3:
         return "mouth_corners"
     if lv["labiomental"] <= y < lv["subnasale"] and ax < 0.8 * lv["mouth"]:
-        return "upper_lip" if y >= lv["stomion"] else "lower_lip"
+        line = lv["mouth_line"]
+        contact = float(np.interp(x, line[:, 0], line[:, 1]))
+        return "upper_lip" if y >= contact else "lower_lip"
     if y < lv["labiomental"]:
         return "chin" if ax <= lv["mouth"] + 0.1 else "jaw"
     if y < 0.1 and ax > 1.15:
