@@ -122,6 +122,15 @@ class Reconstruction:
         fields = {"markerset": self.markerset, "mesh": self.mesh}
         if not isinstance(self.markerset, MarkerSet):
             fields["markerset"] = load_markerset(self.markerset)
+        for name in STAGE_TABLES:           # options first: a wrong one costs no loading
+            attr = "basis_options" if name == "basis" else name
+            fields[attr] = _options(name, getattr(self, attr))
+        markerset = fields["markerset"]
+        if (fields["ingest"].stabilize or "head") == "head" and not markerset.head:
+            raise InputError(f"ingest.stabilize = 'head', but marker set {markerset.name!r} "
+                             "names no head markers: set ingest.stabilize = 'auto' "
+                             "(stabilization markers found among the face markers) or 'none' "
+                             "(the takes are in the head frame already)")
         if not isinstance(self.mesh, Mesh):
             fields["mesh"] = load_mesh(self.mesh, units=self.mesh_units)
         mesh = fields["mesh"]
@@ -132,15 +141,6 @@ class Reconstruction:
         elif self.basis.neutral.n_vertices != mesh.n_vertices:
             raise InputError(f"the basis has {self.basis.neutral.n_vertices} vertices, the "
                              f"mesh {mesh.n_vertices}: they must share a topology")
-        for name in STAGE_TABLES:
-            attr = "basis_options" if name == "basis" else name
-            fields[attr] = _options(name, getattr(self, attr))
-        markerset = fields["markerset"]
-        if (fields["ingest"].stabilize or "head") == "head" and not markerset.head:
-            raise InputError(f"ingest.stabilize = 'head', but marker set {markerset.name!r} "
-                             "names no head markers: set ingest.stabilize = 'auto' "
-                             "(stabilization markers found among the face markers) or 'none' "
-                             "(the takes are in the head frame already)")
         for attr, value in fields.items():
             object.__setattr__(self, attr, value)
 

@@ -85,7 +85,7 @@ def _perimeter(points: np.ndarray) -> float:
 
 def _pick_loops(vertices, loops) -> tuple:
     """(mouth, eye_a, eye_b) among the inner loops: two alike, mirrored about the third."""
-    rim = int(np.argmax([_perimeter(vertices[lp]) for lp in loops]))
+    rim = int(np.argmax([_perimeter(vertices[lp]) for lp in loops])) if loops else -1
     inner = [lp for k, lp in enumerate(loops) if k != rim]
     if len(inner) < 3:
         raise InputError(f"the mesh has {len(loops)} boundary loops; finding its landmarks "
