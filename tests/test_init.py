@@ -2,6 +2,7 @@
 stabilization and open questions in the marker set, the landmarks and the run configuration."""
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -14,20 +15,14 @@ from fit.pipeline.config import STAGE_TABLES, load_run_config, stage_options
 from fit.pipeline.initialize import initialize
 from fit.pipeline.template import field_docs, run_config_text, toml_value
 from mocap import FileFormatError, InputError, MarkerError
-from mocap.markerset import load_markerset
+from mocap.markerset import REQUIRED_REGIONS, load_markerset
 from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.util.toml import read_toml
 
-REGIONS = """
-[regions]
-upper_lip = ["u1"]
-lower_lip = ["l1"]
-left_brow = []
-right_brow = []
-left_eye = []
-right_eye = []
-other = ["o1", "o2", "o3"]
-"""
+#: The required regions of a marker set (TOML): two lip markers and three others.
+_MEMBERS = {"upper_lip": ["u1"], "lower_lip": ["l1"], "other": ["o1", "o2", "o3"]}
+REGIONS = "\n[regions]\n" + "".join(f"{region} = {json.dumps(_MEMBERS.get(region, []))}\n"
+                                    for region in REQUIRED_REGIONS)
 
 
 def one_line_error(capsys, argv, match):

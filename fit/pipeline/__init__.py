@@ -5,7 +5,9 @@
 - :mod:`.config`: ``run.toml`` read and validated;
 - :mod:`.reconstruction`: :class:`Reconstruction`, the scripting entry point;
 - :mod:`.session`: every take of a session (:func:`run_takes`), with
-  :mod:`.manifest` recording what was done.
+  :mod:`.manifest` recording what was done;
+- :mod:`.template`: a complete ``run.toml``, every key with its default and a comment;
+- :mod:`.initialize`: what ``mocap2mesh init`` writes for a capture never seen.
 """
 
 from fit._moved import PIPELINE_NAMES

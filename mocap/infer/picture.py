@@ -39,11 +39,15 @@ def plot_inference(inference: Inference, path, *, title: str = "") -> None:
     coords = inf.axes.coordinates(inf.pose)                   # left, up, forward (mm)
     region_of = {g.label: g.region for g in inf.regions} | {x: "head" for x in inf.head}
     names = sorted(set(region_of.values()))
-    colour = dict(zip(names, distinct_colours(len(names))))
+    bases = sorted({n.removeprefix("left_").removeprefix("right_") for n in names})
+    base_colour = dict(zip(bases, distinct_colours(len(bases))))
+    colour = {n: base_colour[n.removeprefix("left_").removeprefix("right_")] for n in names}
+    shape = {n: "s" if n == "head" else ">" if n.startswith("left_") else
+             "<" if n.startswith("right_") else "o" for n in names}
     stable = set(inf.stable.labels) if inf.stable is not None else set(inf.head)
     point_of = {p.label: p.point for p in inf.landmarks}
     p = inf.prefix
-    fig = new_figure(14, 8)
+    fig = new_figure(14, 8.6)
     grid = fig.add_gridspec(1, 2, width_ratios=(1.35, 1))
     views = ((fig.add_subplot(grid[0]), 0, "front (the subject's left on the right)",
               "subject's left (mm)"), (fig.add_subplot(grid[1]), 2, "side (facing right)", "forward (mm)"))
@@ -51,8 +55,8 @@ def plot_inference(inference: Inference, path, *, title: str = "") -> None:
         h = coords[:, horizontal]
         for region in names:
             rows = [i for i, x in enumerate(inf.kept) if region_of[x] == region]
-            ax.scatter(h[rows], coords[rows, 1], s=60 if region == "head" else 42,
-                       marker="s" if region == "head" else "o", color=colour[region],
+            ax.scatter(h[rows], coords[rows, 1], s=60 if region == "head" else 46,
+                       marker=shape[region], color=colour[region],
                        edgecolor="black", linewidth=0.4, label=region, zorder=3)
         rings = [i for i, x in enumerate(inf.kept) if x in stable]
         ax.scatter(h[rings], coords[rings, 1], s=150, facecolor="none", edgecolor="black",
@@ -72,7 +76,9 @@ def plot_inference(inference: Inference, path, *, title: str = "") -> None:
         ax.set_xlabel(xlabel)
         ax.set_ylabel("up (mm)")
         ax.grid(alpha=0.3)
-    views[0][0].legend(loc="upper left", fontsize=7, ncol=2, framealpha=0.8)
+    handles, labels = views[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=min(8, len(labels)),
+               fontsize=8, frameon=False)
     head = (f"head markers {len(inf.head)}" if inf.head else
             f"no head markers: {len(inf.stable.labels)} stabilization markers (auto)")
     lines = [title or "mocap2mesh init",
