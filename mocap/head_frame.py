@@ -52,7 +52,7 @@ AUTO_SLIP_MM = 2.0
 JAW_REGIONS = ("upper_lip", "lower_lip", "mouth_corners", "chin", "jaw")
 
 
-def as_stabilization(value, name: str = "stabilize", *, allow_off: bool = True):
+def as_stabilization(value, name: str = "stabilize"):
     """A stabilization option as ``"head"``, ``"auto"``, ``"none"`` or None (off).
 
     The old boolean spelling is kept: True means ``"head"``, False (and None)
@@ -61,7 +61,7 @@ def as_stabilization(value, name: str = "stabilize", *, allow_off: bool = True):
     Raises
     ------
     InputError
-        Another value, or off where `allow_off` is False.
+        Another value.
 
     Examples
     --------
@@ -71,9 +71,6 @@ def as_stabilization(value, name: str = "stabilize", *, allow_off: bool = True):
     if value is True:
         return "head"
     if value is False or value is None:
-        if not allow_off:
-            raise InputError(f"{name} must be one of {', '.join(map(repr, STABILIZATIONS))}, "
-                             f"got {value!r}")
         return None
     return as_choice(value, name, STABILIZATIONS)
 

@@ -248,3 +248,21 @@ def test_stand_in_head_of_stiff_face_markers_is_reported(facial_sing_take):
     with pytest.warns(UserWarning, match="do not move as one rigid body"):
         st = stabilize(facial_sing_take, stand_in)
     assert max(run.max_angle for run in st.disagreements) > 2 * ROBUST_GUARD_DEG
+
+
+@pytest.mark.parametrize(("call", "error", "match"), [
+    (lambda take: find_stable_markers(take, ["bone0", "bone0", "bone1"]), InputError,
+     "labels must be a sequence of distinct marker labels"),
+    (lambda take: find_stable_markers(take, min_presence=1.5), InputError,
+     r"min_presence must be in \[0, 1\]"),
+    (lambda take: find_head_frame(take, "markerset.toml", method="auto"), InputError,
+     "markerset must be a MarkerSet, got str"),
+    (lambda take: find_head_frame(take, method="head"), InputError,
+     "needs head markers, but no marker set"),
+    (lambda take: find_head_frame(take, method="skull"), InputError,
+     "stabilize must be one of"),
+])
+def test_head_frame_errors(call, error, match):
+    take, _, _ = skull_take(n_frames=20)
+    with pytest.raises(error, match=match):
+        call(take)

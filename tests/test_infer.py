@@ -9,8 +9,10 @@ from tolerances import AXIS_DEG, MESH_LANDMARK_MM, REGIONS_CORRECT
 
 from mocap import InputError
 from mocap.anatomy import MASKLE_POINTS
+from mocap.infer.alignment import align_to_mesh
+from mocap.infer.axes import symmetry_plane
 from mocap.infer.capture import infer_capture
-from mocap.infer.mesh_landmarks import find_mesh_landmarks
+from mocap.infer.mesh_landmarks import find_mesh_landmarks, mesh_axes_from_landmarks
 from mocap.infer.names import NAMING_CONVENTIONS, is_unlabeled, parse_name, split_prefix
 from mocap.mesh.mesh import Mesh
 
@@ -179,3 +181,21 @@ def test_head_markers_of_another_scheme_are_found(ict_basis, arkit_performance, 
     assert set(inf.head) == set(foreign.head)
     assert region_score(inf, foreign) >= REGIONS_CORRECT
     assert not landmark_misses(inf, foreign)
+
+
+def test_inference_errors(ict_mesh, sing_named):
+    few = sing_named.take.select(sing_named.take.labels[:3])
+    with pytest.raises(InputError, match="face markers kept .*; inference needs at least 4"):
+        infer_capture(few, ict_mesh)
+    with pytest.raises(InputError, match="mesh must be a mocap.mesh.mesh.Mesh, got str"):
+        infer_capture(sing_named.take, "face.obj")
+    with pytest.raises(InputError, match="mesh must be a mocap.mesh.mesh.Mesh, got str"):
+        find_mesh_landmarks("face.obj")
+    with pytest.raises(InputError, match="a symmetry plane needs at least 4 points, got 3"):
+        symmetry_plane(np.eye(3))
+    marks = find_mesh_landmarks(ict_mesh)
+    with pytest.raises(InputError, match="aligning to a mesh needs 4 or more markers"):
+        align_to_mesh(np.full((5, 3), np.nan), marks.axes, ict_mesh, marks)
+    with pytest.raises(InputError, match="must name both mouth corners and the four eye "
+                                         "corners"):
+        mesh_axes_from_landmarks(ict_mesh, {"nose_tip": 3})

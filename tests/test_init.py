@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 from foreign_captures import PREFIX, facial_sing, ict_capture
+from helpers import ICT_LANDMARKS_TOML
 
 import mocap
 from fit.cli.main import main
@@ -249,3 +250,15 @@ def test_bind_and_retarget_take_the_stabilization(tmp_path, sing_init, sing_capt
                      "-o", str(tmp_path / "mesh.npz"), "--stabilize", "auto",
                      "--no-robust-stabilization"]) == 0
     assert np.load(tmp_path / "mesh.npz")["vertices"].shape[1:] == (9409, 3)
+
+
+def test_init_with_the_meshs_own_landmarks(tmp_path, sing_capture, ict_neutral_path,
+                                           ict_expressions_dir):
+    done = initialize(sing_capture, ict_neutral_path, tmp_path, shapes=ict_expressions_dir,
+                      landmarks=ICT_LANDMARKS_TOML)
+    assert "landmarks.toml" not in done.files and not done.inference.mesh_landmarks.found
+    config = load_run_config(tmp_path / "run.toml")
+    assert config.landmarks == ICT_LANDMARKS_TOML.resolve()
+    points = {p.point for p in done.inference.landmarks}
+    assert {"brow_inner_left", "nose_tip", "mouth_corner_left"} <= points
+
