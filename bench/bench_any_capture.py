@@ -75,6 +75,8 @@ def variants(data: Path):
     yield "sing: lab names, no head", facial_sing(sing, sms, keep_head=False)
     yield "sing: names say nothing, no head", facial_sing(
         sing, sms, keep_head=False, mapping=anonymous_names(sing.labels))
+    yield "sing: names say nothing, head markers", facial_sing(
+        sing, sms, mapping=anonymous_names(sing.labels))
     for motion in (True, False):
         moving = "head moving" if motion else "head still"
         yield f"ict: other scheme, head markers, {moving}", ict_capture(
@@ -181,7 +183,11 @@ def main_bench(quick: bool) -> None:
             result = score(done, foreign, mesh, reference)
             lines = answer_questions(done, folder / "init" / "run.toml", shapes)[0] \
                 if done.questions else 0
-            if chain_runs is None or name in chain_runs:
+            if any(q.key != "basis" for q in done.questions):
+                code, chain_s = "open", 0.0             # a user's answer, not scripted
+                for q in done.questions:
+                    print(f"  open question of '{name}': {q.key}: {q.text}")
+            elif chain_runs is None or name in chain_runs:
                 code, chain_s = run_chain(folder / "init" / "run.toml")
             else:
                 code, chain_s = None, 0.0
@@ -204,7 +210,8 @@ def main_bench(quick: bool) -> None:
     print(f"{'take':46s} {'regions':>7s} {'landm.':>6s} {'head':>4s} {'left/up deg':>11s} "
           f"{'maskle':>6s} {'open':>4s} {'edits':>5s} {'run':>4s} {'init s':>6s} {'run s':>6s}")
     for name, r, lines, code, seconds, chain_s in rows:
-        run = "-" if code is None else ("ok" if code == 0 else f"rc{code}")
+        run = "-" if code is None else code if isinstance(code, str) else \
+            ("ok" if code == 0 else f"rc{code}")
         print(f"{name:46s} {100 * r['regions']:6.1f}% {r['landmarks'][0]:>3d}/{r['landmarks'][1]:<2d} "
               f"{'yes' if r['head'] else 'NO':>4s} {r['axes'][0]:5.1f}/{r['axes'][1]:<5.1f} "
               f"{r['maskle']:>4d}/10 {r['questions']:>4d} {lines:>5d} {run:>4s} "

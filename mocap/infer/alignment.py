@@ -28,6 +28,11 @@ UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 #: markers on a headband, a lip marker over the mouth opening).
 _KEEP = 0.8
 _MAX_ITER = 100
+#: Markers farther than this many times the median distance from the cloud's
+#: median point do not set the start (markers on a headband, 10 cm out).
+_CORE = 1.8
+#: Starts of ICP along the mesh's up, in mouth-to-eye heights from the nose tip.
+_START_SHIFTS = (0.0, -0.3, 0.3)
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,6 +111,14 @@ def _icp(points, surface, scale, rotation, translation, keep):
     return scale, rotation, translation, rms
 
 
+def _core(points) -> np.ndarray:
+    """Markers of the face's core (bool, (M,)): not far out of the cloud (a headband, a neck)."""
+    centre = np.median(points, axis=0)
+    dist = np.linalg.norm(points - centre, axis=1)
+    core = dist <= _CORE * np.median(dist)
+    return core if core.sum() >= 4 else np.ones(len(points), dtype=bool)
+
+
 def _start(axes: FaceAxes, points, mesh_marks: MeshLandmarks, scale):
     """Similarity turning the marker axes onto the mesh's, nose tip on nose tip."""
     rotation = mesh_marks.axes.matrix.T @ axes.matrix
@@ -153,8 +166,10 @@ def align_to_mesh(points, axes: FaceAxes, mesh: Mesh, mesh_marks: MeshLandmarks,
     matches 0.6 times the mesh's mouth-to-eye height times the ratio of a
     typical face (markers cover the face from the chin to the brows, whose
     RMS spread is about 0.6 of the mouth-eye distance: the start only has to
-    be in ICP's basin). Trimmed ICP (the best 80 % of markers) refines it,
-    for up and for up reversed; the fit of smaller RMS is kept.
+    be in ICP's basin), all from the markers of the face's core (within 1.8
+    times the median distance of the cloud's median point: not a headband). Trimmed ICP (the best 80 % of markers) refines it,
+    for up and for up reversed, each from the nose tip and from 0.3 of the
+    face's height above and below it; the fit of smaller RMS is kept.
     """
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 3 or len(points) < 4 \
@@ -168,12 +183,23 @@ def align_to_mesh(points, axes: FaceAxes, mesh: Mesh, mesh_marks: MeshLandmarks,
                                        "eye_outer_right")], axis=0)
     mesh_height = float(eyes[1] - mouth[1])
     fits = []
+    up = mesh_marks.axes.up
+    core = _core(points)
     for candidate in ((axes, axes.flipped()) if both else (axes,)):
-        spread = float(np.sqrt(np.mean(candidate.coordinates(points)[:, 1] ** 2)))
+        spread = float(np.sqrt(np.mean(candidate.coordinates(points[core])[:, 1] ** 2)))
         scale = 0.6 * mesh_height / max(spread, 1e-9)
-        rotation, translation = _start(candidate, points, mesh_marks, scale)
-        fits.append((*_icp(points, surface, scale, rotation, translation, _KEEP), candidate))
-    fits.sort(key=lambda f: f[3])
+        rotation, translation = _start(candidate, points[core], mesh_marks, scale)
+        # the most forward midline marker may not be on the nose tip: start a little
+        # above and below too, and keep the best fit
+        for shift in _START_SHIFTS:
+            fits.append((*_icp(points, surface, scale, rotation,
+                               translation + shift * mesh_height * up, _KEEP), candidate))
+    best = {}
+    for fit in fits:                                  # the best start of each orientation
+        key = id(fit[4])
+        if key not in best or fit[3] < best[key][3]:
+            best[key] = fit
+    fits = sorted(best.values(), key=lambda f: f[3])
     (scale, rotation, translation, rms, chosen) = fits[0]
     flipped_rms = fits[1][3] if both else np.nan
     moved = scale * points @ rotation.T + translation

@@ -271,10 +271,10 @@ def infer_capture(take: Take, mesh: Mesh, *, mesh_landmarks=None) -> Inference:
     (:func:`mocap.infer.axes.face_axes`); the alignment to the mesh for both
     signs of up (:func:`mocap.infer.alignment.align_to_mesh`), kept when
     decisive (:data:`UP_DECISIVE`), else decided by where the markers that
-    move most sit (the jaw is below) and where head markers sit; markers
-    farther than :data:`OFF_FACE_MM` from the aligned surface that hold their
-    distances to within :data:`RIGID_HEAD_MM` are head markers too (a
-    headband), and the alignment is redone without them; the regions
+    move most sit (the jaw is below) and where head markers sit; three or
+    more markers farther than :data:`OFF_FACE_MM` from the aligned surface
+    that hold their distances to within :data:`RIGID_HEAD_MM` are an open
+    question (a headband whose names say nothing?); the regions
     (:func:`mocap.infer.regions.classify_markers`) and the landmark pairs
     (:func:`mocap.infer.landmark_pairs.pair_landmarks`); without head
     markers, the stabilization markers among the face markers outside the
@@ -296,39 +296,34 @@ def infer_capture(take: Take, mesh: Mesh, *, mesh_landmarks=None) -> Inference:
         head = []
     marks = _mesh_marks(mesh, mesh_landmarks)
 
-    for _ in range(2):                     # again when off-face markers turn out to be a head
-        face = [x for x in kept if x not in head]
-        if len(face) < 4:
-            raise InputError(f"{len(face)} face markers kept ({', '.join(face)}); inference "
-                             "needs at least 4")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")          # provisional: the report comes later
-            frame = find_head_frame(take, method="head" if head else "auto", candidates=kept,
-                                    markerset=_head_set(head))
-        in_head = frame.take.select(face + head).positions
-        pose = np.nanmedian(in_head, axis=0)
-        motion = np.sqrt(np.nanmean(np.sum((in_head - pose) ** 2, axis=-1), axis=0))
-        rows = np.arange(len(face))
-        axes = face_axes(pose[rows])
-        alignment = align_to_mesh(pose[rows], axes, mesh, marks)
-        cues = _up_evidence(alignment.axes, pose, motion, np.arange(len(face), len(pose)))
-        axes, alignment, question = _decide_up(alignment, cues, pose[rows], mesh, marks)
-        if question is not None:
-            questions.append(question)
-        off = [face[i] for i in np.flatnonzero(alignment.distances > OFF_FACE_MM)]
-        if head or len(off) < 3 or _rigid_spread(take, off) > RIGID_HEAD_MM:
-            break
-        notes.append(f"head markers by geometry: {', '.join(off)} sit more than "
-                     f"{OFF_FACE_MM:g} mm off the face and hold their distances "
-                     f"(within {_rigid_spread(take, off):.2f} mm)")
-        head = off
+    face = [x for x in kept if x not in head]
+    if len(face) < 4:
+        raise InputError(f"{len(face)} face markers kept ({', '.join(face)}); inference "
+                         "needs at least 4")
+    pose, motion, in_head = _rest_pose(take, face, head)
+    rows = np.arange(len(face))
+    alignment = align_to_mesh(pose[rows], face_axes(pose[rows]), mesh, marks)
+    cues = _up_evidence(alignment.axes, pose, motion, np.arange(len(face), len(pose)))
+    axes, alignment, up_question = _decide_up(alignment, cues, pose[rows], mesh, marks)
+    off = [face[i] for i in np.flatnonzero(alignment.distances > OFF_FACE_MM)]
+    if len(off) >= 3:                            # the rigid part of what is off the face
+        off = list(find_stable_markers(take, off).labels)
+        if _rigid_spread(take, off) <= RIGID_HEAD_MM:
+            questions.append(OpenQuestion(
+                "head_markers", "markerset",
+                f"{', '.join(off)} sit more than {OFF_FACE_MM:g} mm off the face and keep "
+                f"their distances (within {_rigid_spread(take, off):.2f} mm): if they are on "
+                "a headband or a helmet, move them (and any others of it) from [regions] to "
+                "head = [...] and set stabilize = 'head' in run.toml"))
+    if up_question is not None:
+        questions.append(up_question)
     if head and _rigid_spread(take, head) > RIGID_HEAD_MM:
         questions.append(OpenQuestion(
-            "head_markers", "markerset",
+            "rigid_head", "markerset",
             f"the head markers {', '.join(head)} do not move as one rigid body (their "
             f"distances vary by up to {_rigid_spread(take, head):.1f} mm): keep them as "
             "head = [...] or move them to [regions] and use stabilize = 'auto'"))
-    neutral = int(np.argmin(np.nanmean(np.sum((in_head - pose) ** 2, axis=-1), axis=1)))
+    neutral = int(np.nanargmin(np.nanmean(np.sum((in_head - pose) ** 2, axis=-1), axis=1)))
 
     xy_face, _ = face_coordinates(alignment.on_mesh, marks)
     regions = classify_markers(face, alignment.on_mesh, marks, hints)
@@ -359,6 +354,22 @@ def infer_capture(take: Take, mesh: Mesh, *, mesh_landmarks=None) -> Inference:
                      neutral_frame=neutral, pose=pose, axes=axes, alignment=alignment,
                      mesh_landmarks=marks, regions=regions, landmarks=landmarks, xy=xy,
                      questions=questions, notes=notes)
+
+
+def _rest_pose(take: Take, face, head) -> tuple:
+    """Each marker's median in a provisional head frame (head markers, or the auto choice).
+
+    Returns the pose (M, 3) and the motion (M,) of face + head markers, mm, and the
+    positions in the head frame (T, M, 3).
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")          # provisional: the report comes later
+        frame = find_head_frame(take, method="head" if head else "auto",
+                                candidates=face + head, markerset=_head_set(head))
+    in_head = frame.take.select(face + head).positions
+    pose = np.nanmedian(in_head, axis=0)
+    motion = np.sqrt(np.nanmean(np.sum((in_head - pose) ** 2, axis=-1), axis=0))
+    return pose, motion, in_head
 
 
 def _head_set(head):
