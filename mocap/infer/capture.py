@@ -21,14 +21,14 @@ from mocap.errors import InputError
 from mocap.head_frame import JAW_REGIONS, find_head_frame
 from mocap.infer.alignment import Alignment, align_to_mesh
 from mocap.infer.axes import FaceAxes, face_axes
-from mocap.infer.landmark_pairs import LandmarkPair, pair_landmarks
+from mocap.infer.landmark_pairs import pair_landmarks
 from mocap.infer.mesh_landmarks import (
     MeshLandmarks,
     find_mesh_landmarks,
     mesh_axes_from_landmarks,
 )
 from mocap.infer.names import is_unlabeled, parse_name, split_prefix
-from mocap.infer.regions import RegionGuess, classify_markers, face_coordinates
+from mocap.infer.regions import classify_markers, face_coordinates
 from mocap.markerset import MarkerSet
 from mocap.mesh.landmarks import check_mesh_landmarks
 from mocap.mesh.mesh import Mesh
