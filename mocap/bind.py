@@ -23,11 +23,12 @@ import mocap.neutral as neutrals
 from mocap._moved import BIND_NAMES
 from mocap.anatomy import ANATOMICAL_POINTS
 from mocap.errors import FileFormatError, InputError, MarkerError
+from mocap.head_frame import STABILIZATIONS, find_head_frame
 from mocap.mesh.landmarks import check_mesh_landmarks
 from mocap.mesh.layout import MarkerLayout
 from mocap.mesh.mesh import Mesh, degenerate_faces, face_normals
 from mocap.rigid import apply_transform, fit_rigid
-from mocap.stabilize import stabilize as stabilize_take
+from mocap.stabilize import ROBUST_GUARD_DEG
 from mocap.take import as_take
 from mocap.util.atomic import atomic_path
 from mocap.util.deprecation import moved_names
@@ -421,8 +422,9 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
 
 
 #: How :func:`bind_take` finds the head frame of a take: its marker set's head
-#: markers, or none (the take is in the head frame already).
-BIND_STABILIZATIONS = ("head", "none")
+#: markers, face markers that hold their shape, or none (the take is in the
+#: head frame already); :data:`mocap.head_frame.STABILIZATIONS`.
+BIND_STABILIZATIONS = STABILIZATIONS
 
 
 @dataclass(frozen=True, eq=False)
@@ -453,7 +455,8 @@ class BoundTake:
 def bind_take(take, markerset, mesh: Mesh, mesh_landmarks: Mapping[str, int], *,
               frame="auto", stabilize: str = "head", head_frame: bool = False,
               icp: bool = True, skin_offset: float = 0.0,
-              max_distance_warn: float = 3.0) -> BoundTake:
+              max_distance_warn: float = 3.0, robust: bool = True,
+              guard_deg: float | None = ROBUST_GUARD_DEG) -> BoundTake:
     """Bind the markers of a take's neutral frame to a face mesh.
 
     Parameters
@@ -472,16 +475,20 @@ def bind_take(take, markerset, mesh: Mesh, mesh_landmarks: Mapping[str, int], *,
         bound pose is the mean over the hold's window, taken in the head
         frame (the head may move during the hold): one frame's noise is not
         bound into every displacement.
-    stabilize : {"head", "none"}
-        How the head frame is found: from the marker set's head markers
-        (:func:`mocap.stabilize.stabilize`), or "none": `take` is in the head
-        frame already (a stabilized take, as the chain binds).
+    stabilize : {"head", "auto", "none"}
+        How the head frame is found (:func:`mocap.head_frame.find_head_frame`):
+        from the marker set's head markers, from the face markers that hold
+        their shape ("auto", or the set's ``stabilization`` list), or "none":
+        `take` is in the head frame already (a stabilized take, as the chain
+        binds; not checked here).
     head_frame : bool, default False
         Bind the pose in the head frame; otherwise in the capture frame of the
         neutral frame (the head-frame mean carried there by that frame's head
         pose). Either is the same with ``stabilize = "none"``.
     icp, skin_offset, max_distance_warn
         As in :func:`bind_markers` (skin_offset in mm).
+    robust, guard_deg
+        Of the head fit (:func:`mocap.head_frame.find_head_frame`).
 
     Returns
     -------
@@ -493,19 +500,22 @@ def bind_take(take, markerset, mesh: Mesh, mesh_landmarks: Mapping[str, int], *,
         A marker of the set absent from the take, or missing in the neutral
         frame (or the hold's window).
     InputError
-        A frame index beyond the take; the errors of :func:`bind_markers`.
+        A frame index beyond the take; ``stabilize = "head"`` with a marker set
+        naming no head markers; the errors of :func:`bind_markers`.
     """
     take = as_take(take)
     if stabilize not in BIND_STABILIZATIONS:
         raise InputError(f"stabilize must be one of {BIND_STABILIZATIONS}, got {stabilize!r}")
+    take = markerset.own_labels(take)
     markerset.check_labels(take.labels, source=take.source.path or "the take")
     take = take.select(markerset.markers)
     picked = frame in neutrals.PICKED_FRAMES
     if not picked:
         frame = as_int(frame, "frame", minimum=0)
     head = None
-    if stabilize == "head" and (picked or head_frame):
-        head = stabilize_take(take, markerset.head)
+    if stabilize != "none" and (picked or head_frame):
+        head = find_head_frame(take, markerset, method=stabilize, robust=robust,
+                               guard_deg=guard_deg).stabilization
     in_head = take if head is None else head.take
     on_face = neutrals.find_neutral(in_head.select(markerset.face_markers), frame)
     index = on_face.frame

@@ -4,7 +4,10 @@ marker belongs to, rigid clusters, and the anatomical landmarks markers sit on.
 A marker set is a TOML file::
 
     name = "facial-sing"
-    head = ["root-1", "root-2", "root-3", "root-4"]   # rigid head markers (>= 3)
+    prefix = ""            # optional: a subject prefix ("Subject:") of the capture's labels
+    head = ["root-1", "root-2", "root-3", "root-4"]   # rigid head markers: none or >= 3
+    stabilization = []     # optional: face markers that stand in for a head
+                           # (stabilize = "auto"; empty: found in each take)
 
     [regions]              # every face marker in exactly one region
     upper_lip = ["UL1", "UL2"]
@@ -21,7 +24,14 @@ A marker set is a TOML file::
     [landmarks]            # anatomical point (mocap.anatomy) = marker label
     mouth_corner_left = "UL1"
 
-Left and right are the subject's own.
+    [open_questions]       # written by `mocap2mesh init`: what it could not decide
+    # name = "the question"   (answer it in the file, then delete the line)
+
+Left and right are the subject's own. A capture without head markers (``head =
+[]``) is stabilized on face markers (``stabilize = "auto"``) or taken as it is
+(``stabilize = "none"``, for takes already in the head frame); see
+:func:`mocap.head_frame.find_head_frame`. A file with an unanswered open
+question is refused.
 """
 
 from __future__ import annotations
@@ -32,7 +42,7 @@ from typing import Mapping
 
 from mocap.anatomy import ANATOMICAL_POINTS
 from mocap.errors import FileFormatError, MarkerError
-from mocap.util.toml import read_toml
+from mocap.util.toml import check_open_questions, read_toml
 
 __all__ = ["MarkerSet", "load_markerset", "REQUIRED_REGIONS"]
 
@@ -42,7 +52,8 @@ __all__ = ["MarkerSet", "load_markerset", "REQUIRED_REGIONS"]
 REQUIRED_REGIONS = ("upper_lip", "lower_lip", "left_brow", "right_brow",
                     "left_eye", "right_eye", "other")
 
-_KEYS = {"name", "head", "regions", "clusters", "landmarks", "description"}
+_KEYS = {"name", "prefix", "head", "stabilization", "regions", "clusters", "landmarks",
+         "description", "open_questions"}
 
 
 @dataclass(frozen=True)
@@ -53,15 +64,21 @@ class MarkerSet:
     ----------
     name : str
     head : tuple of str
-        Rigid head markers (at least three).
+        Rigid head markers: none, or at least three.
     regions : mapping of str to tuple of str
         Face markers by facial region; every face marker in exactly one region.
     clusters : mapping of str to tuple of str
-        Rigid clusters, the head (as ``"head"``) included.
+        Rigid clusters, the head (as ``"head"``, when it has markers) included.
     landmarks : mapping of str to str
         Anatomical point name (see :mod:`mocap.anatomy`) to marker label.
     path : str or None
         The file it was read from.
+    stabilization : tuple of str
+        Face markers that stand in for a head when there are no head markers
+        (``stabilize = "auto"`` fits them; empty: it finds them in each take).
+    prefix : str
+        Subject prefix of the capture's labels (Vicon's ``"Subject:"``): the
+        set names markers without it, :meth:`own_labels` strips it from a take.
     """
 
     name: str
@@ -70,6 +87,8 @@ class MarkerSet:
     clusters: Mapping[str, tuple] = field(default_factory=dict)
     landmarks: Mapping[str, str] = field(default_factory=dict)
     path: str | None = None
+    stabilization: tuple = ()
+    prefix: str = ""
 
     @property
     def face_markers(self) -> tuple:
@@ -89,6 +108,26 @@ class MarkerSet:
             if label in labels:
                 return region
         raise MarkerError(label, f"not in marker set {self.name!r}")
+
+    def own_labels(self, take):
+        """The take with this set's subject prefix stripped from its labels (itself without one).
+
+        Raises
+        ------
+        MarkerError
+            A label without the prefix equals one stripped of it.
+        """
+        if not self.prefix or not any(x.startswith(self.prefix) for x in take.labels):
+            return take
+        labels = tuple(x[len(self.prefix):] if x.startswith(self.prefix) else x
+                       for x in take.labels)
+        seen = set()
+        for original, label in zip(take.labels, labels):
+            if label in seen:
+                raise MarkerError(original, f"is {label!r} without the prefix "
+                                            f"{self.prefix!r}, and the take has that label too")
+            seen.add(label)
+        return take.replace(labels=labels)
 
     def check_labels(self, labels, *, source: str = "the take") -> None:
         """Raise MarkerError if a marker of this set is absent from `labels`."""
@@ -119,19 +158,22 @@ def load_markerset(path) -> MarkerSet:
     Raises
     ------
     FileFormatError
-        Unreadable TOML, unknown keys, fewer than three head markers, a marker in
-        two regions, a missing required region, an unknown anatomical point, or a
-        landmark on a marker the set does not name.
+        Unreadable TOML, unknown keys, one or two head markers, a marker in
+        two regions, a missing required region, an unknown anatomical point, a
+        landmark on a marker the set does not name, stabilization markers that
+        are not 3 or more face markers of the set, or an open question not answered.
     """
     path = Path(path)
     doc = read_toml(path, "marker set")
     unknown = set(doc) - _KEYS
     if unknown:
         raise FileFormatError(path, f"unknown keys {sorted(unknown)}; expected {sorted(_KEYS)}")
+    check_open_questions(doc, path, "marker set")
     head = _labels(doc.get("head", []), path, "head")
-    if len(head) < 3:
+    if 0 < len(head) < 3:
         raise FileFormatError(path, f"head names {len(head)} markers; a rigid head fit needs "
-                                    "at least 3")
+                                    "at least 3 (or list none, and stabilize on face markers "
+                                    "with stabilize = 'auto')")
     raw_regions = doc.get("regions", {})
     if not isinstance(raw_regions, dict):
         raise FileFormatError(path, "[regions] must be a table of region = [labels]")
@@ -148,7 +190,12 @@ def load_markerset(path) -> MarkerSet:
                                             f"and {region!r}")
             owner[label] = region
         regions[region] = labels
-    clusters = {"head": head}
+    stabilization = _labels(doc.get("stabilization", []), path, "stabilization")
+    not_face = [label for label in stabilization if owner.get(label, "head") == "head"]
+    if not_face or 0 < len(stabilization) < 3:
+        raise FileFormatError(path, f"stabilization must name 3 or more face markers of the set "
+                                    f"(not face markers: {not_face})")
+    clusters = {"head": head} if head else {}
     for cluster, value in doc.get("clusters", {}).items():
         labels = _labels(value, path, f"cluster {cluster!r}")
         unknown_labels = [label for label in labels if label not in owner]
@@ -165,5 +212,10 @@ def load_markerset(path) -> MarkerSet:
             raise FileFormatError(path, f"landmark {point!r} names marker {label!r}, which "
                                         "the set does not list")
         landmarks[point] = label
+    prefix = doc.get("prefix", "")
+    if not isinstance(prefix, str):
+        raise FileFormatError(path, f"prefix must be a string (such as 'Subject:'), got "
+                                    f"{prefix!r}")
     return MarkerSet(name=str(doc.get("name", path.stem)), head=head, regions=regions,
-                     clusters=clusters, landmarks=landmarks, path=str(path))
+                     clusters=clusters, landmarks=landmarks, path=str(path),
+                     stabilization=stabilization, prefix=prefix)

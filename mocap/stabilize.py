@@ -7,49 +7,35 @@ whole take in the head frame.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
+from mocap._stabilize import interpolate, solve
 from mocap.errors import InputError, MarkerError
 from mocap.gaps import find_gaps
-from mocap.rigid import apply_inverse_transform, apply_transform, fit_frames_last, frames_last
+from mocap.rigid import apply_inverse_transform, apply_transform
 from mocap.take import Take, as_take
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
 
-__all__ = ["stabilize", "Stabilization", "Slip", "REFERENCES", "INVALID_POLICIES"]
+__all__ = ["stabilize", "Stabilization", "Slip", "Disagreement", "REFERENCES",
+           "INVALID_POLICIES", "ROBUST_GUARD_DEG"]
 
 #: Reference head shapes: the generalized-Procrustes mean of all frames, or one frame.
 REFERENCES = ("mean", "frame")
 #: What to do with frames that have no rigid fit (fewer than 3 visible head
 #: markers, or collinear ones): leave NaN, interpolate the transform, or raise.
 INVALID_POLICIES = ("nan", "interpolate", "raise")
-
-#: Median of the norm of a standard 3-D normal vector: turns the median
-#: residual norm into a per-coordinate noise scale sigma.
-_CHI3_MEDIAN = 1.5382
-#: Noise scale floor, mm: below any optical capture noise; keeps exact data
-#: from giving a zero scale.
-_MIN_SIGMA_MM = 1e-3
-#: Huber threshold (warm-up, convex); knee and cut-off of the redescending
-#: weight (Tukey's biweight on the excess over the knee), in sigma. Samples
-#: below the knee keep weight 1, so only frames with a suspect sample move.
-_HUBER_K = 3.0
-_TUKEY_KNEE = 4.0
-_TUKEY_C = 10.0
-#: Robust weights never go below this, so a frame never loses its rank.
-_WEIGHT_FLOOR = 1e-3
-#: Convergence: largest change of a robust weight in the Huber warm-up and in
-#: the final Tukey phase, and of the mean shape as a fraction of the noise
-#: scale (1e-7 mm at the noise floor; far below the mean's own uncertainty,
-#: about sigma / sqrt(n_frames)).
-_HUBER_TOL = 1e-2
-_WEIGHT_TOL = 1e-7
-_SHAPE_RTOL = 1e-4
-#: Frames of the first, cheap Procrustes pass that starts the mean shape.
-_START_FRAMES = 1024
+#: Default guard of the robust fit, degrees: frames where the robust and the
+#: plain least-squares head rotations differ by more are reported. A slipping
+#: marker of a headband of 4-6 markers moves the plain fit by well under this
+#: (up to 1.6 deg on facial-sing.c3d, where the robust fit discounts 28
+#: slips); beyond it the two fits follow different rigid bodies, and neither
+#: is to be trusted silently.
+ROBUST_GUARD_DEG = 2.0
 
 
 @dataclass(frozen=True)
@@ -70,6 +56,23 @@ class Slip:
     start: int
     stop: int
     max_residual: float
+
+
+@dataclass(frozen=True)
+class Disagreement:
+    """A run of frames where the robust and the plain rigid fits of the head disagree.
+
+    Attributes
+    ----------
+    start, stop : int
+        Frame indices (0-based) of the run, `stop` excluded.
+    max_angle : float
+        Largest angle between the two head rotations in the run, degrees.
+    """
+
+    start: int
+    stop: int
+    max_angle: float
 
 
 @dataclass(frozen=True)
@@ -112,6 +115,12 @@ class Stabilization:
         Whether the robust weights and the mean shape stopped changing.
     message : str
         A one-line summary.
+    robust : bool
+        Whether the robust (slip-tolerant) fit made the transforms.
+    disagreements : tuple of Disagreement
+        With `robust` and a guard: runs of frames where the plain
+        least-squares fit turns the head by more than the guard angle away
+        from the robust one (reported, and warned about).
     """
 
     rotation: np.ndarray
@@ -129,6 +138,8 @@ class Stabilization:
     n_iter: int
     converged: bool
     message: str
+    robust: bool = True
+    disagreements: tuple = ()
 
     def to_world(self, points) -> np.ndarray:
         """Head-frame points to world positions, ``R(t) @ p + t(t)``.
@@ -172,8 +183,9 @@ class Stabilization:
 
 def stabilize(take: Take, head_markers, *, reference: str = "mean",
               reference_frame: int | None = None, weights=None, robust: bool = True,
-              slip_threshold: float = 1.0, min_slip_frames: int = 5,
-              invalid: str = "nan", max_iter: int = 100) -> Stabilization:
+              guard_deg: float | None = ROBUST_GUARD_DEG, slip_threshold: float = 1.0,
+              min_slip_frames: int = 5, invalid: str = "nan",
+              max_iter: int = 100) -> Stabilization:
     """Remove the rigid head motion from a take.
 
     Parameters
@@ -195,6 +207,14 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
     robust : bool, default True
         Down-weight samples of head markers that move relative to the others
         (iteratively reweighted least squares, all frames at once).
+    guard_deg : float or None, default ROBUST_GUARD_DEG (2)
+        With `robust`, also make the plain least-squares fit and report the
+        runs of frames where the two head rotations differ by more than this
+        many degrees (``disagreements``, and a warning naming them); None: no
+        guard. A robust fit that disagrees with the plain one is either
+        discounting a slipping marker or following the wrong rigid body (a
+        stand-in head of face markers that move together): only the user can
+        tell, so the frames are reported rather than either fit trusted silently.
     slip_threshold : float, default 1.0
         Residual (mm) above which a head marker is reported as slipped.
     min_slip_frames : int, default 5
@@ -211,6 +231,12 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
     Returns
     -------
     Stabilization
+
+    Warns
+    -----
+    UserWarning
+        The robust and the plain fits disagree by more than `guard_deg` (the
+        runs of frames are named).
 
     Raises
     ------
@@ -264,6 +290,8 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
     max_iter = as_int(max_iter, "max_iter", minimum=1)
     if not isinstance(robust, bool):
         raise InputError(f"robust must be True or False, got {robust!r}")
+    if guard_deg is not None:
+        guard_deg = as_positive_float(guard_deg, "guard_deg")
     head = take.positions[:, take.indices(labels)]
     n_frames, n_head = head.shape[:2]
     base = _sample_weights(weights, n_frames, n_head) * ~np.isnan(head[..., 0])
@@ -278,13 +306,19 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
                           "is never visible together with 2 other head markers: "
                           "it cannot be placed on the head")
 
-    solution = _solve(head, base, reference, ref_index, robust, max_iter)
+    solution = solve(head, base, reference, ref_index, robust, max_iter)
     rotation, translation, valid, shape, robust_w, sigma, n_iter, converged = solution
+    disagreements = ()
+    if robust and guard_deg is not None:
+        plain = solve(head, base, reference, ref_index, False, max_iter)
+        disagreements = _disagreements(rotation, valid, plain[0], plain[2], guard_deg)
+        if disagreements:
+            _warn_disagreements(disagreements, labels, guard_deg, take.first_frame)
     if invalid == "raise" and not valid.all():
         raise _missing_error(labels, base > 0, valid, take.first_frame)
     interpolated = np.zeros(n_frames, dtype=bool)
     if invalid == "interpolate" and not valid.all():
-        rotation, translation = _interpolate(rotation, translation, valid)
+        rotation, translation = interpolate(rotation, translation, valid)
         interpolated = ~valid
     residuals = np.linalg.norm(apply_transform(rotation, translation, shape) - head, axis=-1)
     slips = _slips(residuals, valid, labels, slip_threshold, min_slip_frames)
@@ -295,6 +329,8 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
     message = (f"{'converged' if converged else 'did not converge'} in {n_iter} fit passes; "
                f"{n_bad} of {n_frames} frames without a fit; {len(slips)} slips; "
                f"noise {sigma:.3g} mm")
+    if disagreements:
+        message += f"; robust and plain fits disagree in {len(disagreements)} runs of frames"
     return Stabilization(
         rotation=read_only(rotation, copy=True), translation=read_only(translation, copy=True),
         reference_shape=read_only(shape, copy=True), head_markers=labels,
@@ -302,7 +338,32 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
         interpolated=read_only(interpolated, copy=True), weights=read_only(used, copy=True),
         slips=slips,
         take=head_take, reference_frame=ref_index, noise=sigma, n_iter=n_iter,
-        converged=converged, message=message)
+        converged=converged, message=message, robust=robust, disagreements=disagreements)
+
+
+def _disagreements(rotation, valid, plain_rotation, plain_valid, guard_deg) -> tuple:
+    """Runs of frames where two fits' rotations differ by more than `guard_deg` degrees."""
+    both = valid & plain_valid
+    angle = np.zeros(len(rotation))
+    if both.any():
+        relative = np.swapaxes(rotation[both], -1, -2) @ plain_rotation[both]
+        angle[both] = np.degrees(Rotation.from_matrix(relative).magnitude())
+    gaps = find_gaps((angle > guard_deg)[:, None])
+    return tuple(Disagreement(start=int(a), stop=int(b), max_angle=float(angle[a:b].max()))
+                 for a, b in zip(gaps.start, gaps.stop))
+
+
+def _warn_disagreements(runs, labels, guard_deg, first_frame) -> None:
+    worst = sorted(runs, key=lambda r: -r.max_angle)[:5]
+    where = ", ".join(f"{_frames_text(r.start, r.stop, first_frame)} up to {r.max_angle:.1f} deg"
+                      for r in worst)
+    n_frames = sum(r.stop - r.start for r in runs)
+    warnings.warn(
+        f"the robust and the plain rigid fits of the stabilization markers "
+        f"({', '.join(labels)}) disagree by more than {guard_deg:g} deg in {n_frames} frames "
+        f"({len(runs)} runs; worst: {where}): a marker slips there, or the markers do not "
+        "move as one rigid body; check their residuals (head_residuals.png) before trusting "
+        "either fit, or choose other stabilization markers", stacklevel=3)
 
 
 def _head_labels(take: Take, head_markers) -> tuple:
@@ -368,179 +429,6 @@ def _reference_index(reference, reference_frame, n_frames, possible, base, label
                           f"is missing in the reference frame {first_frame + index} "
                           f"(index {index}): a rigid fit needs 3 visible head markers")
     return index
-
-
-def _solve(head, base, reference, ref_index, robust, max_iter):
-    """Generalized Procrustes and robust reweighting, all frames at once.
-
-    Works on frames-last arrays: y (3, n_head, n_frames). The mean shape
-    starts from a subsample of frames; without `robust` it is iterated to
-    convergence. With `robust`, after one full fit and re-average the noise
-    scale is fixed, the Huber weights are iterated (shape fixed), the shape
-    re-averaged once, then the Tukey weights and the shape until both
-    settle, refitting only the frames whose weights still change. Returns
-    rotation (n_frames, 3, 3), translation (n_frames, 3), valid, shape,
-    robust weights (n_frames, n_head), noise scale, number of fit passes and
-    convergence flag.
-    """
-    y = frames_last(head)
-    seen = ~np.isnan(head[..., 0]).T
-    base = base.T
-    if reference == "frame":
-        shape = head[ref_index].copy()
-    else:
-        start = int(np.argmax(np.count_nonzero(base > 0, axis=0)))
-        shape = np.where(seen[:, start, None] & (base[:, start, None] > 0), head[start], np.nan)
-    robust_w = np.ones(base.shape)
-    state = {"passes": 0}
-
-    def fit_all():
-        known = ~np.isnan(shape[:, 0])
-        state["passes"] += 1
-        rot, trans, _, _, ok = fit_frames_last(np.where(known[:, None], shape, 0.0), y,
-                                               base * robust_w * known[:, None])
-        return rot, trans, ok
-
-    def settle_shape(fit, sigma):
-        """Re-average the mean shape until it moves less than the tolerance.
-
-        The fit returned is the last one, made with the shape before the last
-        (sub-tolerance) move: no pass is spent only to confirm convergence.
-        """
-        nonlocal shape
-        while reference == "mean" and state["passes"] < max_iter:
-            new = _mean_shape(y, base * robust_w, fit, ref_index, shape)
-            change = np.abs(new - shape).max() if not np.isnan(shape).any() else np.inf
-            shape = new
-            if change <= _SHAPE_RTOL * sigma:
-                return fit, True
-            fit = fit_all()
-        return fit, reference == "frame"
-
-    if reference == "mean":
-        shape = _start_shape(y, base, shape, ref_index)
-        state["passes"] += 1
-    fit, settled = fit_all(), reference == "frame"
-    if not settled and robust:    # one re-average; the robust phases settle the shape
-        shape = _mean_shape(y, base, fit, ref_index, shape)
-    elif not settled:             # a first noise scale, for the tolerance only
-        fit, settled = settle_shape(fit, _noise_scale(_residuals(shape, fit, y, seen), base))
-    sigma = _noise_scale(_residuals(shape, fit, y, seen), base)
-    if robust:
-        # Huber warm-up with the shape fixed, one re-average, then Tukey weights
-        # and mean shape until both settle.
-        _reweight(shape, fit, y, seen, base, robust_w, sigma, "huber", _HUBER_TOL, state,
-                  max_iter)
-        if reference == "mean":
-            shape = _mean_shape(y, base * robust_w, fit, ref_index, shape)
-        settled = False
-        while not settled and state["passes"] < max_iter:
-            done = _reweight(shape, fit, y, seen, base, robust_w, sigma, "tukey", _WEIGHT_TOL,
-                             state, max_iter)
-            fit, settled = settle_shape(fit, sigma)
-            settled = settled and done
-    rotation, translation, valid = fit
-    return (np.moveaxis(rotation, -1, 0), translation.T, valid, shape, robust_w.T, sigma,
-            state["passes"], settled)
-
-
-def _start_shape(y, base, shape, ref_index) -> np.ndarray:
-    """A first mean shape, posed onto `ref_index`: at most _START_FRAMES frames fitted to `shape`.
-
-    Close to the mean of all frames (within about sigma / sqrt(_START_FRAMES)),
-    so that the full fits that follow start near convergence.
-    """
-    fitted = np.flatnonzero(np.count_nonzero(base > 0, axis=0) >= 3)
-    sub = np.union1d(fitted[np.linspace(0, len(fitted) - 1, min(_START_FRAMES, len(fitted)))
-                            .astype(np.intp)], [ref_index])
-    known = ~np.isnan(shape[:, 0])
-    rot, trans, _, _, ok = fit_frames_last(np.where(known[:, None], shape, 0.0), y[..., sub],
-                                           base[:, sub] * known[:, None])
-    return _mean_shape(y[..., sub], base[:, sub], (rot, trans, ok),
-                       int(np.searchsorted(sub, ref_index)), shape)
-
-
-def _reweight(shape, fit, y, seen, base, robust_w, sigma, loss, tol, state, max_iter) -> bool:
-    """IRLS with the shape fixed, in place on `fit` and `robust_w`; refits only changing frames.
-
-    Returns whether the weights settled (every change below `tol`).
-    """
-    rotation, translation, valid = fit
-    everything = slice(None)                # views, not copies, on the first round
-    frames = everything
-    while state["passes"] < max_iter:
-        part = (rotation[..., frames], translation[:, frames], valid[frames])
-        new_w = _robust_weights(_residuals(shape, part, y[..., frames], seen[:, frames])
-                                / sigma, loss)
-        change = np.where(base[:, frames] > 0, np.abs(new_w - robust_w[:, frames]), 0.0)
-        robust_w[:, frames] = new_w
-        moving = change.max(axis=0) > tol
-        frames = np.flatnonzero(moving) if frames is everything else frames[moving]
-        if frames.size == 0:
-            return True
-        state["passes"] += 1
-        rot, trans, _, _, ok = fit_frames_last(shape, y[..., frames],
-                                               base[:, frames] * robust_w[:, frames])
-        rotation[..., frames], translation[:, frames], valid[frames] = rot, trans, ok
-    return False
-
-
-def _residuals(shape, fit, y, seen) -> np.ndarray:
-    """Distances (n_head, n_frames), mm, from the posed shape to the markers; NaN if unseen."""
-    rotation, translation, _ = fit
-    posed = np.stack([shape @ rotation[i] for i in range(3)]) + translation[:, None]
-    return np.where(seen, np.sqrt(((posed - y) ** 2).sum(axis=0)), np.nan)
-
-
-def _noise_scale(residuals, base) -> float:
-    """Robust per-coordinate noise scale, mm: median residual norm / 1.5382, floored."""
-    used = residuals[(base > 0) & ~np.isnan(residuals)]
-    return max(float(np.median(used)) / _CHI3_MEDIAN, _MIN_SIGMA_MM)
-
-
-def _robust_weights(u, loss) -> np.ndarray:
-    """Huber or Tukey weights of residuals in units of sigma, floored; 1 where u is NaN."""
-    if loss == "huber":
-        w = _HUBER_K / np.maximum(u, _HUBER_K)
-    else:
-        excess = np.clip(u - _TUKEY_KNEE, 0.0, _TUKEY_C - _TUKEY_KNEE)
-        w = np.square(1.0 - np.square(excess / (_TUKEY_C - _TUKEY_KNEE)))
-    return np.where(np.isnan(u), 1.0, np.maximum(w, _WEIGHT_FLOOR))
-
-
-def _mean_shape(y, weights, fit, ref_index, old) -> np.ndarray:
-    """Weighted mean (n_head, 3) of all frames in the head frame, posed onto `ref_index`.
-
-    ``sum_t w R(t)^T (y - t(t)) / sum_t w`` by matrix products over frames.
-    """
-    rotation, translation, valid = fit
-    rot = np.where(valid, rotation, 0.0)
-    trans = np.where(valid, translation, 0.0)
-    w = weights * valid
-    acc = sum((w * y[i]) @ rot[i].T for i in range(3))
-    acc -= w @ (trans[:, None] * rot).sum(axis=0).T
-    total = w.sum(axis=1)
-    shape = np.where(total[:, None] > 0, acc / np.where(total > 0, total, 1.0)[:, None], old)
-    rot_ref, trans_ref, _, _, _ = fit_frames_last(shape, y[..., ref_index:ref_index + 1],
-                                                  weights[:, ref_index:ref_index + 1])
-    return shape @ rot_ref[..., 0].T + trans_ref[:, 0]
-
-
-def _interpolate(rotation, translation, valid) -> tuple:
-    """Fill frames without a fit: slerp of R, linear t, nearest valid held at the ends."""
-    keys = np.flatnonzero(valid)
-    todo = np.flatnonzero(~valid)
-    rotation = rotation.copy()
-    translation = translation.copy()
-    if len(keys) == 1:
-        rotation[todo] = rotation[keys[0]]
-        translation[todo] = translation[keys[0]]
-        return rotation, translation
-    slerp = Slerp(keys, Rotation.from_matrix(rotation[keys]))
-    rotation[todo] = slerp(np.clip(todo, keys[0], keys[-1])).as_matrix()
-    for axis in range(3):
-        translation[todo, axis] = np.interp(todo, keys, translation[keys, axis])
-    return rotation, translation
 
 
 def _slips(residuals, valid, labels, threshold, min_frames) -> tuple:

@@ -20,8 +20,8 @@ PACKAGES = ("mocap", "basis", "fit")
 #: ``basis``'s modules) are not layered.
 LAYERS = {
     "mocap": (("errors",), ("util",), ("units", "anatomy", "take"), ("gaps", "rigid", "markerset"),
-              ("io", "stabilize", "mesh", "neutral"), ("clean", "bind"),
-              ("retarget", "viz", "synth")),
+              ("io", "stabilize", "stable_markers", "head_frame", "mesh", "neutral"),
+              ("clean", "bind"), ("retarget", "viz", "synth"), ("infer",)),
     "fit": (("solve", "metrics"), ("exports", "report", "gestures"), ("pipeline",), ("demo",),
             ("cli",)),
 }

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -11,6 +12,8 @@ from tolerances import FLOAT32_REL, MESH_EXACT
 from basis.artist import load_artist_basis
 from fit.demo import make_demo_session
 from fit.exports import read_weights_csv
+from fit.pipeline.config import INPUT_KEYS, OUTPUT_KEYS, STAGE_TABLES
+from fit.pipeline.template import option_rows
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 
@@ -47,3 +50,19 @@ def test_the_readme_script_runs_and_its_outputs_agree(tmp_path, monkeypatch, cap
     np.testing.assert_allclose(saved[list(H.names)].to_numpy(), weights[list(H.names)],
                                rtol=0, atol=0)
     assert "jaw_open" in capsys.readouterr().out
+
+
+def test_the_readme_names_every_key_of_the_run_configuration():
+    """'Your own capture' lists every key (init writes them all into run.toml)."""
+    text = README.read_text(encoding="utf-8")
+    section = text[text.index("## Your own capture"):text.index("## Python API")]
+    keys = [f"inputs.{k}" for k in INPUT_KEYS] + [f"output.{k}" for k in OUTPUT_KEYS]
+    keys += [f"{table}.{f.name}" for table, cls in STAGE_TABLES.items()
+             for f in dataclasses.fields(cls)]
+    missing = [k for k in keys if f"`{k}`" not in section]
+    assert not missing, f"add these keys to the README's run-configuration table: {missing}"
+    # and each stage option's row says what the code says (default and comment)
+    stale = [row for row in option_rows() if row not in section.splitlines()]
+    assert not stale, ("the README's run-configuration table differs from the options' "
+                       "docstrings (fit.pipeline.template.option_rows): " + "; ".join(stale))
+

@@ -162,7 +162,7 @@ def test_mean_shape_is_the_weighted_average_of_the_aligned_frames(robust):
 def test_subsampled_start_reaches_the_same_solution(monkeypatch):
     take, _, _ = slipped_take(n_frames=1500)
     fast = stabilize(take, HEAD, reference_frame=700)
-    monkeypatch.setattr("mocap.stabilize._START_FRAMES", 10 ** 9)   # start from every frame
+    monkeypatch.setattr("mocap._stabilize._START_FRAMES", 10 ** 9)   # start from every frame
     full = stabilize(take, HEAD, reference_frame=700)
     np.testing.assert_allclose(fast.take.positions, full.take.positions,
                                atol=STABILIZE_CONVERGED_NOISE * full.noise)

@@ -121,6 +121,23 @@ STABILIZE_ON_HEAD_MM = 0.5
 #: Median head-marker residual of facial-sing.c3d (markers on the skin of a real head), mm.
 STABILIZE_REAL_RESIDUAL_MM = 1.0
 
+#: ``stabilize = "auto"`` against a simulation's true head motion: the issue's aims for the
+#: median rotation error (deg) and translation error at the face (mm).
+AUTO_HEAD_DEG = 0.3
+AUTO_HEAD_MM = 0.5
+
+# ---------------------------------------------------------------- inference (init)
+
+#: A mesh landmark found from the mesh is correct within this of the landmark file written
+#: by hand for the ICT face, mm: a tenth of the mouth's width (the Maskle places a mask
+#: with them, and the binding's ICP refines what they start).
+MESH_LANDMARK_MM = 5.0
+#: Regions inferred correctly: the issue's aim, a fraction of the face markers.
+REGIONS_CORRECT = 0.95
+#: An inferred face axis within this of the truth, degrees (the truth from region
+#: centroids is itself a few degrees off a symmetric face's axes).
+AXIS_DEG = 15.0
+
 # ---------------------------------------------------------------- binding
 
 #: A similarity recovered by marker binding from exact data: scale (relative), rotation, mm.

@@ -11,11 +11,19 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mocap.clean.ingest import FILL_CHOICES
+from mocap.clean.ingest import FILL_CHOICES, STABILIZATIONS
 from mocap.neutral import HOLD_S, PICKED_FRAMES
+from mocap.stabilize import ROBUST_GUARD_DEG
 
 __all__ = ["parse_frame", "add_capture", "add_markerset", "add_mesh", "add_landmarks",
-           "add_binding", "add_units", "add_fill", "add_neutral_frame"]
+           "add_binding", "add_units", "add_fill", "add_neutral_frame", "add_stabilize",
+           "stabilize_options", "STABILIZE_HELP"]
+
+#: What each stabilization means, for the help of every command that takes one.
+STABILIZE_HELP = ("how the head frame is found: 'head' (the marker set's head markers), 'auto' "
+                  "(the face markers that hold their shape best over the take, or the marker "
+                  "set's stabilization list) or 'none' (the take is in the head frame already; "
+                  "checked, with a warning when the face moves rigidly)")
 
 #: What each neutral-frame choice means, for the help of every command that takes one.
 NEUTRAL_FRAME_HELP = ("the neutral frame by the capture's own frame number (as the weights CSV, "
@@ -90,3 +98,44 @@ def add_fill(parser, *,
 def add_neutral_frame(parser, flag: str = "--frame", *, help: str = NEUTRAL_FRAME_HELP) -> None:
     """The neutral frame: an index, ``auto`` or ``hold`` (:func:`mocap.neutral.find_neutral`)."""
     parser.add_argument(flag, type=parse_frame, default="auto", metavar="N|auto|hold", help=help)
+
+
+def add_stabilize(parser, *, default="head", const=None, help: str = STABILIZE_HELP) -> None:
+    """``--stabilize head|auto|none`` and the options of the robust head fit.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+    default : str or None
+        Value without the option (None: no stabilization).
+    const : object, optional
+        Value of ``--stabilize`` given alone, the old spelling of a command
+        whose flag took no value (``ingest --stabilize``: ``"head"``); None:
+        the option needs a value.
+    help : str
+    """
+    kwargs = {"nargs": "?", "const": const} if const is not None else {}
+    parser.add_argument("--stabilize", type=_stabilization, default=default,
+                        metavar="|".join(STABILIZATIONS), help=help, **kwargs)
+    parser.add_argument("--robust-stabilization", action=argparse.BooleanOptionalAction,
+                        default=True,
+                        help="fit the head frame with slip-tolerant robust weights (default; "
+                             "--no-robust-stabilization: plain least squares)")
+    parser.add_argument("--robust-guard", type=float, default=ROBUST_GUARD_DEG, metavar="DEG",
+                        help="report the frames where the robust and the plain head fits "
+                             f"disagree by more than DEG degrees (default {ROBUST_GUARD_DEG:g})")
+
+
+def stabilize_options(args) -> dict:
+    """The keyword arguments of :class:`mocap.clean.ingest.IngestOptions` that
+    :func:`add_stabilize` parsed (``stabilize`` excepted: commands give it their meaning)."""
+    return {"robust_stabilization": args.robust_stabilization,
+            "robust_guard_deg": args.robust_guard}
+
+
+def _stabilization(text: str) -> str:
+    if text not in STABILIZATIONS:
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(STABILIZATIONS)}, "
+                                         f"got {text!r}")
+    return text
+

@@ -132,9 +132,10 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
         How a WAV's loudness is measured
         (:data:`fit.gestures.prosody.PROSODY_METHODS`).
     options : IngestOptions, optional
-        Swap repair, removal of implausible samples, gap filling and low-pass;
-        resampling to `rate` and stabilization are always on (default:
-        ``fill="auto"``).
+        Swap repair, removal of implausible samples, gap filling, low-pass and
+        how the head frame is found (``stabilize``: "head", "auto" or "none";
+        off means "head"); resampling to `rate` and stabilization are always
+        on (default: ``fill="auto"``, head markers).
     neutral_frame : int, "auto" or "hold"
         Frame index at `rate` of the neutral N, or picked on the stabilized
         region markers: the frame closest to their median pose, or the neutral
@@ -167,7 +168,9 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
                                (basis, ArtistBasis, "basis"), (take, Take, "take")):
         if not isinstance(value, kind):
             raise InputError(f"{label} must be a {kind.__name__}, got {type(value).__name__}")
-    options = dataclasses.replace(options or IngestOptions(), resample_hz=rate, stabilize=True)
+    options = options or IngestOptions()
+    options = dataclasses.replace(options, resample_hz=rate,
+                                  stabilize=options.stabilize or "head")
     ingested = ingest(take, markerset=markerset, options=options)
     stab = ingested.stabilization
     labels = tuple(x for members in markerset.regions.values() for x in members)

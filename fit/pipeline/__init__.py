@@ -8,7 +8,9 @@
 - :mod:`.session`: every take of a session (:func:`run_takes`), with
   :mod:`.manifest` recording what was done, :mod:`.session_basis` the PCA the
   takes share (``[basis] scope = "session"``) and :mod:`.take_warnings` what
-  each take warned about.
+  each take warned about;
+- :mod:`.template`: a complete ``run.toml``, every key with its default and a comment;
+- :mod:`.initialize`: what ``mocap2mesh init`` writes for a capture never seen.
 """
 
 from fit._moved import PIPELINE_NAMES

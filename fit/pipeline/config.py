@@ -17,7 +17,9 @@ stage with the same name)::
     workers = 2                # default: min(2, number of takes)
 
     [ingest]    # mocap.clean.ingest.IngestOptions: fix_swaps, reject_implausible, fill,
-                #   max_gap (default 0.1 s), min_visible, extra_markers, lowpass_hz, ...
+                #   max_gap (default 0.1 s), min_visible, extra_markers, lowpass_hz, ...,
+                #   stabilize = "head" | "auto" | "none" (default "head"),
+                #   robust_stabilization, robust_guard_deg
     [bind]      # fit.pipeline.stages.BindOptions: frame, icp, skin_offset, max_distance_warn
     [retarget]  # mocap.retarget.retargeting.RetargetOptions: kernel, epsilon, degree, smoothing, ...
     [basis]     # fit.pipeline.stages.BasisOptions: pca_components, pca_coverage, qe_missing,
@@ -27,7 +29,11 @@ stage with the same name)::
     [report]    # ReportOptions: video, video_step, n_worst, exaggerate, held_out_folds,
                 #   held_out_guard_s, mesh_views
 
+    [open_questions]   # written by `mocap2mesh init`: a file with a question is refused
+
 Every error names the file and the key at fault (``run.toml: fit.space: ...``).
+``mocap2mesh init`` writes a file with every key, its default and a comment
+(:mod:`fit.pipeline.template`).
 """
 
 from __future__ import annotations
@@ -37,13 +43,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fit.pipeline.options import BasisOptions, BindOptions, FitOptions, ReportOptions
-from mocap.clean.ingest import IngestOptions
+from mocap.clean.ingest import STABILIZATIONS, IngestOptions
 from mocap.errors import InputError
 from mocap.retarget.retargeting import RetargetOptions
-from mocap.util.toml import read_toml
+from mocap.util.toml import check_open_questions, read_toml
 from mocap.util.validation import as_int
 
-__all__ = ["RunConfig", "load_run_config", "stage_options", "CAPTURE_SUFFIXES", "STAGE_TABLES"]
+__all__ = ["RunConfig", "load_run_config", "stage_options", "CAPTURE_SUFFIXES", "STAGE_TABLES",
+           "INPUT_KEYS", "OUTPUT_KEYS", "CHAIN_DEFAULTS"]
 
 #: Files of a session directory taken as captures.
 CAPTURE_SUFFIXES = (".c3d", ".csv", ".trc")
@@ -52,10 +59,25 @@ CAPTURE_SUFFIXES = (".c3d", ".csv", ".trc")
 #: The option tables: TOML table name -> options class.
 STAGE_TABLES = {"ingest": IngestOptions, "bind": BindOptions, "retarget": RetargetOptions,
                 "basis": BasisOptions, "fit": FitOptions, "report": ReportOptions}
-_INPUT_KEYS = {"captures", "session", "markerset", "mesh", "mesh_units", "landmarks", "basis"}
-_OUTPUT_KEYS = {"directory", "workers"}
-_TOP = {"inputs", "output", *STAGE_TABLES}
-_NOT_IN_CONFIG = {"ingest": {"stabilize"}}     # always on in the chain
+#: The keys of ``[inputs]``, each with what it is (paths relative to the file).
+INPUT_KEYS = {
+    "captures": "the takes: a list of capture files (C3D, Vicon CSV, TRC)",
+    "session": "or a directory: every .c3d .csv .trc file in it is a take",
+    "markerset": "marker-set TOML: head markers, regions, landmark markers",
+    "mesh": "the neutral face mesh (OBJ, PLY, glTF)",
+    "mesh_units": "units of the mesh when its file does not say (mm, cm, m, in)",
+    "landmarks": "mesh-landmark TOML: anatomical point = vertex id",
+    "basis": "the artist basis: a folder of OBJ shapes, a .glb, or a saved basis",
+}
+#: The keys of ``[output]``, each with what it is.
+OUTPUT_KEYS = {
+    "directory": "where every take's outputs go (default: out, beside this file)",
+    "workers": "takes run in parallel (default: min(2, number of takes))",
+}
+#: Options whose default in the chain differs from their stage's (the stage
+#: function alone does not stabilize; the chain always does).
+CHAIN_DEFAULTS = {"ingest": {"stabilize": "head"}}
+_TOP = {"inputs", "output", "open_questions", *STAGE_TABLES}
 
 
 @dataclass(frozen=True)
@@ -181,8 +203,12 @@ def stage_options(name: str, table, *, where="run configuration"):
     cls = STAGE_TABLES[name]
     if not isinstance(table, dict):
         _fail(where, name, f"expected a table, got {table!r}")
-    known = {f.name for f in dataclasses.fields(cls)} - _NOT_IN_CONFIG.get(name, set())
+    known = {f.name for f in dataclasses.fields(cls)}
     _unknown(where, table, known, f"{name}.")
+    if name == "ingest" and "stabilize" in table and table["stabilize"] not in STABILIZATIONS:
+        _fail(where, "ingest.stabilize", f"the chain always stabilizes: expected one of "
+                                         f"{', '.join(map(repr, STABILIZATIONS))}, got "
+                                         f"{table['stabilize']!r}")
     for key, value in table.items():            # one key at a time: the error names it
         try:
             cls(**{key: value})
@@ -209,7 +235,8 @@ def load_run_config(path) -> RunConfig:
     Raises
     ------
     FileFormatError
-        The file cannot be read, is not UTF-8 or not valid TOML (with the line).
+        The file cannot be read, is not UTF-8 or not valid TOML (with the line),
+        or holds an open question (``[open_questions]``) not answered.
     InputError
         A missing or unknown key, a wrong value, a path that does not exist:
         the message names the file and the key (``inputs.mesh``, ``fit.space``).
@@ -217,11 +244,12 @@ def load_run_config(path) -> RunConfig:
     path = Path(path).resolve()
     doc = read_toml(path, "run configuration")
     _unknown(path, doc, _TOP, "")
+    check_open_questions(doc, path, "run configuration")
     inputs = doc.get("inputs")
     if not isinstance(inputs, dict):
         _fail(path, "inputs", "missing table [inputs] (captures, markerset, mesh, landmarks, "
                               "basis)")
-    _unknown(path, inputs, _INPUT_KEYS, "inputs.")
+    _unknown(path, inputs, INPUT_KEYS, "inputs.")
     for key in ("markerset", "mesh", "landmarks", "basis"):
         if key not in inputs:
             _fail(path, f"inputs.{key}", "missing")
@@ -232,7 +260,7 @@ def load_run_config(path) -> RunConfig:
     output = doc.get("output", {})
     if not isinstance(output, dict):
         _fail(path, "output", f"expected a table, got {output!r}")
-    _unknown(path, output, _OUTPUT_KEYS, "output.")
+    _unknown(path, output, OUTPUT_KEYS, "output.")
     directory = output.get("directory", "out")
     if not isinstance(directory, str) or not directory:
         _fail(path, "output.directory", f"expected a path (string), got {directory!r}")
@@ -241,8 +269,12 @@ def load_run_config(path) -> RunConfig:
         workers = as_int(workers, "workers", minimum=1)
     except InputError as exc:
         _fail(path, "output.workers", str(exc))
-    stages = {name: stage_options(name, doc.get(name, {}), where=path)
-              for name in STAGE_TABLES}
+    stages = {}
+    for name in STAGE_TABLES:
+        table = doc.get(name, {})
+        if isinstance(table, dict):
+            table = CHAIN_DEFAULTS.get(name, {}) | table
+        stages[name] = stage_options(name, table, where=path)
     return RunConfig(
         path=path, captures=captures,
         markerset=_file(path, inputs["markerset"], "inputs.markerset"),

@@ -48,8 +48,12 @@ class BindOptions:
         :func:`mocap.neutral.pick_neutral_frame`. With "hold" the rest pose is
         the mean of the hold's window around that frame.
     icp : bool
+        Refine the landmark similarity by trimmed ICP against the surface.
     skin_offset : float, mm
+        Height of the marker centres off the skin (the markers' radius).
     max_distance_warn : float, mm
+        Warn about markers whose distance to the surface differs from
+        `skin_offset` by more than this.
     """
 
     frame: int | str = "auto"
@@ -179,7 +183,7 @@ class ReportOptions:
     Attributes
     ----------
     video : bool
-        Write the MP4 overlay video per basis.
+        Write the overlay video (one VP9 WebM, a panel per basis) into the report.
     video_step : int
         Draw every n-th frame in the video.
     n_worst : int

@@ -130,6 +130,15 @@ class Reconstruction:
         fields = {"markerset": self.markerset, "mesh": self.mesh}
         if not isinstance(self.markerset, MarkerSet):
             fields["markerset"] = load_markerset(self.markerset)
+        for name in STAGE_TABLES:           # options first: a wrong one costs no loading
+            attr = "basis_options" if name == "basis" else name
+            fields[attr] = _options(name, getattr(self, attr))
+        markerset = fields["markerset"]
+        if (fields["ingest"].stabilize or "head") == "head" and not markerset.head:
+            raise InputError(f"ingest.stabilize = 'head', but marker set {markerset.name!r} "
+                             "names no head markers: set ingest.stabilize = 'auto' "
+                             "(stabilization markers found among the face markers) or 'none' "
+                             "(the takes are in the head frame already)")
         if not isinstance(self.mesh, Mesh):
             fields["mesh"] = load_mesh(self.mesh, units=self.mesh_units)
         mesh = fields["mesh"]
@@ -140,9 +149,6 @@ class Reconstruction:
         elif self.basis.neutral.n_vertices != mesh.n_vertices:
             raise InputError(f"the basis has {self.basis.neutral.n_vertices} vertices, the "
                              f"mesh {mesh.n_vertices}: they must share a topology")
-        for name in STAGE_TABLES:
-            attr = "basis_options" if name == "basis" else name
-            fields[attr] = _options(name, getattr(self, attr))
         for attr, value in fields.items():
             object.__setattr__(self, attr, value)
 
@@ -377,7 +383,7 @@ class ReconstructionResult:
         mesh, take = self.reconstruction.mesh, self.take
         files = [out / "take.c3d", out / "head_motion.npz", out / "binding.json"]
         mocap.write(take, files[0], inputs=inputs)
-        save_head_motion(self.ingested.stabilization, files[1], inputs=inputs)
+        save_head_motion(self.ingested.head_frame, files[1], inputs=inputs)
         self.binding.save(files[2])
         timing = dict(rate=take.rate, first_frame=take.first_frame)
         rotation, translation = self.head_motion
@@ -463,6 +469,22 @@ class ReconstructionResult:
                               ).values()
         return files
 
+    def _head_frame_summary(self) -> dict:
+        """How the head frame was found: method, markers and their median residuals (mm)."""
+        head = self.ingested.head_frame
+        st = head.stabilization
+        residuals = {label: (None if np.isnan(r) else float(r))
+                     for label, r in zip(st.head_markers,
+                                         np.nanmedian(st.head_residuals, axis=0)
+                                         if st.head_markers else [])}
+        out = {"method": head.method, "markers": list(st.head_markers),
+               "median_residual_mm": residuals, "slips": len(st.slips),
+               "robust": st.robust, "robust_disagreements": len(st.disagreements)}
+        if head.motion is not None:
+            out["face_motion"] = {"median_deg": head.motion.median_angle,
+                                  "median_mm": head.motion.median_shift}
+        return out
+
     def summary(self) -> dict:
         """What the manifest records of the take: frames, binding, bases, fit and metrics."""
         take, ingested = self.take, self.ingested
@@ -474,6 +496,7 @@ class ReconstructionResult:
                            "trimmed": ingested.take.n_frames - take.n_frames,
                            "neutral": take.first_frame + self.bound.frame,
                            "neutral_window": self.bound.window, "rate": take.rate},
+                "head_frame": self._head_frame_summary(),
                 "binding_rms_mm": self.binding.rms,
                 "pca_components": self.bases.n_components,
                 "qe_missing_axes": self.bases.qe.missing_axes.tolist(),

@@ -123,8 +123,13 @@ class FitResult:
 
 
 def ingest_stage(take: Take, markerset: MarkerSet, options: IngestOptions) -> IngestResult:
-    """Clean and head-stabilize a take (:func:`mocap.clean.ingest.ingest`, stabilization forced on)."""
-    return ingest(take, markerset=markerset, options=replace(options, stabilize=True))
+    """Clean and head-stabilize a take (:func:`mocap.clean.ingest.ingest`).
+
+    Stabilization is always on in the chain: ``options.stabilize`` says how
+    the head frame is found ("head", "auto" or "none"; off means "head").
+    """
+    return ingest(take, markerset=markerset,
+                  options=replace(options, stabilize=options.stabilize or "head"))
 
 
 def complete_span(take: Take, labels) -> Take:

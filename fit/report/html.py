@@ -159,6 +159,8 @@ def ingest_stats(result) -> dict:
         stats["still missing samples"] = int(result.fill.n_missing)
     if result.stabilization is not None:
         stab = result.stabilization
+        stats["head frame"] = (f"{result.head_frame.method}: {', '.join(stab.head_markers)}"
+                               if stab.head_markers else result.head_frame.method)
         stats["head-fit noise (mm)"] = float(stab.noise)
         stats["head-marker slips"] = len(stab.slips)
         stats["frames without a head fit"] = int((~np.asarray(stab.valid)).sum())

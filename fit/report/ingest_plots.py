@@ -72,6 +72,15 @@ def plot_head_residuals(stabilization, path) -> None:
     take = stabilization.take
     t = take.times
     markers = stabilization.head_markers
+    if not markers:                                # stabilize = "none": nothing was fitted
+        fig = new_figure(11, 4.2)
+        ax = fig.add_subplot()
+        ax.text(0.5, 0.5, "no stabilization markers: the take was taken as in the head frame "
+                          "(stabilize = 'none')", ha="center", va="center",
+                transform=ax.transAxes)
+        ax.set_axis_off()
+        save_figure(fig, path)
+        return
     colours = dict(zip(markers, distinct_colours(len(markers))))
     slipping = list(dict.fromkeys(s.marker for s in stabilization.slips))
     # Slips on a track of their own above the curves, one lane per slipping marker

@@ -25,12 +25,14 @@ from mocap.clean import (
 from mocap.clean.fill_report import fill_notices, marker_visibility
 from mocap.clean.gapfill import DEFAULT_MIN_VISIBLE
 from mocap.errors import InputError
+from mocap.head_frame import STABILIZATIONS, HeadFrame, as_stabilization, find_head_frame
 from mocap.markerset import MarkerSet
-from mocap.stabilize import Stabilization, stabilize
+from mocap.stabilize import ROBUST_GUARD_DEG, Stabilization
 from mocap.take import Take
 from mocap.util.validation import as_choice, as_fraction, as_int, as_positive_float
 
-__all__ = ["IngestOptions", "IngestResult", "ingest", "FILL_CHOICES", "EXTRA_MARKERS"]
+__all__ = ["IngestOptions", "IngestResult", "ingest", "FILL_CHOICES", "EXTRA_MARKERS",
+           "STABILIZATIONS"]
 
 #: What :func:`ingest` does with the markers of a take that its marker set does
 #: not name (``Unlabeled1``, another subject's markers): keep them as they are,
@@ -60,8 +62,19 @@ class IngestOptions:
         Cut-off of the zero-lag Butterworth low-pass, Hz; None for no filter.
     resample_hz : float or None
         New frame rate, Hz; None keeps the rate.
-    stabilize : bool
-        Express all markers in the head frame (needs the marker set's head markers).
+    stabilize : {"head", "auto", "none"} or None
+        How the head frame is found: "head" markers, "auto" (the face markers
+        that hold their shape best) or "none" (the take is in it already).
+        All markers are then expressed in the head frame
+        (:func:`mocap.head_frame.find_head_frame`); None: not stabilized (the
+        chain always stabilizes, "head" by default). True and False, the old
+        spelling, mean "head" and None.
+    robust_stabilization : bool
+        Fit the head frame with the slip-tolerant robust weights rather than
+        plain least squares (:func:`mocap.stabilize.stabilize`).
+    robust_guard_deg : float
+        Report the frames where the robust and the plain head fits turn the
+        head more than this many degrees apart (default 2).
     fix_swaps : bool
         Find runs of frames where two markers exchanged labels and exchange them
         back, before gap filling (:func:`mocap.clean.find_label_swaps`).
@@ -80,9 +93,16 @@ class IngestOptions:
     extra_markers: str = "carry"
     lowpass_hz: float | None = None
     resample_hz: float | None = None
-    stabilize: bool = False
+    stabilize: str | None = None
+    robust_stabilization: bool = True
+    robust_guard_deg: float = ROBUST_GUARD_DEG
 
     def __post_init__(self):
+        object.__setattr__(self, "stabilize", as_stabilization(self.stabilize))
+        if not isinstance(self.robust_stabilization, bool):
+            raise InputError(f"robust_stabilization must be true or false, got "
+                             f"{self.robust_stabilization!r}")
+        as_positive_float(self.robust_guard_deg, "robust_guard_deg")
         as_choice(self.fill, "fill", FILL_CHOICES)
         if self.max_gap is not None:
             as_int(self.max_gap, "max_gap", minimum=1)
@@ -110,14 +130,15 @@ class IngestResult:
         What gap filling did, gap by gap (None when filling was off).
     cleaned : Take
         After filling, filtering and resampling, in the capture's frame.
-    stabilization : Stabilization or None
-        Head transforms, residuals and the take in the head frame, if asked.
     extra_markers : tuple of str
         Markers of the raw take outside the marker set: carried unfilled in
         `cleaned`, or dropped from it (``IngestOptions.extra_markers``).
     notices : tuple of str
         What the user should know (warned too): markers outside the set,
         what filling did and left (:func:`mocap.clean.fill_report.fill_notices`).
+    head_frame : HeadFrame or None
+        How the head frame was found (head markers, the ``auto`` choice, or
+        ``none`` and its check), if stabilization was asked.
     """
 
     raw: Take
@@ -125,9 +146,14 @@ class IngestResult:
     implausible: ImplausibleSamples | None
     fill: FillResult | None
     cleaned: Take
-    stabilization: Stabilization | None
     extra_markers: tuple = ()
     notices: tuple = ()
+    head_frame: HeadFrame | None = None
+
+    @property
+    def stabilization(self) -> Stabilization | None:
+        """Head transforms, residuals and the take in the head frame, if asked."""
+        return None if self.head_frame is None else self.head_frame.stabilization
 
     @property
     def take(self) -> Take:
@@ -149,8 +175,11 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     ----------
     take : Take
     markerset : MarkerSet, optional
-        Needed for rigid fills (clusters) and for stabilization (head markers).
-        Its markers must all be in the take.
+        Needed for rigid fills (clusters) and for ``stabilize = "head"`` (head
+        markers); ``"auto"`` chooses among its face markers (or its
+        ``stabilization`` list). Its markers must all be in the take (after
+        its subject ``prefix`` is stripped from the take's labels: the
+        result's takes carry the labels without it).
     options : IngestOptions
 
     Returns
@@ -160,7 +189,7 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     Raises
     ------
     InputError
-        Stabilization asked without a marker set.
+        ``stabilize = "head"`` without a marker set naming head markers.
     MarkerError
         A marker of the marker set is absent from the take, or too few head
         markers are visible for a rigid fit.
@@ -171,9 +200,11 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
         Each of :attr:`IngestResult.notices`.
     """
     if markerset is not None:
+        take = markerset.own_labels(take)
         markerset.check_labels(take.labels, source=take.source.path or "the take")
-    if options.stabilize and markerset is None:
-        raise InputError("stabilization needs a marker set naming the head markers")
+    if options.stabilize == "head" and (markerset is None or not markerset.head):
+        raise InputError("stabilize = 'head' needs a marker set naming the head markers; "
+                         "without head markers use 'auto' or 'none'")
     clusters = dict(markerset.clusters) if markerset is not None else None
     where = take.source.path or "the take"
     known = set(markerset.markers) if markerset is not None else set(take.labels)
@@ -193,7 +224,7 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
         cleaned = fix_label_swaps(cleaned, swaps)
     if options.reject_implausible:
         implausible = find_implausible_samples(
-            cleaned, head=markerset.head if markerset is not None else None)
+            cleaned, head=markerset.head if markerset is not None and markerset.head else None)
         cleaned = remove_implausible_samples(cleaned, implausible)
     if options.fill != "none":
         fill = fill_gaps(cleaned, method=options.fill, max_gap=options.max_gap,
@@ -206,11 +237,15 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
         cleaned = lowpass(cleaned, options.lowpass_hz)
     if options.resample_hz is not None:
         cleaned = resample(cleaned, options.resample_hz)
-    stab = stabilize(cleaned, markerset.head) if options.stabilize else None
+    head = None
+    if options.stabilize is not None:
+        head = find_head_frame(cleaned, markerset, method=options.stabilize,
+                               robust=options.robust_stabilization,
+                               guard_deg=options.robust_guard_deg)
     for notice in notices:
         warnings.warn(notice, UserWarning, stacklevel=2)
     return IngestResult(raw=take, swaps=swaps, implausible=implausible, fill=fill,
-                        cleaned=cleaned, stabilization=stab, extra_markers=extra,
+                        cleaned=cleaned, head_frame=head, extra_markers=extra,
                         notices=tuple(notices))
 
 
@@ -219,12 +254,18 @@ def save_head_motion(stabilization: Stabilization, path, *, inputs=()) -> None:
 
     Arrays: ``rotation`` (T, 3, 3), ``translation`` (T, 3) mm (world = R @ head + t),
     ``head_residuals`` (T, H) mm, ``valid`` (T,), ``head_markers`` (H,),
-    ``reference_shape`` (H, 3) mm, ``rate`` Hz.
+    ``reference_shape`` (H, 3) mm, ``rate`` Hz. `stabilization` may be the
+    :class:`~mocap.head_frame.HeadFrame` that holds it: its ``method`` is then
+    written too (``"head"``, ``"auto"`` or ``"none"``).
     """
     import numpy as np
 
     from mocap.util.atomic import atomic_path
 
+    method = {}
+    if isinstance(stabilization, HeadFrame):
+        method = {"method": np.array(stabilization.method)}
+        stabilization = stabilization.stabilization
     with atomic_path(path, inputs=inputs) as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(
@@ -232,4 +273,4 @@ def save_head_motion(stabilization: Stabilization, path, *, inputs=()) -> None:
                 head_residuals=stabilization.head_residuals, valid=stabilization.valid,
                 head_markers=np.array(stabilization.head_markers, dtype=str),
                 reference_shape=stabilization.reference_shape,
-                rate=np.array(stabilization.take.rate))
+                rate=np.array(stabilization.take.rate), **method)

@@ -7,6 +7,7 @@ A mesh-landmark file is a small TOML file::
     [landmarks]                # anatomical point (mocap.anatomy) = 0-based vertex id
     mouth_corner_left = 6213
     nose_tip = 4857
+    [open_questions]           # optional; a file with a question in it is refused
 
 Left and right are the subject's own. A mesh landmark meets the marker-set
 landmark of the same name when markers are bound to the mesh
@@ -22,11 +23,11 @@ from typing import Mapping
 from mocap.anatomy import ANATOMICAL_POINTS
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh
-from mocap.util.toml import read_toml
+from mocap.util.toml import check_open_questions, read_toml
 
 __all__ = ["load_mesh_landmarks", "check_mesh_landmarks"]
 
-_KEYS = {"mesh", "n_vertices", "landmarks", "description"}
+_KEYS = {"mesh", "n_vertices", "landmarks", "description", "open_questions"}
 
 
 def check_mesh_landmarks(landmarks: Mapping, n_vertices: int | None = None, *,
@@ -92,13 +93,15 @@ def load_mesh_landmarks(path, mesh: Mesh | int | None = None) -> dict[str, int]:
     FileFormatError
         Unreadable TOML, unknown keys, an unknown anatomical point, a vertex id
         that is not an integer or out of range, ``n_vertices`` different from
-        the mesh's.
+        the mesh's, an open question (``[open_questions]``, written by
+        ``mocap2mesh init``) not answered.
     """
     path = Path(path)
     doc = read_toml(path, "mesh landmarks")
     unknown = set(doc) - _KEYS
     if unknown:
         raise FileFormatError(path, f"unknown keys {sorted(unknown)}; expected {sorted(_KEYS)}")
+    check_open_questions(doc, path, "mesh-landmark file")
     n_vertices = mesh.n_vertices if isinstance(mesh, Mesh) else mesh
     stated = doc.get("n_vertices")
     if stated is not None:

@@ -350,7 +350,7 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
     InputError
         Bad options, a frame beyond the take, a singular RBF system.
     """
-    take = as_take(take)
+    take = markerset.own_labels(as_take(take))
     markerset.check_labels(take.labels, source=take.source.path or "the take")
     labels = markerset.face_markers
     face = take.select(labels)

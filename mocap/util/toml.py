@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 
 from mocap.errors import FileFormatError
@@ -12,7 +13,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["read_toml"]
+__all__ = ["read_toml", "check_open_questions"]
 
 
 def read_toml(path, what: str) -> dict:
@@ -36,3 +37,37 @@ def read_toml(path, what: str) -> dict:
         raise FileFormatError(path, f"cannot read {what}: {exc.strerror}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise FileFormatError(path, f"{what} is not valid TOML: {exc}") from None
+
+
+def check_open_questions(doc: Mapping, path, what: str) -> None:
+    """Refuse a file whose ``[open_questions]`` table still holds a question.
+
+    Parameters
+    ----------
+    doc : mapping
+        The parsed TOML document.
+    path : str or os.PathLike
+        The file, for the message.
+    what : str
+        What the file is ("marker set", "run configuration", ...).
+
+    Raises
+    ------
+    FileFormatError
+        ``[open_questions]`` is not a table of strings, or is not empty: the
+        message names the first question and quotes it.
+
+    Examples
+    --------
+    >>> check_open_questions({"open_questions": {}}, "ms.toml", "marker set")
+    """
+    questions = doc.get("open_questions", {})
+    if not isinstance(questions, Mapping) or not all(isinstance(v, str)
+                                                     for v in questions.values()):
+        raise FileFormatError(path, "[open_questions] must be a table of name = \"question\"")
+    if questions:
+        name, text = next(iter(questions.items()))
+        more = f" (and {len(questions) - 1} more)" if len(questions) > 1 else ""
+        raise FileFormatError(path, f"open question {name!r} of this {what} is not answered"
+                                    f"{more}: {text} -- answer it in the file, then delete its "
+                                    "line from [open_questions]")

@@ -5,14 +5,25 @@ from __future__ import annotations
 from pathlib import Path
 
 import mocap
-from fit.cli.arguments import add_capture, add_landmarks, add_markerset, add_mesh, add_neutral_frame
+from fit.cli.arguments import (
+    add_capture,
+    add_landmarks,
+    add_markerset,
+    add_mesh,
+    add_neutral_frame,
+    add_stabilize,
+)
 from mocap.bind import bind_take
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.util.atomic import refuse_overwrite
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "OLD_STABILIZE"]
+
+#: ``--stabilize`` alone, the old spelling: bind the head-stabilized markers
+#: (head markers), i.e. ``--stabilize head --head-frame``.
+OLD_STABILIZE = ("head", "head frame")
 
 
 def add_parser(sub) -> None:
@@ -32,7 +43,13 @@ def add_parser(sub) -> None:
                    help="keep the landmark similarity (no ICP refinement)")
     p.add_argument("--skin-offset", type=float, default=0.0, metavar="MM",
                    help="height of the marker centres off the skin (default 0)")
-    p.add_argument("--stabilize", action="store_true",
+    add_stabilize(p, const=OLD_STABILIZE,
+                  help="how the head frame (where the neutral frame is picked) is found: "
+                       "'head' (default: the marker set's head markers), 'auto' (the face "
+                       "markers that hold their shape best, or the marker set's stabilization "
+                       "list) or 'none' (the capture is in the head frame already). "
+                       "--stabilize alone, the old spelling, means --stabilize head --head-frame")
+    p.add_argument("--head-frame", action="store_true",
                    help="bind the head-stabilized markers (for takes that are stabilized "
                         "downstream) instead of the capture's own frame")
     p.add_argument("--warn-distance", type=float, default=3.0, metavar="MM",
@@ -47,10 +64,14 @@ def run(args) -> int:
     markerset = load_markerset(args.markerset)
     mesh = load_mesh(args.mesh)
     landmarks = load_mesh_landmarks(args.landmarks, mesh)
-    bound = bind_take(take, markerset, mesh, landmarks,
-                      frame=take.frame_index(args.frame, "--frame"),
-                      head_frame=args.stabilize, icp=not args.no_icp,
-                      skin_offset=args.skin_offset, max_distance_warn=args.warn_distance)
+    stabilize, head_frame = args.stabilize, args.head_frame
+    if stabilize is OLD_STABILIZE:
+        stabilize, head_frame = "head", True
+    bound = bind_take(take, markerset, mesh, landmarks, frame=take.frame_index(args.frame, "--frame"),
+                      stabilize=stabilize,
+                      head_frame=head_frame, icp=not args.no_icp,
+                      skin_offset=args.skin_offset, max_distance_warn=args.warn_distance,
+                      robust=args.robust_stabilization, guard_deg=args.robust_guard)
     refuse_overwrite(args.output, (args.capture, args.markerset, args.mesh, args.landmarks))
     binding, frame = bound.binding, bound.frame
     binding.save(args.output)

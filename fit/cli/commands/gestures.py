@@ -33,7 +33,9 @@ from fit.cli.arguments import (
     add_markerset,
     add_mesh,
     add_neutral_frame,
+    add_stabilize,
     add_units,
+    stabilize_options,
 )
 from fit.gestures.analysis import ESTIMATORS
 from fit.gestures.phones import RECOGNIZERS
@@ -109,6 +111,7 @@ def _add_analyze(actions) -> None:
                            "neutral hold the take starts with")
     add_fill(p)
     p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
+    add_stabilize(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the sampling estimator")
     p.set_defaults(run=run_analyze)
 
@@ -231,7 +234,8 @@ def run_analyze(args) -> int:
     binding = load_binding(args.binding)
     basis = load_artist_basis(args.mesh, args.shapes, units=args.units)
     take = mocap.read(args.capture)
-    options = IngestOptions(fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass)
+    options = IngestOptions(fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass,
+                            stabilize=args.stabilize, **stabilize_options(args))
     made = clip_from_capture(take, markerset, binding, basis, name=args.name or args.output.stem,
                              rate=args.rate, wav=args.speech, analog=args.analog,
                              opening=args.opening, intensity_window=args.intensity_window,

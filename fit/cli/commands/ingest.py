@@ -7,7 +7,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 import mocap
-from fit.cli.arguments import add_fill, add_markerset
+from fit.cli.arguments import add_fill, add_markerset, add_stabilize, stabilize_options
 from fit.report.ingest_plots import plot_gaps, plot_head_residuals
 from mocap.clean.gapfill import DEFAULT_MIN_VISIBLE
 from mocap.clean.ingest import EXTRA_MARKERS, IngestOptions, ingest, save_head_motion
@@ -38,9 +38,17 @@ def add_parser(sub) -> None:
                    help="markers outside --markerset: carried unfilled (default) or dropped")
     p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
     p.add_argument("--resample", type=float, metavar="HZ", help="new frame rate")
-    p.add_argument("--stabilize", action="store_true",
-                   help="express markers in the head frame; writes OUT.head.npz too")
+    add_stabilize(p, default=None, const="head",
+                  help="express the markers in the head frame and write OUT.head.npz: 'head' "
+                       "(the marker set's head markers; also --stabilize alone, the old "
+                       "spelling), 'auto' (the face markers that hold their shape best, or the "
+                       "marker set's stabilization list; the choice is in OUT.head.npz and "
+                       "printed with -v) or 'none' (the take is in the head frame already: "
+                       "checked, with a warning when the face moves rigidly)")
     p.add_argument("--qa", type=Path, metavar="DIR", help="write QA pictures here")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="print how the head frame was found: the markers, their residuals, "
+                        "the frames they could not hold")
     p.set_defaults(run=run)
 
 
@@ -54,8 +62,8 @@ def ingest_file(path, output, *, markerset_path=None, options=IngestOptions(), q
         result = ingest(take, markerset=markerset, options=options)
         bar.update()
         mocap.write(result.take, output, inputs=inputs)
-        if result.stabilization is not None:
-            save_head_motion(result.stabilization, Path(output).with_suffix(".head.npz"),
+        if result.head_frame is not None:
+            save_head_motion(result.head_frame, Path(output).with_suffix(".head.npz"),
                              inputs=inputs)
         bar.update()
         if qa_dir is not None:
@@ -72,7 +80,10 @@ def run(args) -> int:
     options = IngestOptions(fix_swaps=args.fix_swaps, reject_implausible=args.reject_implausible,
                             fill=args.fill, max_gap=args.max_gap, min_visible=args.min_visible,
                             extra_markers=args.extra_markers, lowpass_hz=args.lowpass,
-                            resample_hz=args.resample, stabilize=args.stabilize)
-    ingest_file(args.file, args.output, markerset_path=args.markerset, options=options,
-                qa_dir=args.qa)
+                            resample_hz=args.resample, stabilize=args.stabilize,
+                            **stabilize_options(args))
+    result = ingest_file(args.file, args.output, markerset_path=args.markerset, options=options,
+                         qa_dir=args.qa)
+    if args.verbose and result.head_frame is not None:
+        print("\n".join(result.head_frame.report()))
     return 0

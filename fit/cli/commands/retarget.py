@@ -12,6 +12,8 @@ from fit.cli.arguments import (
     add_markerset,
     add_mesh,
     add_neutral_frame,
+    add_stabilize,
+    stabilize_options,
 )
 from mocap.bind import load_binding
 from mocap.clean.ingest import IngestOptions, ingest
@@ -26,7 +28,8 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "retarget", help="retarget a capture onto a face mesh with an RBF operator",
-        description="Fill the capture's gaps, stabilize it in the head frame, take the "
+        description="Fill the capture's gaps, stabilize it in the head frame (--stabilize), "
+                    "take the "
                     "face-marker displacements from the neutral frame into the mesh's units "
                     "with the binding, and interpolate them over the mesh with radial basis "
                     "functions. Writes OUT.npz (float32 vertex positions or displacements, "
@@ -58,6 +61,7 @@ def add_parser(sub) -> None:
     add_neutral_frame(p, "--neutral-frame")
     add_fill(p, help="gap filling before retargeting (default auto; 'none' fails on gaps)")
     p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
+    add_stabilize(p)
     p.add_argument("--content", choices=CONTENTS, default="vertices",
                    help=".npz output: vertex positions (default) or displacements")
     p.set_defaults(run=run)
@@ -73,7 +77,8 @@ def run(args) -> int:
     binding = load_binding(args.binding)
     take = mocap.read(args.capture)
     ingested = ingest(take, markerset=markerset, options=IngestOptions(
-        fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass, stabilize=True))
+        fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass, stabilize=args.stabilize,
+        **stabilize_options(args)))
     result = retarget(ingested.take, binding, mesh, markerset, options=options,
                       neutral_frame=ingested.take.frame_index(args.neutral_frame,
                                                               "--neutral-frame"))
