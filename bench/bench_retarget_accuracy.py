@@ -67,7 +67,7 @@ TESTS = REPO / "tests"
 
 #: name -> options (epsilon in 1/cm: Gaussian width ~2 cm, compact support 4-5 cm).
 VARIANTS = {
-    "tps/euclidean": RetargetOptions(),
+    "tps/euclidean": RetargetOptions(kernel="thin_plate_spline"),
     "gaussian/euclidean": RetargetOptions(kernel="gaussian", epsilon=0.5),
     "tps/euclidean+regions": RetargetOptions(use_regions=True),
     "gaussian/geodesic": RetargetOptions(kernel="gaussian", epsilon=0.5, distance="geodesic"),
@@ -158,7 +158,8 @@ def main() -> None:
         landmarks = load_mesh_landmarks(TESTS / "ict_landmarks.toml", mesh)
         binding = bind_take(take, markerset, mesh, landmarks, frame=neutral,
                             skin_offset=2.0).binding
-        first = retarget(take, binding, mesh, markerset, neutral_frame=neutral)
+        first = retarget(take, binding, mesh, markerset, neutral_frame=neutral,
+                         options=VARIANTS["tps/euclidean"])
         displacements, binding_face = first.displacements, binding
         print(f"binding: {binding.message}, rms {binding.rms:.2f} mm; head-frame "
               f"alignment {np.degrees(np.arccos((np.trace(first.rotation) - 1) / 2)):.3f} deg")

@@ -159,10 +159,11 @@ def test_align_head_frame_recovers_the_capture_rotation():
 # -- the operator ------------------------------------------------------------------------
 
 EXACT_OPTIONS = {
-    "tps": RetargetOptions(),
+    "tps": RetargetOptions(kernel="thin_plate_spline"),
     "gaussian": RetargetOptions(kernel="gaussian", epsilon=0.4),
     "wendland": RetargetOptions(kernel="wendland_c2", epsilon=0.15),
-    "tps-regions": RetargetOptions(use_regions=True, region_width=0.5),
+    "tps-regions": RetargetOptions(kernel="thin_plate_spline", use_regions=True,
+                                   region_width=0.5),
 }
 
 
