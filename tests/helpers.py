@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+from html.parser import HTMLParser
 from pathlib import Path
 
 import igl
@@ -129,6 +130,56 @@ def bind_argv(capture, mesh, output, *extra, markerset=ICT_MARKERSET_TOML,
     """``mocap2mesh bind`` of a capture to a mesh with the ICT marker set and landmarks."""
     return ["bind", str(capture), "--markerset", str(markerset), "--mesh", str(mesh),
             "--landmarks", str(landmarks), "-o", str(output), *extra]
+
+
+# ---------------------------------------------------------------- reports
+
+class ReportPage(HTMLParser):
+    """A report page read back: images, external references, table cells by table id
+    (a cell's data-value, else its text), section headings and warning paragraphs."""
+
+    def __init__(self):
+        super().__init__()
+        self.images, self.links, self.tables = [], [], {}
+        self.headings, self.warnings = [], []
+        self._table = self._row = self._text = None
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        if tag == "h2" or (tag == "p" and attrs.get("class") == "warning"):
+            self._text = self.headings if tag == "h2" else self.warnings
+            self._text.append("")
+        if tag == "img":
+            self.images.append(attrs["src"])
+        if tag in ("link", "script", "iframe") or "href" in attrs:
+            self.links.append((tag, attrs))
+        if tag == "table":
+            self._table = self.tables.setdefault(attrs["id"], [])
+        elif tag == "tr" and self._table is not None:
+            self._row = []
+            self._table.append(self._row)
+        elif tag in ("td", "th") and self._row is not None:
+            self._row.append(attrs.get("data-value", ""))
+
+    def handle_data(self, data):
+        if self._row and self._row[-1] == "":
+            self._row[-1] = data
+        if self._text is not None:
+            self._text[-1] += data
+
+    def handle_endtag(self, tag):
+        if tag == "table":
+            self._table = self._row = None
+        if tag in ("h2", "p"):
+            self._text = None
+
+    @classmethod
+    def read(cls, path) -> "ReportPage":
+        """The page of an HTML file (UTF-8)."""
+        page = cls()
+        page.feed(Path(path).read_text(encoding="utf-8"))
+        page.close()
+        return page
 
 
 # ---------------------------------------------------------------- marker layouts

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -44,6 +45,7 @@ from fit.pipeline.stages import (
     complete_span,
     fit_stage,
     ingest_stage,
+    lip_seal_stage,
     retarget_stage,
 )
 from fit.report import build_report
@@ -54,6 +56,7 @@ from mocap.errors import InputError
 from mocap.markerset import MarkerSet, load_markerset
 from mocap.mesh import Mesh, load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.retarget.lip_seal import LipSealCheck
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
 
@@ -164,6 +167,13 @@ class Reconstruction:
         ------
         Mocap2MeshError
             Any stage's error, naming the file, marker or frame at fault.
+
+        Warns
+        -----
+        UserWarning
+            A mesh whose mouth stays shut while the lip markers open it (or
+            the reverse), naming the capture's frames
+            (:attr:`ReconstructionResult.lip_seal`).
         """
         seconds = {}
         tic = time.perf_counter()
@@ -175,7 +185,8 @@ class Reconstruction:
         bound = bind_stage(take, self.markerset, self.mesh, self.landmarks, options=self.bind)
         seconds["bind"] = time.perf_counter() - tic
         tic = time.perf_counter()
-        retargeted = retarget_stage(take, bound, self.mesh, self.markerset, self.retarget)
+        retargeted = retarget_stage(take, bound, self.mesh, self.markerset, self.retarget,
+                                    mesh_landmarks=self.landmarks)
         seconds["retarget"] = time.perf_counter() - tic
         tic = time.perf_counter()
         bases = basis_stage(retargeted, self.basis, options=self.basis_options)
@@ -183,11 +194,15 @@ class Reconstruction:
         tic = time.perf_counter()
         fitted = fit_stage(take, bound, retargeted, bases, options=self.fit)
         seconds["fit"] = time.perf_counter() - tic
+        lips = lip_seal_stage(take, bound, retargeted, bases, fitted)
+        for message in (lips.messages() if lips is not None else ()):
+            warnings.warn(f"{raw.source.path or 'the take'}: {message}", stacklevel=2)
         source = raw.source.path
         name = Path(source).stem if source else "take"
         return ReconstructionResult(reconstruction=self, name=name, ingested=ingested,
                                     take=take, bound=bound, retargeted=retargeted,
-                                    bases=bases, fitted=fitted, stage_seconds=seconds)
+                                    bases=bases, fitted=fitted, stage_seconds=seconds,
+                                    lip_seal=lips)
 
 
 @dataclass(frozen=True, eq=False)
@@ -209,6 +224,8 @@ class ReconstructionResult:
     fitted : FitResult
     stage_seconds : dict of str to float
         Wall time of each stage.
+    lip_seal : mocap.retarget.lip_seal.LipSealCheck or None
+        The lip gap of W·D and of each basis's mesh against the lip markers'.
     """
 
     reconstruction: Reconstruction
@@ -220,6 +237,7 @@ class ReconstructionResult:
     bases: BasisResult
     fitted: FitResult
     stage_seconds: dict
+    lip_seal: LipSealCheck | None = None
 
     @property
     def binding(self) -> Binding:
@@ -313,11 +331,25 @@ class ReconstructionResult:
                               pictures={"gaps: present, missing, filled by method": files[0],
                                         "head-marker residuals": files[1]},
                               video_step=options.video_step, n_worst=options.n_worst,
-                              exaggerate=options.exaggerate, name=self.name).values()
+                              exaggerate=options.exaggerate, name=self.name,
+                              cross_validation=self.retargeted.cross_validation,
+                              selection=self.retargeted.selection,
+                              lip_seal=self.lip_seal).values()
         return files
 
+    def _retarget_summary(self) -> dict:
+        """The retargeting variant used, its held-out errors and what ``"auto"`` tried."""
+        retargeted = self.retargeted
+        options = retargeted.options
+        cv = retargeted.cross_validation
+        return {"kernel": options.kernel, "epsilon": options.epsilon, "degree": options.degree,
+                "distance": options.distance, "use_regions": options.use_regions,
+                "cross_validation": None if cv is None else cv.summary(),
+                "selection": None if retargeted.selection is None
+                else retargeted.selection.to_dict()}
+
     def summary(self) -> dict:
-        """What the manifest records of the take: frames, binding, bases, fit and metrics."""
+        """What the manifest records of the take: frames, binding, retargeting, lips, bases, fit and metrics."""
         take, ingested = self.take, self.ingested
 
         def finite(summary: dict) -> dict:
@@ -328,6 +360,8 @@ class ReconstructionResult:
                            "neutral": take.first_frame + self.bound.frame,
                            "neutral_window": self.bound.window, "rate": take.rate},
                 "binding_rms_mm": self.binding.rms,
+                "retarget": self._retarget_summary(),
+                "lip_seal": None if self.lip_seal is None else self.lip_seal.summary(),
                 "pca_components": self.bases.n_components,
                 "qe_missing_axes": self.bases.qe.missing_axes.tolist(),
                 "fit": {name: {"status": s.status, "message": s.message}

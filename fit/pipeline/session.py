@@ -162,6 +162,8 @@ def _collect(takes: dict, capture: Path, record: dict, bar) -> None:
     if record["status"] == "failed":
         tqdm.write(f"mocap2mesh run: take {capture.stem} ({capture}) failed: {record['error']}",
                    file=sys.stderr)
+    for message in record.get("warnings", ()):
+        tqdm.write(f"mocap2mesh run: take {capture.stem}: warning: {message}", file=sys.stderr)
     bar.update()
 
 

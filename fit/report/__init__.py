@@ -14,6 +14,12 @@ from basis.coverage import plot_coverage
 from fit.metrics import reconstruction_errors
 from fit.report.html import ingest_stats, write_report
 from fit.report.plots import plot_alpha, plot_error_heatmap, plot_marker_errors
+from fit.report.retarget_qa import (
+    cross_validation_section,
+    lip_seal_section,
+    plot_cross_validation,
+    plot_lip_seal,
+)
 from fit.report.video import write_overlay_video
 from fit.report.views import plot_frame_views
 from mocap.errors import InputError
@@ -24,7 +30,8 @@ __all__ = ["build_report"]
 def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=None,
                  origin=None, pca=None, ingest=None, pictures=None, video: bool = False,
                  video_step: int = 1, n_worst: int = 5, exaggerate: float = 1.0,
-                 name: str | None = None) -> dict:
+                 name: str | None = None, cross_validation=None, selection=None,
+                 lip_seal=None) -> dict:
     """Metrics, figures, (video) and the HTML report of one take.
 
     Parameters
@@ -61,13 +68,20 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         Error vectors drawn this many times longer in views and video.
     name : str, optional
         File stem and title; default the take's file stem or ``"take"``.
+    cross_validation : mocap.retarget.cross_validation.CrossValidation, optional
+        Adds the retargeting's held-out errors per marker and region
+        (:attr:`mocap.retarget.retargeting.Retargeting.cross_validation`).
+    selection : mocap.retarget.selection.RetargetSelection, optional
+        With it, what ``kernel = "auto"`` tried.
+    lip_seal : mocap.retarget.lip_seal.LipSealCheck, optional
+        Adds the lip-seal section (its warnings at the top of it).
 
     Returns
     -------
     dict of str to pathlib.Path
         Every file written, keyed ``"html"``, ``"alpha"``, ``"coverage"``,
         ``"heatmap-<basis>"``, ``"markers-<basis>"``, ``"views-<basis>"``,
-        ``"video-<basis>"``.
+        ``"video-<basis>"``, ``"cross-validation"``, ``"lip-seal"``.
     """
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
@@ -113,10 +127,20 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
     if pca is not None:
         plot_coverage(pca, out("coverage"))
         images["PCA coverage"] = files["coverage"]
+    sections = []
+    if cross_validation is not None:
+        plot_cross_validation(cross_validation, out("cross-validation"), markerset=markerset)
+        sections.append(cross_validation_section(cross_validation, markerset=markerset,
+                                                 selection=selection,
+                                                 image=files["cross-validation"]))
+    if lip_seal is not None:
+        plot_lip_seal(lip_seal, out("lip-seal"))
+        sections.append(lip_seal_section(lip_seal, image=files["lip-seal"]))
     files["html"] = out_dir / f"{name}.html"
     write_report(files["html"], results, images, title=f"Reconstruction QA: {name}",
                  first_frame=take.first_frame, worst=worst, markerset=markerset,
                  ingest=ingest_stats(ingest) if ingest is not None else None,
                  notes=f"{take.n_frames} frames at {take.rate:g} Hz, "
-                       f"{len(first.labels)} markers, bases: {', '.join(results)}.")
+                       f"{len(first.labels)} markers, bases: {', '.join(results)}.",
+                 sections=sections)
     return files

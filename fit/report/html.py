@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import html
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
@@ -20,7 +21,7 @@ from fit.metrics import ReconstructionErrors
 from mocap.errors import InputError
 from mocap.util.atomic import atomic_path
 
-__all__ = ["render_report", "write_report", "ingest_stats"]
+__all__ = ["render_report", "write_report", "ingest_stats", "ReportSection"]
 
 _STYLE = """
 body { font-family: sans-serif; margin: 2em; color: #222; max-width: 1400px; }
@@ -30,7 +31,31 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; }
 th { background: #f0f0f0; }
 img { max-width: 100%; border: 1px solid #eee; margin: 0.5em 0; }
 figcaption { font-size: 0.85em; color: #555; }
+p.warning { background: #fff3cd; border-left: 4px solid #e0a800; padding: 4px 8px; }
 """
+
+
+@dataclass(frozen=True)
+class ReportSection:
+    """A section made elsewhere: heading, warnings, paragraphs, tables, figures, in that order.
+
+    Attributes
+    ----------
+    title : str
+    paragraphs : tuple of str
+        Plain text (escaped).
+    tables : tuple of (table_id, header, rows)
+        As the page's own tables: numbers carry their exact value in ``data-value``.
+    images : tuple of (caption, PNG path or bytes)
+    warnings : tuple of str
+        Shown highlighted above the paragraphs.
+    """
+
+    title: str
+    paragraphs: tuple = ()
+    tables: tuple = ()
+    images: tuple = ()
+    warnings: tuple = ()
 
 _SUMMARY_COLUMNS = {"alpha": "α take (%)", "alpha_mean": "α mean (%)",
                     "alpha_max": "α max (%)", "displacement_error": "‖d*−d‖/‖d*‖ (%)",
@@ -88,7 +113,8 @@ def ingest_stats(result) -> dict:
 
 def render_report(results, images: Mapping, *, title: str, first_frame: int = 0,
                   worst: Mapping | None = None, markerset=None,
-                  ingest: Mapping | None = None, notes: str = "") -> str:
+                  ingest: Mapping | None = None, notes: str = "",
+                  sections=()) -> str:
     """The report page as a string.
 
     Parameters
@@ -108,6 +134,8 @@ def render_report(results, images: Mapping, *, title: str, first_frame: int = 0,
         Ingestion figures (see :func:`ingest_stats`).
     notes : str
         A paragraph of text under the title (escaped).
+    sections : sequence of ReportSection
+        Appended at the end of the page, in order.
     """
     if isinstance(results, ReconstructionErrors):
         results = [results]
@@ -139,9 +167,7 @@ def render_report(results, images: Mapping, *, title: str, first_frame: int = 0,
               "markers"]
     parts.append(_table(header, rows, table_id="worst"))
     parts.append("<h2>Figures</h2>")
-    for caption, source in images.items():
-        parts.append(f'<figure><img alt="{html.escape(caption)}" src="{_image(source)}">'
-                     f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+    parts += [_figure(caption, source) for caption, source in images.items()]
     parts.append("<h2>Per-marker errors (mm)</h2>")
     header = ["marker"] + (["region"] if markerset is not None else [])
     for name in results:
@@ -154,10 +180,25 @@ def render_report(results, images: Mapping, *, title: str, first_frame: int = 0,
             row += [r.marker_mean[j], r.marker_p95[j], r.marker_max[j]]
         rows.append(row + [int(first.n_missing[j])])
     parts.append(_table(header, rows, table_id="markers"))
+    parts += [_section(section) for section in sections]
     body = "\n".join(parts)
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head>"
             f"<body>\n{body}\n</body></html>\n")
+
+
+def _figure(caption: str, source) -> str:
+    return (f'<figure><img alt="{html.escape(caption)}" src="{_image(source)}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def _section(section: ReportSection) -> str:
+    parts = [f"<h2>{html.escape(section.title)}</h2>"]
+    parts += [f'<p class="warning">{html.escape(w)}</p>' for w in section.warnings]
+    parts += [f"<p>{html.escape(p)}</p>" for p in section.paragraphs]
+    parts += [_table(header, rows, table_id=table_id) for table_id, header, rows in section.tables]
+    parts += [_figure(caption, source) for caption, source in section.images]
+    return "\n".join(parts)
 
 
 def _region(markerset, label: str) -> str:
