@@ -11,6 +11,7 @@ import numpy as np
 import pygltflib
 from scipy.spatial.distance import cdist
 
+from mocap.bind import Binding
 from mocap.markerset import MarkerSet
 from mocap.mesh.layout import make_layout
 from mocap.mesh.mouth import find_mouth
@@ -183,6 +184,17 @@ class ReportPage(HTMLParser):
 
 
 # ---------------------------------------------------------------- marker layouts
+
+def layout_binding(layout, labels, *, mm_per_unit: float = 10.0) -> Binding:
+    """The exact binding of a simulated capture: its layout's surface points, capture mm to
+    mesh units (default cm), no rotation."""
+    idx = [layout.index(x) for x in labels]
+    return Binding(labels=tuple(labels), scale=1 / mm_per_unit, rotation=np.eye(3),
+                   translation=np.zeros(3), face_ids=layout.face_ids[idx],
+                   vertex_ids=layout.vertex_ids[idx], barycentric=layout.weights[idx],
+                   distances=np.zeros(len(idx)), rms=0.0, skin_offset=0.0, n_landmarks=0,
+                   n_iterations=0, converged=True, message="layout (truth)")
+
 
 #: The ICT layout's lip markers moved off the lips as on a real take from another lab:
 #: marker -> (direction on the ICT mesh (y up, +x the subject's left), distance (cm) from

@@ -151,3 +151,16 @@ def test_run_prints_the_warnings_of_a_take_on_stderr(demo, capsys):
     assert record["retarget"]["selection"] is None
     assert record["lip_seal"]["meshes"]["W·D"]["shut_frames"] > 0
     assert any("lip seal" in w for w in record["warnings"])
+
+
+def test_mesh_landmarks_without_the_mouth_skip_the_lips_with_a_warning(demo):
+    _, paths, out = demo
+    full = out["thin_plate_spline"][0].reconstruction
+    landmarks = {k: v for k, v in full.landmarks.items() if not k.startswith("mouth_corner")}
+    recon = Reconstruction(markerset=full.markerset, mesh=full.mesh, landmarks=landmarks,
+                           basis=full.basis, bind={"skin_offset": 2.0},
+                           retarget={"kernel": "thin_plate_spline"})
+    with pytest.warns(UserWarning, match="the lips are not checked: the mouth needs the mesh "
+                                         "landmarks mouth_corner_left and mouth_corner_right"):
+        result = recon.process(paths["capture"])
+    assert result.lip_seal is None and result.summary()["lip_seal"] is None

@@ -7,13 +7,13 @@ import warnings
 import numpy as np
 import pytest
 import scipy.sparse as sp
-from helpers import ICT_LANDMARKS_TOML, jaw_open_peak_time, off_lip_layout
+from helpers import ICT_LANDMARKS_TOML, jaw_open_peak_time, layout_binding, off_lip_layout
 from scipy.spatial import cKDTree
 from tolerances import AUTO_VS_TRUTH_BEST
 
 from mocap import InputError
-from mocap.bind import Binding
 from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.mesh.mouth import find_mouth
 from mocap.retarget import selection
 from mocap.retarget.cross_validation import MarkerGeometry
 from mocap.retarget.lip_seal import check_lip_seal
@@ -28,16 +28,6 @@ from mocap.synth.capture import simulate_capture
 from mocap.take import Take
 
 MM_PER_CM = 10.0
-
-
-def _layout_binding(layout, labels) -> Binding:
-    """The simulation's exact binding: the layout's surface points, capture mm to cm."""
-    idx = [layout.index(x) for x in labels]
-    return Binding(labels=tuple(labels), scale=1 / MM_PER_CM, rotation=np.eye(3),
-                   translation=np.zeros(3), face_ids=layout.face_ids[idx],
-                   vertex_ids=layout.vertex_ids[idx], barycentric=layout.weights[idx],
-                   distances=np.zeros(len(idx)), rms=0.0, skin_offset=0.0, n_landmarks=0,
-                   n_iterations=0, converged=True, message="layout (truth)")
 
 
 def _simulate(basis, performance, layout, markerset, *, start, duration):
@@ -84,11 +74,11 @@ def ict_auto(ict_basis, ict_layout, ict_markerset, arkit_performance):
     take, truth, neutral = _simulate(ict_basis, arkit_performance, ict_layout, ict_markerset,
                                      start=15.0, duration=20.0)
     labels = ict_markerset.face_markers
-    binding = _layout_binding(ict_layout, labels)
+    binding = layout_binding(ict_layout, labels)
     mesh = ict_basis.neutral
     landmarks = load_mesh_landmarks(ICT_LANDMARKS_TOML, mesh)
     result = retarget(take, binding, mesh, ict_markerset, neutral_frame=neutral, align=False,
-                      mesh_landmarks=landmarks)
+                      mouth=find_mouth(mesh, landmarks))
     lips = [x for r in ("upper_lip", "lower_lip") for x in ict_markerset.regions[r]]
     regions = {"upper_lip": list(ict_markerset.regions["upper_lip"]),
                "lower_lip": list(ict_markerset.regions["lower_lip"]),
@@ -139,7 +129,7 @@ def off_lips(ict_basis, ict_layout, ict_markerset, ict_landmarks, arkit_performa
     start = max(0.0, jaw_open_peak_time(arkit_performance) - 10.0)
     take, truth, neutral = _simulate(ict_basis, arkit_performance, layout, markerset,
                                      start=start, duration=20.0)
-    binding = _layout_binding(layout, markerset.face_markers)
+    binding = layout_binding(layout, markerset.face_markers)
     return dict(take=take, truth=truth, neutral=neutral, binding=binding,
                 markerset=markerset)
 
@@ -149,7 +139,8 @@ def test_off_the_lips_auto_opens_the_mouth_that_tps_keeps_shut(off_lips, ict_bas
     """Euclidean interpolation moves the touching lips together; the lip-seal check names
     the frames, and "auto" chooses a variant whose mouth opens there."""
     mesh = ict_basis.neutral
-    kwargs = dict(neutral_frame=off_lips["neutral"], align=False, mesh_landmarks=ict_landmarks)
+    kwargs = dict(neutral_frame=off_lips["neutral"], align=False,
+                  mouth=find_mouth(mesh, ict_landmarks))
     tps = retarget(off_lips["take"], off_lips["binding"], mesh, off_lips["markerset"],
                    options=RetargetOptions(kernel="thin_plate_spline"), **kwargs)
     auto = retarget(off_lips["take"], off_lips["binding"], mesh, off_lips["markerset"],
@@ -193,7 +184,7 @@ def test_auto_limited_to_what_the_options_leave_open(off_lips, ict_basis):
 def test_no_variant_that_can_be_scored_is_an_error(monkeypatch, ict_basis, ict_layout):
     monkeypatch.setattr(selection, "SHAPES", {"thin_plate_spline": (None,)})
     labels = ict_layout.labels[6:9]
-    geometry = MarkerGeometry.from_binding(_layout_binding(ict_layout, labels),
+    geometry = MarkerGeometry.from_binding(layout_binding(ict_layout, labels),
                                            ict_basis.neutral, labels)
     with pytest.raises(InputError, match=r"kernel='auto': no retargeting variant could be "
                                          r"cross-validated \(3 centers, but a degree-1"):
@@ -236,3 +227,16 @@ def test_displacements_are_those_of_the_variant_used(off_lips, ict_basis):
     w = op.matrix.toarray() if sp.issparse(op.matrix) else op.matrix
     got = result.operator.matrix
     np.testing.assert_array_equal(got.toarray() if sp.issparse(got) else got, w)
+
+
+def test_retarget_errors_of_the_lips_and_regions(off_lips, ict_basis, demo_face):
+    args = (off_lips["take"], off_lips["binding"], ict_basis.neutral, off_lips["markerset"])
+    other = find_mouth(demo_face.mesh, demo_face.landmarks)
+    other = type(other)(other.upper_edge, other.lower_edge, other.upper + 10 ** 5,
+                        other.lower, other.method)
+    with pytest.raises(InputError, match="mouth must be the MouthOpening of this mesh"):
+        retarget(*args, neutral_frame=off_lips["neutral"], mouth=other)
+    with pytest.raises(InputError, match="split_regions: marker set 'ict-layout-off-lips' has "
+                                         "no region 'nose_tip'"):
+        retarget(*args, neutral_frame=off_lips["neutral"],
+                 options=RetargetOptions(use_regions=True, split_regions=("nose_tip",)))

@@ -34,6 +34,7 @@ from mocap.clean.ingest import IngestOptions, IngestResult, ingest
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh
+from mocap.mesh.mouth import find_mouth
 from mocap.retarget.lip_seal import LipSealCheck, check_lip_seal
 from mocap.retarget.retargeting import Retargeting, RetargetOptions, retarget
 from mocap.take import Take
@@ -197,7 +198,9 @@ def retarget_stage(take: Take, bound: BoundTake, mesh: Mesh, markerset: MarkerSe
     options : RetargetOptions
         ``kernel="auto"`` (the default) is chosen on this take.
     mesh_landmarks : mapping of str to int, optional
-        The mesh's landmarks: the mouth, for ``"auto"`` and :func:`lip_seal_stage`.
+        The mesh's landmarks: the mouth (:func:`mocap.mesh.mouth.find_mouth`),
+        for ``"auto"`` and :func:`lip_seal_stage`; a mouth they do not give
+        is a warning, and the lips are not read.
 
     Returns
     -------
@@ -205,9 +208,15 @@ def retarget_stage(take: Take, bound: BoundTake, mesh: Mesh, markerset: MarkerSe
         ``displacements`` (T, M, 3) from the bound rest pose, ``operator.matrix`` (N, M),
         the variant used, its cross-validation and (``"auto"``) the selection.
     """
+    mouth = None
+    if mesh_landmarks is not None:
+        try:
+            mouth = find_mouth(mesh, mesh_landmarks)
+        except InputError as exc:
+            warnings.warn(f"the lips are not checked: {exc}", stacklevel=2)
     return retarget(take, bound.binding, mesh, markerset, options=options,
                     neutral_frame=bound.frame, neutral_window=bound.window, align=False,
-                    mesh_landmarks=mesh_landmarks)
+                    mouth=mouth)
 
 
 def basis_stage(retargeted: Retargeting, artist: ArtistBasis, *,

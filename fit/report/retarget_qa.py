@@ -12,6 +12,7 @@ with the frames where they disagree.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from functools import partial
 
 import numpy as np
 import scipy.sparse as sp
@@ -27,6 +28,8 @@ __all__ = ["mesh_lip_gaps", "plot_lip_seal", "plot_cross_validation", "lip_seal_
 
 #: Variants listed in the report's selection table (the best by score, and the choice).
 _LISTED = 12
+#: Frames whose lips are evaluated together (a few MB of positions).
+_CHUNK_FRAMES = 1024
 
 
 def mesh_lip_gaps(mouth, neutral, *, mm_per_unit: float, bases: Mapping | None = None,
@@ -69,7 +72,8 @@ def mesh_lip_gaps(mouth, neutral, *, mm_per_unit: float, bases: Mapping | None =
         if d.ndim != 3 or d.shape[1:] != (rows.shape[1], 3):
             raise InputError(f"displacements must have shape (T, {rows.shape[1]}, 3), got "
                              f"{d.shape}")
-        gaps["W·D"] = mm_per_unit * mouth.gap(rest + np.matmul(rows, d))
+        gaps["W·D"] = _in_chunks(len(d), partial(_operator_lips, rest, rows, d), mouth,
+                                 mm_per_unit)
     for name, (shapes, weights) in (bases or {}).items():
         shapes = np.asarray(shapes, dtype=np.float64)
         weights = np.asarray(weights, dtype=np.float64)
@@ -78,9 +82,26 @@ def mesh_lip_gaps(mouth, neutral, *, mm_per_unit: float, bases: Mapping | None =
             raise InputError(f"basis {name!r}: shapes (n, {len(neutral)}, 3) and weights "
                              f"(T, n) expected, got {shapes.shape} and {weights.shape}")
         at_lips = shapes[:, ids].reshape(len(shapes), -1)
-        gaps[name] = mm_per_unit * mouth.gap(rest + (weights @ at_lips).reshape(
-            len(weights), len(ids), 3))
+        gaps[name] = _in_chunks(len(weights), partial(_basis_lips, rest, at_lips, weights),
+                                mouth, mm_per_unit)
     return gaps
+
+
+def _operator_lips(rest, rows, displacements, frames):
+    return rest + np.matmul(rows, displacements[frames])
+
+
+def _basis_lips(rest, at_lips, weights, frames):
+    return rest + (weights[frames] @ at_lips).reshape(-1, *rest.shape)
+
+
+def _in_chunks(n_frames: int, positions, mouth, mm_per_unit: float) -> np.ndarray:
+    """``mm_per_unit * mouth.gap(positions(frames))`` for every frame, a block at a time."""
+    out = np.empty(n_frames)
+    for start in range(0, n_frames, _CHUNK_FRAMES):
+        frames = slice(start, min(start + _CHUNK_FRAMES, n_frames))
+        out[frames] = mm_per_unit * mouth.gap(positions(frames))
+    return out
 
 
 def plot_lip_seal(check, path, *, title: str | None = None) -> None:

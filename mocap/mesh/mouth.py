@@ -92,6 +92,13 @@ class MouthOpening:
         ------
         InputError
             Wrong shape or NaN.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> mouth = MouthOpening([], [], upper=[0, 1], lower=[2], method="loop")
+        >>> round(float(mouth.gap(np.array([[0., 1, 0], [1, 1, 0], [0.5, 0, 0]]))), 4)
+        1.118
         """
         n_up, n = len(self.upper), len(self.upper) + len(self.lower)
         x = as_float_array(positions, "positions", allow_nan=False)

@@ -269,6 +269,16 @@ def check_lip_seal(marker_distance, mesh_gap: Mapping, *, rest_distance: float,
     ``o_v(t)`` a mesh's (gap minus the neutral's): a frame is *shut* when
     ``o_m >= max(open_mm, open_span * rest_distance)`` and ``o_v < fraction * o_m``,
     *parted* when ``o_v >= open_mm`` and ``o_m < fraction * o_v``.
+
+    Examples
+    --------
+    Lip markers 30 mm apart at rest part by 20 mm in frames 102-103; the mesh
+    opens by half a millimetre:
+
+    >>> check = check_lip_seal([30.0, 50.0, 50.0, 30.0], {"W·D": [1.0, 1.5, 1.5, 1.0]},
+    ...                        rest_distance=30.0, rest_gap=1.0, first_frame=101)
+    >>> check.runs("W·D")
+    [(102, 103)]
     """
     distance = as_float_array(marker_distance, "marker_distance", ndim=1, allow_nan=False)
     n = len(distance)

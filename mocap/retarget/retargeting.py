@@ -24,7 +24,7 @@ from mocap.bind import Binding
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh, face_normals
-from mocap.mesh.mouth import MouthOpening, find_mouth
+from mocap.mesh.mouth import MouthOpening
 from mocap.neutral import find_neutral
 from mocap.retarget.cross_validation import CrossValidation, MarkerGeometry, cross_validate
 from mocap.retarget.lip_seal import LipWitness, lip_witness
@@ -411,7 +411,7 @@ class Retargeting:
 def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
              options: RetargetOptions = RetargetOptions(), neutral_frame="auto",
              neutral_window: int | None = None, align: bool = True,
-             mesh_landmarks=None) -> Retargeting:
+             mouth: MouthOpening | None = None) -> Retargeting:
     """Retarget a head-stabilized take onto a face mesh.
 
     Parameters
@@ -434,10 +434,10 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
     align : bool, default True
         Fit the head-to-binding rotation (:func:`align_head_frame`); False
         trusts that the binding was made from the stabilized take.
-    mesh_landmarks : mapping of str to int, optional
-        The mesh's landmarks: with them the mouth is found
-        (:func:`mocap.mesh.mouth.find_mouth`) and ``"auto"`` reads each
-        variant's lips where the lip markers open the mouth.
+    mouth : MouthOpening, optional
+        The neutral mesh's lips (:func:`mocap.mesh.mouth.find_mouth`): with
+        them ``"auto"`` reads each variant's lips where the lip markers open
+        the mouth, and the lip check of the chain can run.
 
     Returns
     -------
@@ -450,8 +450,8 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
         A face marker absent from the take or the binding, or missing (NaN)
         in some frame: the message names the first marker and frame (fill gaps first).
     InputError
-        Bad options, a frame beyond the take, a singular RBF system, mesh
-        landmarks without the mouth corners, no variant ``"auto"`` could score.
+        Bad options, a frame beyond the take, a singular RBF system, a mouth
+        of another mesh, no variant ``"auto"`` could score.
     """
     if not isinstance(options, RetargetOptions):
         raise InputError(f"options must be a RetargetOptions, got {type(options).__name__}")
@@ -472,7 +472,10 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
     displacements = marker_displacements(face, binding, neutral_frame=frame, rotation=rotation,
                                          neutral_window=neutral.window)
     geometry = MarkerGeometry.from_binding(binding, mesh, labels)
-    mouth = None if mesh_landmarks is None else find_mouth(mesh, mesh_landmarks)
+    if mouth is not None and (not isinstance(mouth, MouthOpening)
+                              or mouth.vertex_ids.max() >= mesh.n_vertices):
+        raise InputError("mouth must be the MouthOpening of this mesh (mocap.mesh.mouth."
+                         "find_mouth)")
     try:
         witness = lip_witness(markerset, labels)
     except InputError:
@@ -480,11 +483,11 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
     mm_per_unit = 1.0 / binding.scale
     selection = None
     if options.kernel == "auto":
+        has_regions = all(r in markerset.regions for r in options.split_regions)
         selection = select_variant(
             geometry, displacements, mm_per_unit=mm_per_unit,
             regions=_region_map(markerset, labels, options.split_regions)
-            if options.use_regions is not False and all(
-                r in markerset.regions for r in options.split_regions) else None,
+            if options.use_regions or (options.use_regions is None and has_regions) else None,
             distances=DISTANCES if options.distance is None else (options.distance,),
             use_regions=(False, True) if options.use_regions is None else (options.use_regions,),
             smoothing=options.smoothing, region_width=options.region_width,

@@ -155,6 +155,12 @@ def candidate_grid(spacing: float, *, distances=DISTANCES,
         h, the median nearest-marker distance, mesh units.
     distances : sequence of str
     use_regions : sequence of bool
+
+    Examples
+    --------
+    >>> grid = candidate_grid(1.5)
+    >>> len(grid), grid[0]
+    (88, ('thin_plate_spline', None, 'euclidean', False, None))
     """
     grid = []
     for distance in distances:

@@ -20,6 +20,7 @@ from mocap.clean.ingest import IngestOptions, ingest
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.mesh.mouth import find_mouth
 from mocap.retarget.archive import CONTENTS, save_npz, save_obj_sequence
 from mocap.retarget.retargeting import DISTANCES, RETARGET_KERNELS, RetargetOptions, retarget
 
@@ -79,13 +80,14 @@ def run(args) -> int:
                                args.landmarks) if p is not None)
     markerset = load_markerset(args.markerset)
     mesh = load_mesh(args.mesh)
-    landmarks = None if args.landmarks is None else load_mesh_landmarks(args.landmarks, mesh)
+    mouth = None if args.landmarks is None else find_mouth(
+        mesh, load_mesh_landmarks(args.landmarks, mesh))
     binding = load_binding(args.binding)
     take = mocap.read(args.capture)
     ingested = ingest(take, markerset=markerset, options=IngestOptions(
         fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass, stabilize=True))
     result = retarget(ingested.take, binding, mesh, markerset, options=options,
-                      neutral_frame=args.neutral_frame, mesh_landmarks=landmarks)
+                      neutral_frame=args.neutral_frame, mouth=mouth)
     if args.output.suffix.lower() == ".npz":
         save_npz(result, args.output, content=args.content, inputs=inputs)
     else:
