@@ -237,7 +237,7 @@ def _plot_scores(scores, errors, chosen, best, floor, path, title) -> None:
     for axis in (ax.xaxis, ax.yaxis):
         axis.set_major_formatter(ScalarFormatter())
         axis.set_minor_formatter(ScalarFormatter())
-    ax.tick_params(which="minor", labelsize=7)
+    ax.tick_params(which="both", labelsize=8)
     ax.set_xlabel("cross-validated marker error (mm, RMS)")
     ax.set_ylabel("vertex error against the truth (mm, RMS)")
     ax.grid(alpha=0.3, which="both")

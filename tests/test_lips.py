@@ -128,6 +128,10 @@ def test_mouth_errors(demo_face):
         find_mouth(mesh, landmarks)
     with pytest.raises(InputError, match="mesh must be a mocap.mesh.mesh.Mesh"):
         find_mouth(demo_face.mesh.vertices, demo_face.landmarks)
+    with pytest.raises(InputError, match=r"middle must be two fractions 0 < a < b < 1"):
+        find_mouth(demo_face.mesh, demo_face.landmarks, middle=(0.7, 0.3))
+    with pytest.raises(InputError, match=r"middle must have shape \(2\), got \(\)"):
+        find_mouth(demo_face.mesh, demo_face.landmarks, middle=0.5)
     mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
     with pytest.raises(InputError, match=r"positions must have shape \(\.\.\., 104, 3\)"):
         mouth.gap(np.zeros((3, 5, 3)))
@@ -156,6 +160,8 @@ def test_the_lip_witness_prefers_landmarks_then_regions():
     assert "upper lip: u1, u2; lower lip: l1, l2" in regions.describe()
     with pytest.raises(InputError, match="has no lower lip marker to check the lips with"):
         lip_witness(_markerset(), ("u1", "u2", "c"))
+    with pytest.raises(InputError, match=r"positions must have shape \(any, 5, 3\)"):
+        regions.distance(np.zeros((2, 4, 3)))
 
 
 # ---------------------------------------------------------------- the check
@@ -197,6 +203,8 @@ def test_many_runs_are_summarized():
     (dict(marker_distance=np.full(5, np.nan)), "marker_distance contains NaN"),
     (dict(open_mm=0.0), "open_mm must be positive and finite"),
     (dict(fraction=1.5), "fraction must be below 1"),
+    (dict(fraction=0.0), "fraction must be positive and finite"),
+    (dict(open_span=-0.5), "open_span must be >= 0"),
     (dict(rest_gap=np.nan), "rest_gap contains NaN"),
 ])
 def test_check_errors(kwargs, match):

@@ -13,6 +13,7 @@ from fit.cli.main import main
 from fit.demo import demo_config_toml, make_demo_session
 from fit.pipeline import Reconstruction
 from fit.pipeline.manifest import write_manifest
+from mocap.errors import InputError
 from mocap.markerset import load_markerset
 
 
@@ -164,3 +165,18 @@ def test_mesh_landmarks_without_the_mouth_skip_the_lips_with_a_warning(demo):
                                          "landmarks mouth_corner_left and mouth_corner_right"):
         result = recon.process(paths["capture"])
     assert result.lip_seal is None and result.summary()["lip_seal"] is None
+
+
+def test_lip_gap_errors(demo):
+    from fit.report.retarget_qa import mesh_lip_gaps
+
+    _, _, out = demo
+    result = out["auto"][0]
+    mouth, mesh = result.retargeted.mouth, result.reconstruction.mesh
+    with pytest.raises(InputError, match=r"displacements must have shape \(T, 60, 3\)"):
+        mesh_lip_gaps(mouth, mesh.vertices, mm_per_unit=1.0,
+                      operator=result.retargeted.operator.matrix, displacements=np.zeros((3, 5)))
+    with pytest.raises(InputError, match=r"basis 'H': shapes \(n, 6291, 3\) and weights "
+                                         r"\(T, n\) expected"):
+        mesh_lip_gaps(mouth, mesh.vertices, mm_per_unit=1.0,
+                      bases={"H": (np.zeros((2, 10, 3)), np.zeros((4, 2)))})

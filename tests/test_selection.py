@@ -16,7 +16,7 @@ from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.mesh.mouth import find_mouth
 from mocap.retarget import selection
 from mocap.retarget.cross_validation import MarkerGeometry
-from mocap.retarget.lip_seal import check_lip_seal
+from mocap.retarget.lip_seal import check_lip_seal, lip_witness
 from mocap.retarget.rbf import build_rbf_operator
 from mocap.retarget.retargeting import (
     RetargetOptions,
@@ -240,3 +240,19 @@ def test_retarget_errors_of_the_lips_and_regions(off_lips, ict_basis, demo_face)
                                          "no region 'nose_tip'"):
         retarget(*args, neutral_frame=off_lips["neutral"],
                  options=RetargetOptions(use_regions=True, split_regions=("nose_tip",)))
+
+
+def test_selection_and_operator_errors(off_lips, ict_basis, ict_layout, demo_face):
+    labels = off_lips["markerset"].face_markers
+    geometry = MarkerGeometry.from_binding(off_lips["binding"], ict_basis.neutral, labels)
+    other = MarkerGeometry.from_binding(off_lips["binding"], ict_basis.neutral, labels[:5])
+    witness = lip_witness(off_lips["markerset"], labels)
+    mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
+    with pytest.raises(InputError, match="witness must refer to the geometry's markers"):
+        selection.select_variant(other, np.zeros((3, 5, 3)), regions=None, mm_per_unit=10.0,
+                                 mouth=mouth, witness=witness)
+    with pytest.raises(InputError, match="geometry must be of the same markers on the same mesh"):
+        build_retarget_operator(off_lips["binding"], ict_basis.neutral, off_lips["markerset"],
+                                options=RetargetOptions(kernel="gaussian", epsilon=0.5,
+                                                        distance="geodesic"), geometry=other)
+    assert geometry.n_markers == len(labels)
