@@ -232,7 +232,9 @@ def cross_validation_section(cv, *, markerset=None, selection=None,
         "retargeting gets wrong where it has no marker (computed in closed form, Rippa 1999). "
         f"Over all {len(cv.labels)} markers and {cv.n_frames} frames: RMS {cv.rms:.3g} mm, "
         f"{cv.relative:.1%} of the markers' RMS motion from rest (100 %: no better than "
-        "leaving the mesh at rest)."]
+        "leaving the mesh at rest). Tables below: per region, per marker"
+        + (", and the variants kernel = \"auto\" scored best (with its choice)."
+           if selection is not None else ".")]
     if cv.loo.singular:
         paragraphs.append("Not scored: " + "; ".join(f"{k}: {v}"
                                                      for k, v in cv.loo.singular.items()))
