@@ -39,11 +39,11 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import REPO, shared_data  # noqa: E402
 
+sys.path.insert(0, str(REPO / "tests"))
+from helpers import layout_binding  # noqa: E402
+
 from basis.artist import load_artist_basis  # noqa: E402
-from mocap.bind import (
-    Binding,  # noqa: E402
-    bind_take,  # noqa: E402
-)
+from mocap.bind import bind_take  # noqa: E402
 from mocap.clean.ingest import IngestOptions, ingest  # noqa: E402
 from mocap.markerset import load_markerset  # noqa: E402
 from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
@@ -67,7 +67,7 @@ TESTS = REPO / "tests"
 
 #: name -> options (epsilon in 1/cm: Gaussian width ~2 cm, compact support 4-5 cm).
 VARIANTS = {
-    "tps/euclidean": RetargetOptions(),
+    "tps/euclidean": RetargetOptions(kernel="thin_plate_spline"),
     "gaussian/euclidean": RetargetOptions(kernel="gaussian", epsilon=0.5),
     "tps/euclidean+regions": RetargetOptions(use_regions=True),
     "gaussian/geodesic": RetargetOptions(kernel="gaussian", epsilon=0.5, distance="geodesic"),
@@ -78,16 +78,6 @@ VARIANTS = {
     "gaussian/geodesic+regions": RetargetOptions(kernel="gaussian", epsilon=0.5,
                                                  distance="geodesic", use_regions=True),
 }
-
-
-def layout_binding(layout, labels) -> Binding:
-    """The exact binding of the simulation: mesh frame in mm, layout surface points."""
-    idx = [layout.index(x) for x in labels]
-    return Binding(labels=tuple(labels), scale=1 / MM_PER_CM, rotation=np.eye(3),
-                   translation=np.zeros(3), face_ids=layout.face_ids[idx],
-                   vertex_ids=layout.vertex_ids[idx], barycentric=layout.weights[idx],
-                   distances=np.zeros(len(idx)), rms=0.0, skin_offset=0.0, n_landmarks=0,
-                   n_iterations=0, converged=True, message="layout (truth)")
 
 
 def regions(mesh, centers):
@@ -158,7 +148,8 @@ def main() -> None:
         landmarks = load_mesh_landmarks(TESTS / "ict_landmarks.toml", mesh)
         binding = bind_take(take, markerset, mesh, landmarks, frame=neutral,
                             skin_offset=2.0).binding
-        first = retarget(take, binding, mesh, markerset, neutral_frame=neutral)
+        first = retarget(take, binding, mesh, markerset, neutral_frame=neutral,
+                         options=VARIANTS["tps/euclidean"])
         displacements, binding_face = first.displacements, binding
         print(f"binding: {binding.message}, rms {binding.rms:.2f} mm; head-frame "
               f"alignment {np.degrees(np.arccos((np.trace(first.rotation) - 1) / 2)):.3f} deg")

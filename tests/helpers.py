@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import base64
+from html.parser import HTMLParser
 from pathlib import Path
 
+import igl
 import numpy as np
 import pygltflib
+from scipy.spatial.distance import cdist
 
+from mocap.bind import Binding
+from mocap.markerset import MarkerSet
+from mocap.mesh.layout import make_layout
+from mocap.mesh.mouth import find_mouth
 from mocap.rigid import fit_rigid
 
 TESTS_DIR = Path(__file__).resolve().parent
@@ -156,3 +163,136 @@ def bind_argv(capture, mesh, output, *extra, markerset=ICT_MARKERSET_TOML,
     """``mocap2mesh bind`` of a capture to a mesh with the ICT marker set and landmarks."""
     return ["bind", str(capture), "--markerset", str(markerset), "--mesh", str(mesh),
             "--landmarks", str(landmarks), "-o", str(output), *extra]
+
+
+# ---------------------------------------------------------------- reports
+
+class ReportPage(HTMLParser):
+    """A report page read back: images, external references, table cells by table id
+    (a cell's data-value, else its text), section headings and warning paragraphs."""
+
+    def __init__(self):
+        super().__init__()
+        self.images, self.links, self.tables = [], [], {}
+        self.headings, self.warnings = [], []
+        self._table = self._row = self._text = None
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        if tag == "h2" or (tag == "p" and attrs.get("class") == "warning"):
+            self._text = self.headings if tag == "h2" else self.warnings
+            self._text.append("")
+        if tag == "img":
+            self.images.append(attrs["src"])
+        if tag in ("link", "script", "iframe") or "href" in attrs:
+            self.links.append((tag, attrs))
+        if tag == "table":
+            self._table = self.tables.setdefault(attrs["id"], [])
+        elif tag == "tr" and self._table is not None:
+            self._row = []
+            self._table.append(self._row)
+        elif tag in ("td", "th") and self._row is not None:
+            self._row.append(attrs.get("data-value", ""))
+
+    def handle_data(self, data):
+        if self._row and self._row[-1] == "":
+            self._row[-1] = data
+        if self._text is not None:
+            self._text[-1] += data
+
+    def handle_endtag(self, tag):
+        if tag == "table":
+            self._table = self._row = None
+        if tag in ("h2", "p"):
+            self._text = None
+
+    @classmethod
+    def read(cls, path) -> "ReportPage":
+        """The page of an HTML file (UTF-8)."""
+        page = cls()
+        page.feed(Path(path).read_text(encoding="utf-8"))
+        page.close()
+        return page
+
+
+# ---------------------------------------------------------------- marker layouts
+
+def layout_binding(layout, labels, *, mm_per_unit: float = 10.0) -> Binding:
+    """The exact binding of a simulated capture: its layout's surface points, capture mm to
+    mesh units (default cm), no rotation."""
+    idx = [layout.index(x) for x in labels]
+    return Binding(labels=tuple(labels), scale=1 / mm_per_unit, rotation=np.eye(3),
+                   translation=np.zeros(3), face_ids=layout.face_ids[idx],
+                   vertex_ids=layout.vertex_ids[idx], barycentric=layout.weights[idx],
+                   distances=np.zeros(len(idx)), rms=0.0, skin_offset=0.0, n_landmarks=0,
+                   n_iterations=0, converged=True, message="layout (truth)")
+
+
+#: The ICT layout's lip markers moved off the lips as on a real take from another lab:
+#: marker -> (direction on the ICT mesh (y up, +x the subject's left), distance (cm) from
+#: the lip line, or from a mesh landmark): upper lip 10-12 mm above the line, lower lip
+#: 16-18 mm below (a lower-lip marker 18 mm below the lip), the corner markers 10 mm out
+#: from the mouth corners (~71 mm apart against the ICT corners' 51 mm).
+OFF_LIP_MOVES = {"lip-upper1": ((0, 1, 0), 1.0, None), "lip-upper3": ((0, 1, 0), 1.2, None),
+                 "lip-upper5": ((0, 1, 0), 1.0, None), "lip-lower1": ((0, -1, 0), 1.6, None),
+                 "lip-lower3": ((0, -1, 0), 1.8, None), "lip-lower5": ((0, -1, 0), 1.6, None),
+                 "mouth-corner-L": ((1, 0, 0), 1.0, "mouth_corner_left"),
+                 "mouth-corner-R": ((-1, 0, 0), 1.0, "mouth_corner_right")}
+#: ... and the mouth made sparse: three markers per lip, no philtrum or mentolabial markers.
+OFF_LIP_DROPPED = ("lip-upper2", "lip-upper4", "lip-lower2", "lip-lower4", "philtrum-L",
+                   "philtrum-R", "mentolabial-L", "mentolabial-R")
+
+
+def lip_line(mesh, landmarks) -> np.ndarray:
+    """Points (P, 3) where the lips meet at rest, from 20 % to 80 % of the mouth's width:
+    each lip's vertices within 0.5 mm (ICT cm) of its closest approach to the other lip."""
+    mouth = find_mouth(mesh, landmarks, middle=(0.2, 0.8))
+    v = mesh.vertices
+    d = cdist(v[mouth.upper], v[mouth.lower])
+    return np.r_[v[mouth.upper[d.min(axis=1) < d.min(axis=1).min() + 0.05]],
+                 v[mouth.lower[d.min(axis=0) < d.min(axis=0).min() + 0.05]]]
+
+
+def off_lip_layout(layout, mesh, markerset, landmarks):
+    """The ICT layout with its lip markers moved off the lips and the mouth made sparse.
+
+    Each moved marker slides over the surface along its direction (the closest surface
+    point of its straight path) until it is its distance from the lip line or its
+    landmark (:data:`OFF_LIP_MOVES`); the markers of :data:`OFF_LIP_DROPPED` go. Returns
+    the new layout and the marker set without the dropped markers.
+    """
+    v, f = mesh.vertices, mesh.faces
+    line = lip_line(mesh, landmarks)
+    steps = np.linspace(0.0, 3.0, 601)                                    # cm, 0.05 mm apart
+    moved = [label for label in layout.labels if label in OFF_LIP_MOVES]
+    start = layout.positions(v, offset=False)[[layout.index(x) for x in moved]]
+    paths = np.concatenate([p + steps[:, None] * np.asarray(OFF_LIP_MOVES[x][0], float)
+                            for x, p in zip(moved, start)])
+    _, faces, closest = igl.point_mesh_squared_distance(paths, v, f)
+    far = np.stack([cdist(closest[k * len(steps):(k + 1) * len(steps)],
+                          line if OFF_LIP_MOVES[x][2] is None
+                          else v[[landmarks[OFF_LIP_MOVES[x][2]]]]).min(axis=1)
+                    for k, x in enumerate(moved)])
+    specs = {}
+    for i, label in enumerate(layout.labels):
+        if label in OFF_LIP_DROPPED:
+            continue
+        if label in OFF_LIP_MOVES:
+            k = moved.index(label)
+            j = k * len(steps) + int(np.argmax(far[k] >= OFF_LIP_MOVES[label][1]))
+            tri = v[f[faces[j:j + 1]]]
+            bary = np.asarray(igl.barycentric_coordinates(
+                closest[j:j + 1], *(np.ascontiguousarray(tri[:, c]) for c in range(3))))[0]
+            bary = np.clip(bary, 0.0, None)
+            specs[label] = {"face": int(faces[j]), "bary": (bary / bary.sum()).tolist()}
+        elif layout.face_ids[i] < 0:
+            specs[label] = {"vertex": int(layout.vertex_ids[i, 0])}
+        else:
+            specs[label] = {"face": int(layout.face_ids[i]), "bary": layout.weights[i].tolist()}
+        specs[label]["offset"] = float(layout.offsets[i])
+    regions = {r: tuple(x for x in members if x not in OFF_LIP_DROPPED)
+               for r, members in markerset.regions.items()}
+    kept = {k: x for k, x in markerset.landmarks.items() if x not in OFF_LIP_DROPPED}
+    return (make_layout(mesh, specs, name=f"{layout.name}-off-lips"),
+            MarkerSet(name=f"{markerset.name}-off-lips", head=markerset.head, regions=regions,
+                      clusters=markerset.clusters, landmarks=kept))

@@ -21,8 +21,8 @@ from tolerances import (
 
 from mocap import InputError, MarkerError, Take
 from mocap.clean import FILL_OPTIONS, _pca_fill, fill_gaps
-from mocap.clean.gapfill import DEFAULT_MAX_GAP_S
 from mocap.clean._rigid_fill import donor_weights
+from mocap.clean.gapfill import DEFAULT_MAX_GAP_S
 from mocap.rigid import fit_rigid
 from mocap.take import fill_code
 

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import base64
-from html.parser import HTMLParser
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from helpers import ReportPage
 from tolerances import EXACT_FLOAT64
 
 from basis.coverage import plot_coverage
@@ -122,42 +122,9 @@ def test_coverage_without_reaching_the_threshold(report, tmp_path):
         plot_coverage(pca, path, thresholds=(99.5,))
 
 
-class _Page(HTMLParser):
-    """Images, external references and table cells (data-value, else the text)."""
-
-    def __init__(self):
-        super().__init__()
-        self.images, self.links, self.tables = [], [], {}
-        self._table = self._row = None
-
-    def handle_starttag(self, tag, attrs):
-        attrs = dict(attrs)
-        if tag == "img":
-            self.images.append(attrs["src"])
-        if tag in ("link", "script", "iframe") or "href" in attrs:
-            self.links.append((tag, attrs))
-        if tag == "table":
-            self._table = self.tables.setdefault(attrs["id"], [])
-        elif tag == "tr" and self._table is not None:
-            self._row = []
-            self._table.append(self._row)
-        elif tag in ("td", "th") and self._row is not None:
-            self._row.append(attrs.get("data-value", ""))
-
-    def handle_data(self, data):
-        if self._row and self._row[-1] == "":
-            self._row[-1] = data
-
-    def handle_endtag(self, tag):
-        if tag == "table":
-            self._table = self._row = None
-
-
 def test_html_is_self_contained_and_its_numbers_are_the_metrics(report):
     files, results, _ = report
-    page = _Page()
-    page.feed(files["html"].read_text(encoding="utf-8"))
-    page.close()
+    page = ReportPage.read(files["html"])
     assert page.links == []
     pngs = sorted(p.read_bytes() for p in files.values() if p.suffix == ".png")
     assert all(src.startswith("data:image/png;base64,") for src in page.images)

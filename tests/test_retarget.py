@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import ICT_MARKERSET_TOML, jaw_open_peak_time
+from helpers import ICT_LANDMARKS_TOML, ICT_MARKERSET_TOML, jaw_open_peak_time
 from scipy.spatial.transform import Rotation
 from tolerances import (
     EXACT_FLOAT64,
@@ -159,10 +159,11 @@ def test_align_head_frame_recovers_the_capture_rotation():
 # -- the operator ------------------------------------------------------------------------
 
 EXACT_OPTIONS = {
-    "tps": RetargetOptions(),
+    "tps": RetargetOptions(kernel="thin_plate_spline"),
     "gaussian": RetargetOptions(kernel="gaussian", epsilon=0.4),
     "wendland": RetargetOptions(kernel="wendland_c2", epsilon=0.15),
-    "tps-regions": RetargetOptions(use_regions=True, region_width=0.5),
+    "tps-regions": RetargetOptions(kernel="thin_plate_spline", use_regions=True,
+                                   region_width=0.5),
 }
 
 
@@ -399,3 +400,25 @@ def test_cli_hold_measures_displacements_from_the_mean_of_the_hold(ict_capture, 
     assert means[start] < FLOAT32_REL                     # float32 storage
     assert start + window <= 30                           # inside the 1 s lead at 30 Hz
     assert np.abs(moved).max(axis=(1, 2)).min() > 1e-3    # no frame is the rest pose
+
+
+def test_cli_auto_refuses_a_shape_parameter(ict_capture, tmp_path, capsys):
+    assert main(_retarget_args(ict_capture, tmp_path / "x.npz", "--epsilon", "0.5")) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "epsilon is chosen by kernel='auto'" in err
+
+
+def test_cli_auto_reads_the_lips_with_the_mesh_landmarks(ict_capture, tmp_path, capsys):
+    lines = ICT_LANDMARKS_TOML.read_text(encoding="utf-8").splitlines()
+    cornerless = tmp_path / "landmarks.toml"
+    cornerless.write_text("\n".join(x for x in lines if not x.startswith("mouth_corner")),
+                          encoding="utf-8")
+    assert main(_retarget_args(ict_capture, tmp_path / "x.npz", "--landmarks",
+                               str(cornerless))) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "the mouth needs the mesh landmarks mouth_corner_left " \
+                                    "and mouth_corner_right" in err
+    output = tmp_path / "lips.npz"
+    assert main(_retarget_args(ict_capture, output, "--landmarks", str(ICT_LANDMARKS_TOML),
+                               "--distance", "geodesic", "--no-regions")) == 0
+    assert output.is_file() and capsys.readouterr().err == ""

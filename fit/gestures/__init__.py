@@ -40,21 +40,13 @@ from fit.gestures.features import (
     WEIGHT_PATTERNS,
     weight_columns,
 )
+from fit.gestures.lipsync import TalkingFace, lip_region, talking_face
 from fit.gestures.mrf import (
     GestureSynthesis,
     candidate_distances,
     pick_candidate,
     synthesize_gestures,
 )
-from fit.gestures.reference import CaptureClip, clip_from_capture
-from fit.gestures.speech import (
-    analog_intensity,
-    opening_intensity,
-    read_wav,
-    speech_intensity,
-    wav_intensity,
-)
-from fit.gestures.lipsync import TalkingFace, lip_region, talking_face
 from fit.gestures.phones import (
     PhoneSegments,
     phones_from_wav,
@@ -64,6 +56,14 @@ from fit.gestures.phones import (
     write_phones_csv,
 )
 from fit.gestures.prosody import Prosody, praat_prosody, rms_prosody, speech_prosody
+from fit.gestures.reference import CaptureClip, clip_from_capture
+from fit.gestures.speech import (
+    analog_intensity,
+    opening_intensity,
+    read_wav,
+    speech_intensity,
+    wav_intensity,
+)
 from fit.gestures.talking import SpeechAnalysis, analyze_speech
 from fit.gestures.timeline import Segment, Timeline, load_timeline, parse_timeline
 from fit.gestures.viseme_basis import (

@@ -21,7 +21,8 @@ stage with the same name)::
                 #   stabilize = "head" | "auto" | "none" (default "head"),
                 #   robust_stabilization, robust_guard_deg
     [bind]      # fit.pipeline.stages.BindOptions: frame, icp, skin_offset, max_distance_warn
-    [retarget]  # mocap.retarget.retargeting.RetargetOptions: kernel, epsilon, degree, smoothing, ...
+    [retarget]  # mocap.retarget.retargeting.RetargetOptions: kernel ("auto", the default: chosen
+                #   by cross-validation), epsilon, degree, smoothing, distance, use_regions, ...
     [basis]     # fit.pipeline.stages.BasisOptions: pca_components, pca_coverage, qe_missing,
                 #   missing_eps, scope ("session": one PCA/QE for all takes, or "take")
     [fit]       # fit.pipeline.stages.FitOptions: space, h_epsilon, smoothness, moving_average,

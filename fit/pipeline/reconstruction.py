@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -37,8 +38,9 @@ from fit.gestures.transfer import head_motion_on_mesh
 from fit.metrics import reconstruction_errors
 from fit.pipeline.config import STAGE_TABLES, RunConfig, load_run_config, stage_options
 from fit.pipeline.gaps import require_complete
-from fit.pipeline.take_warnings import warn_unconverged
+from fit.pipeline.holdout import HeldOut, held_out_fits, time_blocked_splits
 from fit.pipeline.options import BasisOptions, BindOptions, FitOptions, ReportOptions
+from fit.pipeline.provenance import stage_grades, take_provenance
 from fit.pipeline.stages import (
     BasisResult,
     FitResult,
@@ -47,20 +49,21 @@ from fit.pipeline.stages import (
     complete_span,
     fit_stage,
     ingest_stage,
+    lip_seal_stage,
     retarget_stage,
 )
-from fit.pipeline.holdout import HeldOut, held_out_fits, time_blocked_splits
-from fit.pipeline.provenance import stage_grades, take_provenance
+from fit.pipeline.take_warnings import warn_unconverged
 from fit.report import build_report
 from fit.report.html import Figure
-from fit.report.mesh_views import MeshSpace
 from fit.report.ingest_plots import plot_gaps, plot_head_residuals
+from fit.report.mesh_views import MeshSpace
 from mocap.bind import Binding, BoundTake
 from mocap.clean.ingest import IngestOptions, IngestResult, save_head_motion
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet, load_markerset
 from mocap.mesh import Mesh, load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.retarget.lip_seal import LipSealCheck
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
 from mocap.units import mm_per_unit
@@ -191,7 +194,8 @@ class Reconstruction:
         bound = bind_stage(take, self.markerset, self.mesh, self.landmarks, options=self.bind)
         seconds["bind"] = time.perf_counter() - tic
         tic = time.perf_counter()
-        retargeted = retarget_stage(take, bound, self.mesh, self.markerset, self.retarget)
+        retargeted = retarget_stage(take, bound, self.mesh, self.markerset, self.retarget,
+                                    mesh_landmarks=self.landmarks)
         seconds["retarget"] = time.perf_counter() - tic
         source = raw.source.path
         return PreparedTake(name=Path(source).stem if source else "take", ingested=ingested,
@@ -225,6 +229,9 @@ class Reconstruction:
         UserWarning
             The stages' own (gap filling, binding distances) and a basis whose
             weights did not converge in every frame.
+            A mesh whose mouth stays shut while the lip markers open it (or
+            the reverse), naming the capture's frames
+            (:attr:`ReconstructionResult.lip_seal`).
         """
         prepared = capture if isinstance(capture, PreparedTake) else self.prepare(capture)
         seconds = dict(prepared.stage_seconds)
@@ -237,11 +244,15 @@ class Reconstruction:
                            options=self.fit)
         warn_unconverged(fitted.solutions, first_frame=prepared.take.first_frame)
         seconds["fit"] = time.perf_counter() - tic
+        lips = lip_seal_stage(prepared.take, prepared.bound, prepared.retargeted, bases, fitted)
+        for message in (lips.messages() if lips is not None else ()):
+            warnings.warn(f"{prepared.ingested.raw.source.path or prepared.name}: {message}",
+                          stacklevel=2)
         return ReconstructionResult(reconstruction=self, name=prepared.name,
                                     ingested=prepared.ingested, take=prepared.take,
                                     bound=prepared.bound, retargeted=prepared.retargeted,
                                     bases=bases, fitted=fitted, stage_seconds=seconds,
-                                    session_basis=session_basis)
+                                    session_basis=session_basis, lip_seal=lips)
 
 
 @dataclass(frozen=True, eq=False)
@@ -290,6 +301,8 @@ class ReconstructionResult:
         Wall time of each stage.
     session_basis : SessionBasis or None
         The session's shared PCA the take was fitted in (None: its own).
+    lip_seal : mocap.retarget.lip_seal.LipSealCheck or None
+        The lip gap of W·D and of each basis's mesh against the lip markers'.
     """
 
     reconstruction: Reconstruction
@@ -302,6 +315,7 @@ class ReconstructionResult:
     fitted: FitResult
     stage_seconds: dict
     session_basis: object = None
+    lip_seal: LipSealCheck | None = None
 
     @property
     def binding(self) -> Binding:
@@ -465,8 +479,10 @@ class ReconstructionResult:
                               warnings=warnings,
                               provenance=take_provenance(self, inputs=inputs),
                               grades=stage_grades(self), held_out=self.held_out(),
-                              mesh_space=self.mesh_space() if options.mesh_views else None
-                              ).values()
+                              mesh_space=self.mesh_space() if options.mesh_views else None,
+                              cross_validation=self.retargeted.cross_validation,
+                              selection=self.retargeted.selection,
+                              lip_seal=self.lip_seal).values()
         return files
 
     def _head_frame_summary(self) -> dict:
@@ -485,8 +501,19 @@ class ReconstructionResult:
                                   "median_mm": head.motion.median_shift}
         return out
 
+    def _retarget_summary(self) -> dict:
+        """The retargeting variant used, its held-out errors and what ``"auto"`` tried."""
+        retargeted = self.retargeted
+        options = retargeted.options
+        cv = retargeted.cross_validation
+        return {"kernel": options.kernel, "epsilon": options.epsilon, "degree": options.degree,
+                "distance": options.distance, "use_regions": options.use_regions,
+                "cross_validation": None if cv is None else cv.summary(),
+                "selection": None if retargeted.selection is None
+                else retargeted.selection.to_dict()}
+
     def summary(self) -> dict:
-        """What the manifest records of the take: frames, binding, bases, fit and metrics."""
+        """What the manifest records of the take: frames, binding, retargeting, lips, bases, fit and metrics."""
         take, ingested = self.take, self.ingested
 
         def finite(summary: dict) -> dict:
@@ -498,6 +525,8 @@ class ReconstructionResult:
                            "neutral_window": self.bound.window, "rate": take.rate},
                 "head_frame": self._head_frame_summary(),
                 "binding_rms_mm": self.binding.rms,
+                "retarget": self._retarget_summary(),
+                "lip_seal": None if self.lip_seal is None else self.lip_seal.summary(),
                 "pca_components": self.bases.n_components,
                 "qe_missing_axes": self.bases.qe.missing_axes.tolist(),
                 "basis": {"scope": self.bases.scope,

@@ -22,6 +22,7 @@ from basis.artist import ArtistBasis
 from basis.pca import PCAModel, pca_from_operator
 from basis.quasi_eigen import QuasiEigenBasis, quasi_eigen
 from fit.pipeline.options import BasisOptions, BindOptions, FitOptions
+from fit.report.retarget_qa import mesh_lip_gaps
 from fit.solve.marker_basis import marker_basis
 from fit.solve.marker_centres import solve_at_marker_centres
 from fit.solve.mesh_space import solve_mesh_space
@@ -33,11 +34,13 @@ from mocap.clean.ingest import IngestOptions, IngestResult, ingest
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh
+from mocap.mesh.mouth import find_mouth
+from mocap.retarget.lip_seal import LipSealCheck, check_lip_seal
 from mocap.retarget.retargeting import Retargeting, RetargetOptions, retarget
 from mocap.take import Take
 
 __all__ = ["complete_span", "NamedBasis", "BasisResult", "FitResult", "ingest_stage",
-           "bind_stage", "retarget_stage", "basis_stage", "fit_stage"]
+           "bind_stage", "retarget_stage", "basis_stage", "fit_stage", "lip_seal_stage"]
 
 @dataclass(frozen=True, eq=False)
 class NamedBasis:
@@ -191,7 +194,8 @@ def bind_stage(take: Take, markerset: MarkerSet, mesh: Mesh, mesh_landmarks, *,
 
 
 def retarget_stage(take: Take, bound: BoundTake, mesh: Mesh, markerset: MarkerSet,
-                   options: RetargetOptions = RetargetOptions()) -> Retargeting:
+                   options: RetargetOptions = RetargetOptions(), *,
+                   mesh_landmarks=None) -> Retargeting:
     """Face-marker displacements (mesh units) and the RBF operator W (:func:`mocap.retarget.retargeting.retarget`).
 
     Parameters
@@ -202,14 +206,27 @@ def retarget_stage(take: Take, bound: BoundTake, mesh: Mesh, markerset: MarkerSe
     mesh : Mesh
     markerset : MarkerSet
     options : RetargetOptions
+        ``kernel="auto"`` (the default) is chosen on this take.
+    mesh_landmarks : mapping of str to int, optional
+        The mesh's landmarks: the mouth (:func:`mocap.mesh.mouth.find_mouth`),
+        for ``"auto"`` and :func:`lip_seal_stage`; a mouth they do not give
+        is a warning, and the lips are not read.
 
     Returns
     -------
     Retargeting
-        ``displacements`` (T, M, 3) from the bound rest pose, ``operator.matrix`` (N, M).
+        ``displacements`` (T, M, 3) from the bound rest pose, ``operator.matrix`` (N, M),
+        the variant used, its cross-validation and (``"auto"``) the selection.
     """
+    mouth = None
+    if mesh_landmarks is not None:
+        try:
+            mouth = find_mouth(mesh, mesh_landmarks)
+        except InputError as exc:
+            warnings.warn(f"the lips are not checked: {exc}", stacklevel=2)
     return retarget(take, bound.binding, mesh, markerset, options=options,
-                    neutral_frame=bound.frame, neutral_window=bound.window, align=False)
+                    neutral_frame=bound.frame, neutral_window=bound.window, align=False,
+                    mouth=mouth)
 
 
 def basis_stage(retargeted: Retargeting, artist: ArtistBasis, *,
@@ -319,3 +336,38 @@ def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: Basi
         reconstructed[name] = neutral + disp @ binding.rotation / binding.scale
     return FitResult(solutions=solutions, weights=weights, reconstructed=reconstructed,
                      space=options.space)
+
+
+def lip_seal_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: BasisResult,
+                   fitted: FitResult) -> LipSealCheck | None:
+    """The lip gap of W·D and of every basis's mesh against the lip markers' opening.
+
+    Parameters
+    ----------
+    take : Take
+        Head-stabilized positions, mm, with the face markers.
+    bound, retargeted, bases, fitted
+        Earlier stages.
+
+    Returns
+    -------
+    LipSealCheck or None
+        None when the mesh's mouth (mesh landmarks) or the lip markers are unknown.
+        Mesh gaps are in capture millimetres (mesh units over the binding's scale).
+    """
+    mouth, witness = retargeted.mouth, retargeted.lip_witness
+    if mouth is None or witness is None:
+        return None
+    face = take.select(retargeted.labels)
+    rest = bound.neutral_pose(face.positions)
+    mm_per_unit = 1.0 / bound.binding.scale
+    neutral = retargeted.mesh.vertices
+    gaps = mesh_lip_gaps(mouth, neutral, mm_per_unit=mm_per_unit,
+                         operator=retargeted.operator.matrix,
+                         displacements=retargeted.displacements,
+                         bases={name: (basis.displacements, fitted.weights[name])
+                                for name, basis in bases.bases.items()})
+    return check_lip_seal(witness.distance(face.positions), gaps,
+                          rest_distance=float(witness.distance(rest[None])[0]),
+                          rest_gap=mm_per_unit * float(mouth.gap(neutral[mouth.vertex_ids])),
+                          first_frame=take.first_frame, witness=witness.describe())

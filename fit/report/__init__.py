@@ -20,6 +20,12 @@ from fit.report.extremes import take_extremes
 from fit.report.html import Figure, Section, Video, ingest_stats, write_report
 from fit.report.mesh_views import mesh_cameras, plot_mesh_frames
 from fit.report.plots import plot_alpha, plot_error_heatmap, plot_held_out, plot_marker_errors
+from fit.report.retarget_qa import (
+    cross_validation_section,
+    lip_seal_section,
+    plot_cross_validation,
+    plot_lip_seal,
+)
 from fit.report.video import VIDEO_SUFFIX, write_overlay_video
 from fit.report.views import plot_frame_views
 from mocap.errors import InputError
@@ -47,7 +53,8 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
                  origin=None, pca=None, ingest=None, pictures=None, video: bool = False,
                  video_step: int = 1, n_worst: int = 5, exaggerate: float = 1.0,
                  name: str | None = None, warnings=(), provenance: Mapping | None = None,
-                 grades=(), held_out=None, mesh_space=None, sections=()) -> dict:
+                 grades=(), held_out=None, mesh_space=None, sections=(), cross_validation=None,
+                 selection=None, lip_seal=None) -> dict:
     """Metrics, figures, (video) and the HTML report of one take.
 
     Parameters
@@ -99,13 +106,21 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         and at the take's extremes (needs `markerset` for the extremes).
     sections : sequence of fit.report.html.Section
         Further sections, appended in order.
+    cross_validation : mocap.retarget.cross_validation.CrossValidation, optional
+        Adds the retargeting's held-out errors per marker and region
+        (:attr:`mocap.retarget.retargeting.Retargeting.cross_validation`).
+    selection : mocap.retarget.selection.RetargetSelection, optional
+        With it, what ``kernel = "auto"`` tried.
+    lip_seal : mocap.retarget.lip_seal.LipSealCheck, optional
+        Adds the lip-seal section (its warnings at the top of it).
 
     Returns
     -------
     dict of str to pathlib.Path
         Every file written, keyed ``"html"``, ``"alpha"``, ``"coverage"``,
         ``"held-out"``, ``"heatmap-<basis>"``, ``"markers-<basis>"``,
-        ``"views-<basis>"``, ``"video"`` (every basis), ``"mesh-<basis>"``, ``"mesh-WD"``.
+        ``"views-<basis>"``, ``"video"`` (every basis), ``"mesh-<basis>"``, ``"mesh-WD"``,
+        ``"cross-validation"``, ``"lip-seal"``.
     """
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
@@ -143,6 +158,14 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
             encoding.result()               # its error, if any, is the report's
         encoder.shutdown()
     held, page = page
+    if cross_validation is not None:
+        plot_cross_validation(cross_validation, out("cross-validation"), markerset=markerset)
+        page.append(cross_validation_section(cross_validation, markerset=markerset,
+                                             selection=selection,
+                                             image=files["cross-validation"]))
+    if lip_seal is not None:
+        plot_lip_seal(lip_seal, out("lip-seal"))
+        page.append(lip_seal_section(lip_seal, image=files["lip-seal"]))
     page += list(sections)
     graded = []
     for basis, res in results.items():

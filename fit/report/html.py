@@ -23,9 +23,9 @@ from typing import Mapping
 import numpy as np
 
 from fit.metrics import ReconstructionErrors
-from fit.report.warning_list import warnings_section
 from fit.report.grades import GRADES
 from fit.report.video import VIDEO_MIME
+from fit.report.warning_list import warnings_section
 from mocap.errors import InputError
 from mocap.util.atomic import atomic_path
 
@@ -80,19 +80,22 @@ class Section:
     Attributes
     ----------
     title : str
-    text : str
-        A paragraph (escaped).
+    text : str or sequence of str
+        A paragraph, or several (escaped).
     tables : sequence of Table
     items : sequence of Figure or Video
     anchor : str
         The section's id (default from the title).
+    warnings : sequence of str
+        Shown highlighted above the text.
     """
 
     title: str
-    text: str = ""
+    text: str | tuple = ""
     tables: tuple = ()
     items: tuple = ()
     anchor: str = ""
+    warnings: tuple = ()
 
 _STYLE = """
 body { font-family: sans-serif; margin: 2em; color: #222; max-width: 1400px; }
@@ -108,7 +111,9 @@ figcaption { font-size: 0.85em; color: #555; max-width: 1100px; }
 .na { background: #888; }
 dl.glossary dt { font-weight: bold; float: left; width: 3em; }
 dl.glossary dd { margin: 0 0 0.4em 3.5em; }
+p.warning { background: #fff3cd; border-left: 4px solid #e0a800; padding: 4px 8px; }
 """
+
 
 _SUMMARY_COLUMNS = {"alpha": "α take (%)", "alpha_mean": "α mean (%)",
                     "alpha_max": "α max (%)", "displacement_error": "‖d*−d‖/‖d*‖ (%)",
@@ -188,8 +193,9 @@ def _media(item) -> str:
 def _section(section: Section) -> str:
     anchor = section.anchor or "-".join(section.title.lower().split())
     parts = [f'<h2 id="{html.escape(anchor)}">{html.escape(section.title)}</h2>']
-    if section.text:
-        parts.append(f"<p>{html.escape(section.text)}</p>")
+    parts += [f'<p class="warning">{html.escape(w)}</p>' for w in section.warnings]
+    texts = (section.text,) if isinstance(section.text, str) else section.text
+    parts += [f"<p>{html.escape(text)}</p>" for text in texts if text]
     for table in section.tables:
         parts.append(_table(table.header, table.rows, table_id=table.table_id))
     parts += [_media(item) for item in section.items]

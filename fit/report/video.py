@@ -8,7 +8,6 @@ import contextlib
 import os
 import sys
 import tempfile
-
 from typing import Mapping
 
 import cv2

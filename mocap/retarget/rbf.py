@@ -8,33 +8,27 @@ whole take costs one matrix product per chunk of frames: ``Xi(t) = W D(t)``.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 import scipy.sparse as sp
-import scipy.sparse.linalg
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
 from mocap.errors import InputError
 from mocap.mesh import regions as _regions
-from mocap.mesh.geodesic import HeatGeodesics
 from mocap.mesh.regions import RegionWeights, as_region_markers, painted_region_weights
 from mocap.retarget import _kernels as _k
+from mocap.retarget import _system
 from mocap.retarget._kernels import COMPACT_KERNELS, KERNELS
-from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
+from mocap.util.validation import as_choice, as_float_array, as_int
 
 __all__ = ["RBFOperator", "RBFSolveInfo", "build_rbf_operator", "KERNELS", "DISTANCES"]
 
 #: Distances the kernels may be evaluated on.
 DISTANCES = ("euclidean", "geodesic")
 
-#: When a kernel matrix must be regularized, its smallest eigenvalue (on the
-#: polynomial null space) is raised to this fraction of its largest.
-_PD_FLOOR = 1e-8
 #: Compact-kernel operators are stored sparse up to this fraction of nonzeros
 #: (denser, a sparse product is slower than the dense GEMM).
 _SPARSE_DENSITY = 0.25
@@ -211,118 +205,6 @@ class RBFOperator:
             yield frames, block
 
 
-def _polynomial(centers, points, degree):
-    """Polynomial blocks at centers and points, on the centers' box scaled to [-1, 1]."""
-    powers = (_k.monomial_powers(3, degree) if degree >= 0
-              else np.zeros((0, 3), dtype=np.int64))
-    lo, hi = centers.min(axis=0), centers.max(axis=0)
-    shift, scale = (hi + lo) / 2, (hi - lo) / 2
-    scale = np.where(scale == 0.0, 1.0, scale)
-    return (_k.polynomial_matrix((centers - shift) / scale, powers),
-            _k.polynomial_matrix((points - shift) / scale, powers))
-
-
-def _solve(region, kcc, kxc, pc, px, smoothing, degree, regularize):
-    """Solve the system for the identity: W (N, M) and its diagnostics."""
-    m, n_mono = pc.shape
-    where = "" if region == "all" else f"region {region!r}: "
-    if n_mono > m:
-        raise InputError(f"{where}{m} centers, but a degree-{degree} "
-                         f"polynomial needs at least {n_mono}")
-    u, sv, _ = np.linalg.svd(pc, full_matrices=True)
-    rank = int(np.sum(sv > sv[0] * max(pc.shape) * np.finfo(float).eps)) if n_mono else 0
-    if rank < n_mono:
-        raise InputError(f"{where}the centers lie on a low-dimensional set: the "
-                         f"polynomial block has rank {rank} < {n_mono}; lower `degree`")
-    dense_k = (kcc.toarray() if sp.issparse(kcc) else kcc) + np.diag(smoothing)
-    null = u[:, n_mono:]
-    eig = np.linalg.eigvalsh(null.T @ dense_k @ null) if m > n_mono else np.array([np.nan])
-    lam_min, lam_max = float(eig[0]), float(np.nanmax(np.abs(eig), initial=0.0))
-    shift = 0.0
-    if regularize and lam_min <= m * np.finfo(float).eps * lam_max:
-        shift = _PD_FLOOR * lam_max - 2.0 * lam_min
-        warnings.warn(f"{where}the kernel matrix is not positive definite (smallest "
-                      f"eigenvalue {lam_min:.3g}, largest {lam_max:.3g}): a diagonal "
-                      f"shift of {shift:.3g} was added, which smooths the data; a "
-                      "compact or narrower kernel avoids it", stacklevel=4)
-    diag = smoothing + shift
-    try:
-        if sp.issparse(kcc):
-            system = (kcc + sp.diags_array(diag)).tocsc()
-            z = scipy.sparse.linalg.splu(system).solve(np.eye(m))
-            w = kxc @ z
-            condition = np.linalg.cond(system.toarray())
-        else:
-            system = np.block([[kcc + np.diag(diag), pc], [pc.T, np.zeros((n_mono, n_mono))]])
-            z = scipy.linalg.solve(system, np.eye(m + n_mono, m))
-            w = kxc @ z[:m] + px @ z[m:]
-            condition = np.linalg.cond(system)
-    except (np.linalg.LinAlgError, RuntimeError) as exc:
-        raise InputError(f"{where}the RBF system is singular ({exc}): coincident "
-                         "centers? add smoothing") from None
-    info = RBFSolveInfo(region, m, float(condition), lam_min, float(shift))
-    return np.asarray(w), info
-
-
-def _check_options(kernel, epsilon, degree, smoothing, n_centers):
-    kernel = as_choice(kernel, "kernel", KERNELS)
-    if epsilon is None:
-        if kernel not in _k.SCALE_INVARIANT:
-            raise InputError(f"epsilon is required for kernel {kernel!r}"
-                             + (" (support radius = 1/epsilon, mesh units)"
-                                if kernel in COMPACT_KERNELS else ""))
-        epsilon = 1.0
-    epsilon = as_positive_float(epsilon, "epsilon")
-    min_degree = _k.MIN_DEGREE.get(kernel, -1)
-    if degree is None:
-        degree = -1 if kernel in COMPACT_KERNELS else max(min_degree, 0)
-    degree = as_int(degree, "degree", minimum=-1)
-    if kernel in COMPACT_KERNELS and degree != -1:
-        raise InputError(f"kernel {kernel!r} is used without a polynomial term "
-                         f"(its support would be infinite): degree must be -1, got {degree}")
-    if -1 < degree < min_degree:
-        warnings.warn(f"degree {degree} is below the minimum {min_degree} of kernel "
-                      f"{kernel!r}: the interpolant may not be unique", stacklevel=3)
-    smoothing = as_float_array(smoothing, "smoothing", allow_nan=False)
-    if smoothing.ndim == 0:
-        smoothing = np.full(n_centers, float(smoothing))
-    if smoothing.shape != (n_centers,) or (smoothing < 0).any():
-        raise InputError(f"smoothing must be a scalar or an array of shape ({n_centers},), "
-                         f">= 0, got {smoothing.tolist() if smoothing.size < 8 else smoothing.shape}")
-    return kernel, epsilon, degree, smoothing
-
-
-def _geodesic_setup(centers, points, mesh, center_faces, center_bary):
-    """Fields (M, N) from each center and symmetric center distances (M, M)."""
-    if mesh is None:
-        raise InputError("distance='geodesic' needs mesh=(vertices, faces)")
-    if not isinstance(mesh, Sequence) or len(mesh) != 2:
-        raise InputError("mesh must be a pair (vertices (N, 3), faces (F, 3))")
-    geo = HeatGeodesics(*mesh)
-    if geo.vertices.shape != points.shape or not np.allclose(geo.vertices, points):
-        raise InputError("with distance='geodesic', points must be the mesh vertices "
-                         f"({geo.n_vertices} of them)")
-    if (center_faces is None) != (center_bary is None):
-        raise InputError("give both center_faces and center_bary, or neither")
-    if center_faces is None:
-        center_faces, center_bary = geo.locate(centers)
-    fields = geo.from_surface_points(center_faces, center_bary, symmetric=True)
-    faces = np.asarray(center_faces, dtype=np.int64)
-    on_mesh = np.einsum("pk,pkd->pd", np.asarray(center_bary, dtype=np.float64),
-                        geo.vertices[geo.faces[faces]])
-    gap = np.linalg.norm(on_mesh - centers, axis=1)
-    tol = 1e-4 * np.linalg.norm(np.ptp(geo.vertices, axis=0))
-    if (gap > tol).any():
-        bad = int(np.argmax(gap > tol))
-        raise InputError(f"center {bad} is {gap[bad]:.4g} from its surface point "
-                         f"(face {faces[bad]}); center_faces/center_bary must locate "
-                         "the centers on the mesh")
-    between = geo.at_surface_points(fields, faces, center_bary)
-    # the heat method can return -1e-16 at a source; a distance is never negative
-    # (and the thin-plate kernel takes its logarithm)
-    return np.maximum(fields, 0.0), np.maximum(0.5 * (between + between.T), 0.0)
-
-
 def build_rbf_operator(centers, points, *, kernel: str = "thin_plate_spline",
                        epsilon: float | None = None, degree: int | None = None,
                        smoothing=0.0, distance: str = "euclidean", mesh=None,
@@ -330,7 +212,8 @@ def build_rbf_operator(centers, points, *, kernel: str = "thin_plate_spline",
                        regions: Mapping[str, Sequence] | None = None,
                        region_weights=None, region_width: float | None = None,
                        support_region: str | None = "other",
-                       labels: Sequence[str] | None = None) -> RBFOperator:
+                       labels: Sequence[str] | None = None,
+                       precomputed: tuple | None = None) -> RBFOperator:
     """Build the RBF operator from marker displacements to vertex displacements.
 
     Parameters
@@ -373,6 +256,11 @@ def build_rbf_operator(centers, points, *, kernel: str = "thin_plate_spline",
         (ignored when absent from `regions`).
     labels : sequence of str, optional
         Marker labels, for error messages.
+    precomputed : (to_points (n_centers, n_points), between (n_centers, n_centers)), optional
+        Distances from each center to each point and between the centers,
+        mesh units, used instead of computing `distance` (which then only
+        names them), e.g. geodesic fields computed once for several
+        operators. No NaN, >= 0, `between` symmetric.
 
     Returns
     -------
@@ -400,23 +288,30 @@ def build_rbf_operator(centers, points, *, kernel: str = "thin_plate_spline",
     centers = as_float_array(centers, "centers", shape=(None, 3), allow_nan=False)
     points = as_float_array(points, "points", shape=(None, 3), allow_nan=False)
     m = len(centers)
-    kernel, epsilon, degree, smoothing = _check_options(kernel, epsilon, degree,
-                                                        smoothing, m)
+    kernel, epsilon, degree, smoothing = _system.check_options(kernel, epsilon, degree,
+                                                               smoothing, m)
     distance = as_choice(distance, "distance", DISTANCES)
     if labels is not None:
         labels = tuple(str(label) for label in labels)
         if len(labels) != m:
             raise InputError(f"labels must name the {m} centers, got {len(labels)}")
-    if distance == "euclidean" and not smoothing.any():
+    if precomputed is not None:
+        to_points, between = _as_precomputed(precomputed, m, len(points))
+    elif distance == "geodesic":
+        to_points, between = _system.geodesic_distances(centers, points, mesh, center_faces,
+                                                        center_bary)
+    else:
+        to_points = between = None
+    if to_points is None and not smoothing.any():
         pairs = cKDTree(centers).query_pairs(0.0, output_type="ndarray")
         if len(pairs):
             i, j = (repr(labels[p]) if labels else int(p) for p in pairs[0])
             raise InputError(f"centers {i} and {j} coincide: the RBF system is singular "
                              "(merge them or add smoothing)")
     compact = kernel in COMPACT_KERNELS
-    if distance == "geodesic":
-        fields, dcc = _geodesic_setup(centers, points, mesh, center_faces, center_bary)
-        kcc, kxc = _k.evaluate(kernel, epsilon * dcc), _k.evaluate(kernel, epsilon * fields.T)
+    if to_points is not None:
+        kcc = _k.evaluate(kernel, epsilon * between)
+        kxc = _k.evaluate(kernel, epsilon * to_points.T)
         if compact:
             kcc, kxc = sp.csr_array(kcc), sp.csr_array(kxc)
     elif compact:
@@ -425,13 +320,15 @@ def build_rbf_operator(centers, points, *, kernel: str = "thin_plate_spline",
     else:
         kcc = _k.evaluate(kernel, epsilon * cdist(centers, centers))
         kxc = _k.evaluate(kernel, epsilon * cdist(points, centers))
-    regularize = distance == "geodesic" or kernel == "bspline_bell"
+    regularize = to_points is not None or kernel == "bspline_bell"
 
     def solve(name, subset):
-        pc, px = _polynomial(centers[subset], points, degree)
+        pc, px = _system.polynomial(centers[subset], points, degree)
         sub_kcc = kcc[subset][:, subset] if compact else kcc[np.ix_(subset, subset)]
-        return _solve(name, sub_kcc, kxc[:, subset], pc, px, smoothing[subset], degree,
-                      regularize)
+        solved = _system.solve_system(name, sub_kcc, kxc[:, subset], pc, px,
+                                      smoothing[subset], degree, regularize)
+        return solved.matrix, RBFSolveInfo(name, len(subset), solved.condition,
+                                           solved.min_eigenvalue, solved.shift)
 
     weights = None
     if regions is None:
@@ -439,24 +336,19 @@ def build_rbf_operator(centers, points, *, kernel: str = "thin_plate_spline",
         diagnostics = (info,)
     else:
         members = as_region_markers(regions, m, labels=labels)
-        if distance == "geodesic":
-            to_points, between = fields, dcc
-        else:
+        if to_points is None:
             to_points, between = cdist(centers, points), cdist(centers, centers)
         weights = _as_region_weights(region_weights, members, to_points, between,
                                      region_width, labels)
-        support = members.get(support_region, np.zeros(0, dtype=np.int64))
+        for col, (name, idx) in enumerate(members.items()):
+            if len(idx) == 0 and weights.weights[:, col].any():
+                raise InputError(f"region {name!r} has no markers but positive "
+                                 "region weights: nothing would drive those vertices")
         matrix = np.zeros((len(points), m))
         diagnostics = []
-        for col, (name, idx) in enumerate(members.items()):
-            if len(idx) == 0:
-                if weights.weights[:, col].any():
-                    raise InputError(f"region {name!r} has no markers but positive "
-                                     "region weights: nothing would drive those vertices")
-                continue
-            subset = np.union1d(idx, support)
+        for name, subset in _system.region_subsets(members, support_region).items():
             w_r, info = solve(name, subset)
-            matrix[:, subset] += weights.weights[:, col, None] * w_r
+            matrix[:, subset] += weights[name][:, None] * w_r
             diagnostics.append(info)
         diagnostics = tuple(diagnostics)
     if compact and np.count_nonzero(matrix) <= _SPARSE_DENSITY * matrix.size:
@@ -480,3 +372,19 @@ def _as_region_weights(given, members, to_points, between, width, labels) -> Reg
                          f"and {n_points} rows, got {list(given.names)} and shape "
                          f"{given.weights.shape}")
     return given
+
+
+def _as_precomputed(precomputed, n_centers: int, n_points: int):
+    """Validated (to_points (M, N), between (M, M)) distances."""
+    if not isinstance(precomputed, Sequence) or len(precomputed) != 2:
+        raise InputError("precomputed must be a pair (to_points (n_centers, n_points), "
+                         "between (n_centers, n_centers))")
+    to_points = as_float_array(precomputed[0], "precomputed to_points",
+                               shape=(n_centers, n_points), allow_nan=False)
+    between = as_float_array(precomputed[1], "precomputed between",
+                             shape=(n_centers, n_centers), allow_nan=False)
+    if (to_points < 0).any() or (between < 0).any():
+        raise InputError("precomputed distances must be >= 0")
+    if not np.allclose(between, between.T, rtol=0.0, atol=1e-12 * max(1.0, between.max())):
+        raise InputError("precomputed between-center distances must be symmetric")
+    return to_points, between

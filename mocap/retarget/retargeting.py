@@ -14,8 +14,9 @@ runs) and names the first missing marker and frame.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -23,16 +24,27 @@ from mocap.bind import Binding
 from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh, face_normals
+from mocap.mesh.mouth import MouthOpening
 from mocap.neutral import find_neutral
+from mocap.retarget.cross_validation import CrossValidation, MarkerGeometry, cross_validate
+from mocap.retarget.lip_seal import LipWitness, lip_witness
 from mocap.retarget.rbf import DISTANCES, KERNELS, RBFOperator, build_rbf_operator
+from mocap.retarget.selection import RetargetSelection, select_variant
 from mocap.rigid import fit_rigid
 from mocap.take import Take, as_take
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
 
 __all__ = ["RetargetOptions", "Retargeting", "marker_displacements", "neutral_pose",
-           "align_head_frame",
-           "build_retarget_operator", "retarget", "KERNELS", "DISTANCES"]
+           "align_head_frame", "build_retarget_operator", "describe_options", "retarget",
+           "KERNELS", "RETARGET_KERNELS", "DISTANCES"]
 
+
+
+#: The warning of a kernel matrix made positive definite by a diagonal shift.
+_SHIFT_WARNING = r".*kernel matrix is not positive definite"
+
+#: The kernels of :class:`RetargetOptions`: "auto" (chosen by cross-validation) and :data:`KERNELS`.
+RETARGET_KERNELS = ("auto",) + tuple(KERNELS)
 
 
 @dataclass(frozen=True)
@@ -42,22 +54,31 @@ class RetargetOptions:
     Attributes
     ----------
     kernel : str
-        One of :data:`KERNELS`.
+        One of :data:`RETARGET_KERNELS`. ``"auto"`` (the default) tries a
+        grid of kernels and shape parameters, Euclidean and geodesic, with
+        and without regions (what `distance` and `use_regions` leave open),
+        and keeps the one with the lowest leave-one-marker-out error whose
+        mesh opens the mouth where the lip markers do
+        (:mod:`mocap.retarget.selection`); :attr:`Retargeting.selection`
+        records what was tried.
     epsilon : float or None
         Shape parameter, 1/mesh units (compact kernels: support radius
-        ``1/epsilon``); None for the scale-invariant kernels' default.
+        ``1/epsilon``); None for the scale-invariant kernels' default (and
+        with ``"auto"``, which chooses it).
     degree : int or None
-        Polynomial degree (-1: none); None for the kernel's default.
+        Polynomial degree (-1: none); None for the kernel's default (with ``"auto"``, the only choice).
     smoothing : float
         Added to the kernel matrix diagonal (noisy markers), >= 0.
-    distance : str
-        One of :data:`DISTANCES`.
-    use_regions : bool
+    distance : str or None
+        One of :data:`DISTANCES`; None: ``"auto"`` tries both, a given kernel
+        uses ``"euclidean"``.
+    use_regions : bool or None
         Region masks: the markers of each region in `split_regions` drive only
         that region's vertices (soft region weights), so that the upper lip
         never drives the lower lip; every other face marker forms the
         ``"other"`` group, which drives its own vertices and supports every
-        split region's system.
+        split region's system. None: ``"auto"`` tries both, a given kernel
+        uses none.
     split_regions : tuple of str
         Marker-set regions given their own system with `use_regions`
         (default the two lips). Each needs enough markers for the kernel's
@@ -69,19 +90,27 @@ class RetargetOptions:
         Frames per matrix product (default: a 64 MiB budget).
     """
 
-    kernel: str = "thin_plate_spline"
+    kernel: str = "auto"
     epsilon: float | None = None
     degree: int | None = None
     smoothing: float = 0.0
-    distance: str = "euclidean"
-    use_regions: bool = False
+    distance: str | None = None
+    use_regions: bool | None = None
     split_regions: tuple = ("upper_lip", "lower_lip")
     region_width: float | None = None
     chunk_frames: int | None = None
 
     def __post_init__(self):
-        as_choice(self.kernel, "kernel", KERNELS)
-        as_choice(self.distance, "distance", DISTANCES)
+        as_choice(self.kernel, "kernel", RETARGET_KERNELS)
+        if self.distance is not None:
+            as_choice(self.distance, "distance", DISTANCES)
+        if self.use_regions is not None and not isinstance(self.use_regions, (bool, np.bool_)):
+            raise InputError(f"use_regions must be true, false or unset, got {self.use_regions!r}")
+        if self.kernel == "auto":
+            for name in ("epsilon", "degree"):
+                if getattr(self, name) is not None:
+                    raise InputError(f"{name} is chosen by kernel='auto': name a kernel to set "
+                                     f"it, got {name}={getattr(self, name)!r}")
         if self.epsilon is not None:
             as_positive_float(self.epsilon, "epsilon")
         if self.degree is not None:
@@ -101,6 +130,21 @@ class RetargetOptions:
             as_positive_float(self.region_width, "region_width")
         if self.chunk_frames is not None:
             as_int(self.chunk_frames, "chunk_frames", minimum=1)
+
+    def resolved(self) -> "RetargetOptions":
+        """These options with `distance` and `use_regions` given their defaults.
+
+        Raises
+        ------
+        InputError
+            ``kernel="auto"``: the variant is chosen from a take
+            (:func:`retarget`), there is nothing to resolve it from.
+        """
+        if self.kernel == "auto":
+            raise InputError("kernel='auto' is chosen from a take's displacements: use "
+                             "retarget() (or mocap.retarget.selection.select_variant)")
+        return replace(self, distance=self.distance or "euclidean",
+                       use_regions=bool(self.use_regions))
 
 
 def _binding_rows(binding: Binding, labels) -> np.ndarray:
@@ -201,9 +245,31 @@ def align_head_frame(take: Take, binding: Binding, mesh: Mesh, *,
     return np.asarray(fit.rotation)
 
 
+def _face_labels(markerset: MarkerSet, labels) -> tuple:
+    labels = tuple(markerset.face_markers if labels is None else labels)
+    for label in labels:
+        if markerset.region_of(label) == "head":
+            raise MarkerError(label, "is a head marker: only face markers drive the face")
+    return labels
+
+
+def _region_map(markerset: MarkerSet, labels: tuple, split_regions: tuple) -> dict:
+    """Region name -> labels: each split region, then ``"other"`` (every other marker)."""
+    unknown = [r for r in split_regions if r not in markerset.regions]
+    if unknown:
+        raise InputError(f"split_regions: marker set {markerset.name!r} has no region "
+                         f"{unknown[0]!r} (regions: {', '.join(markerset.regions)})")
+    regions = {name: [x for x in labels if markerset.region_of(x) == name]
+               for name in split_regions}
+    split = {x for members in regions.values() for x in members}
+    regions["other"] = [x for x in labels if x not in split]
+    return regions
+
+
 def build_retarget_operator(binding: Binding, mesh: Mesh, markerset: MarkerSet,
                             labels: Sequence[str] | None = None,
-                            options: RetargetOptions = RetargetOptions()) -> RBFOperator:
+                            options: RetargetOptions = RetargetOptions(kernel="thin_plate_spline"),
+                            *, geometry: MarkerGeometry | None = None) -> RBFOperator:
     """The RBF operator (N, M) from face-marker displacements to vertex displacements.
 
     Parameters
@@ -219,6 +285,9 @@ def build_retarget_operator(binding: Binding, mesh: Mesh, markerset: MarkerSet,
         Face markers to use, in the column order of the displacements
         (default: ``markerset.face_markers``).
     options : RetargetOptions
+        A named kernel (``"auto"`` is chosen from a take: :func:`retarget`).
+    geometry : MarkerGeometry, optional
+        The same markers' geometry, whose geodesic distances are then reused.
 
     Returns
     -------
@@ -231,36 +300,47 @@ def build_retarget_operator(binding: Binding, mesh: Mesh, markerset: MarkerSet,
     MarkerError
         A head marker, a marker outside the set, or an unbound marker in `labels`.
     InputError
-        Bad options or a singular system (from :func:`mocap.retarget.rbf.build_rbf_operator`).
+        Bad options (``kernel="auto"`` among them) or a singular system (from
+        :func:`mocap.retarget.rbf.build_rbf_operator`).
     """
     if not isinstance(mesh, Mesh):
         raise InputError(f"mesh must be a mocap.mesh.mesh.Mesh, got {type(mesh).__name__}")
     if not isinstance(options, RetargetOptions):
         raise InputError(f"options must be a RetargetOptions, got {type(options).__name__}")
-    labels = tuple(markerset.face_markers if labels is None else labels)
-    for label in labels:
-        if markerset.region_of(label) == "head":
-            raise MarkerError(label, "is a head marker: only face markers drive the face")
+    options = options.resolved()
+    labels = _face_labels(markerset, labels)
     rows = _binding_rows(binding, labels)
     centers = binding.marker_points(mesh.vertices)[rows]
-    regions = None
-    if options.use_regions:
-        unknown = [r for r in options.split_regions if r not in markerset.regions]
-        if unknown:
-            raise InputError(f"split_regions: marker set {markerset.name!r} has no region "
-                             f"{unknown[0]!r} (regions: {', '.join(markerset.regions)})")
-        regions = {name: [x for x in labels if markerset.region_of(x) == name]
-                   for name in options.split_regions}
-        split = {x for members in regions.values() for x in members}
-        regions["other"] = [x for x in labels if x not in split]
+    regions = _region_map(markerset, labels, options.split_regions) if options.use_regions \
+        else None
     geodesic = options.distance == "geodesic"
+    precomputed = None
+    if geodesic and geometry is not None:
+        if geometry.labels != labels or not np.allclose(geometry.centers, centers):
+            raise InputError("geometry must be of the same markers on the same mesh")
+        between, _, fields = geometry.distances("geodesic")
+        precomputed = (fields, between)
     return build_rbf_operator(
         centers, mesh.vertices, kernel=options.kernel, epsilon=options.epsilon,
         degree=options.degree, smoothing=options.smoothing, distance=options.distance,
         mesh=(mesh.vertices, mesh.faces) if geodesic else None,
         center_faces=binding.face_ids[rows] if geodesic else None,
         center_bary=binding.barycentric[rows] if geodesic else None,
-        regions=regions, region_width=options.region_width, labels=labels)
+        regions=regions, region_width=options.region_width, labels=labels,
+        precomputed=precomputed)
+
+
+def describe_options(options: RetargetOptions) -> str:
+    """A retargeting variant in words, e.g. ``gaussian ε=0.38/unit, geodesic, regions``."""
+    parts = [options.kernel + (f" ε={options.epsilon:.4g}/unit" if options.epsilon else "")]
+    if options.degree is not None:
+        parts.append(f"degree {options.degree}")
+    if options.smoothing:
+        parts.append(f"smoothing {options.smoothing:g}")
+    parts.append(options.distance or "euclidean")
+    if options.use_regions:
+        parts.append("regions " + "/".join(options.split_regions))
+    return ", ".join(parts)
 
 
 @dataclass(frozen=True, eq=False)
@@ -285,6 +365,16 @@ class Retargeting:
     first_frame : int
         Frame number of the take's first frame.
     chunk_frames : int or None
+    options : RetargetOptions or None
+        The variant the operator was built with (``kernel="auto"`` resolved).
+    selection : RetargetSelection or None
+        With ``kernel="auto"``: every variant tried, its score, the choice.
+    cross_validation : CrossValidation or None
+        Leave-one-marker-out errors of the operator on this take, per marker.
+    mouth : MouthOpening or None
+        The neutral mesh's lips (with the mesh landmarks).
+    lip_witness : LipWitness or None
+        The lip markers (with lip markers in the marker set).
     """
 
     operator: RBFOperator
@@ -296,6 +386,11 @@ class Retargeting:
     rate: float
     first_frame: int
     chunk_frames: int | None = None
+    options: RetargetOptions | None = None
+    selection: RetargetSelection | None = None
+    cross_validation: CrossValidation | None = None
+    mouth: MouthOpening | None = None
+    lip_witness: LipWitness | None = None
 
     @property
     def n_frames(self) -> int:
@@ -315,7 +410,8 @@ class Retargeting:
 
 def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
              options: RetargetOptions = RetargetOptions(), neutral_frame="auto",
-             neutral_window: int | None = None, align: bool = True) -> Retargeting:
+             neutral_window: int | None = None, align: bool = True,
+             mouth: MouthOpening | None = None) -> Retargeting:
     """Retarget a head-stabilized take onto a face mesh.
 
     Parameters
@@ -329,6 +425,7 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
         Neutral mesh the binding was made on.
     markerset : MarkerSet
     options : RetargetOptions
+        ``kernel="auto"`` (the default) chooses the variant on this take.
     neutral_frame : int, "auto" or "hold"
         0-based rest frame, or picked: :func:`mocap.neutral.resolve_neutral_frame`.
     neutral_window : int, optional
@@ -337,10 +434,15 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
     align : bool, default True
         Fit the head-to-binding rotation (:func:`align_head_frame`); False
         trusts that the binding was made from the stabilized take.
+    mouth : MouthOpening, optional
+        The neutral mesh's lips (:func:`mocap.mesh.mouth.find_mouth`): with
+        them ``"auto"`` reads each variant's lips where the lip markers open
+        the mouth, and the lip check of the chain can run.
 
     Returns
     -------
     Retargeting
+        With the variant used, its cross-validation and (``"auto"``) the selection.
 
     Raises
     ------
@@ -348,8 +450,11 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
         A face marker absent from the take or the binding, or missing (NaN)
         in some frame: the message names the first marker and frame (fill gaps first).
     InputError
-        Bad options, a frame beyond the take, a singular RBF system.
+        Bad options, a frame beyond the take, a singular RBF system, a mouth
+        of another mesh, no variant ``"auto"`` could score.
     """
+    if not isinstance(options, RetargetOptions):
+        raise InputError(f"options must be a RetargetOptions, got {type(options).__name__}")
     take = markerset.own_labels(as_take(take))
     markerset.check_labels(take.labels, source=take.source.path or "the take")
     labels = markerset.face_markers
@@ -366,6 +471,43 @@ def retarget(take: Take, binding: Binding, mesh: Mesh, markerset: MarkerSet, *,
         else np.eye(3)
     displacements = marker_displacements(face, binding, neutral_frame=frame, rotation=rotation,
                                          neutral_window=neutral.window)
-    operator = build_retarget_operator(binding, mesh, markerset, labels, options)
+    geometry = MarkerGeometry.from_binding(binding, mesh, labels)
+    if mouth is not None and (not isinstance(mouth, MouthOpening)
+                              or mouth.vertex_ids.max() >= mesh.n_vertices):
+        raise InputError("mouth must be the MouthOpening of this mesh (mocap.mesh.mouth."
+                         "find_mouth)")
+    try:
+        witness = lip_witness(markerset, labels)
+    except InputError:
+        witness = None                      # a marker set without lip markers: lips not read
+    mm_per_unit = 1.0 / binding.scale
+    selection = None
+    if options.kernel == "auto":
+        has_regions = all(r in markerset.regions for r in options.split_regions)
+        selection = select_variant(
+            geometry, displacements, mm_per_unit=mm_per_unit,
+            regions=_region_map(markerset, labels, options.split_regions)
+            if options.use_regions or (options.use_regions is None and has_regions) else None,
+            distances=DISTANCES if options.distance is None else (options.distance,),
+            use_regions=(False, True) if options.use_regions is None else (options.use_regions,),
+            smoothing=options.smoothing, region_width=options.region_width,
+            mouth=mouth, witness=witness)
+        options = replace(options, **selection.best.options())
+    options = options.resolved()
+    with warnings.catch_warnings():
+        if selection is not None:           # the selection records the shift of its choice
+            warnings.filterwarnings("ignore", _SHIFT_WARNING, UserWarning)
+        operator = build_retarget_operator(binding, mesh, markerset, labels, options,
+                                           geometry=geometry)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", _SHIFT_WARNING, UserWarning)   # the build's, again
+        validation = cross_validate(
+            geometry, displacements, mm_per_unit=mm_per_unit, variant=describe_options(options),
+            kernel=options.kernel, epsilon=options.epsilon, degree=options.degree,
+            smoothing=options.smoothing, distance=options.distance,
+            regions=_region_map(markerset, labels, options.split_regions)
+            if options.use_regions else None, region_width=options.region_width)
     return Retargeting(operator, displacements, labels, mesh, frame, rotation, take.rate,
-                       take.first_frame, options.chunk_frames)
+                       take.first_frame, options.chunk_frames, options=options,
+                       selection=selection, cross_validation=validation, mouth=mouth,
+                       lip_witness=witness)

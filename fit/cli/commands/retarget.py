@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import mocap
@@ -9,6 +10,7 @@ from fit.cli.arguments import (
     add_binding,
     add_capture,
     add_fill,
+    add_landmarks,
     add_markerset,
     add_mesh,
     add_neutral_frame,
@@ -19,8 +21,10 @@ from mocap.bind import load_binding
 from mocap.clean.ingest import IngestOptions, ingest
 from mocap.markerset import load_markerset
 from mocap.mesh import load_mesh
+from mocap.mesh.landmarks import load_mesh_landmarks
+from mocap.mesh.mouth import find_mouth
 from mocap.retarget.archive import CONTENTS, save_npz, save_obj_sequence
-from mocap.retarget.retargeting import DISTANCES, KERNELS, RetargetOptions, retarget
+from mocap.retarget.retargeting import DISTANCES, RETARGET_KERNELS, RetargetOptions, retarget
 
 __all__ = ["add_parser", "run"]
 
@@ -41,8 +45,12 @@ def add_parser(sub) -> None:
     add_binding(p)
     p.add_argument("-o", "--output", required=True, type=Path,
                    help="OUT.npz, or a directory for an OBJ sequence")
-    p.add_argument("--kernel", choices=KERNELS, default="thin_plate_spline",
-                   help="radial kernel (default thin_plate_spline)")
+    add_landmarks(p, required=False)
+    p.add_argument("--kernel", choices=RETARGET_KERNELS, default="auto",
+                   help="radial kernel; auto (the default): the kernel, shape parameter, "
+                        "distance and regions with the lowest leave-one-marker-out error "
+                        "(whose mesh opens the mouth where the lip markers do, with "
+                        "--landmarks)")
     p.add_argument("--epsilon", type=float, metavar="PER_UNIT",
                    help="shape parameter, 1/mesh units (compact kernels: 1/support radius); "
                         "required for gaussian, multiquadric, wendland_c2, ...")
@@ -50,11 +58,12 @@ def add_parser(sub) -> None:
                                               "kernel's minimum)")
     p.add_argument("--smoothing", type=float, default=0.0,
                    help="kernel-diagonal smoothing for noisy markers (default 0)")
-    p.add_argument("--distance", choices=DISTANCES, default="euclidean",
+    p.add_argument("--distance", choices=DISTANCES,
                    help="distance the kernel is evaluated on (geodesic: heat method on "
-                        "the mesh)")
-    p.add_argument("--regions", action="store_true",
-                   help="each marker-set region drives only its own vertices")
+                        "the mesh); default: both tried with auto, else euclidean")
+    p.add_argument("--regions", action=argparse.BooleanOptionalAction, default=None,
+                   help="each lip region drives only its own vertices; default: both tried "
+                        "with auto, else none")
     p.add_argument("--region-width", type=float, metavar="UNITS",
                    help="blend width of the region weights, mesh units (default: the "
                         "median marker spacing)")
@@ -71,9 +80,12 @@ def run(args) -> int:
     options = RetargetOptions(kernel=args.kernel, epsilon=args.epsilon, degree=args.degree,
                               smoothing=args.smoothing, distance=args.distance,
                               use_regions=args.regions, region_width=args.region_width)
-    inputs = (args.capture, args.markerset, args.mesh, args.binding)
+    inputs = tuple(p for p in (args.capture, args.markerset, args.mesh, args.binding,
+                               args.landmarks) if p is not None)
     markerset = load_markerset(args.markerset)
     mesh = load_mesh(args.mesh)
+    mouth = None if args.landmarks is None else find_mouth(
+        mesh, load_mesh_landmarks(args.landmarks, mesh))
     binding = load_binding(args.binding)
     take = mocap.read(args.capture)
     ingested = ingest(take, markerset=markerset, options=IngestOptions(
@@ -81,7 +93,8 @@ def run(args) -> int:
         **stabilize_options(args)))
     result = retarget(ingested.take, binding, mesh, markerset, options=options,
                       neutral_frame=ingested.take.frame_index(args.neutral_frame,
-                                                              "--neutral-frame"))
+                                                              "--neutral-frame"),
+                      mouth=mouth)
     if args.output.suffix.lower() == ".npz":
         save_npz(result, args.output, content=args.content, inputs=inputs)
     else:

@@ -1,0 +1,233 @@
+"""The mouth opening of a face mesh: its upper and lower lip, and the lip gap.
+
+A face mesh whose lips are not connected (the ICT face, the demo face) has a
+boundary loop around the mouth opening. :func:`find_mouth` picks it with the
+mesh landmarks and splits it at the mouth corners into the upper and the
+lower lip's edge. The loop is where the mesh ends, often inside the mouth
+(the ICT face's lips curl in: its loop is 11 mm open at rest while the lips
+touch), so the gap is measured between the lips' surfaces: the vertices
+within a band of each edge, over the middle of the mouth, and the gap of a
+frame is the smallest distance between the two bands.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
+
+from mocap.errors import InputError
+from mocap.mesh.mesh import Mesh, boundary_loops
+from mocap.util.arrays import read_only
+from mocap.util.validation import as_float_array
+
+__all__ = ["MouthOpening", "find_mouth", "UPPER_POINTS", "LOWER_POINTS", "MIDDLE"]
+
+#: Landmarks above the mouth and below it (any one of each tells up from down).
+UPPER_POINTS = ("upper_lip_bottom", "upper_lip_top", "subnasale", "nose_tip")
+LOWER_POINTS = ("lower_lip_top", "lower_lip_bottom", "chin")
+#: The middle of the mouth, as fractions of its width from the left corner: the
+#: lips are measured there (at the corners they always touch).
+MIDDLE = (0.3, 0.7)
+#: Each lip's band: vertices this far along the surface from its edge, as a
+#: fraction of the mouth's width (less than the way round a corner to the other lip).
+_BAND = 0.25
+#: A boundary loop is the mouth when it passes this close to both corner
+#: landmarks, as a fraction of the corners' distance.
+_CORNER_REACH = 0.35
+#: Scratch memory of one block of frames in :meth:`MouthOpening.gap`, bytes.
+_CHUNK_BYTES = 32 * 2 ** 20
+
+
+@dataclass(frozen=True, eq=False)
+class MouthOpening:
+    """The lips of a mesh and how to measure the gap between them.
+
+    Attributes
+    ----------
+    upper_edge, lower_edge : ndarray of int
+        Vertex ids of the mouth opening's upper and lower edge, left corner to
+        right corner (both corners in both); empty for ``method="landmarks"``.
+    upper, lower : ndarray of int
+        Vertices of the upper and the lower lip the gap is measured between.
+    method : str
+        ``"loop"`` (the lips around the mouth opening's boundary loop) or
+        ``"landmarks"`` (a mesh without an opening: the gap between the
+        landmark vertices ``upper_lip_bottom`` and ``lower_lip_top``).
+    """
+
+    upper_edge: np.ndarray
+    lower_edge: np.ndarray
+    upper: np.ndarray
+    lower: np.ndarray
+    method: str
+
+    def __post_init__(self):
+        for name in ("upper_edge", "lower_edge", "upper", "lower"):
+            object.__setattr__(self, name, read_only(getattr(self, name), copy=True))
+
+    @property
+    def vertex_ids(self) -> np.ndarray:
+        """Vertices the gap reads (:attr:`upper`, then :attr:`lower`)."""
+        return np.r_[self.upper, self.lower]
+
+    def gap(self, positions) -> np.ndarray:
+        """The lip gap of each frame: the smallest distance between the two lips.
+
+        Parameters
+        ----------
+        positions : array_like of shape (..., n, 3)
+            Positions of :attr:`vertex_ids` (e.g. ``vertices[..., vertex_ids, :]``),
+            any length unit. No NaN.
+
+        Returns
+        -------
+        ndarray of shape (...)
+            The gap, in the unit of `positions`; 0 where the lips touch or cross.
+
+        Raises
+        ------
+        InputError
+            Wrong shape or NaN.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> mouth = MouthOpening([], [], upper=[0, 1], lower=[2], method="loop")
+        >>> round(float(mouth.gap(np.array([[0., 1, 0], [1, 1, 0], [0.5, 0, 0]]))), 4)
+        1.118
+        """
+        n_up, n = len(self.upper), len(self.upper) + len(self.lower)
+        x = as_float_array(positions, "positions", allow_nan=False)
+        if x.ndim < 2 or x.shape[-2:] != (n, 3):
+            raise InputError(f"positions must have shape (..., {n}, 3) (the lips' "
+                             f"vertices, vertex_ids), got {x.shape}")
+        batch = x.shape[:-2]
+        x = x.reshape(-1, n, 3)
+        out = np.empty(len(x))
+        chunk = max(1, _CHUNK_BYTES // (8 * n_up * (n - n_up)))
+        for start in range(0, len(x), chunk):
+            upper, lower = x[start:start + chunk, :n_up], x[start:start + chunk, n_up:]
+            sq = (np.sum(upper ** 2, axis=-1)[:, :, None] + np.sum(lower ** 2, axis=-1)[:, None]
+                  - 2.0 * upper @ lower.transpose(0, 2, 1))
+            out[start:start + chunk] = np.sqrt(np.maximum(sq.min(axis=(1, 2)), 0.0))
+        return out.reshape(batch)
+
+
+def _landmark(landmarks, names, n_vertices):
+    found = [landmarks[n] for n in names if n in landmarks]
+    for vertex in found:
+        if not 0 <= int(vertex) < n_vertices:
+            raise InputError(f"landmark vertex {vertex} is not a vertex of the mesh "
+                             f"(0..{n_vertices - 1})")
+    return [int(v) for v in found]
+
+
+def find_mouth(mesh: Mesh, landmarks: Mapping[str, int], *,
+               middle: tuple = MIDDLE) -> MouthOpening:
+    """The mouth opening of `mesh`, found with its landmarks.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The neutral face (its own units).
+    landmarks : mapping of str to int
+        Mesh landmarks (:func:`mocap.mesh.landmarks.load_mesh_landmarks`):
+        ``mouth_corner_left`` and ``mouth_corner_right``, and one point above
+        the mouth (:data:`UPPER_POINTS`) and one below (:data:`LOWER_POINTS`).
+    middle : (float, float)
+        The span of the mouth the lips are measured over, as fractions of its
+        width from the left corner (default :data:`MIDDLE`), within (0, 1).
+
+    Returns
+    -------
+    MouthOpening
+
+    Raises
+    ------
+    InputError
+        A landmark missing or off the mesh; no mouth opening and no
+        ``upper_lip_bottom`` / ``lower_lip_top`` landmarks to measure instead; a
+        bad `middle`; lips that cannot be told apart in it.
+
+    Notes
+    -----
+    The mouth is the boundary loop passing nearest the two corner landmarks
+    (within 35 % of their distance of each). It is cut at its two vertices
+    farthest apart along the corner-to-corner axis; of the two edges the upper
+    lip's is the one lying farther towards the upper landmarks. Each lip is
+    the set of vertices within a quarter of the mouth's width of its edge
+    along the mesh's edges (Dijkstra), within `middle` of the width.
+    """
+    if not isinstance(mesh, Mesh):
+        raise InputError(f"mesh must be a mocap.mesh.mesh.Mesh, got {type(mesh).__name__}")
+    lo, hi = (float(x) for x in as_float_array(middle, "middle", shape=(2,), allow_nan=False))
+    if not 0.0 < lo < hi < 1.0:
+        raise InputError(f"middle must be two fractions 0 < a < b < 1 of the mouth's width, "
+                         f"got {tuple(middle)}")
+    n = mesh.n_vertices
+    corners = _landmark(landmarks, ("mouth_corner_left", "mouth_corner_right"), n)
+    upper_points = _landmark(landmarks, UPPER_POINTS, n)
+    lower_points = _landmark(landmarks, LOWER_POINTS, n)
+    missing = [name for name, got in (("mouth_corner_left and mouth_corner_right",
+                                       len(corners) == 2),
+                                      (" or ".join(UPPER_POINTS), upper_points),
+                                      (" or ".join(LOWER_POINTS), lower_points)) if not got]
+    if missing:
+        raise InputError(f"the mouth needs the mesh landmarks {missing[0]} (the lip gap is "
+                         "measured between the lips, split at the corners)")
+    v = mesh.vertices
+    left, right = v[corners[0]], v[corners[1]]
+    width = float(np.linalg.norm(left - right))
+    up = v[upper_points].mean(axis=0) - v[lower_points].mean(axis=0)
+    best, reach = None, np.inf
+    for loop in boundary_loops(mesh):
+        d = max(np.linalg.norm(v[loop] - c, axis=1).min() for c in (left, right))
+        if d < reach:
+            best, reach = loop, d
+    if best is None or reach > _CORNER_REACH * width:
+        return _from_landmarks(landmarks, n)
+    axis = (left - right) / width
+    along = v[best] @ axis
+    i, j = int(np.argmax(along)), int(np.argmin(along))       # left and right corner
+    n_loop = len(best)
+    first = best[(i + np.arange((j - i) % n_loop + 1)) % n_loop]
+    second = best[(j + np.arange((i - j) % n_loop + 1)) % n_loop][::-1]
+    if v[first].mean(axis=0) @ up < v[second].mean(axis=0) @ up:
+        first, second = second, first
+    mouth_width = float(along[i] - along[j])
+    fraction = (along[i] - v @ axis) / mouth_width            # 0 at the left corner
+    inside = (fraction >= lo) & (fraction <= hi)
+    sources = (fraction > lo / 2) & (fraction < (1 + hi) / 2)
+    bands = [_band(mesh, edge[sources[edge]], _BAND * mouth_width) & inside
+             for edge in (first, second)]
+    if (bands[0] & bands[1]).any() or not (bands[0].any() and bands[1].any()):
+        raise InputError("cannot tell the upper lip from the lower one in the middle of the "
+                         f"mouth (between {lo:.0%} and {hi:.0%} of its width): "
+                         f"its opening ({n_loop} vertices) is too small or too coarse")
+    return MouthOpening(first, second, np.flatnonzero(bands[0]), np.flatnonzero(bands[1]),
+                        "loop")
+
+
+def _band(mesh: Mesh, sources: np.ndarray, reach: float) -> np.ndarray:
+    """Vertices (mask) within `reach` of `sources` along the mesh's edges."""
+    f = mesh.faces
+    edges = np.unique(np.sort(np.r_[f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]], axis=1), axis=0)
+    lengths = np.linalg.norm(mesh.vertices[edges[:, 0]] - mesh.vertices[edges[:, 1]], axis=1)
+    graph = sp.coo_array((lengths, (edges[:, 0], edges[:, 1])),
+                         shape=(mesh.n_vertices,) * 2).tocsr()
+    dist = dijkstra(graph, directed=False, indices=sources, limit=reach, min_only=True)
+    return np.isfinite(dist)
+
+
+def _from_landmarks(landmarks, n) -> MouthOpening:
+    pair = _landmark(landmarks, ("upper_lip_bottom", "lower_lip_top"), n)
+    if len(pair) != 2:
+        raise InputError("the mesh has no mouth opening (no boundary loop near both mouth "
+                         "corners) and no landmarks upper_lip_bottom and lower_lip_top to "
+                         "measure the lip gap between")
+    empty = np.zeros(0, dtype=np.int64)
+    return MouthOpening(empty, empty, np.array(pair[:1]), np.array(pair[1:]), "landmarks")

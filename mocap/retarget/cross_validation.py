@@ -1,0 +1,451 @@
+"""Leave-one-marker-out cross-validation of the RBF retargeting operator, in closed form.
+
+Each face marker is held out in turn: the operator is rebuilt from the other
+markers and the mesh it drives is read at the held-out marker's bound surface
+point, in every frame. The difference from the marker's own displacement is
+what the operator gets wrong where it has no marker, a score that needs no
+ground truth. Rebuilding the operator M times is not needed: the held-out
+prediction is linear in the other markers' displacements, ``f̂ = P f`` with
+an (M, M) matrix ``P`` (zero diagonal) that comes from one solve per region
+(Rippa 1999), so the whole take costs one product and the sum of squared
+residuals of every marker only the (M, M) Gram matrix of the displacements.
+
+NaN policy: displacements must be complete (as :func:`mocap.retarget.retargeting.retarget`
+gives them); :meth:`LeaveOneOut.residuals` rejects NaN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.distance import cdist
+
+from mocap.errors import InputError
+from mocap.mesh.regions import as_region_markers, region_weights
+from mocap.retarget import _kernels as _k
+from mocap.retarget import _system
+from mocap.retarget.rbf import DISTANCES
+from mocap.util.validation import as_choice, as_float_array
+
+__all__ = ["MarkerGeometry", "LeaveOneOut", "leave_one_out", "gram_matrix", "CrossValidation",
+           "cross_validate"]
+
+#: A held-out marker whose polynomial leverage is this close to 1 leaves the
+#: others unable to fit the polynomial tail: its held-out system is singular.
+_LEVERAGE_TOL = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class MarkerGeometry:
+    """Markers bound on a mesh, with the distances every variant tried shares.
+
+    Attributes
+    ----------
+    centers : ndarray of shape (M, 3)
+        Bound surface points of the markers, mesh units.
+    corners : ndarray of int, shape (M, 3)
+        Vertices of each marker's triangle.
+    bary : ndarray of shape (M, 3)
+        Barycentric coordinates of each marker in its triangle.
+    face_ids : ndarray of int, shape (M,)
+    vertices : ndarray of shape (N, 3), faces : ndarray of int, shape (F, 3)
+        The neutral mesh, mesh units.
+    labels : tuple of str
+    """
+
+    centers: np.ndarray
+    corners: np.ndarray
+    bary: np.ndarray
+    face_ids: np.ndarray
+    vertices: np.ndarray
+    faces: np.ndarray
+    labels: tuple
+    _cache: dict = field(default_factory=dict, init=False, repr=False)
+
+    @classmethod
+    def from_binding(cls, binding, mesh, labels: Sequence[str]) -> "MarkerGeometry":
+        """The geometry of markers `labels` of a :class:`mocap.bind.Binding` on `mesh`.
+
+        Raises
+        ------
+        InputError
+            A label the binding does not have, or a mesh of another topology.
+        """
+        lookup = {label: i for i, label in enumerate(binding.labels)}
+        absent = [label for label in labels if label not in lookup]
+        if absent:
+            raise InputError(f"marker {absent[0]!r} is not in the binding "
+                             f"({len(absent)} absent)")
+        rows = np.array([lookup[label] for label in labels], dtype=np.int64)
+        vertices = np.asarray(mesh.vertices, dtype=np.float64)
+        if binding.vertex_ids.max() >= len(vertices):
+            raise InputError(f"the binding indexes vertex {int(binding.vertex_ids.max())}, the "
+                             f"mesh has {len(vertices)}: bound to another topology")
+        return cls(centers=binding.marker_points(vertices)[rows],
+                   corners=np.asarray(binding.vertex_ids, np.int64)[rows],
+                   bary=np.asarray(binding.barycentric, np.float64)[rows],
+                   face_ids=np.asarray(binding.face_ids, np.int64)[rows],
+                   vertices=vertices, faces=np.asarray(mesh.faces, np.int64),
+                   labels=tuple(labels))
+
+    @property
+    def n_markers(self) -> int:
+        """Number of markers M."""
+        return len(self.centers)
+
+    def distances(self, distance: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """``(between (M, M), to_corners (M, 3M), fields (M, N) or None)``, mesh units.
+
+        ``to_corners[j, 3k + i]`` is the distance from marker j to corner i of
+        marker k's triangle; `fields` are the geodesic distance fields from
+        every marker over the mesh (computed once, see
+        :func:`mocap.retarget.rbf.build_rbf_operator`'s ``precomputed``).
+        """
+        distance = as_choice(distance, "distance", DISTANCES)
+        if distance not in self._cache:
+            if distance == "geodesic":
+                fields, between = _system.geodesic_distances(
+                    self.centers, self.vertices, (self.vertices, self.faces), self.face_ids,
+                    self.bary)
+                entry = (between, fields[:, self.corners.ravel()], fields)
+            else:
+                entry = (cdist(self.centers, self.centers),
+                         cdist(self.centers, self.vertices[self.corners.ravel()]), None)
+            self._cache[distance] = entry
+        return self._cache[distance]
+
+    def to_vertices(self, distance: str, vertex_ids) -> np.ndarray:
+        """Distances (M, len(vertex_ids)) from every marker to some mesh vertices, mesh units."""
+        ids = np.asarray(vertex_ids, dtype=np.int64)
+        if ids.ndim != 1 or (len(ids) and (ids.min() < 0 or ids.max() >= len(self.vertices))):
+            raise InputError(f"vertex_ids must be a 1-D array of vertex ids in "
+                             f"0..{len(self.vertices) - 1}")
+        _, _, fields = self.distances(distance)
+        return fields[:, ids] if fields is not None else cdist(self.centers, self.vertices[ids])
+
+
+@dataclass(frozen=True, eq=False)
+class LeaveOneOut:
+    """Held-out predictions of every marker: ``f̂ = matrix @ f`` per coordinate and frame.
+
+    Attributes
+    ----------
+    matrix : ndarray of shape (M, M)
+        Row k: the mesh at marker k's bound point, from the operator rebuilt
+        without marker k, as a linear map of the markers' displacements (zero
+        diagonal). NaN rows for the markers in `singular`.
+    singular : dict of str to str
+        Markers that cannot be held out (the others leave a singular system), with why.
+    labels : tuple of str
+    region_width : float or None
+        Blend width the region weights were made with (held fixed), mesh units.
+    shifts : dict of str to float
+        Diagonal shift of each region's system (held fixed when a marker is out).
+    rows : ndarray of shape (n_vertices, M) or None
+        The full operator at the `vertices` asked for (no marker held out).
+    """
+
+    matrix: np.ndarray
+    singular: dict
+    labels: tuple
+    region_width: float | None
+    shifts: dict
+    rows: np.ndarray | None = None
+
+    def residuals(self, displacements) -> np.ndarray:
+        """Held-out residuals ``f - f̂`` (T, M, 3) of displacements (T, M, 3), their units.
+
+        Raises
+        ------
+        InputError
+            Wrong shape or NaN.
+        """
+        d = as_float_array(displacements, "displacements", shape=(None, len(self.labels), 3),
+                           allow_nan=False)
+        return d - np.matmul(self.matrix, d)
+
+    def sum_squares(self, gram) -> np.ndarray:
+        """Sum over frames and coordinates of each marker's squared residual (M,).
+
+        ``gram`` is :func:`gram_matrix` of the displacements: with ``R = I - P``,
+        the sums are ``diag(R G R^T)``, exact, in O(M^3) whatever the length.
+        """
+        gram = as_float_array(gram, "gram", shape=(len(self.labels),) * 2)
+        r = np.eye(len(self.labels)) - self.matrix
+        return np.sum((r @ gram) * r, axis=1)
+
+
+def gram_matrix(displacements) -> np.ndarray:
+    """``G = Σ_t Σ_c f_c(t) f_c(t)^T`` (M, M) of displacements (T, M, 3), no NaN."""
+    d = as_float_array(displacements, "displacements", shape=(None, None, 3), allow_nan=False)
+    flat = d.transpose(1, 0, 2).reshape(d.shape[1], -1)
+    return flat @ flat.T
+
+
+def _held_out_region_weights(to_corners, members, width) -> np.ndarray:
+    """Region weights (M, 3, R) at each marker's corners with that marker left out.
+
+    Marker k's distance to its own corners is made too large to count (more
+    than `width` beyond every other distance), which is exactly leaving it out
+    of :func:`mocap.mesh.regions.region_weights`.
+    """
+    n_markers = to_corners.shape[0]
+    far = to_corners.max() + 2.0 * width + 1.0
+    masked = to_corners.copy()
+    owner = np.repeat(np.arange(n_markers), 3)
+    masked[owner, np.arange(masked.shape[1])] = far
+    weights = region_weights(masked, members, width=width).weights
+    return weights.reshape(n_markers, 3, -1)
+
+
+def _leverage(p: np.ndarray) -> np.ndarray:
+    """Diagonal of the hat matrix of the polynomial block P (m, q): 1 where a row is essential."""
+    if p.shape[1] == 0:
+        return np.zeros(len(p))
+    q, _ = np.linalg.qr(p)
+    return np.sum(q * q, axis=1)
+
+
+def leave_one_out(geometry: MarkerGeometry, *, kernel: str = "thin_plate_spline",
+                  epsilon: float | None = None, degree: int | None = None, smoothing=0.0,
+                  distance: str = "euclidean", regions: Mapping[str, Sequence] | None = None,
+                  region_width: float | None = None, support_region: str | None = "other",
+                  vertices=None) -> LeaveOneOut:
+    """The held-out prediction matrix of one operator variant (closed form).
+
+    Parameters
+    ----------
+    geometry : MarkerGeometry
+    kernel, epsilon, degree, smoothing, distance, regions, region_width, support_region
+        As :func:`mocap.retarget.rbf.build_rbf_operator` (default region weights).
+    vertices : array_like of int, optional
+        Mesh vertices at which to also evaluate the full operator
+        (:attr:`LeaveOneOut.rows`), e.g. the lips'.
+
+    Returns
+    -------
+    LeaveOneOut
+
+    Raises
+    ------
+    InputError
+        Bad options, or a full system that cannot be solved (as the operator's).
+
+    Notes
+    -----
+    For one system with augmented matrix ``A`` (kernel, smoothing and shift,
+    polynomial), ``Z = A^{-1}[:, :m]`` and ``H = Z[:m]``: the interpolant built
+    without center k is the full one minus ``e_k`` times the full operator's
+    column k, ``s^{(k)}(y) = s(y) - W(y, k) e_k``, where ``e_k = (H f)_k / H_kk``
+    is the held-out residual at the center itself (Rippa 1999; the augmented
+    inverse gives it with a polynomial tail too: Fasshauer & Zhang 2007). The
+    mesh at marker k's point is the barycentric blend of ``s^{(k)}`` at its
+    triangle's corners. With regions, ``W = Σ_r diag(w_r) W_r``: every system
+    that holds k is corrected the same way, and the region weights at k's
+    corners are made again without k (the blend width held at the full
+    layout's). The geodesic distances and each system's diagonal shift are
+    those of the full layout.
+
+    References
+    ----------
+    S. Rippa, "An algorithm for selecting a good value for the parameter c in
+    radial basis function interpolation", Adv. Comput. Math. 11 (1999) 193-210.
+    G. E. Fasshauer, J. G. Zhang, "On choosing 'optimal' shape parameters for
+    RBF approximation", Numer. Algorithms 45 (2007) 345-368.
+    """
+    if not isinstance(geometry, MarkerGeometry):
+        raise InputError(f"geometry must be a MarkerGeometry, got {type(geometry).__name__}")
+    m = geometry.n_markers
+    kernel, epsilon, degree, smoothing = _system.check_options(kernel, epsilon, degree,
+                                                               smoothing, m)
+    between, to_corners, _ = geometry.distances(distance)
+    extra = np.zeros(0, dtype=np.int64) if vertices is None else np.asarray(vertices)
+    to_extra = geometry.to_vertices(distance, extra)
+    n_corners = to_corners.shape[1]
+    kcc = _k.evaluate(kernel, epsilon * between)
+    kq = _k.evaluate(kernel, epsilon * np.c_[to_corners, to_extra].T)     # (3M + P, M)
+    regularize = distance == "geodesic" or kernel == "bspline_bell"
+    points = geometry.vertices[np.r_[geometry.corners.ravel(), extra]]
+    width = None
+    if regions is None:
+        members = {"all": np.arange(m)}
+        systems = dict(members)
+        blend = np.ones((m, 3, 1))
+        extra_blend = np.ones((len(extra), 1))
+    else:
+        members = as_region_markers(regions, m, labels=geometry.labels)
+        systems = _system.region_subsets(members, support_region)
+        if region_width is None:
+            spacing = between + np.diag(np.full(m, np.inf))
+            region_width = float(np.median(spacing.min(axis=1)))
+        width = region_width
+        blend = _held_out_region_weights(to_corners, members, width)
+        extra_blend = (region_weights(to_extra, members, width=width).weights if len(extra)
+                       else np.zeros((0, len(members))))
+    columns = {name: col for col, name in enumerate(members)}
+    matrix = np.zeros((m, m))
+    rows_out = np.zeros((len(extra), m))
+    singular, shifts = {}, {}
+    for name, subset in systems.items():
+        pc, pq = _system.polynomial(geometry.centers[subset], points, degree)
+        solved = _system.solve_system(name, kcc[np.ix_(subset, subset)], kq[:, subset], pc, pq,
+                                      smoothing[subset], degree, regularize, stacklevel=3)
+        shifts[name] = solved.shift
+        n_sub = len(subset)
+        col = columns[name]
+        rows_out[:, subset] += extra_blend[:, col, None] * solved.matrix[n_corners:]
+        at_corners = solved.matrix[:n_corners].reshape(m, 3, n_sub)
+        rows = np.sum((geometry.bary * blend[:, :, col])[:, :, None] * at_corners, axis=1)
+        h = solved.inverse[:n_sub]
+        own = rows[subset, np.arange(n_sub)]
+        diag = np.diag(h)
+        essential = _leverage(pc) > 1.0 - _LEVERAGE_TOL
+        for k in subset[essential | (diag == 0.0)]:
+            where = "" if name == "all" else f" of region {name!r}"
+            singular.setdefault(geometry.labels[k], (
+                f"without it the {n_sub - 1} other centers{where} cannot fit the "
+                f"degree-{degree} polynomial"))
+        safe = np.where(diag == 0.0, 1.0, diag)
+        rows[subset] -= (own / safe)[:, None] * h
+        matrix[:, subset] += rows
+    bad = [geometry.labels.index(label) for label in singular]
+    matrix[bad] = np.nan
+    return LeaveOneOut(matrix=matrix, singular=singular, labels=geometry.labels,
+                       region_width=width, shifts=shifts,
+                       rows=None if vertices is None else rows_out)
+
+
+@dataclass(frozen=True, eq=False)
+class CrossValidation:
+    """Held-out errors of one retargeting operator on a take, per marker, in mm.
+
+    Attributes
+    ----------
+    loo : LeaveOneOut
+        The held-out prediction matrix.
+    marker_rms : ndarray of shape (M,), mm
+        RMS over the frames of each held-out marker's error (its 3-D distance
+        from the prediction); NaN for markers that cannot be held out.
+    motion_rms : ndarray of shape (M,), mm
+        RMS over the frames of each marker's displacement from the rest pose
+        (what predicting nothing would miss).
+    n_frames : int
+    mm_per_unit : float
+        Millimetres per mesh unit of the capture.
+    variant : str
+        The operator, in words.
+    """
+
+    loo: LeaveOneOut
+    marker_rms: np.ndarray
+    motion_rms: np.ndarray
+    n_frames: int
+    mm_per_unit: float
+    variant: str = ""
+
+    @property
+    def labels(self) -> tuple:
+        """The M markers."""
+        return self.loo.labels
+
+    @property
+    def rms(self) -> float:
+        """RMS held-out error over every scored marker and frame, mm."""
+        ok = np.isfinite(self.marker_rms)
+        return float(np.sqrt(np.mean(self.marker_rms[ok] ** 2))) if ok.any() else np.nan
+
+    @property
+    def relative(self) -> float:
+        """:attr:`rms` over the RMS motion of the same markers (1: no better than no motion)."""
+        ok = np.isfinite(self.marker_rms)
+        motion = float(np.sqrt(np.mean(self.motion_rms[ok] ** 2))) if ok.any() else np.nan
+        return self.rms / motion if motion > 0 else np.nan
+
+    def by_region(self, regions: Mapping[str, Sequence[str]]) -> list[dict]:
+        """Pooled errors per region: ``region``, ``markers``, ``rms_mm``, ``motion_mm``, ``relative``.
+
+        Parameters
+        ----------
+        regions : mapping of str to sequence of str
+            Region name -> marker labels (e.g. a marker set's ``regions``);
+            labels that are not among :attr:`labels` are ignored, empty regions left out.
+        """
+        column = {label: i for i, label in enumerate(self.labels)}
+        out = []
+        for name, members in regions.items():
+            idx = [column[x] for x in members if x in column]
+            idx = [i for i in idx if np.isfinite(self.marker_rms[i])]
+            if not idx:
+                continue
+            rms = float(np.sqrt(np.mean(self.marker_rms[idx] ** 2)))
+            motion = float(np.sqrt(np.mean(self.motion_rms[idx] ** 2)))
+            out.append({"region": name, "markers": len(idx), "rms_mm": rms,
+                        "motion_mm": motion, "relative": rms / motion if motion > 0 else np.nan})
+        return out
+
+    def residual_norms(self, displacements) -> np.ndarray:
+        """Each held-out marker's error in every frame (T, M), mm.
+
+        Parameters
+        ----------
+        displacements : array_like of shape (T, M, 3), mesh units
+            The displacements the scores were made from; no NaN.
+        """
+        return self.mm_per_unit * np.linalg.norm(self.loo.residuals(displacements), axis=-1)
+
+    def summary(self) -> dict:
+        """Plain data for a manifest: the pooled and per-marker errors (NaN as None)."""
+        def plain(x):
+            return None if not np.isfinite(x) else round(float(x), 6)
+        return {"variant": self.variant, "rms_mm": plain(self.rms),
+                "relative": plain(self.relative),
+                "markers": {label: plain(v) for label, v in zip(self.labels, self.marker_rms)},
+                "singular": dict(self.loo.singular)}
+
+
+def cross_validate(geometry: MarkerGeometry, displacements, *, mm_per_unit: float,
+                   variant: str = "", **options) -> CrossValidation:
+    """Leave-one-marker-out errors of one operator variant on a take.
+
+    Parameters
+    ----------
+    geometry : MarkerGeometry
+    displacements : array_like of shape (T, M, 3), mesh units
+        The take's marker displacements from the rest pose; no NaN.
+    mm_per_unit : float
+        Millimetres per mesh unit (1 / the binding's scale).
+    variant : str
+        The operator in words, kept for reports.
+    **options
+        The operator's options, as :func:`leave_one_out`.
+
+    Returns
+    -------
+    CrossValidation
+
+    Examples
+    --------
+    Four markers on a square that move as one: any other three predict the fourth.
+
+    >>> import numpy as np
+    >>> v = np.array([[0., 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [.5, .5, .2]])
+    >>> f = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    >>> corners = f[[0, 1, 2, 3]]
+    >>> bary = np.tile([1.0, 0.0, 0.0], (4, 1))
+    >>> geo = MarkerGeometry(v[corners[:, 0]], corners, bary, np.arange(4), v, f, tuple("abcd"))
+    >>> d = np.tile([0.0, 0.0, 1.0], (10, 4, 1))
+    >>> cv = cross_validate(geo, d, mm_per_unit=10.0, kernel="gaussian", epsilon=1.0)
+    >>> round(cv.rms, 9)
+    0.0
+    """
+    d = as_float_array(displacements, "displacements", shape=(None, geometry.n_markers, 3),
+                       allow_nan=False)
+    loo = leave_one_out(geometry, **options)
+    gram = gram_matrix(d)
+    n = max(len(d), 1)
+    marker = mm_per_unit * np.sqrt(np.maximum(loo.sum_squares(gram), 0.0) / n)
+    motion = mm_per_unit * np.sqrt(np.diag(gram) / n)
+    return CrossValidation(loo=loo, marker_rms=marker, motion_rms=motion, n_frames=len(d),
+                           mm_per_unit=float(mm_per_unit), variant=variant)

@@ -1,0 +1,216 @@
+"""The mouth of a mesh, its lip gap, and the lip-seal check of meshes against lip markers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import slit_grid
+from scipy.spatial import Delaunay
+from scipy.spatial.distance import cdist
+from tolerances import EXACT_FLOAT64
+
+from mocap import InputError
+from mocap.markerset import MarkerSet
+from mocap.mesh.mesh import Mesh
+from mocap.mesh.mouth import find_mouth
+from mocap.retarget.lip_seal import check_lip_seal, contradicts, lip_witness
+
+# ---------------------------------------------------------------- the mouth of a mesh
+
+def test_the_demo_mouth_splits_into_the_lip_chains_the_demo_drew(demo_face):
+    mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
+    assert mouth.method == "loop"
+    # the demo knows its lip chains (corners excluded); ours run corner to corner
+    assert mouth.upper_edge[1:-1].tolist() in (demo_face.upper_lip.tolist(),
+                                               demo_face.upper_lip[::-1].tolist())
+    assert set(mouth.lower_edge[1:-1]) == set(demo_face.lower_lip)
+    assert mouth.upper_edge[0] == mouth.lower_edge[0] and mouth.upper_edge[-1] == mouth.lower_edge[-1]
+    v = demo_face.mesh.vertices
+    assert v[mouth.upper, 1].mean() > v[mouth.lower, 1].mean()
+    assert set(mouth.upper).isdisjoint(mouth.lower)
+
+
+def test_the_gap_is_the_smallest_distance_between_the_lips(demo_face):
+    mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
+    v = demo_face.mesh.vertices
+    brute = cdist(v[mouth.upper], v[mouth.lower]).min()
+    assert mouth.gap(v[mouth.vertex_ids]) == pytest.approx(brute, abs=EXACT_FLOAT64)
+    # the lower lip dropped by 10 mm: the lips part by about that much more
+    moved = v[mouth.vertex_ids].copy()
+    moved[len(mouth.upper):, 1] -= 10.0
+    frames = np.stack([v[mouth.vertex_ids], moved])
+    gaps = mouth.gap(frames)
+    assert gaps.shape == (2,) and gaps[1] == pytest.approx(
+        cdist(moved[:len(mouth.upper)], moved[len(mouth.upper):]).min(), abs=EXACT_FLOAT64)
+    assert 9.0 < gaps[1] - gaps[0] <= 10.0
+    # lips pushed through each other still have a gap of 0 where they cross
+    crossed = v[mouth.vertex_ids].copy()
+    crossed[len(mouth.upper):] = crossed[:1]
+    assert mouth.gap(crossed) == 0.0
+
+
+def test_the_ict_lips_touch_at_rest_and_part_with_the_jaw(ict_basis, ict_landmarks):
+    """The ICT mouth loop curls into the mouth (11 mm open at rest): the gap is the lips'."""
+    mesh = ict_basis.neutral
+    mouth = find_mouth(mesh, ict_landmarks)
+    v = mesh.vertices
+    rest = mouth.gap(v[mouth.vertex_ids])
+    edges = np.linalg.norm(v[mouth.upper_edge[len(mouth.upper_edge) // 2]]
+                           - v[mouth.lower_edge[len(mouth.lower_edge) // 2]])
+    assert 10 * rest < 1.5 < 10 * edges                                  # mm: touch; loop open
+    jaw = v + ict_basis.displacements[ict_basis.names.index("jawOpen")]
+    assert 10 * mouth.gap(jaw[mouth.vertex_ids]) > 25.0
+    assert 10 * mouth.gap((v + ict_basis.displacements[ict_basis.names.index(
+        "mouthPress_L")])[mouth.vertex_ids]) < 1.5
+
+
+def test_a_mesh_without_a_mouth_opening_measures_between_landmarks():
+    v, f, _, _ = slit_grid(n=21, slit=0.0)
+    ids = [int(np.argmin(np.linalg.norm(v[:, :2] - p, axis=1)))
+           for p in ([0.6, 0.5], [0.4, 0.5], [0.5, 0.55], [0.5, 0.45])]
+    landmarks = dict(zip(["mouth_corner_left", "mouth_corner_right", "upper_lip_bottom",
+                          "lower_lip_top"], ids))
+    mouth = find_mouth(Mesh(v, f), landmarks)
+    assert mouth.method == "landmarks" and len(mouth.upper_edge) == 0
+    assert mouth.gap(v[mouth.vertex_ids]) == pytest.approx(np.linalg.norm(v[ids[2]] - v[ids[3]]))
+    del landmarks["upper_lip_bottom"]
+    landmarks["upper_lip_top"] = ids[2]
+    with pytest.raises(InputError, match="has no mouth opening .* and no landmarks "
+                                         "upper_lip_bottom and lower_lip_top"):
+        find_mouth(Mesh(v, f), landmarks)
+
+
+def _hexagonal_hole():
+    """A triangular lattice with its centre vertex's six triangles removed."""
+    rows = [(i + 0.5 * (j % 2), j * np.sqrt(3) / 2) for j in range(-4, 5) for i in range(-4, 5)]
+    points = np.array(rows)
+    tri = Delaunay(points).simplices
+    centre = int(np.argmin(np.linalg.norm(points, axis=1)))
+    faces = tri[~np.any(tri == centre, axis=1)]
+    v = np.c_[points, np.zeros(len(points))]
+    ring = np.unique(tri[np.any(tri == centre, axis=1)])
+    ring = ring[ring != centre]
+    left, right = ring[np.argmax(v[ring, 0])], ring[np.argmin(v[ring, 0])]
+    up, down = ring[np.argmax(v[ring, 1])], ring[np.argmin(v[ring, 1])]
+    keep = np.unique(faces)
+    remap = -np.ones(len(v), dtype=np.int64)
+    remap[keep] = np.arange(len(keep))
+    landmarks = {"mouth_corner_left": int(remap[left]), "mouth_corner_right": int(remap[right]),
+                 "upper_lip_bottom": int(remap[up]), "lower_lip_top": int(remap[down])}
+    return Mesh(v[keep], remap[faces]), landmarks
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(mouth_corner_left=None), "needs the mesh landmarks mouth_corner_left and "
+                                   "mouth_corner_right"),
+    (dict(upper_lip_bottom=None), "needs the mesh landmarks upper_lip_bottom or upper_lip_top"),
+    (dict(lower_lip_top=None), "needs the mesh landmarks lower_lip_top or lower_lip_bottom"),
+    (dict(lower_lip_top=10 ** 6), "landmark vertex 1000000 is not a vertex of the mesh"),
+])
+def test_landmark_errors(demo_face, change, match):
+    landmarks = {k: v for k, v in demo_face.landmarks.items()
+                 if k in ("mouth_corner_left", "mouth_corner_right", "upper_lip_bottom",
+                          "lower_lip_top")}
+    for key, value in change.items():
+        if value is None:
+            del landmarks[key]
+        else:
+            landmarks[key] = value
+    with pytest.raises(InputError, match=match):
+        find_mouth(demo_face.mesh, landmarks)
+
+
+def test_mouth_errors(demo_face):
+    mesh, landmarks = _hexagonal_hole()
+    with pytest.raises(InputError, match=r"cannot tell the upper lip from the lower one .*"
+                                         r"its opening \(6 vertices\) is too small"):
+        find_mouth(mesh, landmarks)
+    with pytest.raises(InputError, match="mesh must be a mocap.mesh.mesh.Mesh"):
+        find_mouth(demo_face.mesh.vertices, demo_face.landmarks)
+    with pytest.raises(InputError, match=r"middle must be two fractions 0 < a < b < 1"):
+        find_mouth(demo_face.mesh, demo_face.landmarks, middle=(0.7, 0.3))
+    with pytest.raises(InputError, match=r"middle must have shape \(2\), got \(\)"):
+        find_mouth(demo_face.mesh, demo_face.landmarks, middle=0.5)
+    mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
+    with pytest.raises(InputError, match=r"positions must have shape \(\.\.\., 104, 3\)"):
+        mouth.gap(np.zeros((3, 5, 3)))
+    with pytest.raises(InputError, match="positions contains NaN"):
+        mouth.gap(np.full((104, 3), np.nan))
+
+
+# ---------------------------------------------------------------- lip markers
+
+def _markerset(**landmarks):
+    regions = {"upper_lip": ("u1", "u2"), "lower_lip": ("l1", "l2"), "left_brow": (),
+               "right_brow": (), "left_eye": (), "right_eye": (), "other": ("c",)}
+    return MarkerSet(name="lips", head=("h1", "h2", "h3"), regions=regions,
+                     landmarks=landmarks)
+
+
+def test_the_lip_witness_prefers_landmarks_then_regions():
+    labels = ("u1", "u2", "l1", "l2", "c")
+    regions = lip_witness(_markerset(), labels)
+    assert (regions.upper, regions.lower, regions.source) == ((0, 1), (2, 3), "regions")
+    marked = lip_witness(_markerset(upper_lip_top="u2", lower_lip_bottom="l1"), labels)
+    assert (marked.upper, marked.lower, marked.source) == ((1,), (2,), "landmarks")
+    x = np.zeros((2, 5, 3))
+    x[1, 2:4, 1] = -7.0                       # the lower lip markers drop 7 mm
+    np.testing.assert_allclose(regions.distance(x), [0.0, 7.0])
+    assert "upper lip: u1, u2; lower lip: l1, l2" in regions.describe()
+    with pytest.raises(InputError, match="has no lower lip marker to check the lips with"):
+        lip_witness(_markerset(), ("u1", "u2", "c"))
+    with pytest.raises(InputError, match=r"positions must have shape \(any, 5, 3\)"):
+        regions.distance(np.zeros((2, 4, 3)))
+
+
+# ---------------------------------------------------------------- the check
+
+def test_the_check_names_the_frames_where_mesh_and_markers_disagree():
+    n = 60
+    markers = np.zeros(n)
+    markers[10:21] = 20.0                     # the markers open the mouth in frames 10-20
+    markers[40:43] = 2.0                      # and barely in 40-42
+    shut = np.full(n, 1.0)                     # a mesh that never opens (rest gap 1 mm)
+    follows = 1.0 + markers
+    parted = follows.copy()
+    parted[50:55] = 15.0                      # opens while the markers are at rest
+    check = check_lip_seal(30.0 + markers, {"W·D": shut, "H": follows, "QE": parted},
+                           rest_distance=30.0, rest_gap=1.0, first_frame=1001,
+                           witness="test")
+    assert check.runs("W·D") == [(1011, 1021)] and check.runs("H") == []
+    assert check.runs("QE", "parted") == [(1051, 1055)] and check.runs("QE") == []
+    messages = check.messages()
+    assert len(messages) == 2
+    assert "the W·D mesh keeps the mouth shut while the lip markers open it (by up to 20 mm) " \
+           "in 11 frames: 1011-1021" in messages[0]
+    assert "the QE mesh opens the mouth (by up to 14 mm) while the lip markers keep it shut " \
+           "in 5 frames: 1051-1055" in messages[1]
+    summary = check.summary()
+    assert summary["meshes"]["W·D"]["shut_runs"] == [(1011, 1021)]
+    assert summary["widest_marker_opening_mm"] == 20.0
+    np.testing.assert_array_equal(contradicts(markers, shut - 1.0), check.shut("W·D"))
+
+
+def test_many_runs_are_summarized():
+    markers = np.tile([0.0, 10.0], 20)
+    check = check_lip_seal(markers, {"H": np.zeros(40)}, rest_distance=0.0, rest_gap=0.0)
+    assert check.messages()[0].endswith("in 20 frames: 1, 3, 5, 7, 9, 11 and 14 more")
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(mesh_gap={"H": np.zeros(4)}), r"mesh_gap\['H'\] has 4 frames, the markers 5"),
+    (dict(marker_distance=np.full(5, np.nan)), "marker_distance contains NaN"),
+    (dict(open_mm=0.0), "open_mm must be positive and finite"),
+    (dict(fraction=1.5), "fraction must be below 1"),
+    (dict(fraction=0.0), "fraction must be positive and finite"),
+    (dict(open_span=-0.5), "open_span must be >= 0"),
+    (dict(rest_gap=np.nan), "rest_gap contains NaN"),
+])
+def test_check_errors(kwargs, match):
+    args = dict(marker_distance=np.zeros(5), mesh_gap={"H": np.zeros(5)}, rest_distance=0.0,
+                rest_gap=0.0) | kwargs
+    with pytest.raises(InputError, match=match):
+        check_lip_seal(args.pop("marker_distance"), args.pop("mesh_gap"), **args)
+    check = check_lip_seal(np.zeros(5), {"H": np.zeros(5)}, rest_distance=0.0, rest_gap=0.0)
+    with pytest.raises(InputError, match="kind must be 'shut' or 'parted'"):
+        check.runs("H", "open")
