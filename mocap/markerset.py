@@ -105,6 +105,13 @@ def _labels(value, path, what) -> tuple:
     return tuple(value)
 
 
+def _table(doc: dict, key: str, path) -> dict:
+    value = doc.get(key, {})
+    if not isinstance(value, dict):
+        raise FileFormatError(path, f"[{key}] must be a table, got {value!r}")
+    return value
+
+
 def load_markerset(path) -> MarkerSet:
     """Read and validate a marker-set TOML file.
 
@@ -132,9 +139,7 @@ def load_markerset(path) -> MarkerSet:
     if len(head) < 3:
         raise FileFormatError(path, f"head names {len(head)} markers; a rigid head fit needs "
                                     "at least 3")
-    raw_regions = doc.get("regions", {})
-    if not isinstance(raw_regions, dict):
-        raise FileFormatError(path, "[regions] must be a table of region = [labels]")
+    raw_regions = _table(doc, "regions", path)
     absent = [r for r in REQUIRED_REGIONS if r not in raw_regions]
     if absent:
         raise FileFormatError(path, f"[regions] lacks {', '.join(absent)} (list them, empty if "
@@ -149,7 +154,7 @@ def load_markerset(path) -> MarkerSet:
             owner[label] = region
         regions[region] = labels
     clusters = {"head": head}
-    for cluster, value in doc.get("clusters", {}).items():
+    for cluster, value in _table(doc, "clusters", path).items():
         labels = _labels(value, path, f"cluster {cluster!r}")
         unknown_labels = [label for label in labels if label not in owner]
         if unknown_labels or len(labels) < 3:
@@ -157,7 +162,10 @@ def load_markerset(path) -> MarkerSet:
                                         f"the set (unknown: {unknown_labels})")
         clusters[cluster] = labels
     landmarks = {}
-    for point, label in doc.get("landmarks", {}).items():
+    for point, label in _table(doc, "landmarks", path).items():
+        if not isinstance(label, str):
+            raise FileFormatError(path, f"landmark {point!r} must name one marker (a string), "
+                                        f"got {label!r}")
         if point not in ANATOMICAL_POINTS:
             raise FileFormatError(path, f"unknown anatomical point {point!r} in [landmarks]; "
                                         f"known: {', '.join(ANATOMICAL_POINTS)}")
@@ -165,5 +173,8 @@ def load_markerset(path) -> MarkerSet:
             raise FileFormatError(path, f"landmark {point!r} names marker {label!r}, which "
                                         "the set does not list")
         landmarks[point] = label
-    return MarkerSet(name=str(doc.get("name", path.stem)), head=head, regions=regions,
+    name = doc.get("name", path.stem)
+    if not isinstance(name, str):
+        raise FileFormatError(path, f"name must be a string, got {name!r}")
+    return MarkerSet(name=name, head=head, regions=regions,
                      clusters=clusters, landmarks=landmarks, path=str(path))
