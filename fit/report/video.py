@@ -12,6 +12,7 @@ from fit.report.views import view_axes
 from mocap.errors import InputError
 from mocap.util.atomic import atomic_path
 from mocap.util.validation import as_int, as_positions, as_positive_float
+from mocap.viz.figures import plottable
 
 __all__ = ["write_overlay_video"]
 
@@ -74,8 +75,11 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     InputError
         Bad shapes or options, or OpenCV cannot open a writer for `path`.
     """
-    captured = as_positions(captured, "captured")
-    reconstructed = as_positions(reconstructed, "reconstructed")
+    captured = plottable(as_positions(captured, "captured"), "captured positions",
+                         labels=labels, first_frame=first_frame)
+    reconstructed = plottable(as_positions(reconstructed, "reconstructed"),
+                              "reconstructed positions", labels=labels,
+                              first_frame=first_frame)
     if reconstructed.shape != captured.shape:
         raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
                          f"got {reconstructed.shape}")
