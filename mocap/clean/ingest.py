@@ -130,11 +130,14 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     Raises
     ------
     InputError
-        Stabilization asked without a marker set.
+        The take has no frames; stabilization asked without a marker set; a
+        resampling rate out of bounds (:func:`~mocap.clean.resample`).
     MarkerError
         A marker of the marker set is absent from the take, or too few head
         markers are visible for a rigid fit.
     """
+    if take.n_frames == 0:
+        raise InputError(f"{take.source.path or 'the take'}: the take has no frames")
     if markerset is not None:
         markerset.check_labels(take.labels, source=take.source.path or "the take")
     if options.stabilize and markerset is None:
