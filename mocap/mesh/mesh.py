@@ -31,6 +31,8 @@ MESH_FORMATS = (".obj", ".ply", ".gltf", ".glb")
 #: A triangle is degenerate when its doubled area is below this fraction of the
 #: squared bounding-box diagonal.
 _DEGENERATE_REL_AREA = 1e-12
+#: Largest vertex coordinate magnitude (areas and normals stay far from overflow).
+_MAX_COORDINATE = 1e15
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,8 +57,9 @@ class Mesh:
     Raises
     ------
     InputError
-        Non-finite vertices, faces out of range, no vertices or no faces, a
-        face-to-polygon map inconsistent with the polygon sizes, an unknown unit.
+        Non-finite vertices or beyond ±1e15, faces out of range, no vertices or
+        no faces, a face-to-polygon map inconsistent with the polygon sizes, an
+        unknown unit.
     """
 
     vertices: np.ndarray
@@ -137,6 +140,10 @@ def _topology_problem(vertices: np.ndarray, faces: np.ndarray) -> str:
     if len(bad):
         return (f"{len(bad)} vertices have NaN or infinite coordinates "
                 f"(first: vertex {bad[0]})")
+    bad = np.flatnonzero((np.abs(vertices) > _MAX_COORDINATE).any(axis=1))
+    if len(bad):
+        return (f"{len(bad)} vertices have coordinates beyond ±{_MAX_COORDINATE:.0e} "
+                f"(first: vertex {bad[0]}, {vertices[bad[0]].tolist()}), in any unit no face")
     out = np.flatnonzero(((faces < 0) | (faces >= len(vertices))).any(axis=1))
     if len(out):
         return (f"face {out[0]} indexes vertex {faces[out[0]].tolist()}, out of range "

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import zipfile
+import zlib
 
 import numpy as np
 
@@ -117,7 +118,7 @@ def read_npz(path, what: str, *, required=(), version: tuple | None = None) -> d
             arrays = _read_members(fh, path, what)
         except FileFormatError:
             raise
-        except (OSError, ValueError, EOFError, RuntimeError, zipfile.BadZipFile,
+        except (OSError, ValueError, EOFError, RuntimeError, zlib.error, zipfile.BadZipFile,
                 zipfile.LargeZipFile) as exc:
             raise FileFormatError(path, f"cannot read {what}: {exc}") from None
     absent = [name for name in required if name not in arrays]
