@@ -1,79 +1,69 @@
-"""Fuzzing the C3D reader: mutated and truncated corpus files give a Take or our error.
+"""Fuzzing every reader and configuration loader: a valid result or our error, in bounded memory.
 
-2,000 seeded cases: 5 source files x 5 kinds of damage x 80 seeds. Each case
-must end in a valid Take or a ``Mocap2MeshError``; any other exception (and any
-RuntimeWarning from numpy) fails, naming the file, kind and seed to replay.
+10,500 seeded cases (:data:`fuzzing.TEST_COUNTS`: C3D, Vicon CSV, TRC, OBJ, PLY,
+take npz, marker set, mesh landmarks, marker layout, binding, run
+configuration), each in a forked worker whose address space is limited with
+``resource.setrlimit`` and with a timer per case (:mod:`fuzzing`). Any other
+exception, a numpy RuntimeWarning, a hang, or a case whose peak memory exceeds
+twice its file plus a fixed allowance fails, naming the reader and the case
+to replay (``fuzzing.build_targets`` then the case's index).
 """
 
 from __future__ import annotations
 
 import warnings
 
+import fuzzing
 import numpy as np
 import pytest
 
 from mocap import Take
-from mocap.errors import Mocap2MeshError
-from mocap.io.c3d import read_c3d, write_c3d
-from mocap.take import Analog
-
-CORPUS = ["c3d-samples/sample_16/basketball.c3d", "c3d-samples/sample_02/pc_int.c3d",
-          "c3d-samples/sample_02/dec_real.c3d", "c3d-samples/sample_02/sgi_int.c3d"]
-SOURCES = CORPUS + ["written-by-us"]
-KINDS = ("header", "parameters", "data", "truncate", "anywhere")
-N_SEEDS = 80
+from mocap.io.c3d import read_c3d
+from mocap.util.budget import SLACK_BYTES
 
 
-def _source_bytes(shared_data, tmp_path, name) -> bytes:
-    if name != "written-by-us":
-        return (shared_data / name).read_bytes()
-    rng = np.random.default_rng(0)
-    positions = rng.uniform(-500, 500, size=(40, 4, 3))
-    positions[5:9, 2] = np.nan
-    analog = Analog(rng.normal(size=(80, 3)), 200.0, ("a", "b", "c"), ("V", "V", "V"))
-    path = tmp_path / "source.c3d"
-    write_c3d(Take(("m1", "m2", "m3", "m4"), positions, 100.0, analog=analog), path)
-    return path.read_bytes()
+@pytest.fixture(scope="module")
+def summaries(shared_data, tmp_path_factory):
+    if not fuzzing.environment_ok():
+        pytest.fail("fuzzing needs Linux: /proc/self/clear_refs and RLIMIT_AS")
+    targets = fuzzing.build_targets(shared_data, tmp_path_factory.mktemp("fuzz"),
+                                    fuzzing.TEST_COUNTS)
+    return fuzzing.run_targets(targets)
 
 
-def _mutate(buf: bytes, kind: str, data_offset: int, rng) -> bytes:
-    if kind == "truncate":
-        return buf[:int(rng.integers(0, len(buf)))]
-    param_start = (buf[0] - 1) * 512
-    lo, hi = {"header": (0, 512), "parameters": (param_start, data_offset),
-              "data": (data_offset, len(buf)), "anywhere": (0, len(buf))}[kind]
-    out = np.frombuffer(buf, dtype=np.uint8).copy()
-    n = int(rng.integers(1, 9))
-    out[rng.integers(lo, hi, size=n)] = rng.integers(0, 256, size=n)
-    return out.tobytes()
+def test_at_least_ten_thousand_cases():
+    assert sum(fuzzing.TEST_COUNTS.values()) >= 10_000
 
 
-@pytest.mark.parametrize("kind", KINDS)
-@pytest.mark.parametrize("name", SOURCES)
-def test_mutated_files_give_a_take_or_our_error(shared_data, tmp_path, name, kind):
-    buf = _source_bytes(shared_data, tmp_path, name)
-    path = tmp_path / "fuzz.c3d"
-    path.write_bytes(buf)
+@pytest.mark.parametrize("name", list(fuzzing.TEST_COUNTS))
+def test_every_case_gives_a_result_or_our_error(summaries, name):
+    summary = summaries[name]
+    assert summary.failures == [], "\n".join(f"case {c}: {o}: {m}"
+                                             for c, o, m in summary.failures)
+    assert summary.counts["other"] == summary.counts["hang"] == 0
+    assert sum(summary.counts.values()) == fuzzing.TEST_COUNTS[name]
+    assert summary.counts["valid"] > 0 and summary.counts["error"] > 0   # both paths reached
+
+
+@pytest.mark.parametrize("name", list(fuzzing.TEST_COUNTS))
+def test_no_case_takes_more_memory_than_its_file_justifies(summaries, name):
+    peak, size, case = summaries[name].worst_peak
+    assert peak <= 2 * size + SLACK_BYTES, f"case {case}: {peak} bytes for a {size}-byte file"
+
+
+def test_damaged_samples_never_hide_the_layout(shared_data, tmp_path):
+    """Bytes changed in the data section of a C3D file still give a Take of the same shape."""
+    source = shared_data / "c3d-samples/sample_02/pc_int.c3d"
+    buf = source.read_bytes()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        data_offset = read_c3d(path).source.extra["data_offset"]
-    outcomes = {"take": 0, "error": 0}
-    for seed in range(N_SEEDS):
-        rng = np.random.default_rng([seed, KINDS.index(kind), SOURCES.index(name)])
-        path.write_bytes(_mutate(buf, kind, data_offset, rng))
+        clean = read_c3d(source)
+    path = tmp_path / "fuzz.c3d"
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        path.write_bytes(fuzzing.flip_bytes(buf, rng, clean.source.extra["data_offset"]))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
             warnings.simplefilter("error", RuntimeWarning)
-            try:
-                take = read_c3d(path)
-            except Mocap2MeshError:
-                outcomes["error"] += 1
-                continue
-            except Exception as exc:  # noqa: BLE001 - the point of the test
-                pytest.fail(f"{name} {kind} seed {seed}: {type(exc).__name__}: {exc}")
-        assert isinstance(take, Take)
-        assert take.positions.shape == (take.n_frames, len(take.labels), 3)
-        outcomes["take"] += 1
-    assert sum(outcomes.values()) == N_SEEDS
-    if kind == "data":                       # damaged samples never hide the layout
-        assert outcomes["take"] == N_SEEDS
+            take = read_c3d(path)
+        assert isinstance(take, Take) and take.positions.shape == clean.positions.shape
