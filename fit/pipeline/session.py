@@ -212,6 +212,7 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
                                               provenances[names[capture]]))
             else:
                 _in_pool(todo, config, names, provenances, min(workers, len(todo)), collect)
+        clean_stale(config.output)      # the staging folder, empty once every take is done
     takes = manifest.takes
     return RunOutcome(manifest=manifest.path, takes=takes,
                       n_failed=sum(t["status"] == "failed" for t in takes.values()),
