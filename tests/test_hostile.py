@@ -109,6 +109,13 @@ def test_a_value_past_the_last_column_names_its_line(tmp_path):
         read_vicon_csv(path)
 
 
+def test_a_carriage_return_inside_a_row_names_its_line(tmp_path):
+    path = tmp_path / "a.csv"
+    path.write_text(NEXUS_HEAD + "1,0,1,2,3\r\n2,0,1,2\r,3\r\n", newline="")
+    with pytest.raises(FileFormatError, match="at line 7: a carriage return inside a row"):
+        read_vicon_csv(path)
+
+
 @pytest.mark.parametrize("reader, name, text", [
     (read_vicon_csv, "a.csv", NEXUS_HEAD + '1,0,"1,2,3\n2,0,1,2,3\n'),
     (read_trc, "a.trc", TRC_HEAD + '1\t0\t"1\t2\t3\n'),

@@ -27,6 +27,9 @@ BLANK_LINE_AFTER = re.compile(rb"\n[ \t,]*\r?(?=\n|\Z)")
 _CHUNK_FRAMES = 2048
 #: Largest frame number in a text table (integers are exact in float64 below 2**53).
 _MAX_FRAME = 1e15
+#: Bytes of rows whose separators are located at once when counting cells.
+_COUNT_BYTES = 1 << 18
+_LONE_CR = re.compile(rb"\r(?!\n)")
 #: Cells per chunk when looking for the cell that is not a number.
 _LOCATE_CELLS = 1 << 18
 
@@ -77,40 +80,50 @@ def data_end(raw: bytes, start: int) -> int:
     return len(raw) if end is None else end.start() + 1
 
 
-def _row_fields(raw: np.ndarray, starts: np.ndarray, sep: int) -> np.ndarray:
-    """Cells of each row (separators + 1), without an array per separator."""
-    return np.add.reduceat(raw == sep, starts, dtype=np.int64) + 1
+def _row_fields(data: bytes, raw: np.ndarray, ends: np.ndarray, sep: str) -> np.ndarray:
+    """Cells of each row (separators + 1), counted a window of rows at a time.
+
+    The separator positions of one window (:data:`_COUNT_BYTES`) are held at a
+    time; a row longer than the window is counted in place (``bytes.count``).
+    """
+    sep_byte = sep.encode("latin-1")
+    fields = np.empty(len(ends), dtype=np.int64)
+    row = 0
+    while row < len(ends):
+        lo = int(ends[row - 1]) + 1 if row else 0
+        stop = int(np.searchsorted(ends, lo + _COUNT_BYTES, side="right"))
+        if stop <= row:                             # one row longer than the window
+            fields[row] = data.count(sep_byte, lo, int(ends[row])) + 1
+            row += 1
+            continue
+        seps = np.flatnonzero(raw[lo:int(ends[stop - 1])] == ord(sep))
+        fields[row:stop] = np.diff(np.searchsorted(seps, ends[row:stop] - lo), prepend=0) + 1
+        row = stop
+    return fields
 
 
-def _spans(size: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Boolean mask of the bytes in the disjoint ranges ``[lo, hi)``."""
-    delta = np.zeros(size + 1, dtype=np.int8)
-    np.add.at(delta, lo, 1)
-    np.add.at(delta, hi, -1)
-    return np.cumsum(delta[:-1], dtype=np.int8).astype(bool)
-
-
-def _trim_wide_rows(path, raw: np.ndarray, starts, ends, fields, n_cols: int, sep: int,
-                    first_line: int, columns: list) -> np.ndarray:
+def _trim_wide_rows(path, data: bytes, starts, ends, fields, n_cols: int, sep: str,
+                    first_line: int, columns: list) -> bytes:
     """The rows cut after their `n_cols`-th cell; an error if a cut cell is not blank.
 
     Exporters pad rows with empty cells (trailing separators); those are
-    dropped here so that the table is never wider than its header says.
+    dropped here so that the table is never wider than its header says. One
+    ``bytes.split`` per padded row (at most `n_cols` splits, done in C) keeps
+    the memory to the row's own size, however many separators it holds.
     """
-    wide = np.flatnonzero(fields > n_cols)
-    in_wide = _spans(len(raw), starts[wide], ends[wide])
-    seps = np.flatnonzero((raw == sep) & in_wide)
-    first = np.concatenate([[0], np.cumsum(fields[wide] - 1)[:-1]])
-    cut = seps[first + n_cols - 1]                    # the separator after the last cell
-    extra = _spans(len(raw), cut, ends[wide])
-    blank = (raw == sep) | (raw == 32) | (raw == 9) | (raw == 13)
-    text = extra & ~blank
-    if text.any():
-        row = int(np.searchsorted(ends, np.argmax(text)))
-        raise FileFormatError(path, f"the row has values after its last column "
-                                    f"({columns[-1]}); expected {n_cols} columns",
-                              line=first_line + row)
-    return raw[~extra]
+    sep_byte = sep.encode("latin-1")
+    parts, pos = [], 0
+    for row in np.flatnonzero(fields > n_cols).tolist():
+        start, end = int(starts[row]), int(ends[row])
+        cells = data[start:end].split(sep_byte, n_cols)
+        if cells[-1].strip(b" \t\r" + sep_byte):
+            raise FileFormatError(path, f"the row has values after its last column "
+                                        f"({columns[-1]}); expected {n_cols} columns",
+                                  line=first_line + row)
+        parts += [data[pos:start], sep_byte.join(cells[:n_cols])]
+        pos = end
+    parts.append(data[pos:])
+    return b"".join(parts)
 
 
 def _read_table(data: bytes, sep: str, n_cols: int, **options) -> pd.DataFrame:
@@ -118,7 +131,7 @@ def _read_table(data: bytes, sep: str, n_cols: int, **options) -> pd.DataFrame:
     return pd.read_csv(io.BytesIO(data), sep=sep, header=None, index_col=False,
                        names=list(range(n_cols)), skipinitialspace=True,
                        skip_blank_lines=False, encoding="latin-1", engine="c",
-                       quoting=csv.QUOTE_NONE, lineterminator="\n", **options)
+                       quoting=csv.QUOTE_NONE, **options)
 
 
 def _first_bad_cell(path, data: bytes, sep: str, columns: list, first_line: int):
@@ -175,13 +188,12 @@ def numeric_block(path, data: bytes, *, first_line: int, columns: list,
         more cells than ``MOCAP2MESH_MAX_BYTES`` allows.
     """
     n_cols = len(columns)
-    data = data.replace(b"\r\n", b"\n")
     if not data.endswith(b"\n"):
         data += b"\n"
     raw = np.frombuffer(data, dtype=np.uint8)
     ends = np.flatnonzero(raw == 10)
     starts = np.concatenate([[0], ends[:-1] + 1])
-    fields = _row_fields(raw, starts, ord(sep))
+    fields = _row_fields(data, raw, ends, sep)
     short = np.flatnonzero(fields < n_cols)
     if short.size:
         row = int(short[0])
@@ -192,15 +204,21 @@ def numeric_block(path, data: bytes, *, first_line: int, columns: list,
     check_allocation(path, f"a table of {len(ends)} rows x {n_cols} columns",
                      8.0 * len(ends) * n_cols, justified=8 * len(data), line=first_line)
     if fields.max() > n_cols:
-        data = _trim_wide_rows(path, raw, starts, ends, fields, n_cols, ord(sep),
-                               first_line, columns).tobytes()
+        data = _trim_wide_rows(path, data, starts, ends, fields, n_cols, sep, first_line,
+                               columns)
+    n_rows = len(ends)
     del raw, ends, starts, fields
+    lone = _LONE_CR.search(data)
+    if lone is not None:
+        raise FileFormatError(path, "a carriage return inside a row; rows end with LF or CRLF",
+                              line=first_line + data.count(b"\n", 0, lone.start()))
     try:
         values = _read_table(data, sep, n_cols, dtype=np.float64).to_numpy(dtype=np.float64)
     except ValueError:
         values = None
     if values is None or np.isinf(values).any():
         _first_bad_cell(path, data, sep, columns, first_line)
+    assert len(values) == n_rows, "pandas and the row count disagree"
     return values
 
 
