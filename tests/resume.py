@@ -53,13 +53,19 @@ def write_config(root: Path, *, lowpass: float, names=None, path: str = "run.tom
     return root / path
 
 
-def start_run(config: Path, *, workers: int = 2, force: bool = False) -> subprocess.Popen:
-    """``mocap2mesh run CONFIG -j N`` in a new session (one BLAS thread per worker)."""
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+def start_run(config: Path, *, workers: int = 2, force: bool = False,
+              tree: Path | None = None) -> subprocess.Popen:
+    """``mocap2mesh run CONFIG -j N`` in a new session (one BLAS thread per worker).
+
+    With `tree`, the package of that source tree runs instead of this one.
+    """
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONDONTWRITEBYTECODE="1")
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree)
     argv = [sys.executable, "-c", RUN, "run", str(config), "-j", str(workers)]
     return subprocess.Popen(argv + (["--force"] if force else []), env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            start_new_session=True)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True, cwd=config.parent)
 
 
 def descendants(pid: int) -> set:
@@ -97,6 +103,13 @@ def wait_gone(pids, timeout: float) -> set:
             return set()
         time.sleep(POLL_S)
     return {p for p in pids if alive(p)}
+
+
+def reported(out: Path) -> set:
+    """Names of the take folders of `out` whose HTML report is there (the last file of a take)."""
+    if not out.is_dir():
+        return set()
+    return {p.name for p in out.iterdir() if (p / "report" / f"{p.name}.html").is_file()}
 
 
 def committed(out: Path) -> set:

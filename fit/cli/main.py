@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _format_warning(message, category, filename, lineno, line=None):
-    return f"mocap2mesh: warning: {message}\n"
+    return f"mocap2mesh: warning: {_one_line(str(message))}\n"
 
 
 def main(argv=None) -> int:

@@ -5,7 +5,10 @@
 - :mod:`.config`: ``run.toml`` read and validated;
 - :mod:`.reconstruction`: :class:`Reconstruction`, the scripting entry point;
 - :mod:`.session`: every take of a session (:func:`run_takes`), with
-  :mod:`.manifest` recording what was done.
+  :mod:`.manifest` recording what was done, :mod:`.completion` committing each
+  take as a unit with the record a later run verifies, :mod:`.outdir` keeping
+  the output directory safe (lock, names, stale files) and :mod:`.workers`
+  making pool workers die with the run.
 """
 
 from fit._moved import PIPELINE_NAMES

@@ -33,27 +33,27 @@ STAGING_NAME = ".staging"
 #: Longest take folder name, characters: room for suffixes under the 255-byte NAME_MAX.
 MAX_STEM = 100
 
-_UNSAFE = re.compile(r"[^\w.+-]+")
+_UNSAFE = re.compile(r"[^\w .+-]+")
 
 
 def safe_stem(text: str) -> str:
     """A file stem that names one folder inside the output directory.
 
-    Characters other than letters, digits and ``. _ + -`` (separators, NUL,
-    control characters, spaces, quotes) become ``_``; leading dots are
-    removed (no ``..``, no hidden folders); the result is at most
-    :data:`MAX_STEM` characters and never empty (``"take"``).
+    Characters other than letters, digits, spaces and ``. _ + -`` (separators,
+    NUL, control characters, quotes, ``$``) become ``_``; leading dots and
+    surrounding spaces are removed (no ``..``, no hidden folders); the result is
+    at most :data:`MAX_STEM` characters and never empty (``"take"``).
 
     Examples
     --------
     >>> safe_stem(".."), safe_stem("take 01"), safe_stem("a/b\\\\c\\x00d"), safe_stem("Daphnée")
-    ('take', 'take_01', 'a_b_c_d', 'Daphnée')
+    ('take', 'take 01', 'a_b_c_d', 'Daphnée')
     """
     text = unicodedata.normalize("NFC", str(text))
     text = "".join(c if unicodedata.category(c)[0] != "C" else "_" for c in text)
-    stem = _UNSAFE.sub("_", text).lstrip(".")
-    stem = stem[:MAX_STEM].rstrip(".")
-    return stem if stem.strip("_") else "take"
+    stem = _UNSAFE.sub("_", text).strip(" ").lstrip(".")
+    stem = stem[:MAX_STEM].rstrip(". ")
+    return stem if stem.strip("_ ") else "take"
 
 
 def take_names(captures) -> tuple[dict, list]:
