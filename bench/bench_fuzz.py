@@ -16,30 +16,19 @@ swapping) and prints the peak RSS and the outcome for both trees.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import os
 import subprocess
 import sys
-import tarfile
 import tempfile
 import textwrap
 import zipfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import REPO, shared_data  # noqa: E402
+from _common import REPO, export_tree, shared_data  # noqa: E402
 
 CAP_BYTES = 2 << 30
-
-
-def _export(ref: str, into: Path) -> Path:
-    """The tree of git `ref` extracted below `into` (nothing of the checkout is touched)."""
-    blob = subprocess.run(["git", "-C", str(REPO), "archive", "--format=tar", ref],
-                          check=True, capture_output=True).stdout
-    with tarfile.open(fileobj=io.BytesIO(blob)) as tar:
-        tar.extractall(into, filter="data")
-    return into
 
 
 def _python(tree: Path | None, code: str) -> subprocess.CompletedProcess:
@@ -175,7 +164,7 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        base_tree = None if args.baseline == "none" else _export(args.baseline, tmp / "base")
+        base_tree = None if args.baseline == "none" else export_tree(args.baseline, tmp / "base")
         print(f"fuzz: {args.scale:g} x tests/fuzzing.TEST_COUNTS, each case capped at its "
               "worker's warm-up size + 256 MB (setrlimit)")
         ours = fuzz(None, args.scale, tmp / "ours")

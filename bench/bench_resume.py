@@ -18,18 +18,15 @@ measured the same way, side by side.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import shutil
-import subprocess
 import sys
-import tarfile
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from _common import REPO  # noqa: E402
+from _common import export_tree  # noqa: E402
 from resume import (  # noqa: E402
     finish,
     kill_when,
@@ -52,14 +49,6 @@ POINTS = [
 
 def _any_file(out: Path) -> bool:
     return out.is_dir() and any(p.is_file() and p.parent != out for p in out.rglob("*"))
-
-
-def _export(ref: str, into: Path) -> Path:
-    blob = subprocess.run(["git", "-C", str(REPO), "archive", "--format=tar", ref],
-                          check=True, capture_output=True).stdout
-    with tarfile.open(fileobj=io.BytesIO(blob)) as tar:
-        tar.extractall(into, filter="data")
-    return into
 
 
 def _manifest(out: Path) -> dict:
@@ -123,7 +112,7 @@ def main() -> None:
         tmp = Path(tmp)
         trees = {"ours": None}
         if args.baseline != "none":
-            trees["baseline"] = _export(args.baseline, tmp / "base")
+            trees["baseline"] = export_tree(args.baseline, tmp / "base")
         config = make_session(tmp / "s", args.takes)
         out = tmp / "s" / "results"
         print(f"{args.takes} takes of 1 s, 2 workers; per kill point: takes complete at the "
