@@ -8,7 +8,8 @@ point is reached (the parent process only: its workers must die by
 themselves), then run again to the end. Printed per kill point: the takes
 complete at the kill, what the re-run redid and skipped, whether every output
 the manifest lists loads (and nothing unlisted or temporary is left), and the
-workers still alive 10 s after the kill. Then the issue's stale case: run A
+workers still alive 10 s after the kill (then killed, so that they cannot write
+into the re-run). Then the issue's stale case: run A
 (low-pass 15 Hz) completes, run B (10 Hz) is killed after replacing a take,
 run A again: the takes whose files come from B must be redone. With a
 baseline ref (default ``main``, exported to a temporary folder) its run is
@@ -19,7 +20,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
+import signal
 import sys
 import tempfile
 from pathlib import Path
@@ -51,6 +54,15 @@ def _any_file(out: Path) -> bool:
     return out.is_dir() and any(p.is_file() and p.parent != out for p in out.rglob("*"))
 
 
+def _end(orphans) -> None:
+    """Kill the orphans counted (the baseline's), so that they cannot write into the re-run."""
+    for pid in orphans:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
 def _manifest(out: Path) -> dict:
     return json.loads((out / "manifest.json").read_text(encoding="utf-8"))["takes"]
 
@@ -68,6 +80,7 @@ def _verified(out: Path) -> str:
 def kill_and_resume(config: Path, out: Path, condition, tree) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     killed, workers, orphans, _ = kill_when(start_run(config, tree=tree), out, condition)
+    _end(orphans)
     at_kill = sorted(reported(out))
     code = finish(start_run(config, tree=tree))
     takes = _manifest(out)
@@ -90,7 +103,7 @@ def stale_case(root: Path, out: Path, tree) -> dict:
         return any(p.is_file() and p.stat().st_mtime_ns != t for p, t in html.items()) or \
             any(not p.exists() for p in html)
 
-    kill_when(start_run(config_b, tree=tree), out, rewritten)
+    _end(kill_when(start_run(config_b, tree=tree), out, rewritten)[2])
     from_b = sorted(p.parent.parent.name for p, t in html.items()
                     if p.is_file() and p.stat().st_mtime_ns != t)
     code = finish(start_run(config_a, tree=tree))
