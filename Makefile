@@ -19,8 +19,14 @@ BLENDER_STAMP := $(BLENDER_VENV)/.installed-stamp
 BPY_VERSION ?= 4.2.23
 GLB ?= $(DEMO_DIR)
 
-.PHONY: test demo bench env clean blender-check
+ICT_TAKE ?= bench/out/ict-take
 
+REPORT ?= $(DEMO_DIR)/results
+
+.PHONY: test demo bench env clean blender-check blender-check-ict report-check
+
+# `.[test]` includes the optional `speech` extra (Praat, PocketSphinx and its model, PyAV),
+# so that the tests run the real speech tools; the core install needs none of them.
 env: $(STAMP)
 
 $(STAMP): pyproject.toml
@@ -44,11 +50,27 @@ $(BLENDER_STAMP):
 	$(BLENDER_VENV)/bin/python -m pip install --quiet 'bpy==$(BPY_VERSION)'
 	touch $(BLENDER_STAMP)
 
-# Checks every .glb under GLB (default: the demo's outputs, made if absent).
+# Opens every .glb under GLB (default: the demo's outputs, made if absent) in
+# Blender and compares the mesh it evaluates at every frame with ours.
 blender-check: $(STAMP) $(BLENDER_STAMP)
 	@if [ -z "$$(find $(GLB) -name '*.glb' 2>/dev/null | head -n 1)" ]; then \
 	    $(VENV)/bin/mocap2mesh demo -o $(DEMO_DIR); fi
 	$(BLENDER_VENV)/bin/python bench/blender_check.py $(GLB)
+
+# The same on a 9,409-vertex ICT take (needs ../shared/data), made by bench/ict_take.py.
+blender-check-ict: $(STAMP) $(BLENDER_STAMP)
+	$(PY) bench/ict_take.py $(ICT_TAKE)
+	$(BLENDER_VENV)/bin/python bench/blender_check.py $(ICT_TAKE)/results
+
+# Opens every report under REPORT (default: the demo's, made if absent) in a real
+# headless Chromium (Debian's package, installed here): no console error, every
+# <video> has a duration and plays; writes a full-page screenshot beside each.
+report-check: $(STAMP)
+	@command -v chromium > /dev/null || { apt-get update -qq && \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium > /dev/null; }
+	@if [ -z "$$(find $(REPORT) -name '*.html' 2>/dev/null | head -n 1)" ]; then \
+	    $(VENV)/bin/mocap2mesh demo -o $(DEMO_DIR); fi
+	$(PY) bench/report_check.py $(REPORT)
 
 clean:
 	rm -rf $(VENV) $(BLENDER_VENV) $(DEMO_DIR) bench/out .pytest_cache

@@ -12,6 +12,18 @@ nonzero eigenpairs of C_Ξ are those of the 3k × 3k matrix
 ``S = (R ⊗ I₃) C_D (R ⊗ I₃)ᵀ`` with eigenvectors lifted by ``Q ⊗ I₃``; and
 ``trace C_Ξ = trace S`` exactly. Both Kronecker products are applied as
 tensor contractions over the marker/vertex axis, never formed.
+
+Several takes, each through its own operator, ``ξ_k(t) = (W_k ⊗ I₃) d_k(t)``
+(one binding per take, so one W_k per take): with ``[W_1 … W_K] = Q [R_1 … R_K]``
+every take lives in the span of the one Q, and the covariance of all the
+frames pooled (T = Σ T_k, weights w_k = T_k / T) is, in Q's coordinates,
+
+    S = Σ_k w_k [(R_k ⊗ I₃) C_k (R_k ⊗ I₃)ᵀ + (a_k − ā)(a_k − ā)ᵀ],
+    a_k = (R_k ⊗ I₃) d̄_k,   ā = Σ_k w_k a_k,
+
+the within-take covariances plus the scatter of the take means: exactly the
+covariance of the concatenated mesh sequences, of size 3r × 3r with
+r = rank [W_1 … W_K] ≤ min(N, Σ M_k). One take is the case K = 1.
 """
 
 from __future__ import annotations
@@ -72,29 +84,67 @@ def operator_pca(operator: np.ndarray, displacements: np.ndarray, *,
     `n_components` None keeps every component above the numerical-rank cutoff
     λ > λ₁ · 3k · ε (ε: float64 machine epsilon); at most 3k exist.
     """
-    n_frames = displacements.shape[0]
     mean_d, cov_d = marker_moments(displacements, chunk_frames)
-    q, r = orthonormal_factor(operator)
-    k, n_markers = r.shape
-    cov4 = cov_d.reshape(n_markers, 3, n_markers, 3)
-    # S[a,c,b,e] = Σ_{k,l} R[a,k] C[k,c,l,e] R[b,l]
-    small = np.tensordot(np.tensordot(r, cov4, axes=(1, 0)), r, axes=(2, 1))
-    small = small.transpose(0, 1, 3, 2).reshape(3 * k, 3 * k)
+    return pooled_spectrum([operator], [(displacements.shape[0], mean_d, cov_d)],
+                           n_components=n_components)
+
+
+def pooled_spectrum(operators, moments, *, n_components: int | None,
+                    coverage: float | None = None) -> Spectrum:
+    """Exact PCA of the pooled mesh sequences of several takes; see the module notes.
+
+    Parameters
+    ----------
+    operators : sequence of ndarray (N, M_k)
+    moments : sequence of (n_frames T_k, mean (M_k, 3), covariance (3M_k, 3M_k))
+        Each take's marker moments (:func:`marker_moments`), 1/T_k convention.
+    n_components : int or None
+        As :func:`operator_pca`; at most 3r exist.
+    coverage : float in (0, 1], optional
+        Instead of `n_components`: the fewest components whose share of the
+        total variance reaches it (only those are lifted to the mesh).
+    """
+    counts = np.array([m[0] for m in moments], dtype=np.float64)
+    n_frames = int(counts.sum())
+    shares = counts / counts.sum()
+    q, r = orthonormal_factor(np.concatenate(operators, axis=1))
+    k = r.shape[0]
+    small = np.zeros((k, 3, k, 3))
+    centres = np.empty((len(operators), k, 3))
+    mean = np.zeros((operators[0].shape[0], 3))
+    offset = 0
+    for i, (operator, (_, mean_d, cov_d)) in enumerate(zip(operators, moments)):
+        n_markers = operator.shape[1]
+        r_k = r[:, offset:offset + n_markers]
+        offset += n_markers
+        cov4 = cov_d.reshape(n_markers, 3, n_markers, 3)
+        # S[a,c,b,e] += w Σ_{k,l} R[a,k] C[k,c,l,e] R[b,l]
+        small += shares[i] * np.tensordot(np.tensordot(r_k, cov4, axes=(1, 0)), r_k,
+                                          axes=(2, 1)).transpose(0, 1, 3, 2)
+        centres[i] = r_k @ mean_d
+        mean += shares[i] * (operator @ mean_d)
+    spread = (centres - np.tensordot(shares, centres, axes=1)).reshape(len(operators), -1)
+    small = small.reshape(3 * k, 3 * k) + (spread.T * shares) @ spread
     small = (small + small.T) / 2
     evals, vecs = np.linalg.eigh(small)
     evals, vecs = np.clip(evals[::-1], 0, None), vecs[:, ::-1]
-    if n_components is None:
+    if coverage is not None:
+        share = np.cumsum(evals) / max(float(np.trace(small)), np.finfo(np.float64).tiny)
+        n_components = int(np.searchsorted(share, coverage * (1 - 1e-12))) + 1
+        n_components = min(n_components, 3 * k)
+    elif n_components is None:
         cutoff = evals[0] * 3 * k * np.finfo(np.float64).eps
         n_components = max(int(np.count_nonzero(evals > cutoff)), 1)
     elif n_components > 3 * k:
-        raise InputError(f"operator has numerical rank {k}: at most {3 * k} components "
+        what = "the operators of the takes have" if len(operators) > 1 else "operator has"
+        raise InputError(f"{what} numerical rank {k}: at most {3 * k} components "
                          f"exist, got n_components={n_components}")
     vecs = vecs[:, :n_components].reshape(k, 3, n_components)
     # lift by Q ⊗ I₃: component[m, n, c] = Σ_a Q[n, a] V[a, c, m]
     components = np.tensordot(q, vecs, axes=(1, 0)).transpose(2, 0, 1)
+    takes = f" of {len(operators)} takes" if len(operators) > 1 else ""
     return Spectrum(components=components.reshape(n_components, -1),
-                    eigenvalues=evals[:n_components],
-                    mean=(operator @ mean_d).ravel(),
+                    eigenvalues=evals[:n_components], mean=mean.ravel(),
                     total_variance=float(np.trace(small)), n_frames=n_frames,
                     message=f"implicit: eigenproblem of size {3 * k} from "
-                            f"{n_frames} marker frames")
+                            f"{n_frames} marker frames{takes}")

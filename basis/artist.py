@@ -187,6 +187,10 @@ def _gltf_shapes(neutral: Mesh, path: Path, names):
     all_names = [str(n) for n in extras.get("targetNames", [])]
     if len(all_names) != n_targets:
         all_names = [f"target_{i}" for i in range(n_targets)]
+    target, factor = list(range(n_targets)), [1.0] * n_targets
+    folded = _folded_targets(extras.get("mocap2mesh"), n_targets)
+    if folded is not None:      # written by basis.gltf: scaled and split targets
+        all_names, target, factor = folded
     if names is None:
         names = all_names
     absent = [n for n in names if n not in all_names]
@@ -196,9 +200,30 @@ def _gltf_shapes(neutral: Mesh, path: Path, names):
     for i, name in enumerate(names):
         t = all_names.index(name)
         delta = to_mesh_units * np.concatenate(
-            [_accessor(gltf, path, p.targets[t]["POSITION"], buffers) for p in mesh.primitives])
-        vertices[i] = base + delta
+            [_accessor(gltf, path, p.targets[target[t]]["POSITION"], buffers)
+             for p in mesh.primitives])
+        vertices[i] = base + delta / factor[t]
     return names, vertices
+
+
+def _folded_targets(record, n_targets: int):
+    """Shape names, the target holding each shape and its factor, from the record that
+    :func:`basis.gltf.write_gltf` leaves in ``mesh.extras.mocap2mesh``; None if absent or
+    inconsistent (the targets are then read as shapes)."""
+    if not isinstance(record, dict):
+        return None
+    shapes, owner, factor = (record.get(k) for k in ("shapes", "target_shape", "target_factor"))
+    if not (isinstance(shapes, list) and isinstance(owner, list) and isinstance(factor, list)
+            and len(owner) == len(factor) == n_targets):
+        return None
+    try:
+        first = {int(i): k for k, i in reversed(list(enumerate(owner)))}
+        scale = [float(factor[first[i]]) for i in range(len(shapes))]
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not all(np.isfinite(scale)) or min(scale, default=1.0) <= 0:
+        return None
+    return [str(n) for n in shapes], [first[i] for i in range(len(shapes))], scale
 
 
 def _accessor(gltf, path: Path, index, buffers: dict) -> np.ndarray:

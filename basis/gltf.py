@@ -7,6 +7,23 @@ Blender, three.js and :func:`basis.artist.load_artist_basis` read. Weights of
 a take become an animation of the node's ``weights``; a rigid motion of the
 face (e.g. head motion) an animation of its ``rotation`` and ``translation``.
 
+Weights that play back exactly: importers keep a morph weight inside a
+slider range (Blender clamps each shape key to ``[slider_min, slider_max]``,
+``[0, 1]`` unless the file's default weights or the first key of its weight
+animation say otherwise; both are the glTF importer's only hooks). So every
+animated weight is written inside ``[0, 1]``: a shape whose weights leave it
+becomes one target scaled by its largest weight (``e · max w``, weight
+``w / max w``) and, when its weights turn negative, a second target
+``<name>.neg`` (``−e · max(−w)``, weight ``max(−w, 0) / max(−w)``). Linear
+interpolation commutes with this split, so the played mesh is the one
+computed at every time, between keys too. ``mesh.extras.mocap2mesh`` records
+each target's shape and factor (:func:`basis.artist.load_artist_basis` folds
+them back into the shapes).
+
+Frame numbers: key ``k`` of an animation is at ``(first_frame + k) / rate``
+seconds, so that an importer at the take's rate puts it on the capture's own
+frame number (Blender: scene fps = rate).
+
 Units and axes: glTF is in metres, +Y up, the front of an asset facing +Z.
 Positions are scaled from the mesh's ``units`` to metres (cm × 0.01,
 mm × 0.001); axes are written as they are, so the mesh must already be Y-up
@@ -18,6 +35,7 @@ from __future__ import annotations
 
 import base64
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,12 +47,16 @@ from mocap.errors import InputError
 from mocap.mesh.mesh import Mesh, vertex_normals
 from mocap.units import mm_per_unit
 from mocap.util.atomic import atomic_path
-from mocap.util.validation import as_float_array, as_positive_float
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
-__all__ = ["GLTF_FORMATS", "write_gltf"]
+__all__ = ["GLTF_FORMATS", "NEGATIVE_SUFFIX", "MorphTargets", "morph_targets", "write_gltf"]
 
 #: File extensions :func:`write_gltf` writes: binary GLB, or JSON with the buffer embedded.
 GLTF_FORMATS = (".glb", ".gltf")
+#: Name suffix of the target that carries a shape's negative weights.
+NEGATIVE_SUFFIX = ".neg"
+#: The weight range every importer gives a morph target (Blender's default slider range).
+PLAYBACK_RANGE = (0.0, 1.0)
 
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 
@@ -67,9 +89,94 @@ class _Buffer:
         return b"".join(self.chunks)
 
 
+@dataclass(frozen=True, eq=False)
+class MorphTargets:
+    """How shapes and their weights become morph targets whose weights stay in [0, 1].
+
+    Target k is ``factor[k] · e_{shape[k]}``; its weight at frame t is
+    ``max(w_t,shape[k] / factor[k], 0)``, and ``w_ti = Σ_{k: shape[k] = i}
+    factor[k] · u_tk``.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Target names: the shape's name, ``<name>.neg`` for a negative part.
+    shape : ndarray of int, shape (K,)
+        The shape each target comes from.
+    factor : ndarray, shape (K,)
+        Scale of each target (negative for a ``.neg`` target); 1 for a shape
+        whose weights already stay in [0, 1].
+    """
+
+    names: tuple
+    shape: np.ndarray
+    factor: np.ndarray
+
+    def weights(self, weights) -> np.ndarray:
+        """Target weights (T, K) in [0, 1] of shape weights (T, n)."""
+        weights = np.asarray(weights, dtype=float)
+        return np.maximum(weights[:, self.shape] / self.factor, 0.0)
+
+    def shape_weights(self, target_weights) -> np.ndarray:
+        """Shape weights (T, n) back from target weights (T, K)."""
+        target_weights = np.asarray(target_weights, dtype=float)
+        out = np.zeros((len(target_weights), int(self.shape.max()) + 1))
+        np.add.at(out.T, self.shape, (target_weights * self.factor).T)
+        return out
+
+
+def morph_targets(names, weights=None) -> MorphTargets:
+    """The morph targets that play `weights` back inside [0, 1] (see the module notes).
+
+    Parameters
+    ----------
+    names : sequence of str, length n
+    weights : array_like of shape (T, n), optional
+        Without weights (a basis without animation), one target per shape, factor 1.
+
+    Returns
+    -------
+    MorphTargets
+
+    Raises
+    ------
+    InputError
+        A ``<name>.neg`` target would take the name of another shape.
+
+    Examples
+    --------
+    >>> t = morph_targets(["a", "b"], [[0.5, -3.0], [0.25, 2.0]])
+    >>> t.names, t.factor.tolist()
+    (('a', 'b', 'b.neg'), [1.0, 2.0, -3.0])
+    >>> t.weights([[0.5, -3.0]]).tolist()
+    [[0.5, 0.0, 1.0]]
+    """
+    names = tuple(names)
+    if weights is None:
+        return MorphTargets(names, np.arange(len(names)), np.ones(len(names)))
+    weights = np.asarray(weights, dtype=float)
+    low, high = PLAYBACK_RANGE
+    top = np.maximum(weights.max(axis=0, initial=0.0), high)
+    bottom = weights.min(axis=0, initial=0.0)
+    shape, factor, out = [], [], []
+    for i, name in enumerate(names):
+        shape.append(i)
+        factor.append(top[i])
+        out.append(name)
+        if bottom[i] < low:
+            negative = name + NEGATIVE_SUFFIX
+            if negative in names:
+                raise InputError(f"shape {name!r} has negative weights, and its negative "
+                                 f"target's name {negative!r} is another shape's")
+            shape.append(i)
+            factor.append(min(bottom[i], -high))
+            out.append(negative)
+    return MorphTargets(tuple(out), np.array(shape, dtype=np.intp), np.array(factor))
+
+
 def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotation=None,
-               translation=None, rate: float | None = None, name: str = "face",
-               inputs=()) -> None:
+               translation=None, rate: float | None = None, first_frame: int = 0,
+               name: str = "face", inputs=()) -> None:
     """Write a neutral mesh and its basis as glTF morph targets.
 
     Parameters
@@ -85,7 +192,8 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
         Shape names (``mesh.extras.targetNames``), unique.
     weights : array_like of shape (T, n), optional
         Weights of each frame: an animation with one LINEAR sampler (input:
-        times ``t / rate`` s, output: the T × n weights frame after frame)
+        times ``(first_frame + t) / rate`` s, output: the weights of the
+        morph targets of :func:`morph_targets`, in [0, 1], frame after frame)
         targeting the node's ``weights``. No NaN.
     rotation : array_like of shape (T, 3, 3), optional
         Rigid motion of the face in each frame, about the mesh's origin:
@@ -96,6 +204,9 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
     translation : array_like of shape (T, 3), mesh units, optional
     rate : float, optional
         Frame rate, Hz; required with `weights` or a motion, only with them.
+    first_frame : int
+        Frame number of the first row of `weights` and of the motion (the
+        capture's; key times are frame numbers over `rate`).
     name : str
         Name of the node, mesh and animation.
     inputs : iterable of path, optional
@@ -121,7 +232,9 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
     stored values; vertex-attribute views carry ``byteStride`` 12. NORMAL is
     the area-weighted vertex normal of the neutral (``+Z`` where no face
     defines one); morph targets carry no NORMAL displacement. Default morph
-    weights are 0.
+    weights are 0. ``mesh.extras.mocap2mesh`` holds ``shapes`` (the names),
+    ``target_shape`` and ``target_factor`` (:class:`MorphTargets`); the
+    animation's extras hold ``rate`` and ``first_frame``.
     """
     path = Path(path)
     if path.suffix.lower() not in GLTF_FORMATS:
@@ -133,7 +246,9 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
     displacements = as_float_array(displacements, "displacements", shape=(None, n_vertices, 3),
                                    allow_nan=False)
     names = as_shape_names(names, len(displacements))
-    times, weights, motion = _animation(weights, rotation, translation, rate, len(names))
+    times, weights, motion = _animation(weights, rotation, translation, rate, len(names),
+                                        first_frame)
+    targets = morph_targets(names, weights)
     scale = _to_metres(neutral)
 
     normals = vertex_normals(neutral.vertices, neutral.faces)
@@ -143,18 +258,21 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
                       target=_ELEMENT_ARRAY_BUFFER)
     position = buf.add(neutral.vertices * scale, pygltflib.VEC3, target=_ARRAY_BUFFER)
     normal = buf.add(normals, pygltflib.VEC3, target=_ARRAY_BUFFER)
-    targets = [{"POSITION": buf.add(d * scale, pygltflib.VEC3, target=_ARRAY_BUFFER)}
-               for d in displacements]
+    morphs = [{"POSITION": buf.add(displacements[i] * (f * scale), pygltflib.VEC3,
+                                   target=_ARRAY_BUFFER)}
+              for i, f in zip(targets.shape, targets.factor)]
     primitive = pygltflib.Primitive(
         attributes=pygltflib.Attributes(POSITION=position, NORMAL=normal), indices=indices,
-        mode=pygltflib.TRIANGLES, targets=targets)
-    mesh = pygltflib.Mesh(name=name, primitives=[primitive], weights=[0.0] * len(names),
-                          extras={"targetNames": list(names)})
+        mode=pygltflib.TRIANGLES, targets=morphs)
+    record = {"shapes": list(names), "target_shape": targets.shape.tolist(),
+              "target_factor": targets.factor.tolist()}
+    mesh = pygltflib.Mesh(name=name, primitives=[primitive], weights=[0.0] * len(targets.names),
+                          extras={"targetNames": list(targets.names), "mocap2mesh": record})
     animations = []
     if times is not None:
         time = buf.add(times, pygltflib.SCALAR)
         outputs = [] if weights is None else [
-            ("weights", buf.add(weights.reshape(-1), pygltflib.SCALAR))]
+            ("weights", buf.add(targets.weights(weights).reshape(-1), pygltflib.SCALAR))]
         if motion is not None:
             outputs += [("rotation", buf.add(motion[0], pygltflib.VEC4)),
                         ("translation", buf.add(motion[1] * scale, pygltflib.VEC3))]
@@ -164,7 +282,9 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
         channels = [pygltflib.AnimationChannel(
             sampler=i, target=pygltflib.AnimationChannelTarget(node=0, path=target))
             for i, (target, _) in enumerate(outputs)]
-        animations = [pygltflib.Animation(name=name, samplers=samplers, channels=channels)]
+        animations = [pygltflib.Animation(name=name, samplers=samplers, channels=channels,
+                                          extras={"rate": float(rate),
+                                                  "first_frame": int(first_frame)})]
     gltf = pygltflib.GLTF2(
         asset=pygltflib.Asset(version="2.0", generator="mocap2mesh"), scene=0,
         scenes=[pygltflib.Scene(nodes=[0])], nodes=[pygltflib.Node(name=name, mesh=0)],
@@ -173,7 +293,7 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
     _save(gltf, buf.blob(), path, [*inputs, neutral.path])
 
 
-def _animation(weights, rotation, translation, rate, n: int):
+def _animation(weights, rotation, translation, rate, n: int, first_frame):
     """Times (T,) s, weights (T, n), (quaternions (T, 4), translation (T, 3)); None if absent."""
     if (rotation is None) != (translation is None):
         raise InputError("rotation and translation go together (the face's rigid motion)")
@@ -206,7 +326,8 @@ def _animation(weights, rotation, translation, rate, n: int):
         raise InputError("the animation has no frames")
     if len(set(counts)) > 1:
         raise InputError(f"weights have {counts[0]} frames but the motion {counts[1]}")
-    return np.arange(counts[0]) / rate, weights, motion
+    first_frame = as_int(first_frame, "first_frame", minimum=0)
+    return (first_frame + np.arange(counts[0])) / rate, weights, motion
 
 
 def _to_metres(neutral: Mesh) -> float:

@@ -19,18 +19,21 @@ Ross, Lim, Lin & Yang, "Incremental learning for robust visual tracking", IJCV 2
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
 
-from basis._implicit_pca import operator_pca
+from basis._implicit_pca import marker_moments as _moments
+from basis._implicit_pca import operator_pca, pooled_spectrum
 from basis._streaming_pca import Spectrum, frame_chunks, incremental_pca, randomized_pca
 from mocap.errors import InputError
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_choice, as_float_array, as_int
 
-__all__ = ["PCAModel", "PCA_METHODS", "pca_from_operator", "pca_streaming"]
+__all__ = ["PCAModel", "PCA_METHODS", "MarkerMoments", "marker_moments", "pca_from_operator",
+           "pca_from_operators", "pca_streaming"]
 
 #: Methods of :func:`pca_streaming`.
 PCA_METHODS = ("randomized", "incremental")
@@ -146,6 +149,17 @@ class PCAModel:
                         total_variance=self.total_variance, n_frames=self.n_frames,
                         method=self.method, message=self.message)
 
+    def sha256(self) -> str:
+        """SHA-256 (hex) of the model's numbers: two takes fitted in one basis share it.
+
+        Hashes the mean, the components and the eigenvalues as float64
+        (little-endian, C order), so any change to the basis changes it.
+        """
+        digest = hashlib.sha256()
+        for array in (self.mean, self.components, self.eigenvalues):
+            digest.update(np.ascontiguousarray(array, dtype="<f8").tobytes())
+        return digest.hexdigest()
+
     def project(self, frames) -> np.ndarray:
         """PCA coefficients ⟨ξ(t) - μ, e_j⟩ of mesh frames.
 
@@ -248,6 +262,150 @@ def pca_from_operator(operator, displacements, *, n_components: int | None = Non
                              f"got {n_components}")
     return _model(operator_pca(operator, displacements, n_components=n_components,
                                chunk_frames=chunk_frames), "implicit")
+
+
+@dataclass(frozen=True, eq=False)
+class MarkerMoments:
+    """Mean and covariance of a take's marker displacements: all its PCA needs of D(t).
+
+    Attributes
+    ----------
+    n_frames : int
+        T.
+    mean : ndarray, shape (M, 3), marker units
+    covariance : ndarray, shape (3M, 3M), marker units²
+        C_D with the 1/T convention, markers flattened vertex-major.
+    """
+
+    n_frames: int
+    mean: np.ndarray
+    covariance: np.ndarray
+
+    def __post_init__(self):
+        n_frames = as_int(self.n_frames, "n_frames", minimum=1)
+        mean = as_float_array(self.mean, "mean", shape=(None, 3), allow_nan=False)
+        cov = as_float_array(self.covariance, "covariance",
+                             shape=(3 * len(mean), 3 * len(mean)), allow_nan=False)
+        object.__setattr__(self, "n_frames", n_frames)
+        object.__setattr__(self, "mean", read_only(mean))
+        object.__setattr__(self, "covariance", read_only(cov))
+
+    @property
+    def n_markers(self) -> int:
+        """M."""
+        return len(self.mean)
+
+
+def marker_moments(displacements, *, chunk_frames: int = 4096) -> MarkerMoments:
+    """The :class:`MarkerMoments` of marker displacements D(t), (T, M, 3), in chunks of frames.
+
+    Raises
+    ------
+    InputError
+        Not (T, M, 3) with T ≥ 1, or a frame with NaN (named).
+
+    Examples
+    --------
+    >>> d = np.arange(12.0).reshape(2, 2, 3)
+    >>> moments = marker_moments(d)
+    >>> moments.mean.tolist(), float(moments.covariance[0, 0])
+    ([[3.0, 4.0, 5.0], [6.0, 7.0, 8.0]], 9.0)
+    """
+    displacements = np.asarray(displacements, dtype=np.float64)
+    if displacements.ndim != 3 or displacements.shape[2] != 3 or len(displacements) == 0:
+        raise InputError(f"displacements must have shape (T, M, 3) with T >= 1, got "
+                         f"{displacements.shape}")
+    chunk_frames = as_int(chunk_frames, "chunk_frames", minimum=1)
+    mean, cov = _moments(displacements, chunk_frames)
+    return MarkerMoments(len(displacements), mean, cov)
+
+
+def pca_from_operators(operators, displacements, *, n_components: int | None = None,
+                       coverage: float | None = None) -> PCAModel:
+    """Exact PCA of the mesh sequences of several takes pooled, Ξ_k(t) = W_k · D_k(t).
+
+    The PCA of a session: every frame of every take counts once, each take
+    through its own operator (its own binding), and the mesh sequences are
+    never formed.
+
+    Parameters
+    ----------
+    operators : sequence of array_like or sparse, each (N, M_k)
+        One operator per take, on one mesh (same N).
+    displacements : sequence of array_like (T_k, M_k, 3) or MarkerMoments
+        Each take's marker displacements, or their :func:`marker_moments`
+        (what a worker computing a take can send back instead of D).
+    n_components : int, optional
+        Components to keep; default every component above the numerical-rank
+        cutoff (as :func:`pca_from_operator`).
+    coverage : float in (0, 1], optional
+        Instead of `n_components`: keep the fewest components whose coverage
+        (:meth:`PCAModel.coverage`) reaches it; only those are computed on
+        the mesh, the costly part for a long session.
+
+    Returns
+    -------
+    PCAModel
+        Of the concatenated sequences: mean Σ_k (T_k/T) W_k d̄_k, covariance
+        with the 1/T convention over all T = Σ T_k frames, exact total variance.
+
+    Raises
+    ------
+    InputError
+        No take, operators and displacements of different counts, operators of
+        different meshes, a shape mismatch (the take is named by its index),
+        a non-finite operator, a frame with NaN, both `n_components` and
+        `coverage`, a coverage outside (0, 1].
+
+    Notes
+    -----
+    The pooled covariance is Σ_k (T_k/T) [K_k C_k K_kᵀ + (μ_k − μ)(μ_k − μ)ᵀ]
+    (K_k = W_k ⊗ I₃, μ_k the take's mean mesh displacement): the takes'
+    covariances plus the scatter of their means. Its eigenpairs come from a
+    3r × 3r problem, r = rank [W_1 … W_K] ≤ min(N, Σ M_k); cost
+    O(N (Σ M_k)² + (3r)³). See :mod:`basis._implicit_pca`.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> ops = [rng.normal(size=(50, 4)), rng.normal(size=(50, 4))]
+    >>> takes = [rng.normal(size=(30, 4, 3)), rng.normal(size=(20, 4, 3))]
+    >>> model = pca_from_operators(ops, takes)
+    >>> model.n_frames, model.components.shape
+    (50, (24, 50, 3))
+    """
+    operators, displacements = list(operators), list(displacements)
+    if not operators:
+        raise InputError("operators is empty: give one operator per take")
+    if len(operators) != len(displacements):
+        raise InputError(f"{len(operators)} operators but {len(displacements)} takes of "
+                         "displacements: give one of each per take")
+    dense, moments = [], []
+    for i, (operator, data) in enumerate(zip(operators, displacements)):
+        if sparse.issparse(operator):
+            operator = operator.toarray()
+        operator = as_float_array(operator, f"operators[{i}]", ndim=2, allow_nan=False)
+        if operator.shape[0] != (dense[0].shape[0] if dense else operator.shape[0]):
+            raise InputError(f"operators[{i}] has {operator.shape[0]} rows (vertices), "
+                             f"operators[0] {dense[0].shape[0]}: the takes must share a mesh")
+        if not isinstance(data, MarkerMoments):
+            data = marker_moments(data)
+        if data.n_markers != operator.shape[1]:
+            raise InputError(f"take {i}: operator {operator.shape} maps {operator.shape[1]} "
+                             f"markers but its displacements have {data.n_markers}")
+        dense.append(operator)
+        moments.append((data.n_frames, np.asarray(data.mean), np.asarray(data.covariance)))
+    if not any(op.any() for op in dense):
+        raise InputError("every operator is all zeros: no mesh motion to analyse")
+    if n_components is not None:
+        n_components = as_int(n_components, "n_components", minimum=1)
+    if coverage is not None:
+        if n_components is not None:
+            raise InputError("give n_components or coverage, not both")
+        if isinstance(coverage, bool) or not 0 < coverage <= 1:
+            raise InputError(f"coverage must be in (0, 1], got {coverage!r}")
+    return _model(pooled_spectrum(dense, moments, n_components=n_components,
+                                  coverage=coverage), "implicit")
 
 
 def pca_streaming(frames, *, n_components: int, chunk_frames: int = 512,

@@ -45,14 +45,16 @@ def pca_of_retargeted(paths, n_vertices: int, *,
 
 
 def pca_of_captures(paths, binding, neutral, markerset, *, fill: str = "auto",
-                    neutral_frame="auto", options: RetargetOptions = RetargetOptions()):
+                    max_gap: int | None = None, neutral_frame="auto",
+                    options: RetargetOptions = RetargetOptions()):
     """Exact PCA of the mesh motion of captures, never forming the mesh sequence.
 
     Each capture is gap-filled and head-stabilized (:func:`mocap.clean.ingest.ingest`),
     retargeted (:func:`mocap.retarget.retargeting.retarget`: its face-marker displacements D
     from its neutral frame, in mesh units, and the operator W), and the
     displacements of all captures are pooled: Ξ = W·D is analysed by
-    :func:`basis.pca.pca_from_operator`.
+    :func:`basis.pca.pca_from_operator`. `fill` and `max_gap` are those of
+    :class:`mocap.clean.ingest.IngestOptions` (None: the default maximum gap).
 
     Returns
     -------
@@ -69,9 +71,10 @@ def pca_of_captures(paths, binding, neutral, markerset, *, fill: str = "auto",
     for path in paths:
         take = mocap.read(path)
         result = ingest(take, markerset=markerset,
-                        options=IngestOptions(fill=fill, stabilize=True))
+                        options=IngestOptions(fill=fill, max_gap=max_gap, stabilize=True))
         retargeted = retarget(result.take, binding, neutral, markerset, options=options,
-                              neutral_frame=neutral_frame)
+                              neutral_frame=result.take.frame_index(neutral_frame,
+                                                                    "the neutral frame"))
         displacements.append(retargeted.displacements)
         operator = retargeted.operator.matrix if operator is None else operator
     return pca_from_operator(operator, np.concatenate(displacements))

@@ -94,7 +94,8 @@ def main() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ingested = timed("read + ingest", lambda: ingest_stage(
-            mocap.read(out / "take.c3d"), markerset, IngestOptions(fill="auto")))
+            mocap.read(out / "take.c3d"), markerset,
+            IngestOptions(fill="auto", max_gap=sim_take.n_frames)))      # every gap, asked
         take = complete_span(ingested.take, markerset.face_markers)
         bound = timed("bind", lambda: bind_stage(take, markerset, mesh, landmarks,
                                                  options=BindOptions(skin_offset=2.0)))

@@ -86,7 +86,8 @@ def run_trials(take, gap_sets, length, methods, clusters):
             if method == "linear":
                 filled = linear_fill(pos)
             else:
-                filled = fill_gaps(holed, method=method, clusters=clusters).take.positions
+                filled = fill_gaps(holed, method=method, clusters=clusters,
+                                   max_gap=length).take.positions
             elapsed = time.perf_counter() - t0
             err = np.linalg.norm(filled[rows, cols] - truth[rows, cols], axis=1)
             ok = ~np.isnan(err)

@@ -212,8 +212,8 @@ def chain(label, basis, performance, layout, markerset, landmarks, *, noise, lea
     mesh = basis.neutral
     sim = simulate(basis, performance, layout, markerset.head, noise=noise, lead=lead)
     tic = time.perf_counter()
-    take = complete_span(ingest_stage(sim.take, markerset, IngestOptions(fill="auto")).take,
-                         markerset.face_markers)
+    take = complete_span(ingest_stage(sim.take, markerset, IngestOptions(
+        fill="auto", max_gap=sim.take.n_frames)).take, markerset.face_markers)   # every gap
     offset = take.first_frame - sim.take.first_frame
     truth = sim.truth.weights[offset:offset + take.n_frames]
     if frame == "oracle":

@@ -18,7 +18,7 @@ from __future__ import annotations
 import time
 import warnings
 
-from _common import REPO, shared_data
+from _common import FACIAL_SING_MAX_GAP, REPO, shared_data
 
 import mocap
 from basis.artist import load_artist_basis
@@ -49,7 +49,7 @@ def main() -> None:
     mesh = artist.neutral
     landmarks = load_mesh_landmarks(REPO / "tests" / "ict_landmarks.toml", mesh)
     ingested = ingest_stage(mocap.read(root / "captures" / "facial-sing.c3d"), markerset,
-                            IngestOptions(fill="auto"))
+                            IngestOptions(fill="auto", max_gap=FACIAL_SING_MAX_GAP))
     take = complete_span(ingested.take, markerset.face_markers)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

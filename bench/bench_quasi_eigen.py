@@ -21,7 +21,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from _common import REPO, best_time, peak_memory_mb, shared_data
+from _common import FACIAL_SING_MAX_GAP, REPO, best_time, peak_memory_mb, shared_data
 from scipy.linalg import svd
 
 import mocap
@@ -48,8 +48,8 @@ def real_experiment(root: Path, options: RetargetOptions = RetargetOptions()):
     artist = load_artist_basis(root / "ict-face" / "generic_neutral_mesh.obj",
                                root / "ict-face" / "expressions", units="cm")
     landmarks = load_mesh_landmarks(REPO / "tests" / "ict_landmarks.toml", artist.neutral)
-    ingested = ingest(take, markerset=markerset, options=IngestOptions(fill="auto",
-                                                                       stabilize=True))
+    ingested = ingest(take, markerset=markerset, options=IngestOptions(
+        fill="auto", max_gap=FACIAL_SING_MAX_GAP, stabilize=True))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         bound = bind_take(ingested.cleaned, markerset, artist.neutral, landmarks)

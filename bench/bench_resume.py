@@ -1,8 +1,8 @@
-"""Kill ``mocap2mesh run`` (SIGKILL) at several points, re-run it: what is redone, skipped, verified.
+"""Kill ``mocap2mesh run`` (SIGKILL) at several points and re-run it: redone, skipped, verified.
 
     python bench/bench_resume.py [--takes N] [--baseline REF|none]
 
-A demo session of N takes (default 4, 1 s each, no video) runs with 2 workers.
+A demo session of N takes (default 4, 2 s each, no video) runs with 2 workers.
 For each kill point the output folder starts empty, the run is killed when the
 point is reached (the parent process only: its workers must die by
 themselves), then run again to the end. Printed per kill point: the takes
@@ -128,7 +128,7 @@ def main() -> None:
             trees["baseline"] = export_tree(args.baseline, tmp / "base")
         config = make_session(tmp / "s", args.takes)
         out = tmp / "s" / "results"
-        print(f"{args.takes} takes of 1 s, 2 workers; per kill point: takes complete at the "
+        print(f"{args.takes} takes of 2 s, 2 workers; per kill point: takes complete at the "
               "kill -> the re-run's redone / skipped takes, outputs checked, workers alive "
               "10 s after the kill")
         for label, condition in POINTS:

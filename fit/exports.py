@@ -157,6 +157,11 @@ class MeshSequence:
     rate : float or None
         Frame rate, Hz, when recorded.
     first_frame : int
+        The capture's frame number of the first frame.
+    rotation : ndarray of shape (T, 3, 3), or None
+        Head motion of the mesh, when recorded: vertex v of frame t is placed at
+        ``rotation[t] @ v + translation[t]`` (what the glTF node does).
+    translation : ndarray of shape (T, 3), mesh units, or None
     """
 
     faces: np.ndarray
@@ -168,10 +173,12 @@ class MeshSequence:
     units: str | None
     rate: float | None
     first_frame: int
+    rotation: np.ndarray | None = None
+    translation: np.ndarray | None = None
 
     def __post_init__(self):
         for arr in (self.faces, self.neutral, self.displacements, self.weights,
-                    self.materialized):
+                    self.materialized, self.rotation, self.translation):
             if arr is not None:
                 arr.flags.writeable = False
 
@@ -200,10 +207,21 @@ class MeshSequence:
         out = (np.atleast_2d(w) @ basis).reshape(-1, *self.neutral.shape) + self.neutral
         return out[0] if w.ndim == 1 else out
 
+    def placed_vertices(self, t=None) -> np.ndarray:
+        """:meth:`vertices` moved by the recorded head motion, mesh units (unmoved without one)."""
+        out = self.vertices(t)
+        if self.rotation is None:
+            return out
+        index = slice(None) if t is None else t
+        rotation, translation = (np.asarray(a, dtype=np.float64)[index]
+                                 for a in (self.rotation, self.translation))
+        return np.einsum("...ij,...vj->...vi", rotation, out) + translation[..., None, :]
+
 
 def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
                         materialize: bool = False, names=None, rate: float | None = None,
-                        first_frame: int = 1, inputs=()) -> None:
+                        first_frame: int = 1, rotation=None, translation=None,
+                        inputs=()) -> None:
     """Write the reconstructed mesh sequence v(t) = v0 + Σ_i w_ti e_i as float32 ``.npz``.
 
     Parameters
@@ -226,12 +244,18 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
     rate : float, optional
         Frame rate, Hz, stored when given.
     first_frame : int, default 1
+        The capture's frame number of the first row of `weights`.
+    rotation : array_like of shape (T, 3, 3), optional
+        Head motion (with `translation`): frame t is placed at
+        ``rotation[t] @ v + translation[t]``, stored in float64.
+    translation : array_like of shape (T, 3), mesh units, optional
 
     Notes
     -----
     Keys: ``format_version``, ``faces`` (F, 3) int64, ``units`` ('' if
     unknown), ``rate`` (NaN if unknown), ``first_frame``, ``names``, and the
-    arrays of the chosen form. Read back with :func:`read_mesh_sequence`, or
+    arrays of the chosen form, and ``rotation``/``translation`` with a head
+    motion. Read back with :func:`read_mesh_sequence`, or
     with numpy: ``v = z["neutral"] + np.tensordot(z["weights"][t],
     z["displacements"], 1)``.
 
@@ -251,6 +275,14 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
                   units=np.array(neutral.units or ""), rate=np.float64(rate),
                   first_frame=np.int64(as_int(first_frame, "first_frame")),
                   names=np.array(names, dtype=str))
+    if (rotation is None) != (translation is None):
+        raise InputError("rotation and translation go together (the head motion)")
+    if rotation is not None:
+        arrays.update(
+            rotation=as_float_array(rotation, "rotation", shape=(len(weights), 3, 3),
+                                    allow_nan=False),
+            translation=as_float_array(translation, "translation", shape=(len(weights), 3),
+                                       allow_nan=False))
     if materialize:
         flat = displacements.reshape(len(displacements), -1)
         out = np.empty((len(weights), neutral.n_vertices, 3), dtype=np.float32)
@@ -294,10 +326,18 @@ def read_mesh_sequence(path) -> MeshSequence:
     if not consistent or faces.ndim != 2 or (faces.size and faces.max() >= n_vertices[0]):
         raise FileFormatError(path, "inconsistent shapes of vertices, basis, weights or faces")
     rate = float(z["rate"])
+    n_frames = len(z["vertices"] if "vertices" in z else z["weights"])
+    motion = [z.get(k) for k in ("rotation", "translation")]
+    if (motion[0] is None) != (motion[1] is None) or (
+            motion[0] is not None and (motion[0].shape != (n_frames, 3, 3)
+                                       or motion[1].shape != (n_frames, 3))):
+        raise FileFormatError(path, f"the head motion must be rotation ({n_frames}, 3, 3) and "
+                                    f"translation ({n_frames}, 3)")
     return MeshSequence(faces=faces, neutral=z.get("neutral"),
                         displacements=z.get("displacements"), weights=z.get("weights"),
                         materialized=z.get("vertices"),
                         names=tuple(str(n) for n in z["names"]),
                         units=str(z["units"]) or None,
                         rate=None if np.isnan(rate) else rate,
-                        first_frame=int(z["first_frame"]))
+                        first_frame=int(z["first_frame"]), rotation=motion[0],
+                        translation=motion[1])

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["Mocap2MeshError", "FileFormatError", "MarkerError", "InputError"]
+__all__ = ["Mocap2MeshError", "FileFormatError", "MarkerError", "InputError",
+           "MissingDependencyError"]
 
 
 class Mocap2MeshError(Exception):
@@ -63,3 +64,23 @@ class MarkerError(Mocap2MeshError, ValueError):
     def __init__(self, marker: str, message: str):
         self.marker = marker
         super().__init__(f"marker {marker!r}: {message}")
+
+
+class MissingDependencyError(Mocap2MeshError, ImportError):
+    """A feature needs a package of an optional extra that is not installed.
+
+    Parameters
+    ----------
+    package : str
+        The distribution missing (``praat-parselmouth``).
+    extra : str
+        The extra of mocap2mesh that installs it (``speech``).
+    purpose : str
+        What it is needed for, said in the message.
+    """
+
+    def __init__(self, package: str, extra: str, purpose: str):
+        self.package = package
+        self.extra = extra
+        super().__init__(f"{purpose} needs {package}, which is not installed: "
+                         f"pip install 'mocap2mesh[{extra}]'")

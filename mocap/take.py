@@ -206,6 +206,33 @@ class Take:
         """Frame numbers, shape (n_frames,), starting at `first_frame`."""
         return self.first_frame + np.arange(self.n_frames)
 
+    def frame_index(self, frame, what: str = "frame"):
+        """The 0-based index of the capture's frame number `frame` (strings pass through).
+
+        Frame numbers are the capture's own (``first_frame`` ... ``first_frame +
+        n_frames - 1``), the convention of everything a user sees; `what` names
+        the option in the error.
+
+        Raises
+        ------
+        InputError
+            `frame` is not a frame of the take.
+
+        Examples
+        --------
+        >>> take = Take(("a",), np.zeros((5, 1, 3)), rate=100.0, first_frame=11)
+        >>> take.frame_index(12), take.frame_index("auto")
+        (1, 'auto')
+        """
+        if isinstance(frame, str):
+            return frame
+        number = as_int(frame, what)
+        last = self.first_frame + self.n_frames - 1
+        if not self.first_frame <= number <= last:
+            raise InputError(f"{what} {number} is not a frame of the take: its frames are "
+                             f"numbered {self.first_frame}..{last} (the capture's own numbers)")
+        return number - self.first_frame
+
     @property
     def times(self) -> np.ndarray:
         """Time of each frame from the start of the take, s, shape (n_frames,)."""

@@ -109,6 +109,38 @@ def read_gltf_accessor(gltf: pygltflib.GLTF2, index: int, *,
                       strides=(stride, dtype.itemsize))
 
 
+def play_gltf(path, *, clamp=(0.0, 1.0)) -> dict:
+    """Play a one-mesh glTF written by basis.gltf as a viewer would, in numpy.
+
+    Each key's morph weights are clamped to `clamp` (Blender's default slider
+    range; None: no clamping), the targets added to the base positions, and the
+    node's rotation (quaternion x, y, z, w) and translation applied when animated.
+
+    Returns
+    -------
+    dict
+        ``times`` (K,) s, ``vertices`` (K, N, 3) metres, placed; ``weights`` (K, n_targets).
+    """
+    gltf = pygltflib.GLTF2().load(str(path))
+    prim = gltf.meshes[0].primitives[0]
+    base = read_gltf_accessor(gltf, prim.attributes.POSITION).astype(float)
+    targets = np.array([read_gltf_accessor(gltf, t["POSITION"]) for t in prim.targets], float)
+    (anim,) = gltf.animations
+    samplers = {c.target.path: anim.samplers[c.sampler] for c in anim.channels}
+    times = read_gltf_accessor(gltf, samplers["weights"].input)[:, 0].astype(float)
+    weights = read_gltf_accessor(gltf, samplers["weights"].output).astype(float)
+    weights = weights.reshape(len(times), len(targets))
+    shown = weights if clamp is None else np.clip(weights, *clamp)
+    vertices = base + np.tensordot(shown, targets, axes=1)
+    if "rotation" in samplers:
+        quat = read_gltf_accessor(gltf, samplers["rotation"].output).astype(float)
+        move = read_gltf_accessor(gltf, samplers["translation"].output).astype(float)
+        u, w = quat[:, None, :3], quat[:, None, 3:]
+        cross = np.cross(u, vertices)
+        vertices = vertices + 2 * w * cross + 2 * np.cross(u, cross) + move[:, None]
+    return {"times": times, "vertices": vertices, "weights": weights}
+
+
 # ---------------------------------------------------------------- command lines
 
 def synth_argv(mesh, shapes, performance, output, *extra, layout=ICT_LAYOUT_TOML,
@@ -124,3 +156,21 @@ def bind_argv(capture, mesh, output, *extra, markerset=ICT_MARKERSET_TOML,
     """``mocap2mesh bind`` of a capture to a mesh with the ICT marker set and landmarks."""
     return ["bind", str(capture), "--markerset", str(markerset), "--mesh", str(mesh),
             "--landmarks", str(landmarks), "-o", str(output), *extra]
+
+
+def stub_take(calls, bases=None):
+    """A stand-in for one take of ``run_takes`` (``fit.pipeline.session._guarded``) that
+    commits one small file through the completion API; appends each capture's name to
+    `calls` (and the session basis it was given to `bases`)."""
+    from fit.pipeline.completion import begin_take, commit_take
+
+    def fake(capture, config, name, provenance, session_basis=None):
+        calls.append(capture.name)
+        if bases is not None:
+            bases.append(session_basis)
+        stage = begin_take(config.output, name)
+        (stage / "out.txt").write_text(f"{capture.name} {provenance.key}")
+        record = commit_take(stage, config.output, name, provenance,
+                             summary={"status": "ok", "skipped": False, "error": None})
+        return {**record.summary, "files": [f"{name}/{f}" for f in record.files]}
+    return fake

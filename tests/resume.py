@@ -29,9 +29,9 @@ POLL_S = 0.02
 RUN = "from fit.cli.main import console; console()"
 
 
-def make_session(root: Path, n_takes: int, *, seconds: float = 1.0) -> Path:
+def make_session(root: Path, n_takes: int, *, seconds: float = 2.0) -> Path:
     """A demo session whose capture is copied into `n_takes` takes t1, t2..., with run.toml."""
-    make_demo_session(root / "session", seconds=seconds)
+    make_demo_session(root / "session", seconds=seconds, n_gaps=int(10 * seconds))  # 10 gaps/s
     names = []
     for k in range(1, n_takes + 1):
         shutil.copy(root / "session" / "capture.c3d", root / "session" / f"t{k}.c3d")
@@ -47,7 +47,7 @@ def write_config(root: Path, *, lowpass: float, names=None, path: str = "run.tom
     text = (demo_config_toml()
             .replace('captures = ["session/capture.c3d"]', f"captures = [{', '.join(names)}]")
             .replace("lowpass_hz = 15.0", f"lowpass_hz = {lowpass}")
-            .replace("video_step = 2", "video_step = 12")
+            .replace("video_step = 4", "video_step = 12")
             .replace("video = true", "video = false"))
     (root / path).write_text(text, encoding="utf-8")
     return root / path

@@ -145,7 +145,7 @@ def test_bind_a_given_frame_without_icp(facial_sing_path, ict_dir, tmp_path):
     capture = facial_sing_path
     output = tmp_path / "sing0.json"
     with pytest.warns(UserWarning):
-        assert main(_bind_args(ict_dir, capture, output, "--frame", "0", "--no-icp",
+        assert main(_bind_args(ict_dir, capture, output, "--frame", "1", "--no-icp",
                                markerset=FACIAL_SING_MARKERSET_TOML)) == 0
     binding = load_binding(output)
     assert binding.n_iterations == 0 and "no ICP" in binding.message
@@ -210,8 +210,11 @@ def test_bind_markerset_of_another_capture(simulated_capture, ict_dir, tmp_path,
 
 
 def test_bind_frame_beyond_the_take(simulated_capture, ict_dir, tmp_path, capsys):
-    _fails(_bind_args(ict_dir, simulated_capture[0], tmp_path / "b.json", "--frame", "401"),
-           capsys, r"frame index 401 is beyond the take's 401 frames")
+    """--frame is the capture's frame number (1..401 here): 402 and the old index 0 are refused."""
+    for frame in ("402", "0"):
+        _fails(_bind_args(ict_dir, simulated_capture[0], tmp_path / "b.json", "--frame", frame),
+               capsys, rf"--frame {frame} is not a frame of the take: its frames are numbered "
+                       r"1\.\.401 \(the capture's own numbers\)")
 
 
 def test_bind_refuses_to_overwrite_its_input(simulated_capture, ict_dir, capsys):
@@ -242,7 +245,7 @@ def test_bind_frame_that_is_no_option_is_a_usage_error(simulated_capture, ict_di
                                                        capsys):
     assert main(_bind_args(ict_dir, simulated_capture[0], tmp_path / "b.json", "--frame",
                            "still")) == 2
-    assert "expected a frame index, 'auto' or 'hold', got 'still'" in capsys.readouterr().err
+    assert "expected a frame number, 'auto' or 'hold', got 'still'" in capsys.readouterr().err
 
 
 def test_bind_hold_binds_the_mean_pose_of_the_hold(ict_dir, ict_markerset, tmp_path):

@@ -6,6 +6,7 @@ import csv
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from tolerances import FLOAT32_REL
 
 from fit.exports import (
@@ -96,6 +97,27 @@ def test_mesh_sequence_evaluates_like_a_loop(neutral, displacements, weights, tm
         if not materialize:  # the documented evaluation with plain numpy
             v = z["neutral"] + np.tensordot(z["weights"][7], z["displacements"], 1)
             np.testing.assert_allclose(v, expected[7], rtol=0, atol=atol)
+
+
+def test_mesh_sequence_keeps_its_head_motion(neutral, displacements, weights, tmp_path):
+    rng = np.random.default_rng(6)
+    rotation = Rotation.random(len(weights), random_state=7).as_matrix()
+    translation = rng.normal(0.0, 3.0, (len(weights), 3))
+    path = tmp_path / "moving.npz"
+    write_mesh_sequence(path, neutral, displacements, weights, rotation=rotation,
+                        translation=translation)
+    seq = read_mesh_sequence(path)
+    placed = np.stack([v @ r.T + t for v, r, t in zip(seq.vertices(), rotation, translation)])
+    np.testing.assert_allclose(seq.placed_vertices(), placed, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(seq.placed_vertices(4), placed[4], rtol=0, atol=1e-12)
+    with pytest.raises(InputError, match="rotation and translation go together"):
+        write_mesh_sequence(path, neutral, displacements, weights, rotation=rotation)
+    with np.load(path) as z:
+        arrays = dict(z)
+    arrays["translation"] = arrays["translation"][:-1]
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(FileFormatError, match=r"head motion must be rotation \(\d+, 3, 3\)"):
+        read_mesh_sequence(tmp_path / "bad.npz")
 
 
 def test_materialized_in_chunks_matches_compact(neutral, displacements, tmp_path):

@@ -21,6 +21,7 @@ from tolerances import (
 
 from mocap import InputError, MarkerError, Take
 from mocap.clean import FILL_OPTIONS, _pca_fill, fill_gaps
+from mocap.clean.gapfill import DEFAULT_MAX_GAP_S
 from mocap.clean._rigid_fill import donor_weights
 from mocap.rigid import fit_rigid
 from mocap.take import fill_code
@@ -30,6 +31,8 @@ RATE = 100.0
 N_FRAMES = 400
 HEAD = [f"root-{i}" for i in range(1, 7)]
 CLUSTERS = {"head": HEAD}
+#: max_gap of the tests of what a fill is worth: every gap of the take, asked for.
+ANY = N_FRAMES
 
 
 def head_take(n_face=6, seed=0):
@@ -103,7 +106,7 @@ def test_spline_fill_of_sinusoid_within_the_cubic_spline_bound(gap):
     truth = amp * np.sin(omega * t[:, None] + np.array([0.0, 1.0, 2.0]))
     start = 150
     take = with_gaps(Take(("a",), truth[:, None], rate=RATE), [("a", start, start + gap)])
-    got = fill_gaps(take, method="spline").take.positions[start:start + gap, 0]
+    got = fill_gaps(take, method="spline", max_gap=ANY).take.positions[start:start + gap, 0]
     err = np.abs(got - truth[start:start + gap]).max()
     h = (gap + 1) / RATE                               # the spline piece spanning the gap
     bound = 5 / 384 * amp * omega ** 4 * h ** 4         # (5/384) h^4 max|f''''|
@@ -115,7 +118,7 @@ def test_spline_fill_of_sinusoid_within_the_cubic_spline_bound(gap):
 def test_rigid_fill_is_exact_on_rigid_data_with_partial_donors():
     truth = head_take()
     take = with_gaps(truth, [("root-3", 100, 180), ("root-5", 120, 140), ("root-1", 170, 200)])
-    result = fill_gaps(take, method="rigid", clusters=CLUSTERS)
+    result = fill_gaps(take, method="rigid", clusters=CLUSTERS, max_gap=ANY)
     np.testing.assert_allclose(result.take.positions[:, :6], truth.positions[:, :6],
                                atol=GAPFILL_RIGID_MM, rtol=0)
     assert result.n_missing == 0
@@ -125,7 +128,7 @@ def test_rigid_fill_is_exact_on_rigid_data_with_partial_donors():
 def test_rigid_fill_leaves_frames_without_three_donors():
     truth = head_take(n_face=0).select(HEAD[:4])
     take = with_gaps(truth, [("root-1", 100, 150), ("root-2", 120, 130)])
-    result = fill_gaps(take, method="rigid", clusters={"head": HEAD[:4]})
+    result = fill_gaps(take, method="rigid", clusters={"head": HEAD[:4]}, max_gap=ANY)
     row = result.gaps.set_index("marker").loc["root-1"]
     assert row["filled"] == 40
     assert row["reason"].startswith("10 frames left: 3 donors")
@@ -151,7 +154,7 @@ def test_rigid_fill_interpolates_in_the_donors_frame():
     truth = _slid(head_take(n_face=0), 0, slide)
     start, stop = 150, 250
     result = fill_gaps(with_gaps(truth, [("root-1", start, stop)]), method="rigid",
-                       clusters=CLUSTERS)
+                       clusters=CLUSTERS, max_gap=ANY)
     np.testing.assert_allclose(result.take.positions[start:stop, 0],
                                truth.positions[start:stop, 0], atol=GAPFILL_RIGID_MM, rtol=0)
 
@@ -162,7 +165,8 @@ def test_rigid_fill_down_weights_a_donor_that_moves_relative_to_the_target():
     truth = _slid(head_take(n_face=0), 5, wander)
     start, stop = 150, 250
     take = with_gaps(truth, [("root-1", start, stop)])
-    got = fill_gaps(take, method="rigid", clusters=CLUSTERS).take.positions[start:stop, 0]
+    got = fill_gaps(take, method="rigid", clusters=CLUSTERS,
+                    max_gap=ANY).take.positions[start:stop, 0]
     err = np.linalg.norm(got - truth.positions[start:stop, 0], axis=1)
     # Oracle of an unweighted fill: all donors carried from the frame before the gap.
     pos = truth.positions
@@ -202,7 +206,7 @@ def test_pca_fill_is_exact_on_low_rank_data(path, monkeypatch):
     original = _pca_fill._components_iterative
     monkeypatch.setattr(_pca_fill, "_components_iterative",
                         lambda *a: calls.append(1) or original(*a))
-    result = fill_gaps(take, method="pca", extrapolate=True)
+    result = fill_gaps(take, method="pca", extrapolate=True, max_gap=ANY)
     got = result.take.positions[150:230, 2]
     np.testing.assert_allclose(got, truth.positions[150:230, 2], atol=GAPFILL_LOW_RANK_MM, rtol=0)
     assert bool(calls) == (path == "iterative")
@@ -213,7 +217,7 @@ def test_pca_fill_is_exact_on_low_rank_data(path, monkeypatch):
 def test_fill_records_codes_and_keeps_captured_samples(method):
     take = with_gaps(head_take(), [("root-2", 50, 80), ("face-1", 200, 230), ("face-3", 10, 12)])
     before = take.positions.copy()
-    result = fill_gaps(take, method=method, clusters=CLUSTERS)
+    result = fill_gaps(take, method=method, clusters=CLUSTERS, max_gap=ANY)
     np.testing.assert_array_equal(take.positions, before)        # caller's take unchanged
     assert not take.filled.any()
     out = result.take
@@ -236,10 +240,10 @@ def test_fill_records_codes_and_keeps_captured_samples(method):
 def test_edge_gaps_need_extrapolate(method):
     truth = head_take()
     take = with_gaps(truth, [("root-4", 0, 15), ("root-6", N_FRAMES - 10, N_FRAMES)])
-    kept = fill_gaps(take, method=method, clusters=CLUSTERS)
+    kept = fill_gaps(take, method=method, clusters=CLUSTERS, max_gap=ANY)
     assert kept.n_filled == 0
     assert kept.gaps["reason"].str.contains("first or last frame").all()
-    extra = fill_gaps(take, method=method, clusters=CLUSTERS, extrapolate=True)
+    extra = fill_gaps(take, method=method, clusters=CLUSTERS, extrapolate=True, max_gap=ANY)
     assert extra.n_missing == 0
     if method in ("rigid", "auto"):
         np.testing.assert_allclose(extra.take.positions, truth.positions,
@@ -247,27 +251,33 @@ def test_edge_gaps_need_extrapolate(method):
 
 
 @pytest.mark.parametrize("method", FILLING)
-@pytest.mark.parametrize("max_gap, filled", [(None, {"root-2", "face-0"}), (10, {"face-0"}),
-                                             (0, set())])
+@pytest.mark.parametrize("max_gap, filled", [
+    (None, {"face-0", "face-1"}), (ANY, {"root-2", "face-0", "face-1"}),
+    (10, {"face-0", "face-1"}), (5, {"face-0"}), (0, set())])
 def test_max_gap_limits_what_is_filled(method, max_gap, filled):
-    take = with_gaps(head_take(), [("root-2", 100, 130), ("face-0", 200, 205)])
+    """None: the default, 0.1 s (10 frames at 100 Hz); a longer fill must be asked for."""
+    take = with_gaps(head_take(), [("root-2", 100, 130), ("face-0", 200, 205),
+                                   ("face-1", 300, 310)])
     result = fill_gaps(take, method=method, max_gap=max_gap, clusters=CLUSTERS)
     done = set(result.gaps.loc[result.gaps["filled"] > 0, "marker"])
     if method == "rigid":
-        filled = filled - {"face-0"}          # not in a cluster
+        filled = filled - {"face-0", "face-1"}          # not in a cluster
     assert done == filled
-    longer = result.gaps["length"] > (np.inf if max_gap is None else max_gap)
-    assert result.gaps.loc[longer, "reason"].str.startswith("longer than max_gap").all()
+    limit = DEFAULT_MAX_GAP_S * RATE if max_gap is None else max_gap
+    assert result.max_gap == limit
+    longer = result.gaps["length"] > limit
+    assert result.gaps.loc[longer, "reason"].str.startswith(f"longer than max_gap={limit:g}").all()
+    assert not result.gaps.loc[~longer, "reason"].str.startswith("longer").any()
 
 
 def test_auto_chooses_rigid_then_pca_then_spline():
     take = with_gaps(head_take(), [("root-2", 100, 130), ("face-0", 200, 240)])
-    result = fill_gaps(take, method="auto", clusters=CLUSTERS)
+    result = fill_gaps(take, method="auto", clusters=CLUSTERS, max_gap=ANY)
     assert dict(zip(result.gaps["marker"], result.gaps["method"])) == {"root-2": "rigid",
                                                                       "face-0": "pca"}
     few = with_gaps(head_take(n_face=0).select(HEAD[:_pca_fill.MIN_DONORS]),
                     [("root-1", 100, 110)])
-    assert fill_gaps(few, method="auto").gaps["method"].tolist() == ["spline"]
+    assert fill_gaps(few, method="auto", max_gap=ANY).gaps["method"].tolist() == ["spline"]
 
 
 def test_method_none_only_reports():
@@ -284,7 +294,7 @@ def test_rigid_leaves_markers_outside_clusters_and_keeps_earlier_fill_codes():
     filled = np.zeros(take.filled.shape, np.uint8)
     filled[5, 7] = fill_code("spline")
     take = take.replace(filled=filled)
-    result = fill_gaps(take, method="rigid", clusters=CLUSTERS)
+    result = fill_gaps(take, method="rigid", clusters=CLUSTERS, max_gap=ANY)
     assert result.gaps["reason"].tolist() == ["not in any rigid cluster"]
     assert result.take.filled[5, 7] == fill_code("spline")
 
@@ -295,8 +305,9 @@ def test_rigid_leaves_markers_outside_clusters_and_keeps_earlier_fill_codes():
     ({"max_gap": -1}, InputError, "max_gap must be at least 0, got -1"),
     ({"max_gap": 2.5}, InputError, "max_gap must be an integer"),
     ({"method": "rigid"}, InputError, "method 'rigid' needs clusters"),
-    ({"clusters": {"head": HEAD[:3]}}, InputError,
-     "cluster 'head' has 3 markers: a rigid fill needs 3 donors"),
+    ({"min_visible": 1.5}, InputError, r"min_visible must be in \[0, 1\], got 1.5"),
+    ({"min_visible": "half"}, InputError, r"min_visible must be a number in \[0, 1\]"),
+    ({"markers": ["root-1", "nose"]}, MarkerError, "'nose': not in the take"),
     ({"clusters": {"head": HEAD + ["nose"]}}, MarkerError, "'nose': not in the take"),
     ({"clusters": HEAD}, InputError, "clusters must be a mapping"),
     ({"clusters": {"head": "root-1"}}, InputError, "must be a list of marker labels"),
@@ -324,6 +335,74 @@ def test_pca_fill_learns_from_frames_near_the_gap_only():
     pos[start:stop, 0] = np.nan
     far = pos.copy()
     far[: start - w - 1] += rng.normal(0, 30, far[: start - w - 1].shape)   # wild, far away
-    fills = [fill_gaps(Take(tuple("abcdefgh"), p, rate=100), method="pca").take.positions
-             for p in (pos, far)]
+    fills = [fill_gaps(Take(tuple("abcdefgh"), p, rate=100), method="pca",
+                       max_gap=ANY).take.positions for p in (pos, far)]
     np.testing.assert_array_equal(fills[0][start:stop, 0], fills[1][start:stop, 0])
+
+
+# -- what a fill may not do: invent markers, fill unasked, carry too few donors -------
+@pytest.mark.parametrize("method", FILLING)
+def test_three_head_markers_work_for_every_method(method):
+    """A 3-marker cluster gives 2 donors, too few for a rigid fit: never an error."""
+    take = with_gaps(head_take(), [("root-2", 100, 108), ("face-1", 200, 206)])
+    small = {"head": HEAD[:3]}
+    result = fill_gaps(take, method=method, clusters=small)
+    row = result.gaps.set_index("marker").loc["root-2"]
+    if method == "rigid":
+        assert row["filled"] == 0 and row["reason"] == (
+            "its cluster 'head' has 3 markers: a rigid fill needs 3 donors besides the "
+            "missing marker, so at least 4 markers")
+    else:
+        assert row["filled"] == 8 and row["method"] != "rigid"
+    if method != "rigid":       # the small cluster changes nothing: as if there were none
+        alone = fill_gaps(take, method=method)
+        np.testing.assert_array_equal(result.take.positions, alone.take.positions)
+
+
+def test_a_small_cluster_beside_a_usable_one():
+    take = with_gaps(head_take(), [("root-2", 100, 108), ("face-1", 200, 206)])
+    clusters = {"head": HEAD, "nose": ["face-0", "face-1", "face-2"]}
+    result = fill_gaps(take, method="rigid", clusters=clusters).gaps.set_index("marker")
+    assert result.loc["root-2", "filled"] == 8
+    assert result.loc["face-1", "reason"].startswith("its cluster 'nose' has 3 markers")
+
+
+def test_markers_outside_the_fill_set_are_left_and_never_donate():
+    """Oracle: the fill of the listed markers equals the fill of a take without the others."""
+    rng = np.random.default_rng(9)
+    take = with_gaps(head_take(), [("face-1", 200, 206), ("root-3", 50, 57)])
+    ghost = rng.normal(scale=300.0, size=(N_FRAMES, 1, 3))       # wild, visible throughout
+    sparse = np.full((N_FRAMES, 1, 3), np.nan)
+    sparse[::12] = rng.normal(scale=50.0, size=(len(sparse[::12]), 1, 3))
+    extra = take.replace(labels=take.labels + ("ghost", "Unlabeled1"),
+                         positions=np.concatenate([take.positions, ghost, sparse], axis=1),
+                         filled=np.zeros((N_FRAMES, take.n_markers + 2), np.uint8))
+    result = fill_gaps(extra, markers=take.labels, clusters=CLUSTERS)
+    np.testing.assert_array_equal(result.take.positions[:, -2:], extra.positions[:, -2:])
+    assert (result.take.filled[:, -2:] == 0).all()
+    alone = fill_gaps(take, clusters=CLUSTERS)
+    np.testing.assert_allclose(result.take.positions[:, :-2], alone.take.positions,
+                               rtol=0, atol=EXACT_MM)
+    others = result.gaps[result.gaps["marker"] == "Unlabeled1"]
+    assert len(others) and (others["reason"] == "not among the markers to fill").all()
+    assert result.unfilled_markers == ("ghost", "Unlabeled1")
+
+
+@pytest.mark.parametrize("n_visible, filled", [(35, False), (199, False), (200, True)])
+def test_a_marker_visible_in_under_half_the_take_is_reported_not_filled(n_visible, filled):
+    take = head_take()
+    pos = take.positions.copy()
+    seen = np.zeros(N_FRAMES, bool)
+    seen[np.linspace(0, N_FRAMES - 1, n_visible).round().astype(int)] = True   # short gaps
+    pos[~seen, take.index("face-2")] = np.nan
+    take = take.replace(positions=pos)
+    result = fill_gaps(take, clusters=CLUSTERS, max_gap=ANY)
+    rows = result.gaps[result.gaps["marker"] == "face-2"]
+    assert (rows["filled"] > 0).any() == filled
+    if not filled:
+        assert (rows["reason"] == f"visible in {n_visible} of {N_FRAMES} frames "
+                                  f"({100 * n_visible / N_FRAMES:.1f} %), under "
+                                  "min_visible = 0.5").all()
+        assert result.unfilled_markers == ("face-2",)
+        anyway = fill_gaps(take, clusters=CLUSTERS, max_gap=ANY, min_visible=0)
+        assert anyway.gaps.loc[anyway.gaps["marker"] == "face-2", "filled"].sum() > 0

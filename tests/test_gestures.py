@@ -424,16 +424,20 @@ def cli_files(tmp_path):
     return wav, clip, out
 
 
-@pytest.mark.parametrize("flags", [[], ["--no-time-warps"]])
+@pytest.mark.parametrize("flags", [[], ["--no-time-warps", "--intensity", "rms"]])
 def test_cli_writes_weights_and_head_motion(cli_files, flags):
+    """S(t) is Praat's intensity by default, the RMS level on request."""
+    from fit.gestures.prosody import speech_prosody
+
     wav, clip, out = cli_files
     assert main(["gestures", "synthesize", str(wav), "--palette", str(clip), "-o",
-                 str(out), *flags]) == 0
+                 str(out), "--no-lips", *flags]) == 0
     import pandas as pd
     table = pd.read_csv(out / "weights.csv")
     assert len(table) == 120 and list(table.columns[2:]) == ["s0", "s1", "s2"]
-    want = synthesize_gestures(wav_intensity(wav, frame_rate=RATE), [load_clip(clip)],
-                               rate=RATE, time_warps=not flags)
+    drive = wav_intensity(wav, frame_rate=RATE) if flags else \
+        speech_prosody(wav, frame_rate=RATE, method="praat").intensity
+    want = synthesize_gestures(drive, [load_clip(clip)], rate=RATE, time_warps=not flags)
     np.testing.assert_allclose(table.to_numpy()[:, 2:], want.weights, atol=GESTURES_CLI_VS_API)
     head = np.load(out / "head.npz")
     assert head["rotation"].shape == (120, 3, 3)
@@ -454,7 +458,7 @@ def test_cli_one_chain_keeps_blinks_and_brows_in_the_weights_chain(cli_files):
         folder = out / ("one" if flags else "own")
         folder.mkdir()
         assert main(["gestures", "synthesize", str(wav), "--palette", str(path), "-o",
-                     str(folder), *flags]) == 0
+                     str(folder), "--no-lips", "--intensity", "rms", *flags]) == 0
         got[bool(flags)] = pd.read_csv(folder / "weights.csv").to_numpy()[:, 2:]
     intensity = wav_intensity(wav, frame_rate=RATE)
     for one_chain, groups in ((True, {}), (False, None)):
@@ -644,7 +648,8 @@ def test_cli_transfers_details_onto_the_ict_face(ict_mesh, ict_layout, ict_neutr
     assert main(["gestures", "synthesize", str(wav), "--palette", str(tmp_path / "ict.npz"),
                  "-o", str(out),
                  "--mesh", str(ict_neutral_path), "--shapes", str(shapes),
-                 "--units", "cm", "--binding", str(tmp_path / "binding.json")]) == 0
+                 "--units", "cm", "--binding", str(tmp_path / "binding.json"),
+                 "--no-lips"]) == 0
     seq = read_mesh_sequence(out / "mesh.npz")
     assert seq.names[:2] == ("eyeBlink_L", "jawOpen") and len(seq.names) == 2 + 3 * 4
     details = np.load(out / "details.npz")

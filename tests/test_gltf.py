@@ -10,11 +10,11 @@ import numpy as np
 import pygltflib
 import pytest
 import trimesh
-from helpers import read_gltf_accessor
+from helpers import play_gltf, read_gltf_accessor
 from tolerances import FLOAT32_FACE_CM, FLOAT32_REL
 
 from basis.artist import load_artist_basis
-from basis.gltf import GLTF_FORMATS, write_gltf
+from basis.gltf import GLTF_FORMATS, morph_targets, write_gltf
 from mocap.errors import InputError
 from mocap.mesh.mesh import Mesh, load_mesh
 
@@ -105,6 +105,51 @@ def test_ict_face_as_animated_morph_targets(ict_subset, tmp_path):
     geometry = loaded.to_geometry() if isinstance(loaded, trimesh.Scene) else loaded
     assert len(geometry.vertices) == ict_subset.neutral.n_vertices
     assert len(geometry.faces) == ict_subset.neutral.n_faces
+
+
+def test_signed_weights_play_back_inside_the_slider_range(ict_subset, tmp_path):
+    """QE and PCA weights leave [0, 1] (here -40..60): a viewer that clamps every morph
+    weight to [0, 1], as Blender's shape-key sliders do, still shows neutral + Σ w e at
+    every key and between keys; the basis reads back unscaled."""
+    rng = np.random.default_rng(3)
+    weights = rng.normal(0.0, 20.0, (30, ict_subset.n_shapes))
+    weights[:, 1] = rng.uniform(0.0, 0.7, 30)            # already inside: left as it is
+    weights[:, 2] = -rng.uniform(0.0, 3.0, 30)           # only negative
+    path = tmp_path / "signed.glb"
+    write_gltf(path, ict_subset.neutral, ict_subset.displacements, ict_subset.names,
+               weights=weights, rate=30.0, first_frame=7)
+    played = play_gltf(path)
+    assert played["weights"].min() >= 0 and played["weights"].max() <= 1
+    np.testing.assert_array_equal(played["vertices"], play_gltf(path, clamp=None)["vertices"])
+    want = ict_subset.neutral.vertices + np.tensordot(weights, ict_subset.displacements, 1)
+    # float32 targets scaled up to 60x: the sum keeps a few 1e-5 cm
+    np.testing.assert_allclose(played["vertices"] / _METRES["cm"], want, rtol=0,
+                               atol=FLOAT32_FACE_CM * np.abs(weights).max())
+    # halfway between two keys a viewer blends the target weights linearly
+    half = 0.5 * (played["weights"][:-1] + played["weights"][1:])
+    gltf = pygltflib.GLTF2().load(str(path))
+    targets = np.array([_read(gltf, t["POSITION"]) for t in gltf.meshes[0].primitives[0].targets])
+    between = _read(gltf, gltf.meshes[0].primitives[0].attributes.POSITION) \
+        + np.tensordot(half, targets, 1)
+    want_between = ict_subset.neutral.vertices + np.tensordot(
+        0.5 * (weights[:-1] + weights[1:]), ict_subset.displacements, 1)
+    np.testing.assert_allclose(between / _METRES["cm"], want_between, rtol=0,
+                               atol=FLOAT32_FACE_CM * np.abs(weights).max())
+    names = gltf.meshes[0].extras["targetNames"]
+    assert names[:2] == [ict_subset.names[0], ict_subset.names[0] + ".neg"]
+    assert ict_subset.names[1] + ".neg" not in names
+    # keyed on frame numbers: key k at (7 + k) / 30 s
+    np.testing.assert_allclose(played["times"], (7 + np.arange(30)) / 30.0, rtol=FLOAT32_REL)
+    assert gltf.animations[0].extras == {"rate": 30.0, "first_frame": 7}
+    back = load_artist_basis(ict_subset.neutral, path)
+    assert back.names == ict_subset.names
+    np.testing.assert_allclose(back.displacements, ict_subset.displacements, rtol=0,
+                               atol=FLOAT32_FACE_CM)
+
+
+def test_morph_targets_refuse_a_negative_name_that_is_taken():
+    with pytest.raises(InputError, match="negative target's name 'a.neg' is another shape's"):
+        morph_targets(["a", "a.neg"], [[-2.0, 0.5]])
 
 
 @pytest.mark.parametrize("suffix", GLTF_FORMATS)
@@ -240,6 +285,7 @@ def test_output_never_replaces_the_neutral(tmp_path):
     (dict(weights=np.zeros((4, 2))), "an animation needs the take's rate"),
     (dict(rate=30), "rate is only used with an animation"),
     (dict(weights=np.zeros((4, 2)), rate=-1), "rate must be positive"),
+    (dict(weights=np.zeros((4, 2)), rate=30, first_frame=-1), "first_frame must be at least 0"),
     (dict(rotation=np.tile(np.eye(3), (4, 1, 1)), rate=30), "rotation and translation go"),
     (dict(rotation=np.tile(2 * np.eye(3), (4, 1, 1)), translation=np.zeros((4, 3)), rate=30),
      "rotation must hold rotation matrices"),

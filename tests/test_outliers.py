@@ -149,7 +149,7 @@ def test_removed_samples_are_refilled_near_the_truth():
     assert np.isnan(removed.positions[found.mask]).all()
     np.testing.assert_array_equal(removed.positions[~found.mask], dirty.positions[~found.mask])
     assert (removed.filled[found.mask] == 0).all()
-    refilled = fill_gaps(removed, method="auto").take
+    refilled = fill_gaps(removed, method="auto", max_gap=N_FRAMES).take   # long runs: asked
     err = np.linalg.norm(refilled.positions - clean.positions, axis=2)[found.mask]
     raw = np.linalg.norm(dirty.positions - clean.positions, axis=2)[found.mask]
     assert raw.min() > 79 and err.max() < OUTLIER_REFILL_MM
@@ -212,6 +212,7 @@ def test_facial_sing_mislabel_is_the_only_implausible_event(facial_sing_take,
     i = take.index("section3-1")
     jump = np.linalg.norm(np.diff(take.positions[815:870, i], axis=0), axis=1)
     assert np.nanmax(jump) > 60  # the event is in the file
-    cleaned = fill_gaps(remove_implausible_samples(take, found), method="auto").take
+    cleaned = fill_gaps(remove_implausible_samples(take, found), method="auto",
+                        max_gap=100).take                  # the 45-frame run: asked for
     after = np.linalg.norm(np.diff(cleaned.positions[815:870, i], axis=0), axis=1)
     assert np.nanmax(after) < REPAIRED_STEP_MM

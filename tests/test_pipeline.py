@@ -24,7 +24,7 @@ from tolerances import (
 
 import mocap
 from basis.basis_io import load_basis
-from fit.demo import make_demo_session
+from fit.demo import DEMO_MAX_GAP, make_demo_session
 from fit.pipeline import (
     BASES,
     SPACES,
@@ -60,7 +60,8 @@ def chain(tmp_path_factory):
     markerset = load_markerset(paths["markerset"])
     mesh = load_mesh(paths["neutral"])
     landmarks = load_mesh_landmarks(paths["landmarks"], mesh)
-    ingested = ingest_stage(mocap.read(paths["capture"]), markerset, IngestOptions())
+    ingested = ingest_stage(mocap.read(paths["capture"]), markerset,
+                            IngestOptions(max_gap=DEMO_MAX_GAP))
     take = complete_span(ingested.take, markerset.face_markers)
     bound = bind_stage(take, markerset, mesh, landmarks, options=BindOptions(skin_offset=2.0))
     retargeted = retarget_stage(take, bound, mesh, markerset)
@@ -319,7 +320,7 @@ def test_complete_span_rejects_a_take_without_a_complete_frame():
     (BasisOptions, {"pca_components": 0}, "pca_components must be at least 1"),
     (BasisOptions, {"qe_missing": "drop"}, "qe_missing must be one of"),
     (BindOptions, {"frame": -1}, "frame must be at least 0"),
-    (BindOptions, {"frame": "still"}, "frame must be a frame index, 'auto' or 'hold'"),
+    (BindOptions, {"frame": "still"}, "frame must be a frame number, 'auto' or 'hold'"),
     (BindOptions, {"icp": 1}, "icp must be true or false"),
     (BindOptions, {"skin_offset": -1.0}, "skin_offset must be a finite number >= 0"),
     (BindOptions, {"max_distance_warn": 0.0}, "max_distance_warn must be positive"),
@@ -355,9 +356,11 @@ def test_bind_hold_averages_the_hold_into_the_rest_pose(chain):
 
 def test_bind_frame_beyond_take(chain):
     take = chain["take"]
-    with pytest.raises(InputError, match="neutral frame index .* is beyond the take"):
+    last = take.first_frame + take.n_frames - 1
+    with pytest.raises(InputError, match=rf"bind.frame {last + 1} is not a frame of the take: "
+                                         rf"its frames are numbered {take.first_frame}\.\.{last}"):
         bind_stage(take, chain["markerset"], chain["mesh"], {},
-                   options=BindOptions(frame=take.n_frames))
+                   options=BindOptions(frame=last + 1))
 
 
 def test_too_many_pca_components(chain):

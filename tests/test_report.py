@@ -167,8 +167,8 @@ def test_html_is_self_contained_and_its_numbers_are_the_metrics(report):
     keys = ["alpha", "alpha_mean", "alpha_max", "displacement_error", "rms_mm", "mean_mm",
             "p95_mm", "max_mm"]
     for row, res in zip(summary, results.values()):
-        assert [float(v) for v in row[1:1 + len(keys)]] == [res.summary()[k] for k in keys]
-        assert int(row[1 + len(keys)]) == res.summary()["worst_frame"] + 1   # frame number
+        assert [float(v) for v in row[2:2 + len(keys)]] == [res.summary()[k] for k in keys]
+        assert int(row[2 + len(keys)]) == res.summary()["worst_frame"] + 1   # frame number
     markers = page.tables["markers"][1:]
     qe, h = results["QE"], results["H"]
     assert len(markers) == len(qe.labels)
@@ -198,7 +198,7 @@ def test_html_errors(report):
 def test_video_round_trip(sing_case, tmp_path, step, fps):
     ms, face, recs, neutral = sing_case
     n = 150
-    path = tmp_path / "overlay.mp4"
+    path = tmp_path / "overlay.webm"
     written = write_overlay_video(face.positions[:n], recs["H"][:n], path, neutral=neutral,
                                   rate=face.rate, labels=face.labels, markerset=ms,
                                   step=step, fps=fps, size=(320, 240))
@@ -206,6 +206,7 @@ def test_video_round_trip(sing_case, tmp_path, step, fps):
     video = cv2.VideoCapture(str(path))
     try:
         assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == written
+        assert int(video.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little") == b"VP90"
         assert (video.get(cv2.CAP_PROP_FRAME_WIDTH), video.get(cv2.CAP_PROP_FRAME_HEIGHT)) \
             == (320, 240)
         assert video.get(cv2.CAP_PROP_FPS) == pytest.approx(fps or face.rate / step)
@@ -221,7 +222,8 @@ def test_video_round_trip(sing_case, tmp_path, step, fps):
         assert frames == written
     finally:
         video.release()
-    assert [p.name for p in tmp_path.iterdir()] == ["overlay.mp4"]   # no temp file left
+    assert path.read_bytes()[:4] == b"\x1a\x45\xdf\xa3"                   # EBML: WebM
+    assert [p.name for p in tmp_path.iterdir()] == ["overlay.webm"]   # no temp file left
 
 
 def test_view_and_video_errors(sing_case, tmp_path):
@@ -230,10 +232,14 @@ def test_view_and_video_errors(sing_case, tmp_path):
         plot_frame_views(face.positions, recs["H"], [N_FRAMES], tmp_path / "v.png",
                          neutral=neutral)
     with pytest.raises(InputError, match="reconstructed must have the shape"):
-        write_overlay_video(face.positions, recs["H"][:10], tmp_path / "v.mp4",
+        write_overlay_video(face.positions, recs["H"][:10], tmp_path / "v.webm",
                             neutral=neutral, rate=100.0)
     with pytest.raises(InputError, match="step must be at least 1"):
-        write_overlay_video(face.positions, recs["H"], tmp_path / "v.mp4",
+        write_overlay_video(face.positions, recs["H"], tmp_path / "v.webm",
                             neutral=neutral, rate=100.0, step=0)
+    with pytest.raises(InputError, match=r"v\.mp4: the overlay video is VP9 in WebM: name it "
+                                         r"\*\.webm"):
+        write_overlay_video(face.positions, recs["H"], tmp_path / "v.mp4",
+                            neutral=neutral, rate=100.0)
     with pytest.raises(InputError, match="output directory does not exist"):
         build_report(face, recs, neutral, tmp_path / "absent")

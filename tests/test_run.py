@@ -4,33 +4,39 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import importlib.util
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import play_gltf, stub_take
+from tolerances import FLOAT32_REL, GLB_PLAYED_MM
 
 import mocap
 from fit.cli.main import main
 from fit.demo import demo_config_toml, make_demo_session
+from fit.exports import read_mesh_sequence
 from fit.pipeline import BASES
-from fit.pipeline.completion import RECORD_NAME, begin_take, commit_take
+from fit.pipeline.completion import RECORD_NAME
 from fit.pipeline.config import load_run_config
 from fit.pipeline.session import run_takes
+from mocap.bind import load_binding
 from mocap.errors import FileFormatError, InputError
 
 PER_BASIS = ("basis-{}.npz", "weights-{}.csv", "mesh-{}.npz", "face-{}.glb")
 PER_TAKE = ("take.c3d", "head_motion.npz", "binding.json", "report/gaps.png",
             "report/head_residuals.png", "report/{take}.html", "report/{take}-alpha.png",
-            "report/{take}-coverage.png")
-REPORT_PER_BASIS = ("heatmap", "markers", "views")
+            "report/{take}-coverage.png", "report/{take}-held-out.png", "report/{take}-mesh-WD.png")
+REPORT_PER_BASIS = ("heatmap", "markers", "views", "mesh")
 
 
 def _config(root, captures, *, extra=""):
     text = demo_config_toml().replace('captures = ["session/capture.c3d"]',
                                       "captures = [" + ", ".join(f'"{c}"' for c in captures)
                                       + "]")
-    text = text.replace("video_step = 2", "video_step = 12")
+    text = text.replace("video_step = 4", "video_step = 12")
     path = root / "run.toml"
     path.write_text(text + extra, encoding="utf-8")
     return path
@@ -39,7 +45,7 @@ def _config(root, captures, *, extra=""):
 @pytest.fixture(scope="module")
 def session_root(tmp_path_factory):
     root = tmp_path_factory.mktemp("run")
-    make_demo_session(root / "session", seconds=2.0)
+    make_demo_session(root / "session", seconds=2.0, n_gaps=20)   # 10 gaps/s
     (root / "session" / "broken.c3d").write_bytes(b"\x02\x50" + bytes(range(256)) * 4)
     return root
 
@@ -61,13 +67,17 @@ def test_every_promised_file_is_written(session_root, first_run):
         expected = [f.format(take=take) for f in PER_TAKE]
         expected += [f.format(b) for b in BASES for f in PER_BASIS]
         expected += [f"report/{take}-{kind}-{b}.png" for b in BASES for kind in REPORT_PER_BASIS]
-        expected += [f"report/{take}-video-{b}.mp4" for b in BASES]
+        expected.append(f"report/{take}-video.webm")
         for name in expected:
             assert (out / take / name).is_file(), name
             assert f"{take}/{name}" in record["files"]
         assert set(record["metrics"]) == set(BASES)
         assert all(record["metrics"][b]["smoothness"] == 0.0 for b in BASES)  # none asked
         assert record["frames"]["neutral_window"] == 1         # bind.frame "auto": one frame
+        first, count = record["frames"]["first"], record["frames"]["count"]
+        for b in BASES:      # the capture's frame numbers, as the report's worst-frame table
+            worst = record["metrics"][b]["worst_frame"]
+            assert first <= worst < first + count
         html = (out / take / "report" / f"{take}.html").read_text()
         for picture in ("gaps.png", "head_residuals.png"):       # ingestion QA embedded
             encoded = base64.b64encode((out / take / "report" / picture).read_bytes())
@@ -83,6 +93,42 @@ def test_outputs_read_back(session_root, first_run):
     with np.load(out / "mesh-PCA.npz") as z:
         assert z["weights"].shape[0] == take.n_frames
         np.testing.assert_array_equal(z["weights"][:, 0], 1.0)
+
+
+@pytest.mark.parametrize("basis", BASES)
+def test_glb_plays_the_mesh_where_the_head_was(session_root, first_run, basis):
+    """face-B.glb played as a viewer does (weights clamped to [0, 1]) is the mesh sequence
+    we computed, moved as the stabilization says the head moved: each vertex taken to the
+    capture's head frame, moved by R(t), t(t) of head_motion.npz, taken back to the mesh;
+    keys on the capture's frame numbers."""
+    out = session_root / "results" / "capture"
+    played = play_gltf(out / f"face-{basis}.glb")
+    sequence = read_mesh_sequence(out / f"mesh-{basis}.npz")
+    binding = load_binding(out / "binding.json")
+    head = np.load(out / "head_motion.npz")
+    start = sequence.first_frame - mocap.read(session_root / "session" / "capture.c3d").first_frame
+    rotation = head["rotation"][start:start + sequence.n_frames]
+    translation = head["translation"][start:start + sequence.n_frames]
+    ours = sequence.vertices()                                      # mm, head frame
+    in_head = binding.to_capture(ours.reshape(-1, 3)).reshape(ours.shape)
+    moved = np.einsum("tij,tvj->tvi", rotation, in_head) + translation[:, None]
+    want = binding.to_mesh(moved.reshape(-1, 3)).reshape(moved.shape)
+    np.testing.assert_allclose(played["vertices"] * 1000.0, want, rtol=0, atol=GLB_PLAYED_MM)
+    np.testing.assert_allclose(sequence.placed_vertices(), want, rtol=0, atol=GLB_PLAYED_MM)
+    assert np.abs(want - ours).max() > 5.0                           # the head does move
+    np.testing.assert_allclose(played["times"] * sequence.rate,
+                               sequence.first_frame + np.arange(sequence.n_frames),
+                               rtol=FLOAT32_REL)
+    # make blender-check's reference (numpy only, beside Blender) is this mesh too
+    spec = importlib.util.spec_from_file_location(
+        "blender_check", Path(__file__).resolve().parents[1] / "bench" / "blender_check.py")
+    blender_check = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(blender_check)
+    glb = out / f"face-{basis}.glb"
+    assert blender_check.reference_for(glb) == out / f"mesh-{basis}.npz"
+    reference = blender_check.reference_mesh(out / f"mesh-{basis}.npz")
+    assert reference["first_frame"] == sequence.first_frame and reference["moving"]
+    np.testing.assert_allclose(reference["frames"], want, rtol=0, atol=GLB_PLAYED_MM)
 
 
 def test_broken_take_is_reported_and_others_finish(first_run, capsys):
@@ -113,29 +159,18 @@ def test_rerun_of_the_same_config_skips_the_done_take(session_root, first_run):
     assert not outcome.takes["broken"]["skipped"] and outcome.n_failed == 1
 
 
-def _stub_take(calls):
-    """A stand-in for the chain that commits one small file through the completion API."""
-    def fake(capture, config, name, provenance):
-        calls.append(capture.name)
-        stage = begin_take(config.output, name)
-        (stage / "out.txt").write_text(f"{capture.name} {provenance.key}")
-        record = commit_take(stage, config.output, name, provenance,
-                             summary={"status": "ok", "skipped": False, "error": None})
-        return {**record.summary, "files": [f"{name}/{f}" for f in record.files]}
-    return fake
-
-
 def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     """Skip logic alone: the chain is replaced by a stub that records its calls."""
     calls = []
-    monkeypatch.setattr("fit.pipeline.session._guarded", _stub_take(calls))
+    monkeypatch.setattr("fit.pipeline.session._guarded", stub_take(calls))
     for name in ("a.c3d", "b.c3d"):
         shutil.copy(session_root / "session" / "capture.c3d", tmp_path / name)
     for name in ("markerset.toml", "neutral.obj", "landmarks.toml"):
         shutil.copy(session_root / "session" / name, tmp_path / name)
     shutil.copytree(session_root / "session" / "shapes", tmp_path / "shapes")
     path = tmp_path / "run.toml"
-    path.write_text(demo_config_toml(".", "out").replace("./capture.c3d", "a.c3d\", \"b.c3d"))
+    path.write_text(demo_config_toml(".", "out").replace("./capture.c3d", "a.c3d\", \"b.c3d")
+                    .replace("pca_coverage = 0.995", 'pca_coverage = 0.995\nscope = "take"'))
     config = load_run_config(path)
     assert config.captures[1].name == "b.c3d"
     run_takes(config, workers=1, progress=False)
@@ -157,10 +192,10 @@ def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     outcome = run_takes(config, workers=1, progress=False)
     assert calls[4:] == ["b.c3d"]
     assert outcome.reasons["b"] == "output out.txt changed (SHA-256 differs)"
-    path.write_text(path.read_text().replace("video_step = 2", "video_step = 3"))
+    path.write_text(path.read_text().replace("video_step = 4", "video_step = 3"))
     outcome = run_takes(load_run_config(path), workers=1, progress=False)   # a parameter
     assert sorted(calls[5:]) == ["a.c3d", "b.c3d"]
-    assert outcome.reasons["a"] == "parameter report.video_step changed (2 -> 3)"
+    assert outcome.reasons["a"] == "parameter report.video_step changed (4 -> 3)"
     (tmp_path / "out" / "a" / RECORD_NAME).unlink()       # a folder without its record
     outcome = run_takes(load_run_config(path), workers=1, progress=False, check=True)
     assert outcome.checked and outcome.takes["b"]["skipped"]

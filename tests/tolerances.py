@@ -420,3 +420,29 @@ MASKLE_SIMILAR_HITS = 0.01
 MASKLE_SIMILAR_WEIGHTS = 1e-3
 #: The mouth side (1 upper lip, 0 lower) at the lip landmarks.
 MOUTH_SIDE_AT_LANDMARK = 0.05
+
+# ---------------------------------------------------------------- talking faces (lip-sync)
+
+#: Praat's intensity of a steady sine against its level in dB SPL (signal as Pa): Praat's
+#: window is ~43 ms, its mean subtraction and Kaiser window leave a few thousandths, dB.
+PRAAT_TONE_DB = 0.01
+#: Praat's F0 of a harmonic tone against its fundamental, Hz (parabolic interpolation).
+PRAAT_PITCH_HZ = 0.5
+#: Forced alignment of the shipped recordings against their shipped PocketSphinx
+#: alignments, median boundary distance, s: one 10 ms analysis frame (the same aligner
+#: family, so agreement, not accuracy; bench/bench_lipsync.py measures it).
+ALIGN_MEDIAN_S = 0.01
+#: Frames whose viseme class agrees with the shipped alignment's, with the phone recognizer
+#: alone (no transcript): at least this fraction (speech recognized by phones is noisy; the
+#: bench measures it).
+RECOGNIZED_VISEME_AGREEMENT = 0.4
+#: The lip gap of a closed mouth and of an open vowel, mm (the issue's 1 mm and 3 mm).
+LIP_CLOSED_MM = 1.0
+LIP_OPEN_MM = 3.0
+#: The synthesized mesh read back from mesh.npz (float32) against the blend computed
+#: here in float64, cm.
+TALKING_MESH_CM = 1e-5
+
+#: A glTF export played back (float32 targets and motion, shapes scaled up to their
+#: largest weight, tens of mm of head motion) against the float64 sequence, mm.
+GLB_PLAYED_MM = 1e-3

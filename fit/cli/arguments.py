@@ -18,14 +18,15 @@ __all__ = ["parse_frame", "add_capture", "add_markerset", "add_mesh", "add_landm
            "add_binding", "add_units", "add_fill", "add_neutral_frame"]
 
 #: What each neutral-frame choice means, for the help of every command that takes one.
-NEUTRAL_FRAME_HELP = ("0-based index of the neutral frame, 'auto' (default): the frame closest "
+NEUTRAL_FRAME_HELP = ("the neutral frame by the capture's own frame number (as the weights CSV, "
+                      "the report and the manifest number them), 'auto' (default): the frame closest "
                       "to the median pose after head stabilization, or 'hold': the mean pose "
                       f"of the first still {HOLD_S:g} s of the neutral hold the take starts "
                       "with (averaged in the head frame)")
 
 
 def parse_frame(text: str):
-    """``"auto"``, ``"hold"`` or a frame index >= 0 (an argparse type).
+    """``"auto"``, ``"hold"`` or a frame number >= 0 (an argparse type).
 
     Examples
     --------
@@ -37,10 +38,10 @@ def parse_frame(text: str):
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a frame index, 'auto' or 'hold', got {text!r}") \
+        raise argparse.ArgumentTypeError(f"expected a frame number, 'auto' or 'hold', got {text!r}") \
             from None
     if value < 0:
-        raise argparse.ArgumentTypeError(f"a frame index is >= 0, got {value}")
+        raise argparse.ArgumentTypeError(f"a frame number is >= 0, got {value}")
     return value
 
 
@@ -77,12 +78,13 @@ def add_units(parser, *, help: str = "units of the mesh file (e.g. cm)") -> None
     parser.add_argument("--units", help=help)
 
 
-def add_fill(parser, *, max_gap: bool = True,
+def add_fill(parser, *,
              help: str = "gap-filling method (default auto; 'none' keeps the gaps)") -> None:
-    """``--fill`` and, with `max_gap`, ``--max-gap``."""
+    """``--fill`` and ``--max-gap``."""
     parser.add_argument("--fill", choices=FILL_CHOICES, default="auto", help=help)
-    if max_gap:
-        parser.add_argument("--max-gap", type=int, metavar="FRAMES", help="longest gap to fill")
+    parser.add_argument("--max-gap", type=int, metavar="FRAMES",
+                        help="longest gap to fill (default 0.1 s of frames at the take's "
+                             "rate; longer gaps are reported, not filled)")
 
 
 def add_neutral_frame(parser, flag: str = "--frame", *, help: str = NEUTRAL_FRAME_HELP) -> None:

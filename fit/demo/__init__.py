@@ -8,7 +8,8 @@ written by :func:`make_demo_session` (:mod:`fit.demo.session`);
 :func:`run_demo` (:mod:`fit.demo.run`) runs the whole chain on it.
 """
 
-from fit.demo.run import demo_config_toml, run_demo
+from fit.demo.run import DEMO_MAX_GAP, demo_config_toml, run_demo
 from fit.demo.session import SESSION_FILES, DemoSession, make_demo_session
 
-__all__ = ["DemoSession", "make_demo_session", "SESSION_FILES", "run_demo", "demo_config_toml"]
+__all__ = ["DemoSession", "make_demo_session", "SESSION_FILES", "run_demo", "demo_config_toml",
+           "DEMO_MAX_GAP"]

@@ -14,7 +14,12 @@ from fit.pipeline.config import load_run_config
 from fit.pipeline.session import run_takes
 from mocap.util.atomic import atomic_path
 
-__all__ = ["run_demo", "demo_config_toml"]
+__all__ = ["run_demo", "demo_config_toml", "DEMO_MAX_GAP"]
+
+#: The longest gap the demo's run fills, frames: its simulated occlusions last up
+#: to 1 s (120 frames at 120 Hz) each and overlapping ones merge, far beyond the
+#: default maximum gap, so the demo asks for them to be filled.
+DEMO_MAX_GAP = 240
 
 
 def demo_config_toml(session_dir: str = "session", results_dir: str = "results") -> str:
@@ -33,6 +38,7 @@ directory = "{results_dir}"
 
 [ingest]
 fill = "auto"
+max_gap = {DEMO_MAX_GAP}        # the demo's occlusions last up to 1 s each, overlapping ones longer: fill them all
 lowpass_hz = 15.0
 
 [bind]
@@ -47,7 +53,7 @@ space = "marker"
 
 [report]
 video = true
-video_step = 2
+video_step = 4
 """
 
 

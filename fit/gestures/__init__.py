@@ -1,7 +1,14 @@
 """Expressive facial gestures (Ju & Lee 2008): decomposition of takes and speech-driven synthesis.
 
 - :mod:`.analysis`: F = R N + Σ c_i B_i + P + Σ D_j + T from a stabilized take;
-- :mod:`.speech`: speech intensity S(t) from a WAV file or an analog channel;
+- :mod:`.speech`: speech intensity S(t) (RMS) from a WAV file or an analog channel;
+- :mod:`.prosody`: Praat's intensity and pitch (the ``speech`` extra), RMS as the fallback;
+- :mod:`.phones`: phone segments by PocketSphinx (recognition, forced alignment), CSV;
+- :mod:`.visemes`: phones to viseme classes, viseme weights with coarticulation;
+- :mod:`.viseme_basis`: the viseme shapes on the target face (OBJs, ARKit combinations);
+- :mod:`.lipsync`: the lip region from the visemes, the rest from the MRF;
+- :mod:`.talking`: the driving speech analysed once (prosody, phones, visemes);
+- :mod:`.video`, :mod:`.page`: the talking video with its sound, its HTML page;
 - :mod:`.features`: the features, each synthesized by its own chain;
 - :mod:`.clip`: reference clips (the palette of styles);
 - :mod:`.reference`: reference clips from captures (``mocap2mesh gestures analyze``);
@@ -47,7 +54,25 @@ from fit.gestures.speech import (
     speech_intensity,
     wav_intensity,
 )
+from fit.gestures.lipsync import TalkingFace, lip_region, talking_face
+from fit.gestures.phones import (
+    PhoneSegments,
+    phones_from_wav,
+    read_phones_csv,
+    read_sphinx_alignment,
+    recognize_phones,
+    write_phones_csv,
+)
+from fit.gestures.prosody import Prosody, praat_prosody, rms_prosody, speech_prosody
+from fit.gestures.talking import SpeechAnalysis, analyze_speech
 from fit.gestures.timeline import Segment, Timeline, load_timeline, parse_timeline
+from fit.gestures.viseme_basis import (
+    ARKIT_VISEMES,
+    VisemeBasis,
+    load_viseme_basis,
+    viseme_basis_from_shapes,
+)
+from fit.gestures.visemes import PHONE_VISEMES, VISEMES, VisemeCurves, viseme_curves
 from mocap.util.deprecation import moved_names
 
 __all__ = ["GestureAnalysis", "analyze_gestures", "DETAIL_GROUPS",
@@ -58,7 +83,13 @@ __all__ = ["GestureAnalysis", "analyze_gestures", "DETAIL_GROUPS",
            "speech_intensity", "read_wav", "wav_intensity", "analog_intensity",
            "opening_intensity",
            "FEATURES", "WEIGHT_FEATURES", "DETAIL_FEATURES", "WEIGHT_PATTERNS", "weight_columns",
-           "Segment", "Timeline", "load_timeline", "parse_timeline"]
+           "Segment", "Timeline", "load_timeline", "parse_timeline",
+           "Prosody", "praat_prosody", "rms_prosody", "speech_prosody",
+           "PhoneSegments", "recognize_phones", "phones_from_wav", "read_phones_csv",
+           "write_phones_csv", "read_sphinx_alignment",
+           "VISEMES", "PHONE_VISEMES", "VisemeCurves", "viseme_curves",
+           "VisemeBasis", "ARKIT_VISEMES", "viseme_basis_from_shapes", "load_viseme_basis",
+           "TalkingFace", "lip_region", "talking_face", "SpeechAnalysis", "analyze_speech"]
 
 
 

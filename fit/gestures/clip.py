@@ -180,7 +180,10 @@ def clip_from_performance(performance: Performance, *, name: str, rate: float, s
     Returns
     -------
     GestureClip
-        Weights only (no head motion, no details).
+        Weights only (no head motion, no details). Where the performance lost
+        tracking the clip's weights and intensity are NaN (never matched nor
+        copied by the synthesis), and so is the intensity of the frames whose
+        window reaches into such a gap.
 
     Raises
     ------
@@ -195,8 +198,12 @@ def clip_from_performance(performance: Performance, *, name: str, rate: float, s
         raise InputError(f"{performance.path or 'performance'}: no activity column "
                          f"{absent or list(activity)} to stand in for speech")
     signal = grid.weights[:, [grid.names.index(c) for c in activity]].sum(axis=1)
-    intensity = speech_intensity(signal, rate, frame_rate=rate, n_frames=grid.n_frames,
-                                 window=window)
+    intensity = speech_intensity(np.nan_to_num(signal), rate, frame_rate=rate,
+                                 n_frames=grid.n_frames, window=window)
+    if grid.lost.any():
+        reach = int(np.ceil(window * rate / 2))
+        near = np.convolve(grid.lost, np.ones(2 * reach + 1), mode="same") > 0
+        intensity[near] = np.nan
     if shapes is None:
         return GestureClip(name, rate, intensity, grid.weights, grid.names)
     shapes = tuple(str(x) for x in shapes)

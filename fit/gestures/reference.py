@@ -5,7 +5,9 @@ to the synthesis rate and head-stabilized (:func:`mocap.clean.ingest.ingest`); t
 expression shapes are sampled at the bound markers (:func:`fit.solve.marker_basis.marker_basis`); the
 take is decomposed (:func:`analyze_gestures`); S(t) comes from a WAV file
 recorded with the take, from one of its analog channels, or, failing both,
-from a stand-in: the loudness of the lip opening.
+from a stand-in: the loudness of the lip opening. A WAV's S(t) is Praat's
+intensity when the ``speech`` extra is installed, its RMS level otherwise
+(:func:`fit.gestures.prosody.speech_prosody`).
 """
 
 from __future__ import annotations
@@ -17,12 +19,12 @@ from dataclasses import dataclass
 from basis.artist import ArtistBasis
 from fit.gestures.analysis import GestureAnalysis, analyze_gestures
 from fit.gestures.clip import GestureClip, clip_from_analysis
+from fit.gestures.prosody import speech_prosody
 from fit.gestures.speech import (
     DEFAULT_WINDOW_S,
     OPENING_WINDOW_S,
     analog_intensity,
     opening_intensity,
-    wav_intensity,
 )
 from fit.solve.marker_basis import marker_basis
 from mocap.bind import Binding
@@ -62,16 +64,17 @@ class CaptureClip:
         return self.clip.intensity_source
 
 
-def _intensity(markerset, cleaned: Take, stabilized: Take, wav, analog, opening, window):
+def _intensity(markerset, cleaned: Take, stabilized: Take, wav, analog, opening, window,
+               method):
     """S(t) at the frames of the take and the sentence that says what it is."""
     given = [x is not None for x in (wav, analog, opening)]
     if sum(given) > 1:
         raise InputError("give one source of speech intensity: a WAV file, an analog channel "
                          "or a lip-marker pair")
     if wav is not None:
-        return (wav_intensity(wav, frame_rate=cleaned.rate, n_frames=cleaned.n_frames,
-                              window=window or DEFAULT_WINDOW_S),
-                f"speech: RMS dB of {wav}")
+        prosody = speech_prosody(wav, frame_rate=cleaned.rate, n_frames=cleaned.n_frames,
+                                 method=method, window=window or DEFAULT_WINDOW_S)
+        return prosody.intensity, f"{prosody.source} of {wav}"
     if analog is not None:
         return (analog_intensity(cleaned, analog, window=window or DEFAULT_WINDOW_S),
                 f"speech: RMS dB of analog channel {analog!r}")
@@ -92,6 +95,7 @@ def _intensity(markerset, cleaned: Take, stabilized: Take, wav, analog, opening,
 def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis: ArtistBasis,
                       *, name: str, rate: float = 30.0, wav=None, analog: str | None = None,
                       opening=None, intensity_window: float | None = None,
+                      intensity: str = "auto",
                       options: IngestOptions | None = None, neutral_frame="auto",
                       epsilon: float = 0.1, window: int = 41, estimator: str = "exact",
                       seed=0) -> CaptureClip:
@@ -124,6 +128,9 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
         is given, with a warning.
     intensity_window : float, s, optional
         RMS window (default 0.05 s for speech, 0.25 s for the stand-in).
+    intensity : {"auto", "praat", "rms"}
+        How a WAV's loudness is measured
+        (:data:`fit.gestures.prosody.PROSODY_METHODS`).
     options : IngestOptions, optional
         Swap repair, removal of implausible samples, gap filling and low-pass;
         resampling to `rate` and stabilization are always on (default:
@@ -166,15 +173,15 @@ def clip_from_capture(take: Take, markerset: MarkerSet, binding: Binding, basis:
     labels = tuple(x for members in markerset.regions.values() for x in members)
     found = find_neutral(stab.take, neutral_frame, labels=labels)
     neutral, neutral_frame = found.pose, found.frame
-    intensity, source = _intensity(markerset, ingested.cleaned, stab.take, wav, analog,
-                                   opening, intensity_window)
+    level, source = _intensity(markerset, ingested.cleaned, stab.take, wav, analog,
+                               opening, intensity_window, intensity)
     if source.startswith("stand-in"):
         warnings.warn(f"S(t) is a {source}", stacklevel=2)
     shapes = marker_basis(binding, basis.displacements, labels, mesh=basis.neutral, units="mm")
     analysis = analyze_gestures(stab, neutral, shapes, markerset, labels=labels,
                                 names=basis.names, epsilon=epsilon, window=window,
                                 estimator=estimator, seed=seed)
-    clip = clip_from_analysis(analysis, intensity, name=name, intensity_source=source)
+    clip = clip_from_analysis(analysis, level, name=name, intensity_source=source)
     message = (f"clip {name!r}: {analysis.message}; neutral frame {neutral_frame}; "
                f"S(t) {source}")
     return CaptureClip(clip, analysis, neutral_frame, message)

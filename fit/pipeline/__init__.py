@@ -4,17 +4,21 @@
 - :mod:`.stages`: one function per stage, each returning a frozen result;
 - :mod:`.config`: ``run.toml`` read and validated;
 - :mod:`.reconstruction`: :class:`Reconstruction`, the scripting entry point;
+- :mod:`.gaps`: the face markers ingestion left with gaps, named before binding;
 - :mod:`.session`: every take of a session (:func:`run_takes`), with
-  :mod:`.manifest` recording what was done, :mod:`.completion` committing each
-  take as a unit with the record a later run verifies, :mod:`.outdir` keeping
-  the output directory safe (lock, names, stale files) and :mod:`.workers`
-  making pool workers die with the run.
+  :mod:`.manifest` recording what was done, :mod:`.session_basis` the PCA the
+  takes share (``[basis] scope = "session"``), :mod:`.take_warnings` what
+  each take warned about, :mod:`.completion` committing each take as a unit
+  with the record a later run verifies, :mod:`.outdir` keeping the output
+  directory safe (lock, names, stale files) and :mod:`.workers` making pool
+  workers die with the run.
 """
 
 from fit._moved import PIPELINE_NAMES
 from fit.pipeline.config import RunConfig, load_run_config
 from fit.pipeline.options import (
                                   BASES,
+                                  BASIS_SCOPES,
                                   CENTRE_MODELS,
                                   H_SOLVERS,
                                   SPACES,
@@ -38,8 +42,8 @@ from fit.pipeline.stages import (
 )
 from mocap.util.deprecation import moved_names
 
-__all__ = ["BASES", "SPACES", "H_SOLVERS", "CENTRE_MODELS", "BindOptions", "BasisOptions",
-           "FitOptions", "ReportOptions", "NamedBasis", "BasisResult", "FitResult",
+__all__ = ["BASES", "SPACES", "H_SOLVERS", "CENTRE_MODELS", "BASIS_SCOPES", "BindOptions",
+           "BasisOptions", "FitOptions", "ReportOptions", "NamedBasis", "BasisResult", "FitResult",
            "complete_span", "ingest_stage", "bind_stage", "retarget_stage", "basis_stage",
            "fit_stage", "RunConfig", "load_run_config", "Reconstruction", "ReconstructionResult",
            "RunOutcome", "process_take", "run_takes"]

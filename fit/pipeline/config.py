@@ -16,13 +16,16 @@ stage with the same name)::
     directory = "out"          # default: "out" beside the configuration
     workers = 2                # default: min(2, number of takes)
 
-    [ingest]    # mocap.clean.ingest.IngestOptions: fix_swaps, reject_implausible, fill, max_gap, ...
+    [ingest]    # mocap.clean.ingest.IngestOptions: fix_swaps, reject_implausible, fill,
+                #   max_gap (default 0.1 s), min_visible, extra_markers, lowpass_hz, ...
     [bind]      # fit.pipeline.stages.BindOptions: frame, icp, skin_offset, max_distance_warn
     [retarget]  # mocap.retarget.retargeting.RetargetOptions: kernel, epsilon, degree, smoothing, ...
-    [basis]     # fit.pipeline.stages.BasisOptions: pca_components, pca_coverage, qe_missing, ...
+    [basis]     # fit.pipeline.stages.BasisOptions: pca_components, pca_coverage, qe_missing,
+                #   missing_eps, scope ("session": one PCA/QE for all takes, or "take")
     [fit]       # fit.pipeline.stages.FitOptions: space, h_epsilon, smoothness, moving_average,
                 #   h_solver, n_samples, n_neighbors, marker_centres
-    [report]    # ReportOptions: video, video_step, n_worst, exaggerate
+    [report]    # ReportOptions: video, video_step, n_worst, exaggerate, held_out_folds,
+                #   held_out_guard_s, mesh_views
 
 Every error names the file and the key at fault (``run.toml: fit.space: ...``).
 """

@@ -9,9 +9,11 @@ Layout::
     {"format": "mocap2mesh-manifest-1", "created": ISO time, "config": path,
      "versions": {"python": ..., "numpy": ..., ...},
      "parameters": {stage: {option: value}},
-     "inputs": {role: {"path": ..., "sha256": ...}},
+     "inputs": {role: {"path": ..., "sha256": ...}},      # + "session": {"takes", "sha256"}
+     "session_basis": {"takes": {name: frames}, "n_components", "sha256", ...},  # if shared
      "takes": {name: {"capture": {"path", "sha256"}, "key", "status": "ok" | "failed",
                       "skipped": bool, "error": str | null, "seconds",
+                      "basis": {"scope", "pca_sha256"}, "warnings": [str],
                       "metrics": {basis: {...}}, "files": [relative paths], ...}}}
 """
 
@@ -116,19 +118,25 @@ def reusable_record(previous: dict | None, name: str, key: str, out_dir) -> dict
 
 
 def write_manifest(path, *, config, versions: dict, parameters: dict, inputs: dict,
-                   takes: dict) -> dict:
-    """Write the manifest atomically; returns the document written."""
+                   takes: dict, session_basis: dict | None = None) -> dict:
+    """Write the manifest atomically; returns the document written.
+
+    `session_basis` (:meth:`fit.pipeline.session_basis.SessionBasis.record`)
+    is recorded under ``"session_basis"`` when the takes share one.
+    """
     doc = {"format": FORMAT, "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
            "config": str(config),
            "versions": versions, "parameters": parameters, "inputs": inputs, "takes": takes}
+    if session_basis is not None:
+        doc["session_basis"] = session_basis
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(doc, indent=1, sort_keys=False, default=json_default) + "\n",
+        Path(tmp).write_text(json.dumps(doc, indent=1, default=json_default) + "\n",
                              encoding="utf-8")
     return doc
 
 
 def json_default(value):
-    """JSON fallback (``json.dumps(..., default=json_default)``): numpy scalars and arrays, paths."""
+    """JSON fallback (``json.dumps(..., default=json_default)``): numpy values, paths."""
     if hasattr(value, "tolist"):
         return value.tolist()
     return str(value)

@@ -19,8 +19,8 @@ from mocap.errors import InputError
 from mocap.neutral import PICKED_FRAMES
 from mocap.util.validation import as_choice, as_int, as_positive_float
 
-__all__ = ["BASES", "SPACES", "H_SOLVERS", "CENTRE_MODELS", "BindOptions", "BasisOptions",
-           "FitOptions", "ReportOptions"]
+__all__ = ["BASES", "SPACES", "H_SOLVERS", "CENTRE_MODELS", "BASIS_SCOPES", "BindOptions",
+           "BasisOptions", "FitOptions", "ReportOptions"]
 
 #: The bases every take is fitted with: hand-made (artist), quasi-eigen, PCA.
 BASES = ("H", "QE", "PCA")
@@ -31,6 +31,9 @@ H_SOLVERS = ("exact", "sampling")
 #: How the artist shapes move the marker centres in a marker-space fit
 #: (:attr:`FitOptions.marker_centres`).
 CENTRE_MODELS = ("exact", "linear")
+#: What the PCA and quasi-eigen bases of a take are made from (:attr:`BasisOptions.scope`):
+#: every take of the session pooled, or the take alone.
+BASIS_SCOPES = ("session", "take")
 
 
 @dataclass(frozen=True)
@@ -40,7 +43,7 @@ class BindOptions:
     Attributes
     ----------
     frame : int, "auto" or "hold"
-        Neutral frame index (0-based), ``"auto"`` (the frame nearest the median
+        Neutral frame, the capture's own frame number, ``"auto"`` (the frame nearest the median
         pose) or ``"hold"`` (the take starts with a neutral hold): see
         :func:`mocap.neutral.pick_neutral_frame`. With "hold" the rest pose is
         the mean of the hold's window around that frame.
@@ -57,7 +60,7 @@ class BindOptions:
     def __post_init__(self):
         if isinstance(self.frame, str):
             if self.frame not in PICKED_FRAMES:
-                raise InputError(f"frame must be a frame index, 'auto' or 'hold', "
+                raise InputError(f"frame must be a frame number, 'auto' or 'hold', "
                                  f"got {self.frame!r}")
         else:
             as_int(self.frame, "frame", minimum=0)
@@ -82,14 +85,22 @@ class BasisOptions:
         One of :data:`basis.quasi_eigen.MISSING_POLICIES`.
     missing_eps : float
         Threshold of a missing PCA axis (:func:`basis.quasi_eigen.quasi_eigen`).
+    scope : str
+        One of :data:`BASIS_SCOPES`. ``"session"`` (default): one PCA of the
+        mesh sequences of every take of the run pooled, and its quasi-eigen
+        faces, fit every take, so that their weights share one basis
+        (:mod:`fit.pipeline.session_basis`; a run of one take is its own
+        session). ``"take"``: each take's own PCA and quasi-eigen faces.
     """
 
     pca_components: int | None = None
     pca_coverage: float = 0.995
     qe_missing: str = "report"
     missing_eps: float = 0.05
+    scope: str = "session"
 
     def __post_init__(self):
+        as_choice(self.scope, "scope", BASIS_SCOPES)
         if self.pca_components is not None:
             as_int(self.pca_components, "pca_components", minimum=1)
         if not 0 < self.pca_coverage <= 1:
@@ -175,12 +186,23 @@ class ReportOptions:
         Worst frames shown and listed.
     exaggerate : float
         Error vectors drawn this many times longer.
+    held_out_folds : int
+        Time-blocked folds of the out-of-sample QE and PCA errors
+        (:func:`fit.pipeline.holdout.time_blocked_splits`); 0: none.
+    held_out_guard_s : float
+        Seconds on each side of a test block left out of its training frames.
+    mesh_views : bool
+        Shaded renders of every basis's mesh and of W·D at the worst frames
+        and the take's extremes.
     """
 
     video: bool = True
     video_step: int = 1
     n_worst: int = 5
     exaggerate: float = 1.0
+    held_out_folds: int = 5
+    held_out_guard_s: float = 0.5
+    mesh_views: bool = True
 
     def __post_init__(self):
         if not isinstance(self.video, bool):
@@ -188,3 +210,11 @@ class ReportOptions:
         as_int(self.video_step, "video_step", minimum=1)
         as_int(self.n_worst, "n_worst", minimum=1)
         as_positive_float(self.exaggerate, "exaggerate")
+        folds = as_int(self.held_out_folds, "held_out_folds", minimum=0)
+        if folds == 1:
+            raise InputError("held_out_folds must be 0 (none) or at least 2")
+        if not np.isfinite(self.held_out_guard_s) or self.held_out_guard_s < 0:
+            raise InputError(f"held_out_guard_s must be a finite number >= 0, got "
+                             f"{self.held_out_guard_s!r}")
+        if not isinstance(self.mesh_views, bool):
+            raise InputError(f"mesh_views must be true or false, got {self.mesh_views!r}")

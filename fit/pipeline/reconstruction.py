@@ -33,8 +33,11 @@ from basis.artist import ArtistBasis
 from basis.basis_io import load_any_basis, save_basis
 from basis.gltf import write_gltf
 from fit.exports import MeshSequence, weights_frame, write_mesh_sequence, write_weights_csv
+from fit.gestures.transfer import head_motion_on_mesh
 from fit.metrics import reconstruction_errors
 from fit.pipeline.config import STAGE_TABLES, RunConfig, load_run_config, stage_options
+from fit.pipeline.gaps import require_complete
+from fit.pipeline.take_warnings import warn_unconverged
 from fit.pipeline.options import BasisOptions, BindOptions, FitOptions, ReportOptions
 from fit.pipeline.stages import (
     BasisResult,
@@ -46,7 +49,11 @@ from fit.pipeline.stages import (
     ingest_stage,
     retarget_stage,
 )
+from fit.pipeline.holdout import HeldOut, held_out_fits, time_blocked_splits
+from fit.pipeline.provenance import stage_grades, take_provenance
 from fit.report import build_report
+from fit.report.html import Figure
+from fit.report.mesh_views import MeshSpace
 from fit.report.ingest_plots import plot_gaps, plot_head_residuals
 from mocap.bind import Binding, BoundTake
 from mocap.clean.ingest import IngestOptions, IngestResult, save_head_motion
@@ -56,8 +63,9 @@ from mocap.mesh import Mesh, load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
+from mocap.units import mm_per_unit
 
-__all__ = ["Reconstruction", "ReconstructionResult"]
+__all__ = ["Reconstruction", "PreparedTake", "ReconstructionResult"]
 
 
 def _options(name: str, value):
@@ -148,13 +156,54 @@ class Reconstruction:
                    bind=config.bind, retarget=config.retarget,
                    basis_options=config.basis_options, fit=config.fit, report=config.report)
 
-    def process(self, capture) -> "ReconstructionResult":
-        """Run one capture through the chain.
+    def prepare(self, capture) -> "PreparedTake":
+        """Run one capture through ingest, bind and retarget (the stages before the bases).
 
         Parameters
         ----------
         capture : path or Take
             A capture file (C3D, Vicon CSV, TRC, take ``.npz``) or a take read already.
+
+        Returns
+        -------
+        PreparedTake
+
+        Raises
+        ------
+        Mocap2MeshError
+            Any stage's error, naming the file, marker or frame at fault (a
+            face marker left with gaps by ingestion: :func:`fit.pipeline.gaps.require_complete`).
+        """
+        seconds = {}
+        tic = time.perf_counter()
+        raw = capture if isinstance(capture, Take) else mocap.read(capture)
+        ingested = ingest_stage(raw, self.markerset, self.ingest)
+        take = complete_span(ingested.take, self.markerset.face_markers)
+        require_complete(take, self.markerset.face_markers, ingested.fill)
+        seconds["ingest"] = time.perf_counter() - tic
+        tic = time.perf_counter()
+        bound = bind_stage(take, self.markerset, self.mesh, self.landmarks, options=self.bind)
+        seconds["bind"] = time.perf_counter() - tic
+        tic = time.perf_counter()
+        retargeted = retarget_stage(take, bound, self.mesh, self.markerset, self.retarget)
+        seconds["retarget"] = time.perf_counter() - tic
+        source = raw.source.path
+        return PreparedTake(name=Path(source).stem if source else "take", ingested=ingested,
+                            take=take, bound=bound, retargeted=retargeted,
+                            stage_seconds=seconds)
+
+    def process(self, capture, *, session_basis=None) -> "ReconstructionResult":
+        """Run one capture through the chain.
+
+        Parameters
+        ----------
+        capture : path, Take or PreparedTake
+            A capture file (C3D, Vicon CSV, TRC, take ``.npz``), a take read
+            already, or a take through :meth:`prepare`.
+        session_basis : fit.pipeline.session_basis.SessionBasis, optional
+            The PCA shared by the takes of a session (``[basis] scope =
+            "session"``); its PCA and quasi-eigen bases replace the take's own.
+            Default: the take's own PCA.
 
         Returns
         -------
@@ -164,30 +213,54 @@ class Reconstruction:
         ------
         Mocap2MeshError
             Any stage's error, naming the file, marker or frame at fault.
+
+        Warns
+        -----
+        UserWarning
+            The stages' own (gap filling, binding distances) and a basis whose
+            weights did not converge in every frame.
         """
-        seconds = {}
+        prepared = capture if isinstance(capture, PreparedTake) else self.prepare(capture)
+        seconds = dict(prepared.stage_seconds)
         tic = time.perf_counter()
-        raw = capture if isinstance(capture, Take) else mocap.read(capture)
-        ingested = ingest_stage(raw, self.markerset, self.ingest)
-        take = complete_span(ingested.take, self.markerset.face_markers)
-        seconds["ingest"] = time.perf_counter() - tic
-        tic = time.perf_counter()
-        bound = bind_stage(take, self.markerset, self.mesh, self.landmarks, options=self.bind)
-        seconds["bind"] = time.perf_counter() - tic
-        tic = time.perf_counter()
-        retargeted = retarget_stage(take, bound, self.mesh, self.markerset, self.retarget)
-        seconds["retarget"] = time.perf_counter() - tic
-        tic = time.perf_counter()
-        bases = basis_stage(retargeted, self.basis, options=self.basis_options)
+        bases = basis_stage(prepared.retargeted, self.basis, options=self.basis_options,
+                            pca=None if session_basis is None else session_basis.pca)
         seconds["basis"] = time.perf_counter() - tic
         tic = time.perf_counter()
-        fitted = fit_stage(take, bound, retargeted, bases, options=self.fit)
+        fitted = fit_stage(prepared.take, prepared.bound, prepared.retargeted, bases,
+                           options=self.fit)
+        warn_unconverged(fitted.solutions, first_frame=prepared.take.first_frame)
         seconds["fit"] = time.perf_counter() - tic
-        source = raw.source.path
-        name = Path(source).stem if source else "take"
-        return ReconstructionResult(reconstruction=self, name=name, ingested=ingested,
-                                    take=take, bound=bound, retargeted=retargeted,
-                                    bases=bases, fitted=fitted, stage_seconds=seconds)
+        return ReconstructionResult(reconstruction=self, name=prepared.name,
+                                    ingested=prepared.ingested, take=prepared.take,
+                                    bound=prepared.bound, retargeted=prepared.retargeted,
+                                    bases=bases, fitted=fitted, stage_seconds=seconds,
+                                    session_basis=session_basis)
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedTake:
+    """One capture through the stages before the bases (:meth:`Reconstruction.prepare`).
+
+    Attributes
+    ----------
+    name : str
+        The capture's file stem.
+    ingested : IngestResult
+    take : Take
+        Head-stabilized, cut to the frames where every face marker is present.
+    bound : BoundTake
+    retargeted : Retargeting
+        The take's operator W and marker displacements D (mesh units).
+    stage_seconds : dict of str to float
+    """
+
+    name: str
+    ingested: IngestResult
+    take: Take
+    bound: BoundTake
+    retargeted: Retargeting
+    stage_seconds: dict
 
 
 @dataclass(frozen=True, eq=False)
@@ -209,6 +282,8 @@ class ReconstructionResult:
     fitted : FitResult
     stage_seconds : dict of str to float
         Wall time of each stage.
+    session_basis : SessionBasis or None
+        The session's shared PCA the take was fitted in (None: its own).
     """
 
     reconstruction: Reconstruction
@@ -220,6 +295,7 @@ class ReconstructionResult:
     bases: BasisResult
     fitted: FitResult
     stage_seconds: dict
+    session_basis: object = None
 
     @property
     def binding(self) -> Binding:
@@ -251,6 +327,24 @@ class ReconstructionResult:
                                             name=name)
                 for name, rec in self.fitted.reconstructed.items()}
 
+    @cached_property
+    def head_motion(self) -> tuple:
+        """The head motion of the take as a rigid motion of the mesh, one per frame.
+
+        Returns
+        -------
+        rotation : ndarray of shape (T, 3, 3)
+        translation : ndarray of shape (T, 3), mesh units
+            Frame t of a mesh sequence is placed at ``rotation[t] @ v + translation[t]``
+            (:func:`fit.gestures.transfer.head_motion_on_mesh` of the stabilization's
+            R(t), t(t) over the take's frames).
+        """
+        stab = self.ingested.stabilization
+        start = self.take.first_frame - stab.take.first_frame
+        frames = slice(start, start + self.take.n_frames)
+        return head_motion_on_mesh(self.binding, stab.rotation[frames],
+                                   stab.translation[frames])
+
     def meshes(self, basis: str) -> MeshSequence:
         """The mesh sequence of one basis, evaluated frame by frame on demand.
 
@@ -265,16 +359,18 @@ class ReconstructionResult:
                             displacements=named.displacements,
                             weights=np.array(self.fitted.weights[basis]), materialized=None,
                             names=named.names, units=mesh.units, rate=self.take.rate,
-                            first_frame=self.take.first_frame)
+                            first_frame=self.take.first_frame, rotation=self.head_motion[0],
+                            translation=self.head_motion[1])
 
     def save(self, directory, *, inputs=()) -> list:
         """Write the take's exports into `directory` (created); returns the paths.
 
         ``take.c3d`` (cleaned, head-stabilized), ``head_motion.npz``,
         ``binding.json``, and per basis B: ``basis-B.npz``, ``weights-B.csv``,
-        ``mesh-B.npz`` (compact sequence), ``face-B.glb`` (morph targets, weight
-        animation at the take's rate). Every file atomically; none over one of
-        `inputs`.
+        ``mesh-B.npz`` (compact sequence with the head motion), ``face-B.glb``
+        (morph targets, weight animation at the take's rate keyed on the
+        capture's frame numbers, the head motion as the node's rotation and
+        translation). Every file atomically; none over one of `inputs`.
         """
         out = Path(directory)
         out.mkdir(parents=True, exist_ok=True)
@@ -284,6 +380,7 @@ class ReconstructionResult:
         save_head_motion(self.ingested.stabilization, files[1], inputs=inputs)
         self.binding.save(files[2])
         timing = dict(rate=take.rate, first_frame=take.first_frame)
+        rotation, translation = self.head_motion
         for name, basis in self.bases.bases.items():
             weights = self.fitted.weights[name]
             paths = [out / f"basis-{name}.npz", out / f"weights-{name}.csv",
@@ -292,14 +389,52 @@ class ReconstructionResult:
                        dtype="float32", inputs=inputs)
             write_weights_csv(paths[1], weights, basis.names, inputs=inputs, **timing)
             write_mesh_sequence(paths[2], mesh, basis.displacements, weights,
-                                names=basis.names, inputs=inputs, **timing)
+                                names=basis.names, rotation=rotation, translation=translation,
+                                inputs=inputs, **timing)
             write_gltf(paths[3], mesh, basis.displacements, basis.names, weights=weights,
-                       rate=take.rate, name=f"{self.name}-{name}", inputs=inputs)
+                       rotation=rotation, translation=translation,
+                       name=f"{self.name}-{name}", inputs=inputs, **timing)
             files += paths
         return files
 
-    def report(self, directory) -> list:
-        """Write the QA pictures, videos and ``<name>.html`` into `directory`; returns the paths."""
+    def held_out(self) -> HeldOut | None:
+        """Out-of-sample reconstructions of QE and PCA (time-blocked folds of the take), or
+        None when ``report.held_out_folds`` is 0 or the take is too short for them."""
+        options = self.reconstruction.report
+        folds, n_frames = options.held_out_folds, self.take.n_frames
+        if folds == 0 or n_frames < 2 * folds:
+            return None
+        # a short take gets a shorter guard, so that every fold keeps training frames
+        guard = min(int(round(options.held_out_guard_s * self.take.rate)),
+                    n_frames // folds // 2)
+        splits = time_blocked_splits(n_frames, folds, guard=guard)
+        label = (f"{folds} time-blocked folds, each block of ~{n_frames // folds} frames "
+                 f"reconstructed by QE and PCA built from the rest of the take less "
+                 f"{guard} frames ({guard / self.take.rate:.2g} s) on either side")
+        return held_out_fits(self.take, self.bound, self.retargeted, self.reconstruction.basis,
+                             splits=splits, label=label,
+                             basis_options=self.reconstruction.basis_options,
+                             fit_options=self.reconstruction.fit)
+
+    def mesh_space(self) -> MeshSpace:
+        """What the report's mesh renders need (the bases, their weights, W and D)."""
+        mesh = self.reconstruction.mesh
+        return MeshSpace(faces=mesh.faces, neutral=mesh.vertices,
+                         mm_per_unit=(mm_per_unit(mesh.units) if mesh.units
+                                      else 1.0 / self.binding.scale),
+                         bases={n: (b.displacements, self.fitted.weights[n])
+                                for n, b in self.bases.bases.items()},
+                         operator=np.asarray(self.retargeted.operator.matrix),
+                         displacements=self.retargeted.displacements,
+                         to_mesh=self.binding.to_mesh)
+
+    def report(self, directory, *, inputs=None, warnings=()) -> list:
+        """Write the QA pictures, videos and ``<name>.html`` into `directory`; returns the paths.
+
+        `inputs` (role to path) are hashed into the report's provenance (default
+        the capture, the mesh and the marker set); `warnings` (messages) are
+        listed in a section of the page of their own.
+        """
         qa = Path(directory)
         qa.mkdir(parents=True, exist_ok=True)
         options = self.reconstruction.report
@@ -307,13 +442,25 @@ class ReconstructionResult:
         plot_gaps(self.ingested.cleaned, qa / "gaps.png")
         plot_head_residuals(self.ingested.stabilization, qa / "head_residuals.png")
         files = [qa / "gaps.png", qa / "head_residuals.png"]
-        files += build_report(face, self.fitted.reconstructed, self.bound.neutral_pose(face.positions),
-                              qa, markerset=self.reconstruction.markerset, pca=self.bases.pca,
-                              ingest=self.ingested, video=options.video,
-                              pictures={"gaps: present, missing, filled by method": files[0],
-                                        "head-marker residuals": files[1]},
+        pictures = {
+            "gaps": Figure(files[0], "Gaps: present, missing, filled by method",
+                           "One row per marker over time: grey present, black still missing, "
+                           "coloured where a gap was filled (by the method in the legend)."),
+            "head": Figure(files[1], "Head-marker residuals",
+                           "Distance of each head marker from its place on the rigidly fitted "
+                           "head; shaded spans are slips, numbered as in the provenance's slip "
+                           "table. Residuals near the noise level mean a clean stabilization.")}
+        files += build_report(face, self.fitted.reconstructed,
+                              self.bound.neutral_pose(face.positions), qa,
+                              markerset=self.reconstruction.markerset, pca=self.bases.pca,
+                              ingest=self.ingested, video=options.video, pictures=pictures,
                               video_step=options.video_step, n_worst=options.n_worst,
-                              exaggerate=options.exaggerate, name=self.name).values()
+                              exaggerate=options.exaggerate, name=self.name,
+                              warnings=warnings,
+                              provenance=take_provenance(self, inputs=inputs),
+                              grades=stage_grades(self), held_out=self.held_out(),
+                              mesh_space=self.mesh_space() if options.mesh_views else None
+                              ).values()
         return files
 
     def summary(self) -> dict:
@@ -330,8 +477,12 @@ class ReconstructionResult:
                 "binding_rms_mm": self.binding.rms,
                 "pca_components": self.bases.n_components,
                 "qe_missing_axes": self.bases.qe.missing_axes.tolist(),
+                "basis": {"scope": self.bases.scope,
+                          "pca_sha256": self.bases.pca.truncate(self.bases.n_components).sha256()},
                 "fit": {name: {"status": s.status, "message": s.message}
                         for name, s in self.fitted.solutions.items()},
                 "metrics": {name: finite(errors.summary()
-                                         | {"smoothness": self.fitted.solutions[name].smoothness})
+                                         | {"worst_frame": take.first_frame
+                                            + errors.summary()["worst_frame"],
+                                            "smoothness": self.fitted.solutions[name].smoothness})
                             for name, errors in self.errors.items()}}

@@ -9,7 +9,10 @@ folder verifies against the current capture, inputs and parameters; a failing
 take is reported (stderr and manifest) and does not stop the others; a killed
 run resumes with every finished take skipped. The output directory is locked
 for the run, cleaned of what killed runs left, and the pool's workers die with
-the run (:mod:`fit.pipeline.outdir`, :mod:`fit.pipeline.workers`).
+the run (:mod:`fit.pipeline.outdir`, :mod:`fit.pipeline.workers`). With
+``[basis] scope = "session"`` the takes share one PCA/QE basis
+(:mod:`fit.pipeline.session_basis`), built first; each take's warnings are
+printed as it completes and recorded (:mod:`fit.pipeline.take_warnings`).
 """
 
 from __future__ import annotations
@@ -34,9 +37,17 @@ from fit.pipeline.completion import (
     plan_takes,
 )
 from fit.pipeline.config import RunConfig
-from fit.pipeline.manifest import MANIFEST_NAME, package_versions, write_manifest
+from fit.pipeline.manifest import (
+    MANIFEST_NAME,
+    load_manifest,
+    package_versions,
+    sha256_path,
+    write_manifest,
+)
 from fit.pipeline.outdir import clean_stale, output_lock, safe_stem, take_names
 from fit.pipeline.reconstruction import Reconstruction
+from fit.pipeline.session_basis import build_session_basis, session_input, uses_session_basis
+from fit.pipeline.take_warnings import capture_warnings, print_warnings
 from fit.pipeline.workers import local_pool, stop_pool
 from mocap.errors import InputError, Mocap2MeshError
 from mocap.util.atomic import refuse_overwrite
@@ -74,7 +85,7 @@ def _provenance(capture: Path, config: RunConfig, inputs: dict | None = None) ->
     return Provenance.of(capture, inputs, config.parameters())
 
 
-def process_take(capture, config: RunConfig, *, name: str | None = None,
+def process_take(capture, config: RunConfig, session_basis=None, *, name: str | None = None,
                  provenance: Provenance | None = None) -> dict:
     """Run one take through the chain and commit its folder; returns its manifest record.
 
@@ -82,12 +93,15 @@ def process_take(capture, config: RunConfig, *, name: str | None = None,
     :meth:`~fit.pipeline.reconstruction.ReconstructionResult.save`,
     ``<name>/report/`` with the QA pictures, videos and ``<name>.html``, and
     ``<name>/take-record.json`` (:func:`~fit.pipeline.completion.commit_take`).
-    Nothing of the take is in ``<name>/`` until all of it is.
+    Nothing of the take is in ``<name>/`` until all of it is. The warnings of
+    the chain are in the record (``"warnings"``) and the report.
 
     Parameters
     ----------
     capture : path
     config : RunConfig
+    session_basis : fit.pipeline.session_basis.SessionBasis, optional
+        The PCA shared by the session's takes (None: the take's own).
     name : str, optional
         The take's folder name (default: the capture's stem made safe,
         :func:`~fit.pipeline.outdir.safe_stem`).
@@ -100,21 +114,22 @@ def process_take(capture, config: RunConfig, *, name: str | None = None,
     start = time.perf_counter()
     stage = begin_take(config.output, name)
     try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            result = dataclasses.replace(Reconstruction.from_config(config).process(capture),
-                                         name=name)
+        with capture_warnings() as later:            # those of the exports and the report
+            with capture_warnings() as caught:
+                result = dataclasses.replace(Reconstruction.from_config(config).process(
+                    capture, session_basis=session_basis), name=name)
             stages = dict(result.stage_seconds)
             tic = time.perf_counter()
             result.save(stage, inputs=[capture])
             stages["exports"] = time.perf_counter() - tic
             tic = time.perf_counter()
-            result.report(stage / "report")
+            result.report(stage / "report", warnings=caught,
+                          inputs={"capture": capture, **config.shared_inputs})
             stages["report"] = time.perf_counter() - tic
         summary = {"status": "ok", "skipped": False, "error": None,
                    "seconds": round(time.perf_counter() - start, 3),
                    "stage_seconds": {k: round(v, 3) for k, v in stages.items()},
-                   **result.summary(), "warnings": sorted({str(w.message) for w in caught})}
+                   **result.summary(), "warnings": list(dict.fromkeys(caught + later))}
         record = commit_take(stage, config.output, name, provenance, summary=summary,
                              inputs=[capture, *config.shared_inputs.values()])
     except BaseException:
@@ -129,17 +144,20 @@ def _entry(summary: dict, record, provenance: Provenance) -> dict:
             "files": sorted(f"{record.name}/{rel}" for rel in record.files)}
 
 
-def _guarded(capture: Path, config: RunConfig, name: str, provenance: Provenance) -> dict:
+def _guarded(capture: Path, config: RunConfig, name: str, provenance: Provenance,
+             session_basis=None) -> dict:
     """:func:`process_take` that turns an exception into a failed record."""
     start = time.perf_counter()
     try:
-        return process_take(capture, config, name=name, provenance=provenance)
+        with capture_warnings(reemit=False) as caught:
+            return process_take(capture, config, session_basis, name=name,
+                                provenance=provenance)
     except Exception as exc:  # noqa: BLE001 - one take's failure must not stop the others
         expected = isinstance(exc, Mocap2MeshError)
         return {"status": "failed", "skipped": False,
                 "error": str(exc) if expected else f"{type(exc).__name__}: {exc}",
                 "traceback": None if expected else traceback.format_exc(),
-                "seconds": round(time.perf_counter() - start, 3)}
+                "seconds": round(time.perf_counter() - start, 3), "warnings": caught}
 
 
 def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = False,
@@ -173,8 +191,13 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
         raise InputError(f"workers must be at least 1, got {workers}")
     refuse_overwrite(config.output, [config.session, *config.shared_inputs.values()])
     names, renamed = take_names(config.captures)
+    digests = {capture: sha256_path(capture) for capture in config.captures}
     inputs = input_entries(config.shared_inputs)
-    provenances = {names[c]: _provenance(c, config, inputs) for c in config.captures}
+    if uses_session_basis(config):       # every take's basis depends on every capture
+        inputs["session"] = session_input(digests)
+    parameters = config.parameters()
+    provenances = {names[c]: Provenance({"path": str(c), "sha256": digests[c]}, inputs,
+                                        parameters) for c in config.captures}
     if check:
         verdicts = plan_takes(config.output, provenances, force=force)
         return RunOutcome(manifest=config.output / MANIFEST_NAME, n_failed=0,
@@ -198,6 +221,16 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
                                                "skipped": True}
             else:
                 todo.append(capture)
+        shared = None
+        if uses_session_basis(config):
+            manifest.session_basis = (load_manifest(manifest.path) or {}).get("session_basis")
+        if todo and uses_session_basis(config):
+            shared, unprepared = build_session_basis(config, workers=workers, progress=progress)
+            manifest.session_basis = None if shared is None else shared.record()
+            for capture in [c for c in todo if c.stem in unprepared]:
+                todo.remove(capture)
+                manifest.collect(names[capture], capture, {
+                    "status": "failed", "skipped": False, "error": unprepared[capture.stem]})
         manifest.write()
         with tqdm(total=len(config.captures), initial=len(config.captures) - len(todo),
                   desc="takes", unit="take", disable=None if progress is None else not progress,
@@ -209,9 +242,10 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
             if workers == 1 or len(todo) <= 1:
                 for capture in todo:
                     collect(capture, _guarded(capture, config, names[capture],
-                                              provenances[names[capture]]))
+                                              provenances[names[capture]], shared))
             else:
-                _in_pool(todo, config, names, provenances, min(workers, len(todo)), collect)
+                _in_pool(todo, config, names, provenances, shared, min(workers, len(todo)),
+                         collect)
         clean_stale(config.output)      # the staging folder, empty once every take is done
     takes = manifest.takes
     return RunOutcome(manifest=manifest.path, takes=takes,
@@ -220,11 +254,11 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
                       reasons={n: v.reason for n, v in verdicts.items()})
 
 
-def _in_pool(todo, config, names, provenances, workers: int, collect) -> None:
+def _in_pool(todo, config, names, provenances, shared, workers: int, collect) -> None:
     """Run `todo` in a pool whose workers die with this process (and on any error here)."""
     pool = local_pool(workers)
     try:
-        futures = {pool.submit(_guarded, c, config, names[c], provenances[names[c]]): c
+        futures = {pool.submit(_guarded, c, config, names[c], provenances[names[c]], shared): c
                    for c in todo}
         for future in as_completed(futures):
             try:
@@ -247,6 +281,7 @@ class _Manifest:
         self.path = config.output / MANIFEST_NAME
         self.versions = package_versions()
         self.inputs = next(iter(provenances.values())).inputs
+        self.session_basis = None
         self.takes = {names[c]: {"status": "pending", "skipped": False, "error": None,
                                  "capture": provenances[names[c]].capture,
                                  "key": provenances[names[c]].key}
@@ -254,6 +289,7 @@ class _Manifest:
 
     def collect(self, name: str, capture: Path, record: dict) -> None:
         self.takes[name] = {**self.takes[name], **record}
+        print_warnings(name, record.get("warnings", ()))
         if record["status"] == "failed":
             tqdm.write(f"mocap2mesh run: take {name} ({capture}) failed: {record['error']}",
                        file=sys.stderr)
@@ -262,4 +298,4 @@ class _Manifest:
     def write(self) -> None:
         write_manifest(self.path, config=self.config.path, versions=self.versions,
                        parameters=self.config.parameters(), inputs=self.inputs,
-                       takes=self.takes)
+                       takes=self.takes, session_basis=self.session_basis)

@@ -84,16 +84,20 @@ class BasisResult:
     bases : dict of str to NamedBasis
         Keyed by :data:`BASES`.
     pca : PCAModel
-        The full PCA of the take's mesh sequence (before truncation).
+        The full PCA of the take's mesh sequence (before truncation), or the
+        session's PCA (``scope == "session"``: as many components as it kept).
     n_components : int
         m, the PCA size used for PCA and QE.
     qe : QuasiEigenBasis
+    scope : str
+        ``"take"`` (the take's own PCA) or ``"session"`` (one shared by the takes).
     """
 
     bases: dict
     pca: PCAModel
     n_components: int
     qe: QuasiEigenBasis
+    scope: str = "take"
 
 
 @dataclass(frozen=True, eq=False)
@@ -186,7 +190,8 @@ def bind_stage(take: Take, markerset: MarkerSet, mesh: Mesh, mesh_landmarks, *,
     MarkerError
         A marker missing in the neutral frame (or its hold window).
     """
-    return bind_take(take, markerset, mesh, mesh_landmarks, frame=options.frame,
+    return bind_take(take, markerset, mesh, mesh_landmarks,
+                     frame=take.frame_index(options.frame, "bind.frame"),
                      stabilize="none", icp=options.icp, skin_offset=options.skin_offset,
                      max_distance_warn=options.max_distance_warn)
 
@@ -214,7 +219,7 @@ def retarget_stage(take: Take, bound: BoundTake, mesh: Mesh, markerset: MarkerSe
 
 
 def basis_stage(retargeted: Retargeting, artist: ArtistBasis, *,
-                options: BasisOptions = BasisOptions()) -> BasisResult:
+                options: BasisOptions = BasisOptions(), pca: PCAModel | None = None) -> BasisResult:
     """PCA of the take's mesh sequence W·D(t), quasi-eigen faces, and the artist basis.
 
     Parameters
@@ -223,6 +228,10 @@ def basis_stage(retargeted: Retargeting, artist: ArtistBasis, *,
     artist : ArtistBasis
         E^H on the mesh's topology, mesh units.
     options : BasisOptions
+    pca : PCAModel, optional
+        A PCA made elsewhere to use instead of the take's own: the session's
+        (:class:`fit.pipeline.session_basis.SessionBasis`), so that every take
+        of a session is fitted in one PCA and one quasi-eigen basis.
 
     Returns
     -------
@@ -230,18 +239,23 @@ def basis_stage(retargeted: Retargeting, artist: ArtistBasis, *,
         Bases ``H`` (artist, [0, 1] by default), ``QE`` (unbounded) and
         ``PCA`` (the mean, weight fixed at 1, then m unbounded eigenfaces).
     """
-    pca = pca_from_operator(retargeted.operator.matrix, retargeted.displacements)
+    scope = "take" if pca is None else "session"
+    if pca is None:
+        pca = pca_from_operator(retargeted.operator.matrix, retargeted.displacements)
+    elif pca.mean.shape != (retargeted.mesh.n_vertices, 3):
+        raise InputError(f"the session PCA has {len(pca.mean)} vertices, the take's mesh "
+                         f"{retargeted.mesh.n_vertices}")
     m = options.pca_components or pca.n_for_coverage(options.pca_coverage)
     if m > pca.n_components:
         raise InputError(f"basis.pca_components = {m} is more than the {pca.n_components} "
-                         "components of the take's mesh sequence")
+                         f"components of the {scope}'s mesh sequence")
     model = pca.truncate(m)
     qe = quasi_eigen(model, artist.displacements, names=artist.names,
                      missing=options.qe_missing, missing_eps=options.missing_eps)
     bases = {"H": NamedBasis(artist.names, artist.displacements, 0.0, 1.0, on_skin=True),
              "QE": NamedBasis(qe.names, qe.displacements, rank_deficient=True),
              "PCA": NamedBasis(*model.shapes(), n_fixed=1)}
-    return BasisResult(bases=bases, pca=pca, n_components=m, qe=qe)
+    return BasisResult(bases=bases, pca=pca, n_components=m, qe=qe, scope=scope)
 
 
 def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: BasisResult, *,

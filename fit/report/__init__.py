@@ -1,30 +1,53 @@
-"""Marker-space QA of reconstructions: charts, marker views, overlay video and a
+"""QA of reconstructions: charts, marker views, mesh renders, overlay video and a
 self-contained HTML report per take.
 
 :func:`build_report` runs it all for one take and several bases; the modules
-beside it draw each piece on its own.
+beside it draw each piece on its own. The page is a list of sections
+(:class:`fit.report.html.Section`); callers add their own with ``sections=``.
 """
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Mapping
 
+import numpy as np
+
 from basis.coverage import plot_coverage
 from fit.metrics import reconstruction_errors
-from fit.report.html import ingest_stats, write_report
-from fit.report.plots import plot_alpha, plot_error_heatmap, plot_marker_errors
-from fit.report.video import write_overlay_video
+from fit.report.extremes import take_extremes
+from fit.report.html import Figure, Section, Video, ingest_stats, write_report
+from fit.report.mesh_views import mesh_cameras, plot_mesh_frames
+from fit.report.plots import plot_alpha, plot_error_heatmap, plot_held_out, plot_marker_errors
+from fit.report.video import VIDEO_SUFFIX, write_overlay_video
 from fit.report.views import plot_frame_views
 from mocap.errors import InputError
 
 __all__ = ["build_report"]
 
+#: Worst frames of each basis rendered on the mesh.
+_MESH_WORST = 3
+#: At most this many frames in the W·D renders.
+_MESH_RETARGETED = 6
+
+
+def _shared_scales(results) -> tuple[float, float]:
+    """One colour scale (heatmaps) and one error axis (per-marker bars) for every basis, mm."""
+    tops, bars = [], []
+    for r in results.values():
+        finite = r.errors[np.isfinite(r.errors)]
+        if finite.size:
+            tops.append(np.percentile(finite, 99.5))
+        bars.append(np.nanmax(r.marker_p95) if np.isfinite(r.marker_p95).any() else 0.0)
+    return (max(tops) if tops else 1.0), 1.08 * max(max(bars), 1e-6)
+
 
 def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=None,
                  origin=None, pca=None, ingest=None, pictures=None, video: bool = False,
                  video_step: int = 1, n_worst: int = 5, exaggerate: float = 1.0,
-                 name: str | None = None) -> dict:
+                 name: str | None = None, warnings=(), provenance: Mapping | None = None,
+                 grades=(), held_out=None, mesh_space=None, sections=()) -> dict:
     """Metrics, figures, (video) and the HTML report of one take.
 
     Parameters
@@ -39,9 +62,9 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         Rest positions (no NaN).
     out_dir : str or os.PathLike
         Existing directory; receives ``<name>-*.png``, ``<name>.html`` (and
-        ``<name>-<basis>.mp4``).
+        ``<name>-video.webm``).
     markerset : mocap.markerset.MarkerSet, optional
-        Regions (grouping) and landmarks (view orientation).
+        Regions (grouping), landmarks (view orientation, the take's extremes).
     origin : array_like (3,), mm, optional
         Origin of α (default: centroid of `neutral`).
     pca : basis.pca.PCAModel, optional
@@ -50,24 +73,39 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         Adds the ingestion table.
     pictures : mapping of str to path, optional
         PNGs made elsewhere (the gap chart, the head residuals), embedded first
-        under their captions.
+        under their captions (a caption may be a Figure with how to read it).
     video : bool
-        Also write an overlay video per basis.
+        Also write the overlay video, a panel per basis (VP9 WebM, embedded).
     video_step : int
         Draw every n-th frame in the video.
     n_worst : int
-        Worst frames shown and listed (of the first basis, by RMS).
+        Worst frames shown and listed (of each basis, by RMS).
     exaggerate : float
         Error vectors drawn this many times longer in views and video.
     name : str, optional
         File stem and title; default the take's file stem or ``"take"``.
+    warnings : sequence of str
+        Warnings of the run of the take, listed in a section of their own.
+    provenance : mapping, optional
+        What made the results (:func:`fit.report.html.render_report`).
+    grades : sequence of (what, grade key, value)
+        Graded figures of the stages before (binding, head fit); the bases'
+        own are added here.
+    held_out : fit.pipeline.holdout.HeldOut, optional
+        Reconstructions by bases not built from the frames they reconstruct:
+        out-of-sample errors beside the in-sample ones.
+    mesh_space : fit.report.mesh_views.MeshSpace, optional
+        Adds shaded renders of each basis's mesh and of W·D at the worst frames
+        and at the take's extremes (needs `markerset` for the extremes).
+    sections : sequence of fit.report.html.Section
+        Further sections, appended in order.
 
     Returns
     -------
     dict of str to pathlib.Path
         Every file written, keyed ``"html"``, ``"alpha"``, ``"coverage"``,
-        ``"heatmap-<basis>"``, ``"markers-<basis>"``, ``"views-<basis>"``,
-        ``"video-<basis>"``.
+        ``"held-out"``, ``"heatmap-<basis>"``, ``"markers-<basis>"``,
+        ``"views-<basis>"``, ``"video"`` (every basis), ``"mesh-<basis>"``, ``"mesh-WD"``.
     """
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
@@ -81,42 +119,172 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
     first = next(iter(results.values()))
     separation = max(1, take.n_frames // 50)
     worst = {b: r.worst_frames(n_worst, separation=separation) for b, r in results.items()}
-    files, images = {}, dict(pictures or {})
+    files = {}
+    number = take.first_frame
 
     def out(key: str, suffix: str = ".png") -> Path:
         files[key] = out_dir / f"{name}-{key}{suffix}"
         return files[key]
 
-    plot_alpha(results, out("alpha"), rate=take.rate, worst=worst,
-               first_frame=take.first_frame)
-    images["α(t) per basis"] = files["alpha"]
+    # The video's VP9 encoding is the report's longest part and runs in OpenCV without the
+    # GIL: it goes on beside the figures.
+    encoder = ThreadPoolExecutor(max_workers=1)
+    encoding = None if not video else encoder.submit(
+        write_overlay_video, take.positions, reconstructions, out("video", VIDEO_SUFFIX),
+        neutral=neutral, rate=take.rate, labels=take.labels, markerset=markerset,
+        step=video_step, exaggerate=exaggerate, first_frame=number)
+    try:
+        page = _figures(take, neutral, results, worst, reconstructions, out, files, number,
+                        markerset=markerset, pca=pca, pictures=pictures, video=video,
+                        exaggerate=exaggerate, held_out=held_out, mesh_space=mesh_space,
+                        origin=origin)
+    finally:
+        if encoding is not None:
+            encoding.result()               # its error, if any, is the report's
+        encoder.shutdown()
+    held, page = page
+    page += list(sections)
+    graded = []
     for basis, res in results.items():
-        plot_error_heatmap(res, out(f"heatmap-{basis}"), markerset=markerset, rate=take.rate)
-        plot_marker_errors(res, out(f"markers-{basis}"), markerset=markerset)
+        graded += [(f"{basis}: marker RMS (mm)", "rms_mm", res.totals["rms_mm"]),
+                   (f"{basis}: 95th-percentile error (mm)", "p95_mm", res.totals["p95_mm"])]
+        if basis in held:
+            in_rms = res.totals["rms_mm"]
+            graded.append((f"{basis}: out-of-sample / in-sample RMS", "out_of_sample_ratio",
+                           held[basis].totals["rms_mm"] / in_rms if in_rms > 0 else np.nan))
+    files["html"] = out_dir / f"{name}.html"
+    write_report(files["html"], results, {}, title=f"Reconstruction QA: {name}",
+                 first_frame=number, worst=worst, markerset=markerset,
+                 ingest=ingest_stats(ingest) if ingest is not None else None,
+                 notes=f"{take.n_frames} frames at {take.rate:g} Hz (frames {number}–"
+                       f"{number + take.n_frames - 1}), {len(first.labels)} markers, bases: "
+                       f"{', '.join(results)}.",
+                 provenance=provenance, grades=[*grades, *graded], sections=page,
+                 held_out=held, held_out_label=held_out.label if held_out is not None else "",
+                 warnings=warnings)
+    return files
+
+
+def _figures(take, neutral, results, worst, reconstructions, out, files, number, *, markerset,
+             pca, pictures, video, exaggerate, held_out, mesh_space, origin):
+    """Every figure of the report, drawn once; returns (held-out errors, sections)."""
+    page = []
+    if pictures:
+        page.append(Section("Ingestion and head stabilization", items=tuple(
+            v if isinstance(v, Figure) else Figure(v, k) for k, v in pictures.items())))
+    plot_alpha(results, out("alpha"), rate=take.rate, worst=worst, first_frame=number)
+    page.append(Section("Error over time", items=(Figure(
+        files["alpha"], "α(t) per basis",
+        "One curve per basis on one axis; circles mark each basis's worst frames (by RMS), "
+        "tagged with their frame numbers; a log axis is used when the bases differ by more "
+        "than 10×."),)))
+    vmax, ymax = _shared_scales(results)
+    for basis, res in results.items():
+        plot_error_heatmap(res, out(f"heatmap-{basis}"), markerset=markerset, rate=take.rate,
+                           vmax=vmax)
+        plot_marker_errors(res, out(f"markers-{basis}"), markerset=markerset, ymax=ymax)
         plot_frame_views(take.positions, reconstructions[basis], worst[basis][:3],
                          out(f"views-{basis}"), neutral=neutral, labels=take.labels,
-                         markerset=markerset, exaggerate=exaggerate,
-                         first_frame=take.first_frame,
+                         markerset=markerset, exaggerate=exaggerate, first_frame=number,
                          title=f"{basis}: captured (red) vs reconstructed (blue) at the "
                                "worst frames" + (f", errors ×{exaggerate:g}"
                                                  if exaggerate != 1 else "")
                                + "; front: subject's left on the right")
-        images[f"{basis}: error per marker and frame"] = files[f"heatmap-{basis}"]
-        images[f"{basis}: mean and 95th percentile per marker"] = files[f"markers-{basis}"]
-        images[f"{basis}: worst frames, front and side"] = files[f"views-{basis}"]
-        if video:
-            write_overlay_video(take.positions, reconstructions[basis],
-                                out(f"video-{basis}", ".mp4"), neutral=neutral,
-                                rate=take.rate, labels=take.labels, markerset=markerset,
-                                step=video_step, exaggerate=exaggerate,
-                                first_frame=take.first_frame)
+        items = [
+            Figure(files[f"heatmap-{basis}"], f"{basis}: error per marker and frame",
+                   f"Rows are markers grouped by region, columns time; colour is the error "
+                   f"in mm on one scale for every basis (0–{vmax:.2g} mm, the 99.5th "
+                   "percentile of all bases; brighter is worse, grey is missing)."),
+            Figure(files[f"markers-{basis}"], f"{basis}: mean and 95th percentile per marker",
+                   "Narrow bars: mean error of each marker over the take; wide pale bars: "
+                   "its 95th percentile; the same axis for every basis."),
+            Figure(files[f"views-{basis}"], f"{basis}: worst frames, front and side",
+                   "Red: captured markers; blue: reconstructed; black lines join them "
+                   "(the error vectors); grey: the rest pose.")]
+        page.append(Section(f"{basis}: marker-space errors", items=tuple(items)))
+    if video:
+        page.insert(2 if pictures else 1, Section("Overlay video", items=(Video(
+            files["video"], "Captured vs reconstructed markers over the take",
+            "One panel per basis, all on one scale, front view: captured (red) and "
+            "reconstructed (blue) markers joined by their error vectors, the capture's frame "
+            "number and each basis's RMS of that frame. Plays in the page (VP9 WebM)."),)))
+    held = {}
+    if held_out is not None:
+        held = {b: reconstruction_errors(take.positions, rec, neutral, origin=origin,
+                                         labels=take.labels, name=b)
+                for b, rec in held_out.reconstructed.items() if b in results}
+        plot_held_out(results, held, out("held-out"), label=held_out.label)
+        page.append(Section(
+            "Out-of-sample basis errors",
+            text=f"QE and PCA are built from this take; in-sample they are scored on the very "
+                 f"frames they were built from, which flatters them. Out-of-sample: "
+                 f"{held_out.label}. H does not come from the take: its figures are the same.",
+            items=(Figure(files["held-out"], "In-sample vs out-of-sample marker errors",
+                          "Blue: scored on the frames the basis was built from; orange: on "
+                          "frames it was not built from. A large gap means the basis learnt "
+                          "the take rather than the face."),)))
+    if mesh_space is not None:
+        page.append(_mesh_section(take, np.asarray(neutral, float), results, worst, mesh_space,
+                                  markerset, out, files, number))
     if pca is not None:
         plot_coverage(pca, out("coverage"))
-        images["PCA coverage"] = files["coverage"]
-    files["html"] = out_dir / f"{name}.html"
-    write_report(files["html"], results, images, title=f"Reconstruction QA: {name}",
-                 first_frame=take.first_frame, worst=worst, markerset=markerset,
-                 ingest=ingest_stats(ingest) if ingest is not None else None,
-                 notes=f"{take.n_frames} frames at {take.rate:g} Hz, "
-                       f"{len(first.labels)} markers, bases: {', '.join(results)}.")
-    return files
+        page.append(Section("PCA coverage", items=(Figure(
+            files["coverage"], "PCA coverage",
+            "The share of the take's mesh motion (variance of W·D) the first k components "
+            "explain; the PCA and QE bases keep the k marked."),)))
+    return held, page
+
+
+def _mesh_section(take, neutral, results, worst, space, markerset, out, files,
+                  number) -> Section:
+    """Renders of each basis's mesh and of W·D at the worst frames and the take's extremes."""
+    extremes = [] if markerset is None else take_extremes(take.positions, neutral, take.labels,
+                                                          markerset)
+    cameras = mesh_cameras(space.neutral)
+    markers = space.to_mesh(take.positions.reshape(-1, 3)).reshape(take.positions.shape)
+    chosen = {}
+    for basis in results:
+        frames = [(int(t), f"frame {number + int(t)}: {basis} worst #{k}")
+                  for k, t in enumerate(worst[basis][:_MESH_WORST], start=1)]
+        frames += [(e.frame, f"frame {number + e.frame}: {e.name} ({e.measure} "
+                             f"{e.value:.1f} mm)") for e in extremes]
+        chosen[basis] = frames
+    distances = {}
+    for basis, frames in chosen.items():
+        index = [t for t, _ in frames]
+        gap = space.basis_mesh(basis, index) - space.retargeted_mesh(index)
+        distances[basis] = np.linalg.norm(gap, axis=2) * space.mm_per_unit
+    every = np.concatenate([d.ravel() for d in distances.values()])
+    vmax = max(float(np.percentile(every, 99.0)), 0.5)
+    items = []
+    for basis, frames in chosen.items():
+        index = [t for t, _ in frames]
+        plot_mesh_frames(space.basis_mesh(basis, index), space.faces, out(f"mesh-{basis}"),
+                         captions=[c for _, c in frames], cameras=cameras,
+                         markers=markers[index], colors=distances[basis], vmax=vmax,
+                         color_label="mm to W.D",
+                         title=f"{basis} mesh at its worst frames and the take's extremes")
+        items.append(Figure(files[f"mesh-{basis}"], f"{basis}: the reconstructed mesh",
+                            "Front and side of the mesh this basis gives (what the exports "
+                            "play), coloured by each vertex's distance to the retargeted mesh "
+                            f"W·D on one scale for every basis (0–{vmax:.2g} mm); red dots: "
+                            "the captured markers."))
+    wd = list(dict.fromkeys([(e.frame, f"frame {number + e.frame}: {e.name}")
+                             for e in extremes]
+                            + [(int(worst[b][0]), f"frame {number + int(worst[b][0])}: "
+                                                  f"{b} worst") for b in results]))
+    seen, frames = set(), []
+    for t, caption in wd:
+        if t not in seen and len(frames) < _MESH_RETARGETED:
+            seen.add(t)
+            frames.append((t, caption))
+    index = [t for t, _ in frames]
+    plot_mesh_frames(space.retargeted_mesh(index), space.faces, out("mesh-WD"),
+                     captions=[c for _, c in frames], cameras=cameras, markers=markers[index],
+                     title="The retargeted mesh W.D at the same frames")
+    items.append(Figure(files["mesh-WD"], "W·D: the retargeted mesh",
+                        "The mesh motion every basis is fitted to: if the mouth stays shut "
+                        "here while the red markers open it, no basis can open it."))
+    return Section("Mesh-space QA", text="The meshes themselves, where a marker-space figure "
+                   "cannot see: a basis can match every marker and still deform the face "
+                   "wrongly between them.", items=tuple(items))

@@ -7,7 +7,7 @@ from matplotlib.colors import ListedColormap
 from matplotlib.patches import Patch
 
 from mocap.take import FILL_METHODS, Take
-from mocap.viz.figures import new_figure, save_figure
+from mocap.viz.figures import distinct_colours, new_figure, save_figure
 
 __all__ = ["plot_gaps", "plot_head_residuals"]
 
@@ -71,15 +71,31 @@ def plot_head_residuals(stabilization, path) -> None:
     res = np.asarray(stabilization.head_residuals)
     take = stabilization.take
     t = take.times
-    fig = new_figure(11, 4.2)
-    ax = fig.add_subplot()
-    for j, label in enumerate(stabilization.head_markers):
-        ax.plot(t, res[:, j], lw=0.8, label=label)
+    markers = stabilization.head_markers
+    colours = dict(zip(markers, distinct_colours(len(markers))))
+    slipping = list(dict.fromkeys(s.marker for s in stabilization.slips))
+    # Slips on a track of their own above the curves, one lane per slipping marker
+    # (labels beside each slip overlap as soon as slips are close together).
+    fig = new_figure(11, 4.4 + 0.22 * len(slipping))
+    if slipping:
+        track, ax = fig.subplots(2, 1, sharex=True, height_ratios=[0.6 + 0.3 * len(slipping), 4])
+        for lane, marker in enumerate(slipping):
+            spans = [(t[s.start], t[min(s.stop, len(t)) - 1] - t[s.start] + 1 / take.rate)
+                     for s in stabilization.slips if s.marker == marker]
+            track.broken_barh(spans, (lane - 0.35, 0.7), color=colours.get(marker, "red"))
+        track.set_yticks(range(len(slipping)), slipping, fontsize=8)
+        track.set_ylim(len(slipping) - 0.5, -0.5)
+        track.tick_params(axis="x", labelbottom=False)
+        track.set_title(f"{len(stabilization.slips)} slip(s): runs where a head marker leaves "
+                        "its place on the head (listed in the slip table)", fontsize=9)
+        track.grid(axis="x", alpha=0.3)
+    else:
+        ax = fig.add_subplot()
+    for j, label in enumerate(markers):
+        ax.plot(t, res[:, j], lw=0.8, label=label, color=colours[label])
     for slip in stabilization.slips:
-        ax.axvspan(t[slip.start], t[min(slip.stop, len(t)) - 1], color="red", alpha=0.15)
-        ax.annotate(f"{slip.marker} slips ({slip.max_residual:.1f} mm)",
-                    (t[slip.start], slip.max_residual), fontsize=8, color="darkred",
-                    xytext=(-4, 0), textcoords="offset points", ha="right", va="top")
+        ax.axvspan(t[slip.start], t[min(slip.stop, len(t)) - 1],
+                   color=colours.get(slip.marker, "red"), alpha=0.12, lw=0)
     invalid = ~np.asarray(stabilization.valid)
     if invalid.any():
         ax.fill_between(t, 0, 1, where=invalid, transform=ax.get_xaxis_transform(),
@@ -88,7 +104,9 @@ def plot_head_residuals(stabilization, path) -> None:
     ax.set_ylabel("residual (mm)")
     med = np.nanmedian(res)
     ax.set_title(f"Head-marker residuals after the rigid fit (median {med:.2f} mm, "
-                 f"{len(stabilization.slips)} slip(s), {int(invalid.sum())} frames without a fit)")
-    ax.legend(loc="upper right", fontsize=8, ncol=min(len(stabilization.head_markers), 6))
+                 f"{len(stabilization.slips)} slip(s) shaded, {int(invalid.sum())} frames "
+                 "without a fit)", fontsize=9)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", fontsize=8,
+               ncol=min(len(markers) + int(invalid.any()), 8), frameon=False)
     ax.set_ylim(bottom=0)
     save_figure(fig, path)

@@ -3,6 +3,7 @@ per-marker errors by region."""
 
 from __future__ import annotations
 
+import textwrap
 from typing import Mapping
 
 import numpy as np
@@ -15,7 +16,8 @@ from mocap.errors import InputError
 from mocap.util.deprecation import moved_names
 from mocap.viz.figures import distinct_colours, new_figure, save_figure
 
-__all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "region_groups"]
+__all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "plot_held_out",
+           "region_groups"]
 
 
 def region_groups(labels, markerset=None) -> tuple[np.ndarray, list]:
@@ -190,7 +192,7 @@ def plot_error_heatmap(errors: ReconstructionErrors, path, *, markerset=None,
 
 
 def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
-                       title: str | None = None) -> None:
+                       ymax: float | None = None, title: str | None = None) -> None:
     """Mean and 95th-percentile error of each marker, grouped and coloured by region (PNG).
 
     Parameters
@@ -199,6 +201,8 @@ def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
     path : str or os.PathLike
     markerset : mocap.markerset.MarkerSet, optional
         Regions; without it all markers share one colour.
+    ymax : float, optional
+        Top of the error axis, mm (one scale for every basis of a report).
     """
     order, groups = region_groups(errors.labels, markerset)
     gap = 0.8
@@ -224,6 +228,8 @@ def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
         ax.axvline(pos[start] - 0.5 - gap / 2, color="grey", lw=0.6, ls=":")
     ax.set_xlim(pos[0] - 0.8, pos[-1] + 0.8)
     ax.set_ylabel("error (mm)")
+    if ymax is not None:
+        ax.set_ylim(0, ymax)
     fig.legend(handles=[Patch(color="grey", alpha=0.35, label="95th percentile (wide, pale)"),
                         Patch(color="grey", label="mean (narrow)")],
                loc="outside lower center", ncol=2, fontsize=8, frameon=False)
@@ -231,6 +237,41 @@ def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
     ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker "
                           f"(mean {errors.totals['mean_mm']:.2f} mm, "
                           f"95th percentile {errors.totals['p95_mm']:.2f} mm)")
+    save_figure(fig, path)
+
+
+def plot_held_out(in_sample: dict, held_out: dict, path, *, label: str) -> None:
+    """RMS and 95th-percentile marker error of each basis, in-sample beside out-of-sample (PNG).
+
+    Parameters
+    ----------
+    in_sample : mapping of basis name to ReconstructionErrors
+        Scored on the frames the basis was built from (every basis).
+    held_out : mapping of basis name to ReconstructionErrors
+        The same bases scored on frames they were not built from (a subset).
+    path : str or os.PathLike
+    label : str
+        How the frames were held out (the subtitle).
+    """
+    names = list(in_sample)
+    fig = new_figure(7.5, 3.4)
+    axes = fig.subplots(1, 2)
+    colours = {"in-sample": "#7f9fbf", "out-of-sample": "#d9822b"}
+    for ax, key, what in zip(axes, ("rms_mm", "p95_mm"), ("RMS", "95th percentile")):
+        for k, (kind, source) in enumerate((("in-sample", in_sample),
+                                           ("out-of-sample", held_out))):
+            x = [i + (k - 0.5) * 0.38 for i, n in enumerate(names) if n in source]
+            v = [source[n].totals[key] for n in names if n in source]
+            bars = ax.bar(x, v, width=0.36, color=colours[kind], label=kind)
+            ax.bar_label(bars, fmt="%.2f", fontsize=7, padding=1)
+        ax.set_xticks(range(len(names)), names)
+        ax.set_ylabel(f"marker error, {what} (mm)")
+        ax.set_ylim(0, ax.get_ylim()[1] * 1.15)
+        ax.grid(axis="y", alpha=0.3)
+    handles, texts = axes[0].get_legend_handles_labels()
+    fig.legend(handles, texts, loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+    fig.suptitle("\n".join(textwrap.wrap(f"In-sample vs out-of-sample: {label}", 95)),
+                 fontsize=8)
     save_figure(fig, path)
 
 

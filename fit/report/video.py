@@ -1,9 +1,15 @@
-"""MP4 overlay of captured (red) vs reconstructed (blue) markers over a take,
-front view with error vectors, drawn with OpenCV."""
+"""Overlay video of captured (red) vs reconstructed (blue) markers over a take,
+front view with error vectors, drawn and encoded with OpenCV: VP9 in WebM, which
+browsers play (Chromium, Firefox; the report embeds it in a ``<video>``)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
+import tempfile
+
+from typing import Mapping
 
 import cv2
 import numpy as np
@@ -14,7 +20,12 @@ from mocap.util.atomic import atomic_path
 from mocap.util.validation import as_int, as_positions, as_positive_float
 from mocap.viz.figures import plottable
 
-__all__ = ["write_overlay_video"]
+__all__ = ["VIDEO_SUFFIX", "VIDEO_MIME", "write_overlay_video"]
+
+#: The container of the overlay videos, and its MIME type with the codec.
+VIDEO_SUFFIX = ".webm"
+VIDEO_MIME = 'video/webm; codecs="vp9"'
+_FOURCC = "VP90"
 
 # BGR colours.
 _RED = (40, 39, 214)
@@ -30,19 +41,44 @@ def _project(points: np.ndarray, axes: np.ndarray, scale: float, shift: np.ndarr
     return np.nan_to_num(px, nan=-1e6).round().astype(np.int32)
 
 
+@contextlib.contextmanager
+def _stderr_captured():
+    """Capture what C code writes to file descriptor 2 (a list, filled on exit).
+
+    OpenCV's FFmpeg writer prints that the 'VP90' tag "is not supported with
+    codec id 167 and format webm" and then writes VP9 all the same (the tag is
+    only the container's codec label); that notice must not reach the user.
+    """
+    said: list = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield said
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            said.append(sink.read().decode("utf-8", "replace"))
+
+
 def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
                         labels=None, markerset=None, fps: float | None = None,
-                        step: int = 1, size: tuple = (512, 512), exaggerate: float = 1.0,
-                        first_frame: int = 0, radius: int = 5) -> int:
-    """Write an MP4 of the take: captured and reconstructed markers, error vectors,
-    frame counter and per-frame RMS.
+                        step: int = 1, size: tuple = (288, 320), exaggerate: float = 1.0,
+                        first_frame: int = 0, radius: int = 4) -> int:
+    """Write a VP9 WebM video of the take: captured and reconstructed markers, error
+    vectors, the capture's frame number and the per-frame RMS, one panel per basis.
 
     Parameters
     ----------
-    captured, reconstructed : array_like, shape (T, M, 3), mm
+    captured : array_like, shape (T, M, 3), mm
         Head-stabilized positions, NaN where missing (not drawn, not counted).
+    reconstructed : array_like of shape (T, M, 3), or mapping of name to such arrays, mm
+        One reconstruction, or one per basis: a panel each, side by side, on one
+        scale, each with its name and RMS (one video to encode, one to watch).
     path : str or os.PathLike
-        Output ``.mp4`` (written atomically; codec ``mp4v``).
+        Output ``.webm`` (written atomically; VP9).
     neutral : array_like, shape (M, 3), mm
         Rest positions, drawn in grey; orient the front view (:func:`views.view_axes`).
     rate : float
@@ -56,7 +92,7 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     step : int
         Draw every `step`-th frame.
     size : (int, int)
-        Width and height, pixels.
+        Width and height of one panel, pixels (VP9 encoding time grows with them).
     exaggerate : float
         Error vectors drawn this many times longer (said on screen).
     first_frame : int
@@ -73,82 +109,107 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     Raises
     ------
     InputError
-        Bad shapes or options, or OpenCV cannot open a writer for `path`.
+        Bad shapes or options, a suffix other than ``.webm``, or OpenCV cannot
+        open a VP9 writer for `path`.
     """
+    if os.path.splitext(os.fspath(path))[1].lower() != VIDEO_SUFFIX:
+        raise InputError(f"{path}: the overlay video is VP9 in WebM: name it *{VIDEO_SUFFIX}")
     captured = plottable(as_positions(captured, "captured"), "captured positions",
                          labels=labels, first_frame=first_frame)
-    reconstructed = plottable(as_positions(reconstructed, "reconstructed"),
-                              "reconstructed positions", labels=labels,
-                              first_frame=first_frame)
-    if reconstructed.shape != captured.shape:
-        raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
-                         f"got {reconstructed.shape}")
+    panels = dict(reconstructed) if isinstance(reconstructed, Mapping) else {"": reconstructed}
+    if not panels:
+        raise InputError("reconstructed is empty: give at least one reconstruction")
+    for name in panels:
+        panels[name] = plottable(as_positions(panels[name], "reconstructed"),
+                                 f"reconstructed positions {name}".rstrip(), labels=labels,
+                                 first_frame=first_frame)
+        if panels[name].shape != captured.shape:
+            raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
+                             f"got {panels[name].shape}")
     rate = as_positive_float(rate, "rate")
     step = as_int(step, "step", minimum=1)
     fps = rate / step if fps is None else as_positive_float(fps, "fps")
     width, height = (as_int(v, "size", minimum=64) for v in size)
     labels = tuple(str(i) for i in range(captured.shape[1])) if labels is None else labels
     axes = view_axes(neutral, labels, markerset)
+    neutral = np.asarray(neutral, float)
 
     cap = captured[::step]
-    shown = cap + exaggerate * (reconstructed[::step] - cap)
-    err = np.linalg.norm(reconstructed[::step] - cap, axis=2)
-    counted = np.isfinite(err)
-    rms = np.sqrt(np.where(counted, err ** 2, 0).sum(axis=1) / np.maximum(counted.sum(axis=1), 1))
-    rms[~counted.any(axis=1)] = np.nan
-    # Fit the rest pose and everything drawn into the frame, with a margin.
-    screen = np.concatenate([cap.reshape(-1, 3), shown.reshape(-1, 3),
-                             np.asarray(neutral, float)]) @ axes[:2].T
+    shown, rms = {}, {}
+    for name, rec in panels.items():
+        shown[name] = cap + exaggerate * (rec[::step] - cap)
+        err = np.linalg.norm(rec[::step] - cap, axis=2)
+        counted = np.isfinite(err)
+        rms[name] = np.sqrt(np.where(counted, err ** 2, 0).sum(axis=1)
+                            / np.maximum(counted.sum(axis=1), 1))
+        rms[name][~counted.any(axis=1)] = np.nan
+    # One scale for every panel: the rest pose and everything drawn fit, with a margin.
+    screen = np.concatenate([cap.reshape(-1, 3), *(v.reshape(-1, 3) for v in shown.values()),
+                             neutral]) @ axes[:2].T
     lo, hi = np.nanmin(screen, axis=0), np.nanmax(screen, axis=0)
-    top, bottom = 40, 50                                # room for the texts
-    scale = min((width - 40) / max(hi[0] - lo[0], 1e-9),
+    top, bottom = 44, 34                                # room for the texts
+    scale = min((width - 20) / max(hi[0] - lo[0], 1e-9),
                 (height - top - bottom) / max(hi[1] - lo[1], 1e-9))
     centre = (lo + hi) / 2
     shift = np.array([width / 2 - scale * centre[0],
                       top + (height - top - bottom) / 2 + scale * centre[1]])
     cap_px = _project(cap, axes, scale, shift)              # (F, M, 2), all frames at once
-    rec_px = _project(shown, axes, scale, shift)
+    rec_px = {n: _project(v, axes, scale, shift) for n, v in shown.items()}
     seen_cap = np.isfinite(cap).all(axis=2)
-    seen_rec = np.isfinite(shown).all(axis=2)
-    seen_both = seen_cap & seen_rec
+    seen_rec = {n: np.isfinite(v).all(axis=2) for n, v in shown.items()}
 
-    background = np.full((height, width, 3), 255, np.uint8)
-    for p in _project(np.asarray(neutral, float), axes, scale, shift):
-        cv2.circle(background, (int(p[0]), int(p[1])), 16 * radius, _GREY, -1, cv2.LINE_AA, 4)
+    panel = np.full((height, width, 3), 255, np.uint8)
+    for p in _project(neutral, axes, scale, shift):
+        cv2.circle(panel, (int(p[0]), int(p[1])), 16 * radius, _GREY, -1, cv2.LINE_AA, 4)
     bar = int(round(10 * scale))
-    cv2.line(background, (20, height - 15), (20 + bar, height - 15), _BLACK, 2)
-    cv2.putText(background, "10 mm", (25 + bar, height - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+    cv2.line(panel, (10, height - 12), (10 + bar, height - 12), _BLACK, 2)
+    cv2.putText(panel, "10 mm", (15 + bar, height - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
                 _BLACK, 1, cv2.LINE_AA)
-    legend = "red: captured  blue: reconstructed  (viewer's right = subject's left)"
-    if exaggerate != 1:
-        legend += f"  errors x{exaggerate:g}"
-    cv2.putText(background, legend, (10, height - 35), cv2.FONT_HERSHEY_SIMPLEX, 0.4, _BLACK,
-                1, cv2.LINE_AA)
+    background = np.concatenate([panel] * len(panels), axis=1)
+    legend = "red: captured  blue: reconstructed  (viewer's right = subject's left)" \
+        + (f"  errors x{exaggerate:g}" if exaggerate != 1 else "")
+    if len(panels) == 1:
+        cv2.putText(background, legend, (10, height - 24), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
+                    _BLACK, 1, cv2.LINE_AA)
+    else:                        # the scale bar in the first panel, the legend beside it
+        background[height - 30:, width:] = 255
+        cv2.putText(background, legend, (width + 10, height - 12), cv2.FONT_HERSHEY_SIMPLEX,
+                    0.4, _BLACK, 1, cv2.LINE_AA)
 
     r16 = 16 * radius                                  # radius in 1/16 pixel (shift 4)
     r16_rec = max(16, round(0.6 * r16))                # smaller: a red ring stays visible
+    offsets = {n: np.array([k * width * 16, 0]) for k, n in enumerate(panels)}
     img = np.empty_like(background)
     index = np.arange(captured.shape[0])[::step]
-    texts = [f"frame {i + first_frame}  t = {i / rate:.2f} s  RMS {r:.2f} mm"
-             for i, r in zip(index, rms)]
+    heads = [f"frame {i + first_frame}  t = {i / rate:.2f} s" for i in index]
     with atomic_path(path) as tmp:
-        video_tmp = tmp.with_name(tmp.name + ".mp4")   # OpenCV picks the container by suffix
+        video_tmp = tmp.with_name(tmp.name + VIDEO_SUFFIX)   # OpenCV: container by suffix
         try:
-            writer = cv2.VideoWriter(os.fspath(video_tmp), cv2.VideoWriter_fourcc(*"mp4v"),
-                                     fps, (width, height))
+            with _stderr_captured() as said:
+                writer = cv2.VideoWriter(os.fspath(video_tmp), cv2.VideoWriter_fourcc(*_FOURCC),
+                                         fps, background.shape[1::-1])
             if not writer.isOpened():
-                raise InputError(f"{path}: cannot write: OpenCV has no mp4v writer for it")
+                raise InputError(f"{path}: cannot write: OpenCV has no VP9 (WebM) writer"
+                                 + (f" ({said[0].strip()})" if said and said[0].strip() else ""))
             try:
                 for k in range(len(cap)):
                     np.copyto(img, background)
-                    lines = np.stack([cap_px[k], rec_px[k]], axis=1)[seen_both[k]]
-                    cv2.polylines(img, list(lines), False, _BLACK, 1, cv2.LINE_AA, 4)
-                    for p in cap_px[k][seen_cap[k]]:
-                        cv2.circle(img, (int(p[0]), int(p[1])), r16, _RED, -1, cv2.LINE_AA, 4)
-                    for p in rec_px[k][seen_rec[k]]:
-                        cv2.circle(img, (int(p[0]), int(p[1])), r16_rec, _BLUE, -1, cv2.LINE_AA,
-                                   4)
-                    cv2.putText(img, texts[k], (10, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.6, _BLACK,
+                    for n, px in rec_px.items():
+                        shift16, seen = offsets[n], seen_cap[k] & seen_rec[n][k]
+                        lines = np.stack([cap_px[k] + shift16, px[k] + shift16], axis=1)[seen]
+                        cv2.polylines(img, list(lines), False, _BLACK, 1, cv2.LINE_AA, 4)
+                        for p in cap_px[k][seen_cap[k]] + shift16:
+                            cv2.circle(img, (int(p[0]), int(p[1])), r16, _RED, -1,
+                                       cv2.LINE_AA, 4)
+                        for p in px[k][seen_rec[n][k]] + shift16:
+                            cv2.circle(img, (int(p[0]), int(p[1])), r16_rec, _BLUE, -1,
+                                       cv2.LINE_AA, 4)
+                        x0 = offsets[n][0] // 16 + 10
+                        title = f"{n}: RMS {rms[n][k]:.2f} mm" if n else \
+                            f"RMS {rms[n][k]:.2f} mm"
+                        cv2.putText(img, title, (x0, 38), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                                    _BLACK, 1, cv2.LINE_AA)
+                    cv2.putText(img, heads[k], (10, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _BLACK,
                                 1, cv2.LINE_AA)
                     writer.write(img)
             finally:

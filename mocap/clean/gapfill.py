@@ -15,13 +15,24 @@ from mocap.clean._spline_fill import fill_spline
 from mocap.errors import InputError
 from mocap.gaps import find_gaps
 from mocap.take import Take, as_take, fill_code
-from mocap.util.validation import as_choice, as_int
+from mocap.util.validation import as_choice, as_fraction, as_int
 
-__all__ = ["FILL_OPTIONS", "FillResult", "fill_gaps"]
+__all__ = ["FILL_OPTIONS", "DEFAULT_MAX_GAP_S", "DEFAULT_MIN_VISIBLE", "FillResult",
+           "default_max_gap", "fill_gaps"]
 
 #: Values of ``fill_gaps(method=...)``: a fill method for every gap, ``"auto"``
 #: to choose per gap, or ``"none"`` to only report the gaps.
 FILL_OPTIONS = ("spline", "rigid", "pca", "auto", "none")
+#: Longest gap filled unless a longer one is asked for, s: a tenth of a second,
+#: the order of the frame limits that capture software fills on its own (QTM's
+#: "Max frame gap", Nexus' and Motive's gap-fill limits, all counted in frames).
+#: Given in time because what a fill risks grows with the time the marker was
+#: unseen, whatever the frame rate: 10 frames at 100 Hz, 12 at 120 Hz.
+DEFAULT_MAX_GAP_S = 0.1
+#: A marker seen in fewer than this fraction of the frames is reported, not
+#: filled: most of its track would be invented (an ``Unlabeled`` marker seen for
+#: a moment, a marker that fell off).
+DEFAULT_MIN_VISIBLE = 0.5
 
 _GAP_COLUMNS = ("marker", "start", "stop", "length", "method", "filled", "reason")
 
@@ -48,6 +59,11 @@ class FillResult:
         Samples still missing.
     message : str
         One-line summary.
+    max_gap : int
+        The longest gap that could be filled, frames (the default or as asked).
+    unfilled_markers : tuple of str
+        Markers left as they were: outside the markers to fill, or seen in
+        fewer than ``min_visible`` of the frames.
     """
 
     take: Take
@@ -55,39 +71,66 @@ class FillResult:
     n_filled: int
     n_missing: int
     message: str
+    max_gap: int = 0
+    unfilled_markers: tuple = ()
 
 
-def _clusters(take: Take, clusters) -> list[np.ndarray]:
-    """Clusters as arrays of columns; each needs a target plus MIN_DONORS donors."""
+def default_max_gap(rate: float) -> int:
+    """The default longest gap filled at a frame rate, frames: :data:`DEFAULT_MAX_GAP_S`, at least 1.
+
+    Examples
+    --------
+    >>> default_max_gap(100.0), default_max_gap(120.0), default_max_gap(30.0)
+    (10, 12, 3)
+    """
+    return max(1, int(round(DEFAULT_MAX_GAP_S * float(rate))))
+
+
+def _clusters(take: Take, clusters) -> dict[str, np.ndarray]:
+    """Clusters as arrays of columns, by name.
+
+    A cluster of any size is accepted here: its size is checked only when a
+    rigid fill is tried for one of its markers (:func:`_rigid_donors`).
+    """
     if clusters is None:
-        return []
+        return {}
     if not isinstance(clusters, Mapping):
         raise InputError("clusters must be a mapping of cluster name to marker labels, "
                          f"got {type(clusters).__name__}")
-    out = []
+    out = {}
     for name, labels in clusters.items():
         if isinstance(labels, str):
             raise InputError(f"cluster {name!r} must be a list of marker labels, got a string")
-        cols = np.unique(take.indices(list(labels)))
-        if len(cols) < _rigid_fill.MIN_DONORS + 1:
-            raise InputError(
-                f"cluster {name!r} has {len(cols)} markers: a rigid fill needs "
-                f"{_rigid_fill.MIN_DONORS} donors besides the missing marker, so at least "
-                f"{_rigid_fill.MIN_DONORS + 1} markers")
-        out.append(cols)
+        out[str(name)] = np.unique(take.indices(list(labels)))
     return out
 
 
+def _too_small(name: str, cols) -> str:
+    return (f"its cluster {name!r} has {len(cols)} markers: a rigid fill needs "
+            f"{_rigid_fill.MIN_DONORS} donors besides the missing marker, so at least "
+            f"{_rigid_fill.MIN_DONORS + 1} markers")
+
+
 def _rigid_donors(clusters, visible, target, start, stop):
-    """Donors of the target's cluster with the most markers visible over the gap."""
-    best, best_count = None, -1
-    for cols in clusters:
-        if target in cols:
-            donors = cols[cols != target]
-            count = int(visible[start:stop, donors].all(axis=0).sum())
-            if count > best_count:
-                best, best_count = donors, count
-    return best, best_count
+    """Donors of the target's cluster with the most markers visible over the gap.
+
+    Returns (donors or None, how many are visible throughout the gap, why
+    there are none). Clusters too small to carry the target (fewer than
+    MIN_DONORS markers besides it: three markers give two donors, which
+    leave the rotation about their axis free) are skipped.
+    """
+    best, best_count, why = None, -1, "not in any rigid cluster"
+    for name, cols in clusters.items():
+        if target not in cols:
+            continue
+        donors = cols[cols != target]
+        if len(donors) < _rigid_fill.MIN_DONORS:
+            why = _too_small(name, cols)
+            continue
+        count = int(visible[start:stop, donors].all(axis=0).sum())
+        if count > best_count:
+            best, best_count = donors, count
+    return best, best_count, why
 
 
 def _fill_one(method, clusters, positions, visible, target, start, stop):
@@ -97,9 +140,9 @@ def _fill_one(method, clusters, positions, visible, target, start, stop):
         values = fill_spline(positions, visible, target, np.arange(start, stop))
         why = "fewer than 2 visible samples"
     elif method == "rigid":
-        donors, _ = _rigid_donors(clusters, visible, target, start, stop)
+        donors, _, none_why = _rigid_donors(clusters, visible, target, start, stop)
         if donors is None:
-            return np.full((length, 3), np.nan), "not in any rigid cluster"
+            return np.full((length, 3), np.nan), none_why
         values = fill_rigid(positions, visible, target, start, stop, donors)
         why = (f"{_rigid_fill.MIN_DONORS} donors of its cluster not visible both there "
                "and in a reference frame")
@@ -117,7 +160,7 @@ def _fill_one(method, clusters, positions, visible, target, start, stop):
 
 def _auto(clusters, positions, visible, target, start, stop):
     """First of rigid, pca, spline that is applicable and fills the whole gap."""
-    _, n_rigid = _rigid_donors(clusters, visible, target, start, stop)
+    _, n_rigid, _ = _rigid_donors(clusters, visible, target, start, stop)
     candidates = []
     if n_rigid >= _rigid_fill.MIN_DONORS:
         candidates.append("rigid")
@@ -132,6 +175,7 @@ def _auto(clusters, positions, visible, target, start, stop):
 
 
 def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
+              min_visible: float = DEFAULT_MIN_VISIBLE, markers=None,
               clusters: Mapping | None = None, extrapolate: bool = False) -> FillResult:
     """Fill the gaps of a take's marker tracks.
 
@@ -154,11 +198,23 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
         the whole gap). ``"none"``: fill nothing,
         only report the gaps.
     max_gap : int or None
-        Longest gap filled, in frames; longer gaps stay missing. None: no limit.
-        0 fills nothing.
+        Longest gap filled, in frames; longer gaps stay missing (reported).
+        None: :func:`default_max_gap` of the take's rate
+        (:data:`DEFAULT_MAX_GAP_S`); to fill longer gaps, say how long. 0
+        fills nothing.
+    min_visible : float in [0, 1]
+        A marker visible in fewer than this fraction of the frames is not
+        filled at all (its gaps are reported); 0 fills every marker.
+    markers : sequence of str, optional
+        The markers to fill, and the only ones a fill reads (as donors);
+        default every marker of the take. The others are left as they are,
+        gaps and all (a marker outside a marker set is never invented).
     clusters : mapping of str to sequence of str, optional
-        Rigid clusters: name -> marker labels (e.g. the head markers). Each
-        needs at least 4 markers. Required by ``method="rigid"``.
+        Rigid clusters: name -> marker labels (e.g. the head markers).
+        Required by ``method="rigid"``. A rigid fill of a marker needs 3
+        donors of its cluster, so 4 markers: the markers of a smaller
+        cluster (3 head markers) are filled by the other methods (``"auto"``)
+        or reported (``"rigid"``).
     extrapolate : bool
         Also fill gaps touching the first or last frame. Default False: they
         stay missing (a spline fill there is an extrapolation; rigid and PCA
@@ -172,10 +228,10 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
     Raises
     ------
     InputError
-        Unknown method, negative `max_gap`, a cluster with fewer than 4 markers,
+        Unknown method, negative `max_gap`, `min_visible` outside [0, 1],
         ``method="rigid"`` without clusters.
     MarkerError
-        A cluster names a marker not in the take.
+        A cluster or `markers` names a marker not in the take.
 
     Notes
     -----
@@ -199,17 +255,23 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
     """
     take = as_take(take)
     method = as_choice(method, "method", FILL_OPTIONS)
-    if max_gap is not None:
-        max_gap = as_int(max_gap, "max_gap", minimum=0)
+    max_gap = default_max_gap(take.rate) if max_gap is None else as_int(max_gap, "max_gap",
+                                                                          minimum=0)
+    min_visible = as_fraction(min_visible, "min_visible")
     if not isinstance(extrapolate, (bool, np.bool_)):
         raise InputError(f"extrapolate must be True or False, got {extrapolate!r}")
     cluster_cols = _clusters(take, clusters)
     if method == "rigid" and not cluster_cols:
         raise InputError("method 'rigid' needs clusters: a mapping of cluster name to "
                          "marker labels")
+    to_fill = np.zeros(take.n_markers, dtype=bool)
+    to_fill[take.indices(take.labels if markers is None else list(markers))] = True
 
     positions = take.positions
-    visible = ~take.missing
+    seen = ~take.missing
+    n_seen = seen.sum(axis=0)
+    scarce = n_seen < min_visible * take.n_frames
+    visible = seen & to_fill                 # only the markers to fill are donors
     gaps = find_gaps(take.missing)
     out = positions.copy()
     filled = take.filled.copy()
@@ -217,11 +279,17 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
     for target, start, stop, edge in zip(gaps.marker.tolist(), gaps.start.tolist(),
                                          gaps.stop.tolist(), gaps.at_edge.tolist()):
         used, n, reason = "none", 0, ""
-        if method == "none":
+        if not to_fill[target]:
+            reason = "not among the markers to fill"
+        elif method == "none":
             reason = "method is 'none'"
+        elif scarce[target]:
+            reason = (f"visible in {n_seen[target]} of {take.n_frames} frames "
+                      f"({100 * n_seen[target] / take.n_frames:.1f} %), under "
+                      f"min_visible = {min_visible:g}")
         elif edge and not extrapolate:
             reason = "touches the first or last frame (extrapolate=False)"
-        elif max_gap is not None and stop - start > max_gap:
+        elif stop - start > max_gap:
             reason = f"longer than max_gap={max_gap}"
         else:
             if method == "auto":
@@ -246,7 +314,10 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
                           "filled": np.int64})
     n_filled = int(table["filled"].sum())
     n_missing = int(np.isnan(out[:, :, 0]).sum())
+    unfilled = tuple(take.labels[j] for j in np.flatnonzero(~to_fill | scarce))
     message = (f"filled {n_filled} samples in {int((table['filled'] > 0).sum())} of "
-               f"{len(table)} gaps; {n_missing} samples still missing")
+               f"{len(table)} gaps (max_gap {max_gap} frames); {n_missing} samples still "
+               "missing")
     return FillResult(take=take.replace(positions=out, filled=filled), gaps=table,
-                      n_filled=n_filled, n_missing=n_missing, message=message)
+                      n_filled=n_filled, n_missing=n_missing, message=message,
+                      max_gap=max_gap, unfilled_markers=unfilled)

@@ -6,6 +6,7 @@ The library function behind ``mocap2mesh ingest`` and the first stage of
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 from mocap.clean import FILL_OPTIONS as FILL_CHOICES
@@ -21,13 +22,20 @@ from mocap.clean import (
     remove_implausible_samples,
     resample,
 )
+from mocap.clean.fill_report import fill_notices, marker_visibility
+from mocap.clean.gapfill import DEFAULT_MIN_VISIBLE
 from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.stabilize import Stabilization, stabilize
 from mocap.take import Take
-from mocap.util.validation import as_choice, as_int, as_positive_float
+from mocap.util.validation import as_choice, as_fraction, as_int, as_positive_float
 
-__all__ = ["IngestOptions", "IngestResult", "ingest", "FILL_CHOICES"]
+__all__ = ["IngestOptions", "IngestResult", "ingest", "FILL_CHOICES", "EXTRA_MARKERS"]
+
+#: What :func:`ingest` does with the markers of a take that its marker set does
+#: not name (``Unlabeled1``, another subject's markers): keep them as they are,
+#: gaps and all, or leave them out. Never filled.
+EXTRA_MARKERS = ("carry", "drop")
 
 
 @dataclass(frozen=True)
@@ -39,7 +47,15 @@ class IngestOptions:
     fill : str
         Gap-filling method, one of ``FILL_CHOICES`` (``"none"`` keeps gaps).
     max_gap : int or None
-        Longest gap to fill, frames; None fills gaps of any length.
+        Longest gap to fill, frames; None:
+        :data:`mocap.clean.gapfill.DEFAULT_MAX_GAP_S` at the take's rate
+        (10 frames at 100 Hz). Longer gaps are reported, not filled.
+    min_visible : float in [0, 1]
+        Markers visible in fewer than this fraction of the frames are
+        reported, not filled (:func:`mocap.clean.fill_gaps`).
+    extra_markers : str
+        One of :data:`EXTRA_MARKERS`: markers outside the marker set are
+        carried unfilled ("carry") or dropped ("drop").
     lowpass_hz : float or None
         Cut-off of the zero-lag Butterworth low-pass, Hz; None for no filter.
     resample_hz : float or None
@@ -60,6 +76,8 @@ class IngestOptions:
     reject_implausible: bool = False
     fill: str = "auto"
     max_gap: int | None = None
+    min_visible: float = DEFAULT_MIN_VISIBLE
+    extra_markers: str = "carry"
     lowpass_hz: float | None = None
     resample_hz: float | None = None
     stabilize: bool = False
@@ -68,6 +86,8 @@ class IngestOptions:
         as_choice(self.fill, "fill", FILL_CHOICES)
         if self.max_gap is not None:
             as_int(self.max_gap, "max_gap", minimum=1)
+        as_fraction(self.min_visible, "min_visible")
+        as_choice(self.extra_markers, "extra_markers", EXTRA_MARKERS)
         if self.lowpass_hz is not None:
             as_positive_float(self.lowpass_hz, "lowpass_hz")
         if self.resample_hz is not None:
@@ -92,6 +112,12 @@ class IngestResult:
         After filling, filtering and resampling, in the capture's frame.
     stabilization : Stabilization or None
         Head transforms, residuals and the take in the head frame, if asked.
+    extra_markers : tuple of str
+        Markers of the raw take outside the marker set: carried unfilled in
+        `cleaned`, or dropped from it (``IngestOptions.extra_markers``).
+    notices : tuple of str
+        What the user should know (warned too): markers outside the set,
+        what filling did and left (:func:`mocap.clean.fill_report.fill_notices`).
     """
 
     raw: Take
@@ -100,6 +126,8 @@ class IngestResult:
     fill: FillResult | None
     cleaned: Take
     stabilization: Stabilization | None
+    extra_markers: tuple = ()
+    notices: tuple = ()
 
     @property
     def take(self) -> Take:
@@ -114,6 +142,8 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     Stages, in order: label-swap repair (if asked), removal of implausible
     samples (if asked), gap filling (rigid clusters
     from the marker set), low-pass, resampling, head stabilization.
+    With a marker set, only its markers are filled (and fill each other);
+    the take's other markers are carried as they are or dropped.
 
     Parameters
     ----------
@@ -135,6 +165,11 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     MarkerError
         A marker of the marker set is absent from the take, or too few head
         markers are visible for a rigid fit.
+
+    Warns
+    -----
+    UserWarning
+        Each of :attr:`IngestResult.notices`.
     """
     if take.n_frames == 0:
         raise InputError(f"{take.source.path or 'the take'}: the take has no frames")
@@ -143,7 +178,19 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     if options.stabilize and markerset is None:
         raise InputError("stabilization needs a marker set naming the head markers")
     clusters = dict(markerset.clusters) if markerset is not None else None
+    where = take.source.path or "the take"
+    known = set(markerset.markers) if markerset is not None else set(take.labels)
+    extra = tuple(label for label in take.labels if label not in known)
+    notices = []
+    if extra:
+        kept = options.extra_markers == "carry"
+        notices.append(f"{where}: {len(extra)} marker(s) outside marker set "
+                       f"{markerset.name!r} {'carried unfilled' if kept else 'dropped'} "
+                       f"(ingest extra_markers = {options.extra_markers!r}): "
+                       + ", ".join(marker_visibility(take, extra)))
     cleaned, fill, swaps, implausible = take, None, (), None
+    if extra and options.extra_markers == "drop":
+        cleaned = take.select([label for label in take.labels if label in known])
     if options.fix_swaps:
         swaps = find_label_swaps(cleaned)
         cleaned = fix_label_swaps(cleaned, swaps)
@@ -153,15 +200,21 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
         cleaned = remove_implausible_samples(cleaned, implausible)
     if options.fill != "none":
         fill = fill_gaps(cleaned, method=options.fill, max_gap=options.max_gap,
+                         min_visible=options.min_visible,
+                         markers=None if markerset is None else markerset.markers,
                          clusters=clusters)
+        notices += fill_notices(fill, cleaned, where=where)
         cleaned = fill.take
     if options.lowpass_hz is not None:
         cleaned = lowpass(cleaned, options.lowpass_hz)
     if options.resample_hz is not None:
         cleaned = resample(cleaned, options.resample_hz)
     stab = stabilize(cleaned, markerset.head) if options.stabilize else None
+    for notice in notices:
+        warnings.warn(notice, UserWarning, stacklevel=2)
     return IngestResult(raw=take, swaps=swaps, implausible=implausible, fill=fill,
-                        cleaned=cleaned, stabilization=stab)
+                        cleaned=cleaned, stabilization=stab, extra_markers=extra,
+                        notices=tuple(notices))
 
 
 def save_head_motion(stabilization: Stabilization, path, *, inputs=()) -> None:

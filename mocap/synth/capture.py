@@ -10,6 +10,7 @@ the take and a :class:`CaptureTruth` with everything before noise and gaps.
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,7 +57,7 @@ class CaptureTruth:
     shape_names : tuple of str
         Basis shapes, n of them.
     weights : ndarray of shape (T, n)
-        Weight of each shape at each frame.
+        Weight of each shape at each frame; NaN where the performance lost tracking.
     rotation : ndarray of shape (T, 3, 3)
     translation : ndarray of shape (T, 3), mm
     markers_world : ndarray of shape (T, M, 3), mm
@@ -64,7 +65,8 @@ class CaptureTruth:
     markers_head : ndarray of shape (T, M, 3), mm
         The same in the head frame (the mesh frame, in mm).
     missing : ndarray of bool, shape (T, M)
-        Occluded samples (NaN in the take).
+        Occluded samples and the face markers of frames where the performance
+        lost tracking (NaN in the take).
     rate : float, Hz
     mm_per_unit : float
         Millimetres per mesh unit (10 for a mesh in cm).
@@ -240,7 +242,8 @@ def _with_neutral_lead(weights, n_lead, rate):
     if n_blend:
         ramp[n_lead - n_blend:] = 0.5 - 0.5 * np.cos(np.pi * np.arange(1, n_blend + 1)
                                                       / (n_blend + 1))
-    return np.concatenate([ramp[:, None] * weights[:1], weights])
+    # a lost first frame is not known: the hold then stays neutral until it
+    return np.concatenate([ramp[:, None] * np.nan_to_num(weights[:1]), weights])
 
 
 def _check_basis(basis, layout):
@@ -280,6 +283,11 @@ def simulate_capture(basis, performance: Performance, layout: MarkerLayout, head
     performance : Performance
         Weights over time; resampled to `rate` and mapped onto the shapes by
         :func:`mocap.synth.performance.performance_weights` (warns about unmatched names).
+        Where its tracking was lost (NaN weights) the face is unknown: the face
+        markers are missing in those frames (head markers are seen), the truth
+        holds NaN there, and a warning says so; fill the performance first
+        (:func:`mocap.synth.performance_gaps.fill_tracking_gaps`) to have a face
+        everywhere.
     layout : MarkerLayout
         Markers on the neutral's topology (M of them).
     head_markers : sequence of str
@@ -364,14 +372,23 @@ def simulate_capture(basis, performance: Performance, layout: MarkerLayout, head
     weights = _with_neutral_lead(performance_weights(grid, basis.names),
                                  int(round(neutral_lead_s * rate)), rate)
     n_frames, n_markers = len(weights), layout.n_markers
+    lost = np.isnan(weights).any(axis=1)
+    if lost.any():
+        warnings.warn(f"{performance.path or 'performance'}: tracking was lost in {lost.sum()} "
+                      f"of the capture's {n_frames} frames ({lost.sum() / rate:.2f} s): its face "
+                      "markers are missing there and the truth's weights NaN; fill the "
+                      "performance's gaps to have a face in every frame", UserWarning,
+                      stacklevel=2)
 
     needed, sub = _subset_layout(layout)
     v0 = neutral.vertices[needed]
     local = displacements[:, needed].reshape(len(basis.names), -1)
     skin = np.empty((n_frames, n_markers, 3))
+    known = np.nan_to_num(weights)                        # the lost frames are cut below
     for lo in range(0, n_frames, _CHUNK):                  # blocks of frames
-        block = (weights[lo:lo + _CHUNK] @ local).reshape(-1, len(needed), 3) + v0
+        block = (known[lo:lo + _CHUNK] @ local).reshape(-1, len(needed), 3) + v0
         skin[lo:lo + _CHUNK] = sub.positions(block)
+    skin[lost] = np.nan
     skin[:, head_idx] = sub.positions(v0)[head_idx]
     markers_head = scale * skin
 
@@ -381,6 +398,7 @@ def simulate_capture(basis, performance: Performance, layout: MarkerLayout, head
                                          head_translation_mm, head_cutoff_hz)
     world = np.einsum("tij,tmj->tmi", rotation, markers_head) + translation[:, None]
     missing = _gap_mask(gap_rng, n_frames, n_markers, n_gaps, max_gap, head_idx)
+    missing |= np.isnan(world[:, :, 0])
     observed = world + noise_mm * noise_rng.standard_normal(world.shape)
     observed[missing] = np.nan
 

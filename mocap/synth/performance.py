@@ -13,6 +13,12 @@ keep their place in time. :func:`resample_performance` puts the weights on a
 uniform grid and :func:`performance_weights` maps the columns onto the shape
 names of a basis (``EyeBlinkLeft`` -> ``eyeBlink_L``; one ``BrowInnerUp``
 column drives both ``browInnerUp_L`` and ``browInnerUp_R``).
+
+Rows where the phone lost the face (``16:48:52:29.134,0``: a BlendShapeCount of
+0 and no values, for seconds at a time in real exports) are samples with every
+weight NaN: gaps, reported with their spans (:meth:`Performance.gaps`, and a
+warning when read), carried through resampling as NaN, and filled only when
+asked (:func:`mocap.synth.performance_gaps.fill_tracking_gaps`).
 """
 
 from __future__ import annotations
@@ -28,8 +34,8 @@ from mocap.errors import FileFormatError, InputError
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_float_array, as_positive_float
 
-__all__ = ["Performance", "read_performance", "resample_performance", "match_shape_names",
-           "performance_weights", "TIME_COLUMNS", "NON_WEIGHT_COLUMNS"]
+__all__ = ["Performance", "TrackingGap", "read_performance", "resample_performance",
+           "match_shape_names", "performance_weights", "TIME_COLUMNS", "NON_WEIGHT_COLUMNS"]
 
 #: Time column names (case-insensitive) and how they are read: ``"timecode"``
 #: is ``HH:MM:SS:FF[.fff]`` at ``timecode_rate`` frames per second, ``"seconds"``
@@ -42,8 +48,42 @@ NON_WEIGHT_COLUMNS = ("blendshapecount", "headyaw", "headpitch", "headroll", "le
                       "lefteyepitch", "lefteyeroll", "righteyeyaw", "righteyepitch",
                       "righteyeroll")
 
+#: The Live Link Face column counting the shapes tracked in a row: 0 when the face was lost.
+COUNT_COLUMN = "blendshapecount"
+
 _TIMECODE = re.compile(r"^(\d+):(\d{2}):(\d{2})[:;](\d+(?:\.\d*)?)$")
 _SIDE = re.compile(r"(?:_([LlRr])|_?([Ll]eft|[Rr]ight))$")
+
+
+@dataclass(frozen=True)
+class TrackingGap:
+    """A run of samples where tracking was lost (every weight NaN).
+
+    Attributes
+    ----------
+    start, stop : int
+        Sample indices, stop exclusive.
+    start_time : float, s
+        Time of the first lost sample.
+    end_time : float, s
+        Time of the first tracked sample after the run (the last lost
+        sample's time plus one nominal step when the run ends the performance).
+    """
+
+    start: int
+    stop: int
+    start_time: float
+    end_time: float
+
+    @property
+    def n_samples(self) -> int:
+        """Samples lost."""
+        return self.stop - self.start
+
+    @property
+    def duration(self) -> float:
+        """Time without tracking, s: ``end_time - start_time``."""
+        return self.end_time - self.start_time
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,7 +98,8 @@ class Performance:
         Sample times, strictly increasing (from 0 for a performance read or
         resampled here).
     weights : ndarray of shape (T, n)
-        Weights as recorded (not clipped: ARKit weights may exceed 1).
+        Weights as recorded (not clipped: ARKit weights may exceed 1); a row
+        of NaN where tracking was lost (a row is all NaN or all finite).
     rate : float, Hz
         The grid rate for a resampled performance; for one read from a file,
         the nominal rate ``1 / median(diff(times))``.
@@ -78,10 +119,16 @@ class Performance:
     def __post_init__(self):
         names = tuple(str(n) for n in self.names)
         times = as_float_array(self.times, "times", ndim=1, allow_nan=False)
-        weights = as_float_array(self.weights, "weights", shape=(len(times), len(names)),
-                                 allow_nan=False)
+        weights = as_float_array(self.weights, "weights", shape=(len(times), len(names)))
         if len(times) == 0:
             raise InputError("a performance needs at least one sample")
+        lost = np.isnan(weights)
+        partly = np.flatnonzero(lost.any(axis=1) & ~lost.all(axis=1))
+        if len(partly):
+            raise InputError(f"weights of sample {partly[0]} are partly NaN: a sample is "
+                             "either tracked (every weight a number) or lost (every weight NaN)")
+        if lost.all():
+            raise InputError("every sample of the performance is lost (NaN): nothing to play")
         if np.any(np.diff(times) <= 0):
             raise InputError("performance times must be strictly increasing")
         object.__setattr__(self, "names", names)
@@ -99,6 +146,29 @@ class Performance:
     def duration(self) -> float:
         """Time from the first to the last sample, s."""
         return float(self.times[-1] - self.times[0])
+
+    @property
+    def lost(self) -> np.ndarray:
+        """Samples where tracking was lost (weights NaN), bool of shape (T,)."""
+        return np.isnan(self.weights[:, 0]) if self.weights.shape[1] else \
+            np.zeros(self.n_frames, dtype=bool)
+
+    def gaps(self) -> tuple:
+        """The runs of lost samples, in time order: a tuple of :class:`TrackingGap`.
+
+        Examples
+        --------
+        >>> w = np.array([[0.1], [np.nan], [np.nan], [0.4]])
+        >>> Performance(("JawOpen",), [0.0, 0.5, 1.0, 1.5], w, 2.0).gaps()
+        (TrackingGap(start=1, stop=3, start_time=0.5, end_time=1.5),)
+        """
+        edges = np.diff(np.concatenate([[0], self.lost.astype(np.int8), [0]]))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        times = self.times
+        return tuple(TrackingGap(int(a), int(b), float(times[a]),
+                                 float(times[b]) if b < len(times) else
+                                 float(times[-1] + 1.0 / self.rate))
+                     for a, b in zip(starts, stops))
 
 
 def _timecode_seconds(path, cells, timecode_rate: float) -> np.ndarray:
@@ -134,19 +204,29 @@ def read_performance(path, *, timecode_rate: float = 60.0) -> Performance:
     Returns
     -------
     Performance
-        Times from the first sample, s; weights as recorded.
+        Times from the first sample, s; weights as recorded, NaN in the rows
+        where tracking was lost.
 
     Raises
     ------
     FileFormatError
         Unreadable or empty file, no time column, a malformed timecode or
         time, times not strictly increasing (the line is named), no weight
-        column, or an empty or non-numeric weight cell.
+        column, an empty or non-numeric weight cell in a tracked row, or no
+        tracked row at all.
+
+    Warns
+    -----
+    UserWarning
+        Rows where tracking was lost: how many, in how many runs, and the
+        longest (samples, lines, times).
 
     Notes
     -----
     Dropped frames are kept where they are in time: a sample's time is read
     from its own timecode, so a missing row is a longer step, not a shift.
+    A row is lost when its ``BlendShapeCount`` is 0 or every weight cell is
+    empty (Live Link Face writes ``16:48:52:29.134,0``); it keeps its time.
     """
     import pandas as pd
 
@@ -178,30 +258,62 @@ def read_performance(path, *, timecode_rate: float = 60.0) -> Performance:
     if len(back):
         raise FileFormatError(path, f"time {cells[back[0] + 1]!r} does not follow "
                                     f"{cells[back[0]]!r}: times must increase", line=back[0] + 3)
+    candidates = [j for j, name in enumerate(columns)
+                  if name != time_col and name.lower() not in NON_WEIGHT_COLUMNS]
+    cells = table.iloc[:, candidates].to_numpy(dtype=str)
+    lost = (np.char.strip(cells) == "").all(axis=1) if candidates else \
+        np.zeros(len(table), dtype=bool)
+    counts = [j for j, name in enumerate(columns) if name.lower() == COUNT_COLUMN]
+    if counts:
+        count = pd.to_numeric(table.iloc[:, counts[0]], errors="coerce").to_numpy()
+        lost |= count == 0
+    if lost.all():
+        raise FileFormatError(path, f"tracking was lost in every one of its {len(lost)} rows "
+                                    "(no weights): nothing to play")
     names, ignored, values = [], [], []
     for j, name in enumerate(columns):
         if name == time_col:
             continue
         column = table.iloc[:, j].to_numpy()
         if name.lower() in NON_WEIGHT_COLUMNS or pd.to_numeric(
-                pd.Series(column), errors="coerce").isna().all():
+                pd.Series(column[~lost]), errors="coerce").isna().all():
             ignored.append(name)
             continue
         names.append(name)
-        values.append(_numbers(path, column, name))
+        values.append(_numbers(path, column, name, lost))
     if not names:
         raise FileFormatError(path, f"no weight column besides the time column {time_col!r}")
-    rate = 1.0 / float(np.median(steps)) if len(steps) else 1.0
-    return Performance(tuple(names), times - times[0], np.stack(values, axis=1), rate,
-                       ignored=tuple(ignored), path=str(path))
+    tracked = np.diff(times[~lost]) if (~lost).sum() > 1 else steps
+    rate = 1.0 / float(np.median(tracked)) if len(tracked) else 1.0
+    performance = Performance(tuple(names), times - times[0], np.stack(values, axis=1), rate,
+                              ignored=tuple(ignored), path=str(path))
+    if lost.any():
+        warnings.warn(_lost_notice(performance, cells=table.iloc[:, columns.index(time_col)]
+                                   .to_numpy()), UserWarning, stacklevel=2)
+    return performance
 
 
-def _numbers(path, cells, column: str) -> np.ndarray:
-    """Floats of one column's cells, FileFormatError naming the first bad cell's line."""
+def _lost_notice(performance: Performance, *, cells) -> str:
+    """One sentence on the rows where tracking was lost (file lines are sample + 2)."""
+    gaps = performance.gaps()
+    worst = max(gaps, key=lambda g: g.duration)
+    total = sum(g.n_samples for g in gaps)
+    return (f"{performance.path}: tracking was lost in {total} of {performance.n_frames} "
+            f"samples, {len(gaps)} run(s) ({sum(g.duration for g in gaps):.2f} s in all); the "
+            f"longest {worst.duration:.2f} s, samples {worst.start}-{worst.stop - 1} (lines "
+            f"{worst.start + 2}-{worst.stop + 1}, from {cells[worst.start]!s} at "
+            f"{worst.start_time:.3f} s): left as gaps (NaN weights), filled only when asked")
+
+
+def _numbers(path, cells, column: str, lost=None) -> np.ndarray:
+    """Floats of one column's cells, NaN in the `lost` rows; FileFormatError naming the first
+    bad cell's line."""
     import pandas as pd
 
-    out = pd.to_numeric(pd.Series(cells), errors="coerce").to_numpy(dtype=np.float64)
-    bad = np.flatnonzero(~np.isfinite(out))
+    out = pd.to_numeric(pd.Series(cells), errors="coerce").to_numpy(dtype=np.float64, copy=True)
+    if lost is not None:
+        out[lost] = np.nan
+    bad = np.flatnonzero(~np.isfinite(out) & (True if lost is None else ~lost))
     if len(bad):
         raise FileFormatError(path, f"column {column!r}: {cells[bad[0]]!r} is not a finite "
                                     "number", line=int(bad[0]) + 2)
@@ -227,12 +339,15 @@ def resample_performance(performance: Performance, rate: float, *, start: float 
     Returns
     -------
     Performance
-        ``times`` from 0 (``start`` maps to 0), ``rate`` the new rate.
+        ``times`` from 0 (``start`` maps to 0), ``rate`` the new rate. A grid
+        point between a lost sample and its neighbour is lost (NaN): gaps
+        are kept, never bridged.
 
     Raises
     ------
     InputError
-        `start` outside the performance, a duration that is not positive.
+        `start` outside the performance, a duration that is not positive,
+        a grid on which every sample is lost.
     """
     if not isinstance(performance, Performance):
         raise InputError(f"performance must be a Performance, got {type(performance).__name__}")
@@ -252,8 +367,14 @@ def resample_performance(performance: Performance, rate: float, *, start: float 
     if len(times) == 1:
         weights = np.repeat(performance.weights, len(grid), axis=0)
     else:
+        w = performance.weights
         frac = ((grid - times[left]) / (times[right] - times[left]))[:, None]
-        weights = (1 - frac) * performance.weights[left] + frac * performance.weights[right]
+        # on a sample, its own value: a lost neighbour must not make it NaN (0 * NaN)
+        weights = np.where(frac == 0, w[left], np.where(frac == 1, w[right],
+                                                        (1 - frac) * w[left] + frac * w[right]))
+    if np.isnan(weights).all():
+        raise InputError(f"{performance.path or 'performance'}: tracking is lost over the "
+                         f"whole of {start:.3f}-{end:.3f} s")
     return Performance(performance.names, grid - start, weights, rate,
                        ignored=performance.ignored, path=performance.path)
 
@@ -316,7 +437,7 @@ def performance_weights(performance: Performance, shapes) -> np.ndarray:
     -------
     ndarray of shape (T, n_basis)
         The driving column's weight for each shape (:func:`match_shape_names`),
-        0 for a shape that no column drives.
+        0 for a shape that no column drives; a row of NaN where tracking was lost.
 
     Raises
     ------
@@ -347,4 +468,5 @@ def performance_weights(performance: Performance, shapes) -> np.ndarray:
     weights = np.zeros((performance.n_frames, len(shapes)))
     cols = [shapes.index(s) for s in matched]
     weights[:, cols] = performance.weights[:, list(matched.values())]
+    weights[performance.lost] = np.nan
     return weights

@@ -15,7 +15,7 @@ import numpy as np
 from mocap.errors import InputError
 
 __all__ = ["as_positions", "as_float_array", "as_positive_float", "as_nonnegative_float", "as_int",
-           "as_choice"]
+           "as_choice", "as_fraction"]
 
 
 def as_float_array(value, name: str, *, ndim: int | None = None,
@@ -82,4 +82,14 @@ def as_nonnegative_float(value, name: str) -> float:
     value = float(value)
     if not np.isfinite(value) or value < 0:
         raise InputError(f"{name} must be a finite number >= 0, got {value}")
+    return value
+
+
+def as_fraction(value, name: str) -> float:
+    """A float in [0, 1] (a share of frames, a coverage)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise InputError(f"{name} must be a number in [0, 1], got {value!r}")
+    value = float(value)
+    if not 0 <= value <= 1:
+        raise InputError(f"{name} must be in [0, 1], got {value}")
     return value

@@ -60,8 +60,8 @@ def add_parser(sub) -> None:
     capture = p.add_argument_group("captures (implicit path)")
     add_binding(capture, required=False)
     add_markerset(capture, required=False)
-    add_fill(capture, max_gap=False)
-    add_neutral_frame(capture, help="neutral frame of every capture: an index, 'auto' "
+    add_fill(capture)
+    add_neutral_frame(capture, help="neutral frame of every capture: a frame number, 'auto' "
                                     "(default) or 'hold'")
     capture.add_argument("--kernel", choices=KERNELS, default="thin_plate_spline")
     capture.add_argument("--distance", choices=DISTANCES, default="euclidean")
@@ -120,7 +120,7 @@ def run(args) -> int:
                                   use_regions=args.regions)
         full = pca_of_captures(args.takes, load_binding(args.binding), artist.neutral,
                                load_markerset(args.markerset), fill=args.fill,
-                               neutral_frame=args.frame, options=options)
+                               max_gap=args.max_gap, neutral_frame=args.frame, options=options)
     m = args.components if args.components is not None else full.n_for_coverage(args.coverage)
     pca = full.truncate(m)
     qe = quasi_eigen(pca, artist.displacements, names=artist.names,

@@ -47,7 +47,8 @@ def run(args) -> int:
     markerset = load_markerset(args.markerset)
     mesh = load_mesh(args.mesh)
     landmarks = load_mesh_landmarks(args.landmarks, mesh)
-    bound = bind_take(take, markerset, mesh, landmarks, frame=args.frame,
+    bound = bind_take(take, markerset, mesh, landmarks,
+                      frame=take.frame_index(args.frame, "--frame"),
                       head_frame=args.stabilize, icp=not args.no_icp,
                       skin_offset=args.skin_offset, max_distance_warn=args.warn_distance)
     refuse_overwrite(args.output, (args.capture, args.markerset, args.mesh, args.landmarks))
@@ -56,7 +57,7 @@ def run(args) -> int:
     if args.verbose:
         held = (f"; the mean of its {bound.window}-frame neutral hold window"
                 if bound.window > 1 else "")
-        print(f"frame      {frame} (index; frame number {take.first_frame + frame}{held})")
+        print(f"frame      {take.first_frame + frame} (the capture's frame number{held})")
         print(f"fit        {binding.message}; {binding.n_landmarks} landmarks, "
               f"scale {binding.scale:.6g} mesh units/mm, rms {binding.rms:.3f} mm")
         width = max(len(label) for label in binding.labels)

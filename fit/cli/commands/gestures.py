@@ -4,12 +4,18 @@
 builds a reference clip (:func:`fit.gestures.reference.clip_from_capture`).
 
 ``gestures synthesize SPEECH --palette CLIP... -o DIR`` writes into DIR:
-``weights.csv`` (c̃(t)), ``head.npz`` (R̃, T̃, if the palette has head motion),
-``details.npz`` (D̃_j in mm, if it has details), and with ``--mesh``/``--shapes``
-the animated face ``mesh.npz`` (neutral + basis + weights, the details
-transferred by compact RBFs when ``--binding`` is given) and ``gestures.glb``
-(morph-target animation; with ``--binding``, the head motion too, as the
-node's rotation and translation).
+``weights.csv`` (c̃(t)), ``prosody.csv`` (S̃(t), F0), ``phones.csv`` and
+``visemes.csv`` (the lips: phone segments, d̃_l(t); not with ``--no-lips``),
+``head.npz`` (R̃, T̃, if the palette has head motion), ``details.npz`` (D̃_j in
+mm, if it has details), and with ``--mesh``/``--shapes`` the animated face
+``mesh.npz`` (neutral + morph targets + weights: the lip region from the
+visemes, the rest from the MRF, the details transferred by compact RBFs when
+``--binding`` is given) and ``gestures.glb`` (morph-target animation; with
+``--binding``, the head motion too, as the node's rotation and translation);
+with ``--video``, ``talking.webm`` (the face with the speech as its sound) and
+``index.html`` showing it.
+
+``gestures phones SPEECH [--transcript T] -o phones.csv``: the phone segments alone.
 """
 
 from __future__ import annotations
@@ -30,10 +36,12 @@ from fit.cli.arguments import (
     add_units,
 )
 from fit.gestures.analysis import ESTIMATORS
+from fit.gestures.phones import RECOGNIZERS
+from fit.gestures.prosody import PROSODY_METHODS
 from mocap.errors import InputError
 from mocap.synth.performance import read_performance
 
-__all__ = ["add_parser", "run_analyze", "run_synthesize", "load_palette"]
+__all__ = ["add_parser", "run_analyze", "run_synthesize", "run_phones", "load_palette"]
 
 
 def _pair(text: str) -> tuple:
@@ -53,6 +61,7 @@ def add_parser(sub) -> None:
     actions = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     _add_analyze(actions)
     _add_synthesize(actions)
+    _add_phones(actions)
 
 
 def _add_analyze(actions) -> None:
@@ -86,6 +95,7 @@ def _add_analyze(actions) -> None:
                              "upper_lip_top and lower_lip_bottom landmarks)")
     p.add_argument("--intensity-window", type=float, metavar="S",
                    help="RMS window of S(t) (default 0.05 for speech, 0.25 for the stand-in)")
+    _add_intensity(p)
     p.add_argument("--rate", type=float, default=30.0, metavar="HZ",
                    help="frame rate of the clip: the synthesis rate (default 30)")
     p.add_argument("--window", type=int, default=41, metavar="FRAMES",
@@ -140,7 +150,66 @@ def _add_synthesize(actions) -> None:
                 help="binding .json of the reference capture to --mesh (head frame): places "
                      "the details and the head motion on the mesh")
     p.add_argument("--support", type=float, help="RBF support radius, mesh units")
+    _add_intensity(p)
+    lips = p.add_mutually_exclusive_group()
+    _add_transcript(lips)
+    lips.add_argument("--phones", type=Path, metavar="CSV",
+                      help="phone segments (start,end,phone,confidence) instead of recognizing "
+                           "them")
+    lips.add_argument("--no-lips", action="store_true",
+                      help="no phones, no visemes: the MRF alone moves the mouth")
+    _add_recognizer(p)
+    p.add_argument("--visemes", type=Path, metavar="DIR",
+                   help="viseme shapes, one OBJ per class (a e i o u eu eo open closed "
+                        "labiodental); default: combinations of the ARKit-style --shapes")
+    p.add_argument("--video", action="store_true",
+                   help="also talking.webm (VP9 + Opus: the face rendered with the speech as "
+                        "its sound) and index.html showing it")
+    p.add_argument("--video-size", type=int, nargs=2, default=(480, 480),
+                   metavar=("W", "H"), help="video size in pixels (default 480 480)")
     p.set_defaults(run=run_synthesize)
+
+
+def _add_intensity(p) -> None:
+    p.add_argument("--intensity", choices=PROSODY_METHODS, default="auto",
+                   help="loudness S(t) of a WAV: Praat's intensity (the 'speech' extra), the "
+                        "RMS level, or 'auto' (default): Praat when installed, else RMS with a "
+                        "warning")
+
+
+def _add_transcript(group) -> None:
+    group.add_argument("--transcript", metavar="TEXT|FILE",
+                       help="the words spoken (or a text file of them): forced alignment")
+
+
+def _add_recognizer(p) -> None:
+    p.add_argument("--recognizer", choices=RECOGNIZERS, default="phones",
+                   help="without a transcript: 'phones' (default) recognizes phones directly, "
+                        "'words' recognizes words then aligns them (slower, fewer errors)")
+
+
+def _add_phones(actions) -> None:
+    p = actions.add_parser(
+        "phones", help="phone segments of speech (PocketSphinx) as CSV",
+        description="Recognize the phones of a speech WAV with PocketSphinx (its English "
+                    "model ships in the wheel; the 'speech' extra), or align a transcript; "
+                    "writes start,end,phone,confidence rows (s, s, ARPAbet, 0-1).")
+    p.add_argument("speech", type=Path, help="speech .wav")
+    _add_transcript(p)
+    _add_recognizer(p)
+    p.add_argument("-o", "--output", required=True, type=Path, help="phones .csv")
+    p.set_defaults(run=run_phones)
+
+
+def run_phones(args) -> int:
+    from fit.gestures.phones import phones_from_wav, write_phones_csv
+    from mocap.util.atomic import refuse_overwrite
+
+    refuse_overwrite(args.output, [args.speech])
+    segments = phones_from_wav(args.speech, transcript=args.transcript,
+                               recognizer=args.recognizer)
+    write_phones_csv(args.output, segments, inputs=[args.speech])
+    return 0
 
 
 def run_analyze(args) -> int:
@@ -166,6 +235,7 @@ def run_analyze(args) -> int:
     made = clip_from_capture(take, markerset, binding, basis, name=args.name or args.output.stem,
                              rate=args.rate, wav=args.speech, analog=args.analog,
                              opening=args.opening, intensity_window=args.intensity_window,
+                             intensity=args.intensity,
                              options=options, neutral_frame=args.neutral_frame,
                              epsilon=args.epsilon, window=args.window,
                              estimator=args.estimator, seed=args.seed)
@@ -204,7 +274,10 @@ def _in_basis(clip, shapes):
 def run_synthesize(args) -> int:
     from basis.artist import load_artist_basis
     from fit.exports import write_weights_csv
-    from fit.gestures import load_timeline, synthesize_gestures, wav_intensity
+    from fit.gestures import load_timeline, synthesize_gestures
+    from fit.gestures.phones import write_phones_csv
+    from fit.gestures.talking import analyze_speech, write_prosody_csv
+    from fit.gestures.visemes import write_visemes_csv
     from mocap.bind import load_binding
     from mocap.util.atomic import atomic_path
 
@@ -212,25 +285,37 @@ def run_synthesize(args) -> int:
         raise InputError("--mesh and --shapes go together")
     if args.binding is not None and args.mesh is None:
         raise InputError("--binding needs --mesh and --shapes")
+    if (args.video or args.visemes is not None) and args.mesh is None:
+        raise InputError("--video and --visemes need --mesh and --shapes")
+    if args.visemes is not None and args.no_lips:
+        raise InputError("--visemes and --no-lips contradict each other")
     if not args.output.is_dir():
         raise InputError(f"{args.output}: the output directory does not exist")
     basis = None if args.mesh is None else load_artist_basis(args.mesh, args.shapes,
                                                              units=args.units)
     binding = None if args.binding is None else load_binding(args.binding)
+    visemes = None if basis is None or args.no_lips else _viseme_basis(basis, args)
     rate = args.rate
     clips = load_palette(args.palette, rate=rate,
                          shapes=None if basis is None else basis.names)
     timeline = None if args.timeline is None else load_timeline(args.timeline)
-    intensity = wav_intensity(args.speech, frame_rate=rate, window=args.window)
-    syn = synthesize_gestures(intensity, clips, rate=rate, timeline=timeline,
+    speech = analyze_speech(args.speech, rate=rate, intensity=args.intensity,
+                            window=args.window, lips=not args.no_lips,
+                            transcript=args.transcript, recognizer=args.recognizer,
+                            phones=args.phones)
+    syn = synthesize_gestures(speech.prosody.intensity, clips, rate=rate, timeline=timeline,
                               history=args.history, alpha=args.alpha, sigma=args.sigma,
                               n_candidates=args.candidates, run=args.run_frames, blend=args.blend,
                               time_warps=not args.no_time_warps,
                               weight_groups={} if args.one_chain else None, seed=args.seed)
-    inputs = [args.speech, *args.palette, args.timeline, args.mesh, args.binding]
+    inputs = [args.speech, *args.palette, args.timeline, args.mesh, args.binding, args.phones]
     inputs = [x for x in inputs if x is not None]
     out = args.output
     write_weights_csv(out / "weights.csv", syn.weights, syn.names, rate=rate, inputs=inputs)
+    write_prosody_csv(out / "prosody.csv", speech.prosody, inputs=inputs)
+    if speech.phones is not None:
+        write_phones_csv(out / "phones.csv", speech.phones, inputs=inputs)
+        write_visemes_csv(out / "visemes.csv", speech.visemes, inputs=inputs)
     if syn.head_rotation is not None:
         with atomic_path(out / "head.npz", inputs=inputs) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, rotation=syn.head_rotation, translation=syn.head_translation,
@@ -242,27 +327,42 @@ def run_synthesize(args) -> int:
                      **{f"labels.{g}": np.array(v, dtype=str)
                         for g, v in syn.detail_labels.items()})
     if basis is not None:
-        _write_face(out, syn, basis, binding, support=args.support, inputs=inputs)
+        _write_face(out, syn, basis, binding, speech, visemes, args, inputs=inputs)
     return 0
 
 
-def _write_face(out: Path, syn, basis, binding, *, support, inputs) -> None:
-    """``mesh.npz`` and ``gestures.glb``: the synthesis on the target face (details and head
-    motion placed on it with a binding)."""
+def _viseme_basis(basis, args):
+    from fit.gestures.viseme_basis import load_viseme_basis, viseme_basis_from_shapes
+
+    if args.visemes is not None:
+        return load_viseme_basis(basis.neutral, args.visemes)
+    return viseme_basis_from_shapes(basis)
+
+
+def _write_face(out: Path, syn, basis, binding, speech, visemes, args, *, inputs) -> None:
+    """``mesh.npz`` and ``gestures.glb``: the synthesis on the target face (lips from the
+    visemes, details and head motion placed on it with a binding); with ``--video`` the
+    talking video and its page."""
     from basis.gltf import write_gltf
     from fit.exports import write_mesh_sequence
+    from fit.gestures.lipsync import talking_face
     from fit.gestures.transfer import build_detail_transfer, head_motion_on_mesh
 
-    fields, names, weights = basis.displacements, basis.names, syn.weights
+    extra = dict(extra=None, extra_names=(), extra_weights=None)
     if binding is not None and syn.details:
         transfer = build_detail_transfer(binding, basis.neutral, syn.detail_labels,
-                                         support=support)
-        extra, extra_names = transfer.shapes()
-        fields = np.concatenate([fields, extra])
-        names = names + extra_names
-        weights = np.concatenate([weights, transfer.weights(syn.details)], axis=1)
-    write_mesh_sequence(out / "mesh.npz", basis.neutral, fields, weights, names=names,
-                        rate=syn.rate, inputs=inputs)
+                                         support=args.support)
+        fields, names = transfer.shapes()
+        extra = dict(extra=fields, extra_names=names, extra_weights=transfer.weights(syn.details))
+    if visemes is not None:
+        face = talking_face(basis, syn.weights, visemes, speech.visemes, **extra)
+        fields, names, weights = face.displacements, face.names, face.weights
+    else:
+        fields, names, weights = basis.displacements, basis.names, syn.weights
+        if extra["extra"] is not None:
+            fields = np.concatenate([fields, extra["extra"]])
+            names = names + tuple(extra["extra_names"])
+            weights = np.concatenate([weights, extra["extra_weights"]], axis=1)
     motion = {}
     if syn.head_rotation is not None and binding is None:
         warnings.warn("the head motion is in head.npz only: --binding places it on the mesh "
@@ -271,5 +371,26 @@ def _write_face(out: Path, syn, basis, binding, *, support, inputs) -> None:
         rotation, translation = head_motion_on_mesh(binding, syn.head_rotation,
                                                     syn.head_translation)
         motion = {"rotation": rotation, "translation": translation}
+    # frame numbers from 1, as weights.csv
+    write_mesh_sequence(out / "mesh.npz", basis.neutral, fields, weights, names=names,
+                        rate=syn.rate, first_frame=1, inputs=inputs, **motion)
     write_gltf(out / "gestures.glb", basis.neutral, fields, names, weights=weights,
-               rate=syn.rate, inputs=inputs, **motion)
+               rate=syn.rate, first_frame=1, inputs=inputs, **motion)
+    if args.video:
+        _write_video(out, basis.neutral, fields, weights, motion, speech, syn, args,
+                     inputs=inputs)
+
+
+def _write_video(out, neutral, fields, weights, motion, speech, syn, args, *, inputs):
+    from fit.gestures.page import write_speech_figure, write_synthesis_page
+    from fit.gestures.video import write_talking_video
+
+    write_talking_video(out / "talking.webm", neutral, fields, weights, rate=syn.rate,
+                        audio=args.speech,
+                        size=tuple(args.video_size), inputs=inputs, **motion)
+    write_speech_figure(out / "speech.png", speech)
+    files = [f for f in ("weights.csv", "prosody.csv", "phones.csv", "visemes.csv", "head.npz",
+                         "details.npz", "mesh.npz", "gestures.glb") if (out / f).exists()]
+    write_synthesis_page(out, speech_name=args.speech.name,
+                         summary=[speech.message, syn.message], video="talking.webm",
+                         figure="speech.png", files=files, inputs=inputs)

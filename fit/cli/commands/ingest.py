@@ -9,7 +9,8 @@ from tqdm import tqdm
 import mocap
 from fit.cli.arguments import add_fill, add_markerset
 from fit.report.ingest_plots import plot_gaps, plot_head_residuals
-from mocap.clean.ingest import IngestOptions, ingest, save_head_motion
+from mocap.clean.gapfill import DEFAULT_MIN_VISIBLE
+from mocap.clean.ingest import EXTRA_MARKERS, IngestOptions, ingest, save_head_motion
 from mocap.markerset import load_markerset
 
 __all__ = ["add_parser", "run", "ingest_file"]
@@ -30,6 +31,11 @@ def add_parser(sub) -> None:
                    help="remove teleports, doubly labelled markers and ghost slides before "
                         "filling (in the head frame with --markerset)")
     add_fill(p)
+    p.add_argument("--min-visible", type=float, default=DEFAULT_MIN_VISIBLE, metavar="FRACTION",
+                   help="markers visible in fewer of the frames are reported, not filled "
+                        f"(default {DEFAULT_MIN_VISIBLE:g})")
+    p.add_argument("--extra-markers", choices=EXTRA_MARKERS, default="carry",
+                   help="markers outside --markerset: carried unfilled (default) or dropped")
     p.add_argument("--lowpass", type=float, metavar="HZ", help="Butterworth cut-off")
     p.add_argument("--resample", type=float, metavar="HZ", help="new frame rate")
     p.add_argument("--stabilize", action="store_true",
@@ -64,7 +70,8 @@ def ingest_file(path, output, *, markerset_path=None, options=IngestOptions(), q
 
 def run(args) -> int:
     options = IngestOptions(fix_swaps=args.fix_swaps, reject_implausible=args.reject_implausible,
-                            fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass,
+                            fill=args.fill, max_gap=args.max_gap, min_visible=args.min_visible,
+                            extra_markers=args.extra_markers, lowpass_hz=args.lowpass,
                             resample_hz=args.resample, stabilize=args.stabilize)
     ingest_file(args.file, args.output, markerset_path=args.markerset, options=options,
                 qa_dir=args.qa)

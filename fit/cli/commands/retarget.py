@@ -75,7 +75,8 @@ def run(args) -> int:
     ingested = ingest(take, markerset=markerset, options=IngestOptions(
         fill=args.fill, max_gap=args.max_gap, lowpass_hz=args.lowpass, stabilize=True))
     result = retarget(ingested.take, binding, mesh, markerset, options=options,
-                      neutral_frame=args.neutral_frame)
+                      neutral_frame=ingested.take.frame_index(args.neutral_frame,
+                                                              "--neutral-frame"))
     if args.output.suffix.lower() == ".npz":
         save_npz(result, args.output, content=args.content, inputs=inputs)
     else:

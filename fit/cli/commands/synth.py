@@ -14,6 +14,7 @@ from mocap.mesh.layout import load_marker_layout
 from mocap.mesh.mesh import load_mesh
 from mocap.synth.capture import simulate_capture
 from mocap.synth.performance import match_shape_names, read_performance
+from mocap.synth.performance_gaps import TRACKING_FILLS, fill_tracking_gaps
 from mocap.util.toml import read_toml
 
 __all__ = ["add_parser", "run", "parse_head_motion"]
@@ -59,6 +60,10 @@ def add_parser(sub) -> None:
     p.add_argument("--neutral-lead", type=float, default=0.0, metavar="S",
                    help="start with a neutral hold this long, blending into the performance, "
                         "as a capture session does (default 0; bind it with --frame hold)")
+    p.add_argument("--tracking-gaps", choices=("keep",) + TRACKING_FILLS, default="keep",
+                   help="rows where the performance lost tracking: keep them as frames "
+                        "with the face markers missing (default), or fill them by linear "
+                        "interpolation or with the neutral face")
     p.add_argument("--seed", type=int, default=0, help="seed of head motion, noise, gaps")
     p.add_argument("--head-motion", type=parse_head_motion, default=(15.0, 30.0),
                    metavar="DEG,MM", help="peak head rotation per axis (deg) and translation "
@@ -99,6 +104,8 @@ def run(args) -> int:
         raise InputError(f"{args.output}: the capture must be .c3d or .csv")
     units = args.units or _layout_units(args.layout)
     performance = read_performance(args.performance)
+    if args.tracking_gaps != "keep":
+        performance = fill_tracking_gaps(performance, args.tracking_gaps)
     markerset = load_markerset(args.markerset)
     mesh = load_mesh(args.mesh, units=units)
     layout = load_marker_layout(args.layout, mesh)

@@ -1,0 +1,59 @@
+"""Optional dependencies: import a package of an extra, or say which extra installs it.
+
+The core install of mocap2mesh is MIT-clean; packages under other licences
+(Praat through ``praat-parselmouth``, GPL-3.0; FFmpeg through PyAV, a GPL build)
+live in optional extras (``pip install 'mocap2mesh[speech]'``). Code that needs
+one imports it through :func:`require`, at the point of use, so that the rest
+of the package never imports it.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from mocap.errors import MissingDependencyError
+
+__all__ = ["require", "available"]
+
+
+def require(module: str, *, package: str, extra: str, purpose: str):
+    """Import `module`, or raise :class:`MissingDependencyError` naming the extra.
+
+    Parameters
+    ----------
+    module : str
+        Importable name (``parselmouth``).
+    package : str
+        Its distribution on PyPI (``praat-parselmouth``), named in the error.
+    extra : str
+        The mocap2mesh extra that installs it.
+    purpose : str
+        What needs it, starting the error message.
+
+    Returns
+    -------
+    module
+
+    Raises
+    ------
+    MissingDependencyError
+        The module cannot be imported.
+
+    Examples
+    --------
+    >>> require("math", package="math", extra="none", purpose="sqrt").sqrt(4.0)
+    2.0
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise MissingDependencyError(package, extra, purpose) from None
+
+
+def available(module: str) -> bool:
+    """True when `module` can be imported (the extra that brings it is installed)."""
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        return False
+    return True
