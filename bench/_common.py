@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import io
 import os
+import subprocess
 import sys
+import tarfile
 import time
 import tracemalloc
 from pathlib import Path
@@ -42,3 +45,13 @@ def peak_memory_mb(fn) -> float:
         return tracemalloc.get_traced_memory()[1] / 1e6
     finally:
         tracemalloc.stop()
+
+
+def export_tree(ref: str, into: Path) -> Path:
+    """The source tree of git `ref` extracted into `into` (a baseline to run side by side;
+    nothing of the checkout is touched)."""
+    blob = subprocess.run(["git", "-C", str(REPO), "archive", "--format=tar", ref],
+                          check=True, capture_output=True).stdout
+    with tarfile.open(fileobj=io.BytesIO(blob)) as tar:
+        tar.extractall(into, filter="data")
+    return into

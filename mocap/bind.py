@@ -31,6 +31,7 @@ from mocap.rigid import apply_transform, fit_rigid
 from mocap.stabilize import ROBUST_GUARD_DEG
 from mocap.take import as_take
 from mocap.util.atomic import atomic_path
+from mocap.util.files import read_input_text
 from mocap.util.deprecation import moved_names
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
@@ -170,13 +171,13 @@ def load_binding(path) -> Binding:
     FileFormatError
         Unreadable or not JSON, another format, missing fields or inconsistent shapes.
     """
-    path = Path(path)
+    text = read_input_text(path, "binding")
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read binding: {exc.strerror}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
         raise FileFormatError(path, f"not valid JSON: {exc}") from None
+    except RecursionError:
+        raise FileFormatError(path, "not a binding file: JSON nested too deeply") from None
     if not isinstance(doc, dict) or doc.get("format") != _FORMAT:
         raise FileFormatError(path, f"not a binding file (expected format {_FORMAT!r})")
     try:
@@ -192,7 +193,7 @@ def load_binding(path) -> Binding:
             rms=float(doc["rms_mm"]), skin_offset=float(doc["skin_offset_mm"]),
             n_landmarks=int(doc["n_landmarks"]), n_iterations=int(doc["n_iterations"]),
             converged=bool(doc["converged"]), message=str(doc["message"]))
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise FileFormatError(path, f"bad or missing binding field: {exc}") from None
     return binding
 

@@ -144,6 +144,13 @@ def _labels(value, path, what) -> tuple:
     return tuple(value)
 
 
+def _table(doc: dict, key: str, path) -> dict:
+    value = doc.get(key, {})
+    if not isinstance(value, dict):
+        raise FileFormatError(path, f"[{key}] must be a table, got {value!r}")
+    return value
+
+
 def load_markerset(path) -> MarkerSet:
     """Read and validate a marker-set TOML file.
 
@@ -174,9 +181,7 @@ def load_markerset(path) -> MarkerSet:
         raise FileFormatError(path, f"head names {len(head)} markers; a rigid head fit needs "
                                     "at least 3 (or list none, and stabilize on face markers "
                                     "with stabilize = 'auto')")
-    raw_regions = doc.get("regions", {})
-    if not isinstance(raw_regions, dict):
-        raise FileFormatError(path, "[regions] must be a table of region = [labels]")
+    raw_regions = _table(doc, "regions", path)
     absent = [r for r in REQUIRED_REGIONS if r not in raw_regions]
     if absent:
         raise FileFormatError(path, f"[regions] lacks {', '.join(absent)} (list them, empty if "
@@ -196,7 +201,7 @@ def load_markerset(path) -> MarkerSet:
         raise FileFormatError(path, f"stabilization must name 3 or more face markers of the set "
                                     f"(not face markers: {not_face})")
     clusters = {"head": head} if head else {}
-    for cluster, value in doc.get("clusters", {}).items():
+    for cluster, value in _table(doc, "clusters", path).items():
         labels = _labels(value, path, f"cluster {cluster!r}")
         unknown_labels = [label for label in labels if label not in owner]
         if unknown_labels or len(labels) < 3:
@@ -204,7 +209,10 @@ def load_markerset(path) -> MarkerSet:
                                         f"the set (unknown: {unknown_labels})")
         clusters[cluster] = labels
     landmarks = {}
-    for point, label in doc.get("landmarks", {}).items():
+    for point, label in _table(doc, "landmarks", path).items():
+        if not isinstance(label, str):
+            raise FileFormatError(path, f"landmark {point!r} must name one marker (a string), "
+                                        f"got {label!r}")
         if point not in ANATOMICAL_POINTS:
             raise FileFormatError(path, f"unknown anatomical point {point!r} in [landmarks]; "
                                         f"known: {', '.join(ANATOMICAL_POINTS)}")
@@ -216,6 +224,9 @@ def load_markerset(path) -> MarkerSet:
     if not isinstance(prefix, str):
         raise FileFormatError(path, f"prefix must be a string (such as 'Subject:'), got "
                                     f"{prefix!r}")
-    return MarkerSet(name=str(doc.get("name", path.stem)), head=head, regions=regions,
-                     clusters=clusters, landmarks=landmarks, path=str(path),
-                     stabilization=stabilization, prefix=prefix)
+    name = doc.get("name", path.stem)
+    if not isinstance(name, str):
+        raise FileFormatError(path, f"name must be a string, got {name!r}")
+    return MarkerSet(name=name, head=head, regions=regions, clusters=clusters,
+                     landmarks=landmarks, path=str(path), stabilization=stabilization,
+                     prefix=prefix)

@@ -246,7 +246,8 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
         when no frame at all can be fitted) a run of frames has fewer than 3
         visible head markers: the message names the marker missing there.
     InputError
-        Unknown options, fewer than 3 head markers, bad weights or frame index.
+        No frames, unknown options, fewer than 3 head markers, bad weights or
+        frame index.
 
     Notes
     -----
@@ -282,6 +283,8 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
     (True, True)
     """
     take = as_take(take)
+    if take.n_frames == 0:
+        raise InputError(f"{take.source.path or 'the take'}: the take has no frames to stabilize")
     labels = _head_labels(take, head_markers)
     reference = as_choice(reference, "reference", REFERENCES)
     invalid = as_choice(invalid, "invalid", INVALID_POLICIES)

@@ -165,12 +165,16 @@ class Take:
         if self.filled is None:
             filled = np.zeros(positions.shape[:2], dtype=np.uint8)
         else:
-            filled = np.array(self.filled, dtype=np.uint8, copy=True)
+            filled = np.asarray(self.filled)
+            if filled.dtype.kind not in "biu":
+                raise InputError(f"filled must hold integer fill-method codes, got "
+                                 f"{filled.dtype}")
             if filled.shape != positions.shape[:2]:
                 raise InputError(f"filled must have shape {positions.shape[:2]}, "
                                  f"got {filled.shape}")
-            if filled.max(initial=0) > len(FILL_METHODS):
+            if filled.size and (filled.min() < 0 or filled.max() > len(FILL_METHODS)):
                 raise InputError("filled holds an unknown fill-method code")
+            filled = filled.astype(np.uint8)
         object.__setattr__(self, "labels", labels)
         object.__setattr__(self, "positions", read_only(positions))
         object.__setattr__(self, "filled", read_only(filled))

@@ -296,3 +296,21 @@ def off_lip_layout(layout, mesh, markerset, landmarks):
     return (make_layout(mesh, specs, name=f"{layout.name}-off-lips"),
             MarkerSet(name=f"{markerset.name}-off-lips", head=markerset.head, regions=regions,
                       clusters=markerset.clusters, landmarks=kept))
+
+
+def stub_take(calls, bases=None):
+    """A stand-in for one take of ``run_takes`` (``fit.pipeline.session._guarded``) that
+    commits one small file through the completion API; appends each capture's name to
+    `calls` (and the session basis it was given to `bases`)."""
+    from fit.pipeline.completion import begin_take, commit_take
+
+    def fake(capture, config, name, provenance, session_basis=None):
+        calls.append(capture.name)
+        if bases is not None:
+            bases.append(session_basis)
+        stage = begin_take(config.output, name)
+        (stage / "out.txt").write_text(f"{capture.name} {provenance.key}")
+        record = commit_take(stage, config.output, name, provenance,
+                             summary={"status": "ok", "skipped": False, "error": None})
+        return {**record.summary, "files": [f"{name}/{f}" for f in record.files]}
+    return fake

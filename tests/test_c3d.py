@@ -359,7 +359,7 @@ def test_corrupt_files_raise_with_offset(tmp_path, edit, match, offset):
 
 
 def test_unreadable_path(tmp_path):
-    with pytest.raises(FileFormatError, match="cannot read file"):
+    with pytest.raises(FileFormatError, match="cannot read C3D file: no such file"):
         read_c3d(tmp_path / "absent.c3d")
     with pytest.raises(InputError, match="path must be a str or os.PathLike"):
         read_c3d(3)

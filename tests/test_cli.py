@@ -32,7 +32,7 @@ def test_help_and_usage_errors(capsys):
 
 def test_missing_and_unsupported_files_exit_1(tmp_path, capsys):
     assert main(["info", str(tmp_path / "nope.c3d")]) == 1
-    assert "nope.c3d: no such file" in capsys.readouterr().err
+    assert "nope.c3d: cannot read C3D file: no such file" in capsys.readouterr().err
     (tmp_path / "a.xyz").write_text("1 2 3")
     assert main(["info", str(tmp_path / "a.xyz")]) == 1
     assert "unsupported extension '.xyz'" in capsys.readouterr().err

@@ -303,7 +303,8 @@ def test_complete_span_drops_incomplete_end_frames():
 
 def test_complete_span_rejects_a_take_without_a_complete_frame():
     pos = np.zeros((3, 2, 3))
-    pos[:, 0] = np.nan
+    pos[1:, 0] = np.nan                       # each marker is seen, never both together
+    pos[0, 1] = np.nan
     with pytest.raises(InputError, match="no frame has every face marker"):
         complete_span(mocap.Take(("a", "b"), pos, rate=100.0), ["a", "b"])
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import play_gltf
+from helpers import play_gltf, stub_take
 from tolerances import FLOAT32_REL, GLB_PLAYED_MM
 
 import mocap
@@ -19,6 +19,7 @@ from fit.cli.main import main
 from fit.demo import demo_config_toml, make_demo_session
 from fit.exports import read_mesh_sequence
 from fit.pipeline import BASES
+from fit.pipeline.completion import RECORD_NAME
 from fit.pipeline.config import load_run_config
 from fit.pipeline.session import run_takes
 from mocap.bind import load_binding
@@ -161,15 +162,7 @@ def test_rerun_of_the_same_config_skips_the_done_take(session_root, first_run):
 def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     """Skip logic alone: the chain is replaced by a stub that records its calls."""
     calls = []
-
-    def fake(capture, config, session_basis=None):
-        calls.append(capture.name)
-        (config.output / capture.stem).mkdir(parents=True, exist_ok=True)
-        (config.output / capture.stem / "out.txt").write_text("x")
-        return {"status": "ok", "skipped": False, "error": None,
-                "files": [f"{capture.stem}/out.txt"]}
-
-    monkeypatch.setattr("fit.pipeline.session._guarded", fake)
+    monkeypatch.setattr("fit.pipeline.session._guarded", stub_take(calls))
     for name in ("a.c3d", "b.c3d"):
         shutil.copy(session_root / "session" / "capture.c3d", tmp_path / name)
     for name in ("markerset.toml", "neutral.obj", "landmarks.toml"):
@@ -184,18 +177,31 @@ def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     assert sorted(calls) == ["a.c3d", "b.c3d"]
     outcome = run_takes(config, workers=1, progress=False)
     assert sorted(calls) == ["a.c3d", "b.c3d"] and outcome.n_skipped == 2
+    assert outcome.reasons["a"] == "done by an earlier run; 1 output verified"
     (tmp_path / "b.c3d").write_bytes((tmp_path / "b.c3d").read_bytes() + b"\0")
     outcome = run_takes(config, workers=1, progress=False)
-    assert calls[2:] == ["b.c3d"]
+    assert calls[2:] == ["b.c3d"] and outcome.reasons["b"] == "the capture changed"
     assert outcome.takes["a"]["skipped"] and not outcome.takes["b"]["skipped"]
     assert outcome.takes["b"]["capture"]["sha256"] == \
         hashlib.sha256((tmp_path / "b.c3d").read_bytes()).hexdigest()
     (tmp_path / "out" / "a" / "out.txt").unlink()          # a missing output: redo
-    run_takes(config, workers=1, progress=False)
-    assert calls[3:] == ["a.c3d"]
+    outcome = run_takes(config, workers=1, progress=False)
+    assert calls[3:] == ["a.c3d"] and outcome.reasons["a"] == "output out.txt is missing"
+    text = (tmp_path / "out" / "b" / "out.txt").read_text()   # same size, other bytes
+    (tmp_path / "out" / "b" / "out.txt").write_text(text.swapcase())
+    outcome = run_takes(config, workers=1, progress=False)
+    assert calls[4:] == ["b.c3d"]
+    assert outcome.reasons["b"] == "output out.txt changed (SHA-256 differs)"
     path.write_text(path.read_text().replace("video_step = 4", "video_step = 3"))
-    run_takes(load_run_config(path), workers=1, progress=False)   # a parameter changed
-    assert sorted(calls[4:]) == ["a.c3d", "b.c3d"]
+    outcome = run_takes(load_run_config(path), workers=1, progress=False)   # a parameter
+    assert sorted(calls[5:]) == ["a.c3d", "b.c3d"]
+    assert outcome.reasons["a"] == "parameter report.video_step changed (4 -> 3)"
+    (tmp_path / "out" / "a" / RECORD_NAME).unlink()       # a folder without its record
+    outcome = run_takes(load_run_config(path), workers=1, progress=False, check=True)
+    assert outcome.checked and outcome.takes["b"]["skipped"]
+    assert outcome.takes["a"] == {"skipped": False, "reason": "no completion record (the run "
+                                                              "that wrote it did not finish it)"}
+    assert len(calls) == 7                                 # a check runs nothing
 
 
 @pytest.mark.parametrize("edit, match", [

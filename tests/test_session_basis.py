@@ -19,6 +19,7 @@ import shutil
 import numpy as np
 import pytest
 from scipy.linalg import subspace_angles, svd
+from helpers import stub_take
 from tolerances import EXACT_FLOAT64, PCA_ANGLE_RAD, PCA_IMPLICIT_RTOL
 
 from basis.basis_io import load_basis
@@ -235,18 +236,11 @@ def test_a_session_re_runs_every_take_when_one_capture_changes(session, monkeypa
     """The skip logic alone: the chain and the basis are stubs that record their calls."""
     calls, built = [], []
 
-    def fake_take(capture, config, session_basis=None):
-        calls.append((capture.name, session_basis))
-        (config.output / capture.stem).mkdir(parents=True, exist_ok=True)
-        (config.output / capture.stem / "out.txt").write_text("x")
-        return {"status": "ok", "skipped": False, "error": None,
-                "files": [f"{capture.stem}/out.txt"]}
-
     def fake_basis(config, *, workers, progress):
         built.append(len(config.captures))
         return None, {}
 
-    monkeypatch.setattr("fit.pipeline.session._guarded", fake_take)
+    monkeypatch.setattr("fit.pipeline.session._guarded", stub_take(calls))
     monkeypatch.setattr("fit.pipeline.session.build_session_basis", fake_basis)
     for take in TAKES:
         shutil.copy(session["root"] / f"{take}.c3d", tmp_path / f"{take}.c3d")
@@ -262,7 +256,7 @@ def test_a_session_re_runs_every_take_when_one_capture_changes(session, monkeypa
         f"{t}:{d}" for t, d in zip(TAKES, digests)).encode()).hexdigest()}
     (tmp_path / "c.c3d").write_bytes((tmp_path / "c.c3d").read_bytes() + b"\0")
     outcome = run_takes(config, workers=1, progress=False)
-    assert sorted(name for name, _ in calls[3:]) == ["a.c3d", "b.c3d", "c.c3d"]
+    assert sorted(calls[3:]) == ["a.c3d", "b.c3d", "c.c3d"]
     assert outcome.n_skipped == 0 and built == [3, 3]
 
 

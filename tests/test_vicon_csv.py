@@ -295,5 +295,5 @@ def test_reads_non_ascii_labels_and_a_bom(tmp_path, encoding):
 
 
 def test_unreadable_file_is_a_file_format_error(tmp_path):
-    with pytest.raises(FileFormatError, match="cannot read the file: No such file"):
+    with pytest.raises(FileFormatError, match="cannot read Vicon CSV file: no such file"):
         read_vicon_csv(tmp_path / "absent.csv")

@@ -1,14 +1,19 @@
 """The ``mocap2mesh`` command: a thin layer over the library functions.
 
-Exit codes: 0 success, 1 bad input (a :class:`mocap.errors.Mocap2MeshError`,
-printed as one line naming the file, marker or frame at fault), 2 usage error.
+Exit codes: 0 success, 1 bad input or an output that cannot be written (a
+:class:`mocap.errors.Mocap2MeshError` or an ``OSError``: read-only folder, name
+too long, disk full; printed as one line naming the file, marker or frame at
+fault), 2 usage error, 130 interrupted, 141 output cut short by a closed pipe
+(``mocap2mesh info FILE | head -3``; nothing printed).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
+import re
 import sys
 import warnings
 
@@ -21,7 +26,9 @@ __all__ = ["main", "COMMANDS"]
 COMMANDS = tuple(sorted(m.name for m in pkgutil.iter_modules(commands.__path__)
                         if not m.name.startswith("_")))
 
-EXIT_OK, EXIT_BAD_INPUT, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_BAD_INPUT, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_CLOSED_PIPE = 0, 1, 2, 130, 141
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _format_warning(message, category, filename, lineno, line=None):
-    return f"mocap2mesh: warning: {message}\n"
+    return f"mocap2mesh: warning: {_one_line(str(message))}\n"
 
 
 def main(argv=None) -> int:
@@ -52,11 +59,38 @@ def main(argv=None) -> int:
     try:
         return int(args.run(args) or EXIT_OK)
     except Mocap2MeshError as exc:
-        print(f"mocap2mesh {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return _fail(args.command, str(exc))
+    except BrokenPipeError:
+        _silence_stdout()
+        return EXIT_CLOSED_PIPE
+    except OSError as exc:
+        where = ": ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
+        return _fail(args.command, f"{where + ': ' if where else ''}{exc.strerror or exc}")
+    except MemoryError:
+        return _fail(args.command, "out of memory; a smaller input, fewer workers or a lower "
+                                   "MOCAP2MESH_MAX_BYTES make reading refuse it early")
     except KeyboardInterrupt:
         print("mocap2mesh: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
+
+
+def _one_line(text: str) -> str:
+    """`text` with line breaks and other control characters shown as escapes."""
+    return _CONTROL.sub(lambda m: repr(m[0])[1:-1], text)
+
+
+def _fail(command: str, message: str) -> int:
+    print(f"mocap2mesh {command}: error: {_one_line(message)}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's last flush cannot fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):   # stdout is not a file descriptor (captured in tests)
+        pass
 
 
 def console() -> None:  # pragma: no cover - the installed entry point

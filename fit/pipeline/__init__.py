@@ -7,8 +7,11 @@
 - :mod:`.gaps`: the face markers ingestion left with gaps, named before binding;
 - :mod:`.session`: every take of a session (:func:`run_takes`), with
   :mod:`.manifest` recording what was done, :mod:`.session_basis` the PCA the
-  takes share (``[basis] scope = "session"``) and :mod:`.take_warnings` what
-  each take warned about;
+  takes share (``[basis] scope = "session"``), :mod:`.take_warnings` what
+  each take warned about, :mod:`.completion` committing each take as a unit
+  with the record a later run verifies, :mod:`.outdir` keeping the output
+  directory safe (lock, names, stale files) and :mod:`.workers` making pool
+  workers die with the run;
 - :mod:`.template`: a complete ``run.toml``, every key with its default and a comment;
 - :mod:`.initialize`: what ``mocap2mesh init`` writes for a capture never seen.
 """

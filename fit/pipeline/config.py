@@ -47,6 +47,7 @@ from fit.pipeline.options import BasisOptions, BindOptions, FitOptions, ReportOp
 from mocap.clean.ingest import STABILIZATIONS, IngestOptions
 from mocap.errors import InputError
 from mocap.retarget.retargeting import RetargetOptions
+from mocap.util.files import as_path
 from mocap.util.toml import check_open_questions, read_toml
 from mocap.util.validation import as_int
 
@@ -90,13 +91,15 @@ class RunConfig:
     path : Path
         The configuration file.
     captures : tuple of Path
-        The takes, in order (unique file names).
+        The takes, in order.
     markerset, mesh, landmarks, basis : Path
     mesh_units : str or None
     output : Path
     workers : int
     ingest, bind, retarget, basis_options, fit, report
         The options of each stage.
+    session : Path or None
+        The directory of ``inputs.session``, when the captures come from one.
     """
 
     path: Path
@@ -114,6 +117,7 @@ class RunConfig:
     basis_options: BasisOptions
     fit: FitOptions
     report: ReportOptions
+    session: Path | None = None
 
     @property
     def shared_inputs(self) -> dict:
@@ -144,12 +148,18 @@ def _unknown(path, table: dict, known, prefix: str) -> None:
 def _file(path: Path, value, key: str, *, directory: bool | None = False) -> Path:
     if not isinstance(value, str) or not value:
         _fail(path, key, f"expected a path (string), got {value!r}")
-    resolved = (path.parent / value).resolve()
-    if not resolved.exists():
+    try:
+        resolved = (path.parent / as_path(value, key)).resolve()
+        exists, is_dir, is_file = resolved.exists(), resolved.is_dir(), resolved.is_file()
+    except InputError as exc:
+        _fail(path, key, str(exc))
+    except (OSError, RuntimeError) as exc:   # a name too long, a symlink loop
+        _fail(path, key, f"{value!r} is not a usable path: {exc.strerror or exc}")
+    if not exists:
         _fail(path, key, f"{resolved} does not exist")
-    if directory is True and not resolved.is_dir():
+    if directory is True and not is_dir:
         _fail(path, key, f"{resolved} is not a directory")
-    if directory is False and not resolved.is_file():
+    if directory is False and not is_file:
         _fail(path, key, f"{resolved} is not a file")
     return resolved
 
@@ -160,7 +170,11 @@ def _captures(path: Path, inputs: dict) -> tuple:
                                        "inputs.session (a directory), not both nor neither")
     if "session" in inputs:
         folder = _file(path, inputs["session"], "inputs.session", directory=True)
-        found = sorted(p for p in folder.iterdir() if p.suffix.lower() in CAPTURE_SUFFIXES)
+        try:
+            found = sorted(p for p in folder.iterdir() if p.suffix.lower() in CAPTURE_SUFFIXES
+                           and p.is_file())
+        except OSError as exc:
+            _fail(path, "inputs.session", f"cannot list {folder}: {exc.strerror or exc}")
         if not found:
             _fail(path, "inputs.session", f"{folder} holds no {'/'.join(CAPTURE_SUFFIXES)} file")
         return tuple(found)
@@ -169,13 +183,7 @@ def _captures(path: Path, inputs: dict) -> tuple:
         listed = [listed]
     if not isinstance(listed, list) or not listed:
         _fail(path, "inputs.captures", f"expected a non-empty list of paths, got {listed!r}")
-    files = tuple(_file(path, item, f"inputs.captures[{i}]") for i, item in enumerate(listed))
-    stems = [f.stem for f in files]
-    for i, stem in enumerate(stems):
-        if stems.index(stem) != i:
-            _fail(path, f"inputs.captures[{i}]", f"another capture is also named {stem!r}: "
-                                                 "each take's outputs go to a folder of its name")
-    return files
+    return tuple(_file(path, item, f"inputs.captures[{i}]") for i, item in enumerate(listed))
 
 
 def stage_options(name: str, table, *, where="run configuration"):
@@ -242,7 +250,7 @@ def load_run_config(path) -> RunConfig:
         A missing or unknown key, a wrong value, a path that does not exist:
         the message names the file and the key (``inputs.mesh``, ``fit.space``).
     """
-    path = Path(path).resolve()
+    path = as_path(path).resolve()
     doc = read_toml(path, "run configuration")
     _unknown(path, doc, _TOP, "")
     check_open_questions(doc, path, "run configuration")
@@ -265,6 +273,13 @@ def load_run_config(path) -> RunConfig:
     directory = output.get("directory", "out")
     if not isinstance(directory, str) or not directory:
         _fail(path, "output.directory", f"expected a path (string), got {directory!r}")
+    try:
+        out_dir = (path.parent / as_path(directory, "output.directory")).resolve()
+    except InputError as exc:
+        _fail(path, "output.directory", str(exc))
+    except (OSError, RuntimeError) as exc:
+        _fail(path, "output.directory", f"{directory!r} is not a usable path: "
+                                        f"{exc.strerror or exc}")
     workers = output.get("workers", min(2, len(captures)))
     try:
         workers = as_int(workers, "workers", minimum=1)
@@ -282,6 +297,7 @@ def load_run_config(path) -> RunConfig:
         mesh=_file(path, inputs["mesh"], "inputs.mesh"),
         landmarks=_file(path, inputs["landmarks"], "inputs.landmarks"),
         basis=_file(path, inputs["basis"], "inputs.basis", directory=None),
-        mesh_units=units, output=(path.parent / directory).resolve(), workers=workers,
+        mesh_units=units, output=out_dir, workers=workers,
         ingest=stages["ingest"], bind=stages["bind"], retarget=stages["retarget"],
-        basis_options=stages["basis"], fit=stages["fit"], report=stages["report"])
+        basis_options=stages["basis"], fit=stages["fit"], report=stages["report"],
+        session=captures[0].parent if "session" in inputs else None)

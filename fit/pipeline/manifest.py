@@ -29,7 +29,7 @@ from pathlib import Path
 from mocap.util.atomic import atomic_path
 
 __all__ = ["MANIFEST_NAME", "FORMAT", "sha256_path", "package_versions", "take_key",
-           "load_manifest", "reusable_record", "write_manifest"]
+           "load_manifest", "reusable_record", "write_manifest", "json_default"]
 
 MANIFEST_NAME = "manifest.json"
 FORMAT = "mocap2mesh-manifest-1"
@@ -130,13 +130,13 @@ def write_manifest(path, *, config, versions: dict, parameters: dict, inputs: di
     if session_basis is not None:
         doc["session_basis"] = session_basis
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(doc, indent=1, sort_keys=False, default=_plain) + "\n",
+        Path(tmp).write_text(json.dumps(doc, indent=1, default=json_default) + "\n",
                              encoding="utf-8")
     return doc
 
 
-def _plain(value):
-    """JSON fallback: numpy scalars and arrays, paths."""
+def json_default(value):
+    """JSON fallback (``json.dumps(..., default=json_default)``): numpy values, paths."""
     if hasattr(value, "tolist"):
         return value.tolist()
     return str(value)

@@ -32,7 +32,6 @@ import hashlib
 import sys
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,6 +42,7 @@ from basis.pca import MarkerMoments, PCAModel, marker_moments, pca_from_operator
 from fit.pipeline.config import RunConfig
 from fit.pipeline.options import BasisOptions
 from fit.pipeline.reconstruction import Reconstruction
+from fit.pipeline.workers import local_pool, stop_pool
 from mocap.errors import InputError, Mocap2MeshError
 
 __all__ = ["TakeMoments", "SessionBasis", "take_moments", "session_basis",
@@ -233,7 +233,8 @@ def build_session_basis(config: RunConfig, *, workers: int = 1,
                 outcomes.append(_moments_or_error(capture, config))
                 bar.update()
         else:
-            with ProcessPoolExecutor(max_workers=min(workers, len(captures))) as pool:
+            pool = local_pool(min(workers, len(captures)))     # workers die with the run
+            try:
                 futures = [pool.submit(_moments_or_error, c, config) for c in captures]
                 outcomes = []
                 for future in futures:             # in the run's order
@@ -242,6 +243,10 @@ def build_session_basis(config: RunConfig, *, workers: int = 1,
                     except Exception as exc:  # noqa: BLE001 - a worker died (memory, signal)
                         outcomes.append(f"worker process failed: {type(exc).__name__}: {exc}")
                     bar.update()
+            except BaseException:
+                stop_pool(pool)
+                raise
+            pool.shutdown()
     failed = {c.stem: o for c, o in zip(captures, outcomes) if isinstance(o, str)}
     prepared = [o for o in outcomes if isinstance(o, TakeMoments)]
     if not prepared:

@@ -31,7 +31,7 @@ from fit.solve.temporal import moving_average
 from fit.solve.weights import solve_weights
 from mocap.bind import BoundTake, bind_take
 from mocap.clean.ingest import IngestOptions, IngestResult, ingest
-from mocap.errors import InputError
+from mocap.errors import InputError, MarkerError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh
 from mocap.mesh.mouth import find_mouth
@@ -144,12 +144,23 @@ def complete_span(take: Take, labels) -> Take:
 
     Raises
     ------
+    MarkerError
+        A marker of `labels` is missing in every frame (the first such is named).
     InputError
-        No frame has every one of `labels`.
+        The take has no frames, or no frame has every one of `labels`.
     """
-    complete = ~np.isnan(take.select(labels).positions).any(axis=(1, 2))
+    where, labels = take.source.path or "the take", tuple(labels)
+    if take.n_frames == 0:
+        raise InputError(f"{where}: the take has no frames")
+    present = ~np.isnan(take.select(labels).positions).any(axis=2)
+    never = np.flatnonzero(~present.any(axis=0))
+    if never.size:
+        raise MarkerError(labels[never[0]], f"is missing in every frame of {where}, even after "
+                                            "gap filling (absent in all: "
+                                            f"{', '.join(labels[i] for i in never)})")
+    complete = present.all(axis=1)
     if not complete.any():
-        raise InputError(f"{take.source.path or 'the take'}: no frame has every face marker "
+        raise InputError(f"{where}: no frame has every face marker "
                          "present, even after gap filling")
     first, last = np.flatnonzero(complete)[[0, -1]]
     if first == 0 and last == take.n_frames - 1:

@@ -17,6 +17,7 @@ from fit.report.views import view_axes
 from mocap.errors import InputError
 from mocap.util.atomic import atomic_path
 from mocap.util.validation import as_int, as_positions, as_positive_float
+from mocap.viz.figures import plottable
 
 __all__ = ["VIDEO_SUFFIX", "VIDEO_MIME", "write_overlay_video"]
 
@@ -112,12 +113,15 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     """
     if os.path.splitext(os.fspath(path))[1].lower() != VIDEO_SUFFIX:
         raise InputError(f"{path}: the overlay video is VP9 in WebM: name it *{VIDEO_SUFFIX}")
-    captured = as_positions(captured, "captured")
+    captured = plottable(as_positions(captured, "captured"), "captured positions",
+                         labels=labels, first_frame=first_frame)
     panels = dict(reconstructed) if isinstance(reconstructed, Mapping) else {"": reconstructed}
     if not panels:
         raise InputError("reconstructed is empty: give at least one reconstruction")
     for name in panels:
-        panels[name] = as_positions(panels[name], "reconstructed")
+        panels[name] = plottable(as_positions(panels[name], "reconstructed"),
+                                 f"reconstructed positions {name}".rstrip(), labels=labels,
+                                 first_frame=first_frame)
         if panels[name].shape != captured.shape:
             raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
                              f"got {panels[name].shape}")

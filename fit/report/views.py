@@ -8,7 +8,7 @@ from matplotlib.collections import LineCollection
 
 from mocap.errors import InputError
 from mocap.util.validation import as_float_array, as_positions
-from mocap.viz.figures import new_figure, save_figure
+from mocap.viz.figures import new_figure, plottable, save_figure
 
 __all__ = ["view_axes", "plot_frame_views"]
 
@@ -113,8 +113,11 @@ def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=N
     names : sequence of str, optional
         A caption per frame (e.g. "RMS 2.1 mm").
     """
-    captured = as_positions(captured, "captured")
-    reconstructed = as_positions(reconstructed, "reconstructed")
+    captured = plottable(as_positions(captured, "captured"), "captured positions",
+                         labels=labels, first_frame=first_frame)
+    reconstructed = plottable(as_positions(reconstructed, "reconstructed"),
+                              "reconstructed positions", labels=labels,
+                              first_frame=first_frame)
     if reconstructed.shape != captured.shape:
         raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
                          f"got {reconstructed.shape}")

@@ -189,7 +189,9 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     Raises
     ------
     InputError
-        ``stabilize = "head"`` without a marker set naming head markers.
+        The take has no frames; ``stabilize = "head"`` without a marker set
+        naming head markers; a resampling rate out of bounds
+        (:func:`~mocap.clean.resample`).
     MarkerError
         A marker of the marker set is absent from the take, or too few head
         markers are visible for a rigid fit.
@@ -199,6 +201,8 @@ def ingest(take: Take, *, markerset: MarkerSet | None = None,
     UserWarning
         Each of :attr:`IngestResult.notices`.
     """
+    if take.n_frames == 0:
+        raise InputError(f"{take.source.path or 'the take'}: the take has no frames")
     if markerset is not None:
         take = markerset.own_labels(take)
         markerset.check_labels(take.labels, source=take.source.path or "the take")

@@ -7,10 +7,16 @@ from scipy.interpolate import CubicSpline
 
 from mocap.clean._segments import visible_segments
 from mocap.clean.filtering import lowpass
+from mocap.errors import InputError
 from mocap.take import Take, as_take
+from mocap.util.budget import ENV_VAR, format_bytes, max_bytes
 from mocap.util.validation import as_int, as_positive_float
 
-__all__ = ["resample"]
+__all__ = ["resample", "MAX_UPSAMPLING"]
+
+#: Largest ratio of the new rate to the take's (up-sampling invents no motion:
+#: beyond this, it only multiplies the frames).
+MAX_UPSAMPLING = 16.0
 
 #: Default anti-aliasing cut-off when down-sampling, as a fraction of the new
 #: Nyquist frequency (the value ``scipy.signal.decimate`` uses).
@@ -44,8 +50,9 @@ def resample(take: Take, rate: float, *, cutoff_hz: float | None = None,
     Raises
     ------
     InputError
-        `rate` or `cutoff_hz` not positive, `cutoff_hz` at or above the
-        Nyquist frequency of the input.
+        `rate` or `cutoff_hz` not positive, `rate` above :data:`MAX_UPSAMPLING`
+        times the take's, new positions larger than ``MOCAP2MESH_MAX_BYTES``,
+        `cutoff_hz` at or above the Nyquist frequency of the input.
 
     Notes
     -----
@@ -68,6 +75,13 @@ def resample(take: Take, rate: float, *, cutoff_hz: float | None = None,
     take = as_take(take)
     rate = as_positive_float(rate, "rate")
     order = as_int(order, "order", minimum=1)
+    if rate > MAX_UPSAMPLING * take.rate:
+        raise InputError(f"rate {rate:g} Hz is more than {MAX_UPSAMPLING:g} times the take's "
+                         f"{take.rate:g} Hz; up-sampling that far adds frames, not detail")
+    n_bytes = 24.0 * (take.n_frames * rate / take.rate + 1) * take.n_markers
+    if n_bytes > max_bytes():
+        raise InputError(f"resampling to {rate:g} Hz would take {format_bytes(n_bytes)} of "
+                         f"positions, more than {ENV_VAR} ({format_bytes(max_bytes())})")
     if cutoff_hz is None and rate < take.rate:
         cutoff_hz = ANTI_ALIAS_FRACTION * rate / 2
     source = take if cutoff_hz is None else lowpass(take, cutoff_hz, order=order)

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mocap.errors import FileFormatError, InputError
+from mocap.errors import InputError
 from mocap.take import Take
+from mocap.util.files import as_path
 
 __all__ = ["read", "write", "READ_FORMATS", "WRITE_FORMATS"]
 
@@ -38,13 +39,13 @@ def read(path) -> Take:
     Raises
     ------
     FileFormatError
-        The file is missing, empty, truncated or corrupt (names file and offset or line).
+        The file is missing, unreadable, empty, truncated or corrupt (names file
+        and offset or line), or would take more memory than it justifies.
     InputError
-        The extension is not supported.
+        The extension is not supported, or the path is not one (a NUL in it).
     """
+    path = as_path(path)
     ext = _extension(path, READ_FORMATS)
-    if not Path(path).is_file():
-        raise FileFormatError(path, "no such file")
     if ext == ".c3d":
         from mocap.io.c3d import read_c3d
         return read_c3d(path)

@@ -61,8 +61,8 @@ def _decode_value(kind: int, dims: tuple, raw: bytes, order: str):
         if len(dims) == 0:
             return (_decode_text(raw),)
         width = dims[0]
-        if width == 0:
-            return ("",) * math.prod(dims[1:])
+        if width == 0:          # no bytes: no strings, whatever the other dimensions claim
+            return ()
         return tuple(_decode_text(raw[i:i + width]) for i in range(0, len(raw), width))
     if kind == 1:
         return np.frombuffer(raw, dtype=np.int8).astype(np.int64)

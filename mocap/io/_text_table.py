@@ -8,29 +8,35 @@ Shared by the Vicon Nexus CSV (:mod:`mocap.io.vicon_csv`) and TRC
 from __future__ import annotations
 
 import codecs
+import csv
 import io
 import re
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.util.atomic import atomic_path
+from mocap.util.budget import check_allocation
+from mocap.util.files import read_input_bytes
 
 BLANK_LINES = re.compile(rb"(?:[ \t,]*\r?\n)*")
 NOT_BLANK = re.compile(rb"[^ \t\r\n,]")
 BLANK_LINE_AFTER = re.compile(rb"\n[ \t,]*\r?(?=\n|\Z)")
 _CHUNK_FRAMES = 2048
+#: Largest frame number in a text table (integers are exact in float64 below 2**53).
+_MAX_FRAME = 1e15
+#: Bytes of rows whose separators are located at once when counting cells.
+_COUNT_BYTES = 1 << 18
+_LONE_CR = re.compile(rb"\r(?!\n)")
+#: Cells per chunk when looking for the cell that is not a number.
+_LOCATE_CELLS = 1 << 18
 
 
-def read_bytes(path) -> bytes:
+def read_bytes(path, what: str) -> bytes:
     """The file's bytes without a UTF-8 BOM; FileFormatError if empty or unreadable."""
-    try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read the file: {exc.strerror}") from None
+    raw = read_input_bytes(path, what)
     if raw.startswith(codecs.BOM_UTF8):
         raw = raw[len(codecs.BOM_UTF8):]
     if NOT_BLANK.search(raw) is None:
@@ -74,6 +80,83 @@ def data_end(raw: bytes, start: int) -> int:
     return len(raw) if end is None else end.start() + 1
 
 
+def _row_fields(data: bytes, raw: np.ndarray, ends: np.ndarray, sep: str) -> np.ndarray:
+    """Cells of each row (separators + 1), counted a window of rows at a time.
+
+    The separator positions of one window (:data:`_COUNT_BYTES`) are held at a
+    time; a row longer than the window is counted in place (``bytes.count``).
+    """
+    sep_byte = sep.encode("latin-1")
+    fields = np.empty(len(ends), dtype=np.int64)
+    row = 0
+    while row < len(ends):
+        lo = int(ends[row - 1]) + 1 if row else 0
+        stop = int(np.searchsorted(ends, lo + _COUNT_BYTES, side="right"))
+        if stop <= row:                             # one row longer than the window
+            fields[row] = data.count(sep_byte, lo, int(ends[row])) + 1
+            row += 1
+            continue
+        seps = np.flatnonzero(raw[lo:int(ends[stop - 1])] == ord(sep))
+        fields[row:stop] = np.diff(np.searchsorted(seps, ends[row:stop] - lo), prepend=0) + 1
+        row = stop
+    return fields
+
+
+def _trim_wide_rows(path, data: bytes, starts, ends, fields, n_cols: int, sep: str,
+                    first_line: int, columns: list) -> bytes:
+    """The rows cut after their `n_cols`-th cell; an error if a cut cell is not blank.
+
+    Exporters pad rows with empty cells (trailing separators); those are
+    dropped here so that the table is never wider than its header says. One
+    ``bytes.split`` per padded row (at most `n_cols` splits, done in C) keeps
+    the memory to the row's own size, however many separators it holds.
+    """
+    sep_byte = sep.encode("latin-1")
+    parts, pos = [], 0
+    for row in np.flatnonzero(fields > n_cols).tolist():
+        start, end = int(starts[row]), int(ends[row])
+        cells = data[start:end].split(sep_byte, n_cols)
+        if cells[-1].strip(b" \t\r" + sep_byte):
+            raise FileFormatError(path, f"the row has values after its last column "
+                                        f"({columns[-1]}); expected {n_cols} columns",
+                                  line=first_line + row)
+        parts += [data[pos:start], sep_byte.join(cells[:n_cols])]
+        pos = end
+    parts.append(data[pos:])
+    return b"".join(parts)
+
+
+def _read_table(data: bytes, sep: str, n_cols: int, **options) -> pd.DataFrame:
+    """The rows as a table of exactly `n_cols` columns (pandas' C parser, no quoting)."""
+    return pd.read_csv(io.BytesIO(data), sep=sep, header=None, index_col=False,
+                       names=list(range(n_cols)), skipinitialspace=True,
+                       skip_blank_lines=False, encoding="latin-1", engine="c",
+                       quoting=csv.QUOTE_NONE, **options)
+
+
+def _first_bad_cell(path, data: bytes, sep: str, columns: list, first_line: int):
+    """Raise FileFormatError naming the first cell that is not a finite number.
+
+    Reads the rows in chunks (as text) so that locating the cell stays within
+    a small multiple of the chunk, whatever the file's size.
+    """
+    n_cols = len(columns)
+    offset = 0
+    for chunk in _read_table(data, sep, n_cols, dtype=object,
+                             chunksize=max(1, _LOCATE_CELLS // n_cols)):
+        cells = chunk.to_numpy(dtype=object)
+        numbers = np.column_stack([pd.to_numeric(chunk[col], errors="coerce")
+                                   .to_numpy(dtype=np.float64) for col in range(n_cols)])
+        bad = (pd.notna(cells) & np.isnan(numbers)) | np.isinf(numbers)
+        if bad.any():
+            row, col = np.argwhere(bad)[0]
+            raise FileFormatError(path, f"cell {str(cells[row, col]).strip()!r} in column "
+                                        f"{col + 1} ({columns[col]}) is not a finite number",
+                                  line=first_line + offset + int(row))
+        offset += len(chunk)
+    raise AssertionError("no bad cell found after the fast parse failed")  # pragma: no cover
+
+
 def numeric_block(path, data: bytes, *, first_line: int, columns: list,
                    sep: str) -> np.ndarray:
     """Parse the data rows of a table, vectorized, checking every cell.
@@ -89,19 +172,28 @@ def numeric_block(path, data: bytes, *, first_line: int, columns: list,
     columns : list of str
         A description of each expected column, for error messages.
     sep : str
-        The cell separator.
+        The cell separator. Quotes are ordinary characters (no cell of a
+        marker table is quoted), so a quote makes its cell non-numeric.
 
     Returns
     -------
     ndarray of shape (n_rows, len(columns)), float64
         NaN for empty cells.
+
+    Raises
+    ------
+    FileFormatError
+        A row with fewer cells than columns, a value after the last column (empty
+        trailing cells are allowed), a cell that is not a finite number, or
+        more cells than ``MOCAP2MESH_MAX_BYTES`` allows.
     """
     n_cols = len(columns)
     if not data.endswith(b"\n"):
         data += b"\n"
     raw = np.frombuffer(data, dtype=np.uint8)
     ends = np.flatnonzero(raw == 10)
-    fields = np.diff(np.searchsorted(np.flatnonzero(raw == ord(sep)), ends), prepend=0) + 1
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    fields = _row_fields(data, raw, ends, sep)
     short = np.flatnonzero(fields < n_cols)
     if short.size:
         row = int(short[0])
@@ -109,36 +201,24 @@ def numeric_block(path, data: bytes, *, first_line: int, columns: list,
                                     f"expected ({columns[0]}, {columns[1]} and X, Y, Z "
                                     "per marker): the row is truncated",
                               line=first_line + row)
-    table = pd.read_csv(io.BytesIO(data), sep=sep, header=None, index_col=False,
-                        names=list(range(int(fields.max()))), skipinitialspace=True,
-                        skip_blank_lines=False, encoding="latin-1", engine="c")
-    extra = table.iloc[:, n_cols:].notna().to_numpy().any(axis=1)
-    if extra.any():
-        row = int(np.argmax(extra))
-        raise FileFormatError(path, f"the row has values after its last column "
-                                    f"({columns[-1]}); expected {n_cols} columns",
-                              line=first_line + row)
-    table = table.iloc[:, :n_cols]
-    bad_rows = np.full(n_cols, len(table))
-    for col in range(n_cols):
-        if pd.api.types.is_bool_dtype(table[col]):  # a column of True/False only
-            bad_rows[col] = 0
-        elif not pd.api.types.is_numeric_dtype(table[col]):
-            numbers = pd.to_numeric(table[col], errors="coerce")
-            bad = (numbers.isna() & table[col].notna()).to_numpy()
-            bad_rows[col] = np.argmax(bad) if bad.any() else len(table)
-            table[col] = numbers
-    values = table.to_numpy(dtype=np.float64)
-    infinite = np.isinf(values)
-    bad_rows = np.minimum(bad_rows, np.where(infinite.any(axis=0),
-                                             np.argmax(infinite, axis=0), len(table)))
-    if (bad_rows < len(table)).any():
-        row = int(bad_rows.min())
-        col = int(np.flatnonzero(bad_rows == row)[0])
-        line = data[ends[row - 1] + 1 if row else 0:ends[row]].decode("latin-1")
-        cell = line.split(sep)[col].strip()
-        raise FileFormatError(path, f"cell {cell!r} in column {col + 1} ({columns[col]}) "
-                                    "is not a finite number", line=first_line + row)
+    check_allocation(path, f"a table of {len(ends)} rows x {n_cols} columns",
+                     8.0 * len(ends) * n_cols, justified=8 * len(data), line=first_line)
+    if fields.max() > n_cols:
+        data = _trim_wide_rows(path, data, starts, ends, fields, n_cols, sep, first_line,
+                               columns)
+    n_rows = len(ends)
+    del raw, ends, starts, fields
+    lone = _LONE_CR.search(data)
+    if lone is not None:
+        raise FileFormatError(path, "a carriage return inside a row; rows end with LF or CRLF",
+                              line=first_line + data.count(b"\n", 0, lone.start()))
+    try:
+        values = _read_table(data, sep, n_cols, dtype=np.float64).to_numpy(dtype=np.float64)
+    except ValueError:
+        values = None
+    if values is None or np.isinf(values).any():
+        _first_bad_cell(path, data, sep, columns, first_line)
+    assert len(values) == n_rows, "pandas and the row count disagree"
     return values
 
 
@@ -148,21 +228,30 @@ def frames_and_positions(path, values: np.ndarray, *, first_line: int,
 
     Column 0 holds frame numbers, columns 2: the X, Y, Z of each marker.
     Frame numbers absent between the first and the last row become missing
-    frames (NaN), with a warning; decreasing or repeated numbers are an error.
+    frames (NaN), with a warning, as long as they take no more memory than
+    twice the rows the file holds (beyond, a FileFormatError names the jump);
+    decreasing or repeated numbers are an error.
     """
     frames = values[:, 0]
-    broken = np.isnan(frames) | (frames != np.round(frames))
+    broken = np.isnan(frames) | (frames != np.round(frames)) | (np.abs(frames) > _MAX_FRAME)
     if broken.any():
         row = int(np.argmax(broken))
-        raise FileFormatError(path, f"frame number {frames[row]} is not an integer",
-                              line=first_line + row)
+        raise FileFormatError(path, f"frame number {frames[row]} is not an integer of at most "
+                                    f"{_MAX_FRAME:.0e} in magnitude", line=first_line + row)
     back = np.diff(frames) <= 0
     if back.any():
         row = int(np.argmax(back)) + 1
         raise FileFormatError(path, f"frame {frames[row]:.0f} follows frame "
                                     f"{frames[row - 1]:.0f}: frame numbers must increase",
                               line=first_line + row)
-    xyz = values[:, 2:].reshape(len(values), len(labels), 3) * scale
+    with np.errstate(over="ignore"):
+        xyz = values[:, 2:].reshape(len(values), len(labels), 3) * scale
+    huge = np.isinf(xyz)
+    if huge.any():
+        row, marker, axis = np.argwhere(huge)[0]
+        raise FileFormatError(path, f"{'XYZ'[axis]} of marker {labels[marker]!r} is "
+                                    f"{values[row, 2 + 3 * marker + axis]:.6g} file units, "
+                                    "beyond the float range in mm", line=first_line + int(row))
     nan = np.isnan(xyz)
     partial = nan.any(axis=2) & ~nan.all(axis=2)
     if partial.any():
@@ -174,6 +263,12 @@ def frames_and_positions(path, values: np.ndarray, *, first_line: int,
     first, n_frames = int(frames[0]), int(frames[-1] - frames[0]) + 1
     if n_frames == len(frames):
         return first, xyz
+    jump = int(np.argmax(np.diff(frames))) + 1
+    check_allocation(path, f"positions of {n_frames} frames (frame numbers {first} to "
+                           f"{frames[-1]}, {n_frames - len(frames)} of them absent; the "
+                           f"largest jump: {frames[jump - 1]} to {frames[jump]}) x "
+                           f"{len(labels)} markers", 24.0 * n_frames * len(labels),
+                     justified=2 * xyz.nbytes, line=first_line + jump)
     positions = np.full((n_frames, len(labels), 3), np.nan)
     positions[frames - first] = xyz
     absent = np.setdiff1d(np.arange(first, first + n_frames), frames)

@@ -7,9 +7,7 @@ and float storage, and the ways files in the wild bend the standard (see
 
 from __future__ import annotations
 
-import os
 import warnings
-from pathlib import Path
 
 import numpy as np
 
@@ -21,23 +19,12 @@ from mocap.io._c3d_write import encode_c3d
 from mocap.take import Analog, SourceInfo, Take, as_take
 from mocap.units import mm_per_unit
 from mocap.util.atomic import atomic_path
+from mocap.util.budget import check_allocation
+from mocap.util.files import as_path, read_input_bytes
 
 __all__ = ["read_c3d", "read_c3d_parameters", "write_c3d"]
 
 _HEADER_RATE_OFFSET = 20
-
-
-def _as_path(path) -> Path:
-    if not isinstance(path, (str, os.PathLike)):
-        raise InputError(f"path must be a str or os.PathLike, got {type(path).__name__}")
-    return Path(path)
-
-
-def _read_bytes(path: Path) -> bytes:
-    try:
-        return path.read_bytes()
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read file: {exc.strerror or exc}") from None
 
 
 def _warn_all(path, notes) -> None:
@@ -149,9 +136,20 @@ def _units(params: Parameters, path, notes: list) -> tuple[str, float]:
                               ) from None
 
 
+def _check_budget(layout, path) -> None:
+    """Refuse, before decoding, frames whose float64 copy exceeds the allocation budget."""
+    samples = layout.n_frames * (3 * layout.n_points
+                                 + layout.n_channels * layout.analog_per_frame)
+    stored = layout.n_frames * layout.frame_bytes
+    check_allocation(path, f"the samples of {layout.n_frames} frames x {layout.n_points} "
+                           f"points and {layout.n_channels} analog channels", 8 * samples,
+                     justified=stored * 8 // layout.word_size, offset=layout.offset)
+
+
 def _decode(buf: bytes, path, notes: list) -> Take:
     start, order, header, params = _parse(buf, path, notes)
     layout = plan_layout(len(buf), header, params, start, path, notes)
+    _check_budget(layout, path)
     rate = params.number("POINT", "RATE")
     if not _positive(rate):
         if not _positive(header.rate):
@@ -218,9 +216,9 @@ def read_c3d(path) -> Take:
       a parameter section without a proper end are skipped; groups that share
       a name are merged (first definition of a parameter wins).
     """
-    path = _as_path(path)
+    path = as_path(path)
     notes: list[str] = []
-    take = _decode(_read_bytes(path), path, notes)
+    take = _decode(read_input_bytes(path, "C3D file"), path, notes)
     _warn_all(path, notes)
     return take
 
@@ -237,9 +235,9 @@ def read_c3d_parameters(path) -> dict:
     FileFormatError
         As :func:`read_c3d`, for the header and parameter section.
     """
-    path = _as_path(path)
+    path = as_path(path)
     notes: list[str] = []
-    params = _parse(_read_bytes(path), path, notes)[3]
+    params = _parse(read_input_bytes(path, "C3D file"), path, notes)[3]
     _warn_all(path, notes)
     return params.as_dict()
 
@@ -269,5 +267,5 @@ def write_c3d(take: Take, path, *, inputs=()) -> None:
     """
     take = as_take(take)
     blob = encode_c3d(take)
-    with atomic_path(_as_path(path), inputs=inputs) as tmp:
+    with atomic_path(as_path(path), inputs=inputs) as tmp:
         tmp.write_bytes(blob)

@@ -98,7 +98,7 @@ def read_trc(path) -> Take:
         When ``NumFrames`` differs from the number of data rows, and when frame
         numbers skip (the absent frames are read as missing).
     """
-    raw = read_bytes(path)
+    raw = read_bytes(path, "TRC file")
     lines, start = text_lines(raw, 0, 5)
     if not lines[0].lstrip().startswith("PathFileType"):
         raise FileFormatError(path, f"not a TRC file: line 1 is {lines[0][:40]!r}, expected "

@@ -135,7 +135,7 @@ def read_vicon_csv(path) -> Take:
     so the CSV and the C3D of one trial give identical labels. A label
     without ``:`` belongs to no subject (e.g. unlabelled ``*12``).
     """
-    raw = read_bytes(path)
+    raw = read_bytes(path, "Vicon CSV file")
     found = next((m for m in _TRAJECTORIES.finditer(raw)
                   if not raw[raw.rfind(b"\n", 0, m.start()) + 1:m.start()].strip()), None)
     if found is None:

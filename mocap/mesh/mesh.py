@@ -19,6 +19,7 @@ from mocap.errors import FileFormatError, InputError
 from mocap.units import mm_per_unit
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
+from mocap.util.files import open_input, read_input_bytes
 from mocap.util.validation import as_float_array
 
 __all__ = ["Mesh", "MESH_FORMATS", "load_mesh", "save_obj", "vertex_normals",
@@ -30,6 +31,8 @@ MESH_FORMATS = (".obj", ".ply", ".gltf", ".glb")
 #: A triangle is degenerate when its doubled area is below this fraction of the
 #: squared bounding-box diagonal.
 _DEGENERATE_REL_AREA = 1e-12
+#: Largest vertex coordinate magnitude (areas and normals stay far from overflow).
+_MAX_COORDINATE = 1e15
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,8 +57,9 @@ class Mesh:
     Raises
     ------
     InputError
-        Non-finite vertices, faces out of range, no vertices or no faces, a
-        face-to-polygon map inconsistent with the polygon sizes, an unknown unit.
+        Non-finite vertices or beyond ±1e15, faces out of range, no vertices or
+        no faces, a face-to-polygon map inconsistent with the polygon sizes, an
+        unknown unit.
     """
 
     vertices: np.ndarray
@@ -136,6 +140,10 @@ def _topology_problem(vertices: np.ndarray, faces: np.ndarray) -> str:
     if len(bad):
         return (f"{len(bad)} vertices have NaN or infinite coordinates "
                 f"(first: vertex {bad[0]})")
+    bad = np.flatnonzero((np.abs(vertices) > _MAX_COORDINATE).any(axis=1))
+    if len(bad):
+        return (f"{len(bad)} vertices have coordinates beyond ±{_MAX_COORDINATE:.0e} "
+                f"(first: vertex {bad[0]}, {vertices[bad[0]].tolist()}), in any unit no face")
     out = np.flatnonzero(((faces < 0) | (faces >= len(vertices))).any(axis=1))
     if len(out):
         return (f"face {out[0]} indexes vertex {faces[out[0]].tolist()}, out of range "
@@ -190,10 +198,7 @@ def _read_obj(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     spaces, positive indices) are parsed in one C call per block; anything else
     goes through a line-by-line parser that names the faulty line.
     """
-    try:
-        data = Path(path).read_bytes().replace(b"\r\n", b"\n")
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read mesh: {exc.strerror}") from None
+    data = read_input_bytes(path, "mesh").replace(b"\r\n", b"\n")
     vertices = _fast_block(_block(data, b"v"), np.float64)
     faces = _fast_block(_block(data, b"f"), np.int64)
     if vertices is not None and faces is not None and np.all(vertices[1] == 3) \
@@ -287,10 +292,17 @@ def _slow_faces(path, f_lines, f_idx) -> tuple[np.ndarray, np.ndarray]:
     sizes = np.array([len(r) for r in rows], dtype=np.int64)
     try:
         return np.array([t for r in rows for t in r], dtype=np.int64), sizes
-    except ValueError:
-        row = next(n for n, r in enumerate(rows) if not _all_numbers(r, int))
-        raise FileFormatError(path, "face indices are not integers",
+    except (ValueError, OverflowError):
+        row = next(n for n, r in enumerate(rows) if not _all_numbers(r, _int64))
+        raise FileFormatError(path, "face indices are not integers of at most 64 bits",
                               line=int(f_idx[row]) + 1) from None
+
+
+def _int64(token) -> int:
+    value = int(token)
+    if not -2 ** 63 <= value < 2 ** 63:
+        raise ValueError(f"{value} does not fit in 64 bits")
+    return value
 
 
 def _all_numbers(tokens, kind) -> bool:
@@ -350,11 +362,15 @@ def load_mesh(path, *, units: str | None = None) -> Mesh:
 
 def _read_trimesh(path) -> tuple[np.ndarray, np.ndarray]:
     import trimesh
+    from trimesh.resolvers import FilePathResolver
 
-    try:
-        loaded = trimesh.load(path, process=False, maintain_order=True, force="mesh")
-    except Exception as exc:  # trimesh raises many types on corrupt files
-        raise FileFormatError(path, f"cannot read mesh: {exc}") from None
+    with open_input(path, "mesh") as fh:
+        try:
+            loaded = trimesh.load(fh, file_type=Path(path).suffix.lower()[1:], process=False,
+                                  maintain_order=True, force="mesh",
+                                  resolver=FilePathResolver(path))  # a .gltf's buffers
+        except Exception as exc:  # trimesh raises many types on corrupt files
+            raise FileFormatError(path, f"cannot read mesh: {exc}") from None
     if not hasattr(loaded, "faces"):
         raise FileFormatError(path, "empty mesh: the file holds no triangle geometry")
     return np.asarray(loaded.vertices, dtype=np.float64), np.asarray(loaded.faces, np.int64)

@@ -1,1 +1,2 @@
-"""Helpers every stage uses: input validation, atomic writes, TOML, read-only arrays."""
+"""Helpers every stage uses: input validation, reading input files under an allocation
+budget, atomic writes, TOML, read-only arrays."""

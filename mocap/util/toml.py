@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Mapping
-from pathlib import Path
 
 from mocap.errors import FileFormatError
+from mocap.util.files import read_input_text
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -28,15 +28,18 @@ def read_toml(path, what: str) -> dict:
     Raises
     ------
     FileFormatError
-        The file cannot be read, is not UTF-8, or is not valid TOML.
+        The file cannot be read (see :func:`mocap.util.files.read_input_bytes`),
+        is not UTF-8, is not valid TOML, or nests arrays or tables too deeply
+        to parse.
     """
-    path = Path(path)
+    text = read_input_text(path, what)
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read {what}: {exc.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise FileFormatError(path, f"{what} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise FileFormatError(path, f"{what} nests arrays or tables too deeply to "
+                                    "parse") from None
 
 
 def check_open_questions(doc: Mapping, path, what: str) -> None:

@@ -1,14 +1,28 @@
-"""Matplotlib figures without global state, saved atomically."""
+"""Matplotlib figures without global state, saved atomically, fed only plain text and sane values.
+
+Labels come from files (marker names, take names) and must reach matplotlib as
+plain text: :func:`save_figure` turns mathtext off on every text of the
+figure, so that a label such as ``$\\frac{a}{$`` is drawn as typed instead of
+failing the figure. Values are checked by :func:`plottable` before they size
+axes or figures: non-finite or absurd values (a sample at 1e30 mm) are
+refused with an error naming where they are.
+"""
 
 from __future__ import annotations
 
+import numpy as np
 from matplotlib import colormaps
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.text import Text
 
+from mocap.errors import InputError
 from mocap.util.atomic import atomic_path
 
-__all__ = ["new_figure", "save_figure", "distinct_colours"]
+__all__ = ["MAX_PLOT_MM", "new_figure", "save_figure", "distinct_colours", "plottable"]
+
+#: Positions and distances beyond this many mm (1 km) are no capture: refused before plotting.
+MAX_PLOT_MM = 1e6
 
 
 def new_figure(width: float, height: float) -> Figure:
@@ -19,7 +33,9 @@ def new_figure(width: float, height: float) -> Figure:
 
 
 def save_figure(fig: Figure, path, *, dpi: int = 120) -> None:
-    """Write `fig` as PNG to `path` (temp file + rename)."""
+    """Write `fig` as PNG to `path` (temp file + rename), every text drawn as plain text."""
+    for text in fig.findobj(Text):
+        text.set_parse_math(False)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")
 
@@ -28,3 +44,48 @@ def distinct_colours(n: int) -> list:
     """`n` well-separated colours: tab10, then Dark2, then repeating."""
     palette = list(colormaps["tab10"].colors) + list(colormaps["Dark2"].colors)
     return [palette[i % len(palette)] for i in range(n)]
+
+
+def plottable(values, name: str, *, limit: float = MAX_PLOT_MM, labels=None,
+              first_frame: int = 0) -> np.ndarray:
+    """`values` as float64, refused if a value is infinite or beyond ±`limit` (NaN is kept).
+
+    Parameters
+    ----------
+    values : array_like
+        What will be plotted; ``(n_frames, n_markers, ...)`` with `labels`.
+    name : str
+        What the values are ("captured positions"), for the error.
+    limit : float
+        Largest magnitude that is plotted (default :data:`MAX_PLOT_MM`).
+    labels : sequence of str, optional
+        Marker names of axis 1: the error then names the marker and frame.
+    first_frame : int
+        Frame number of index 0 of axis 0 (with `labels`).
+
+    Raises
+    ------
+    InputError
+        ``"captured positions: marker 'lip' at frame 112 is 1e+30, beyond ±1e+06: not
+        plotted"``.
+
+    Examples
+    --------
+    >>> plottable([[1.0, np.nan]], "errors").tolist()
+    [[1.0, nan]]
+    >>> plottable([[[0, 0, 1e30]]], "captured positions", labels=["lip"], first_frame=112)
+    Traceback (most recent call last):
+    ...
+    mocap.errors.InputError: captured positions: marker 'lip' at frame 112 is 1e+30, beyond \
+±1e+06: not plotted
+    """
+    values = np.asarray(values, dtype=np.float64)
+    bad = np.isinf(values) | (np.abs(np.nan_to_num(values)) > limit)
+    if bad.any():
+        index = tuple(int(i) for i in np.argwhere(bad)[0])
+        where = (f"marker {labels[index[1]]!r} at frame {first_frame + index[0]}"
+                 if labels is not None and values.ndim >= 2 and index[1] < len(labels)
+                 else f"index {index}")
+        raise InputError(f"{name}: {where} is {values[index]:.3g}, beyond ±{limit:.0e}: "
+                         "not plotted")
+    return values

@@ -17,6 +17,7 @@ from mocap.errors import InputError
 from mocap.markerset import load_markerset
 from mocap.retarget.archive import is_retargeted_archive
 from mocap.retarget.retargeting import DISTANCES, KERNELS, RetargetOptions
+from mocap.util.atomic import refuse_overwrite
 
 __all__ = ["add_parser", "run"]
 
@@ -105,6 +106,7 @@ def run(args) -> int:
     kinds = [is_retargeted_archive(path) for path in args.takes]
     inputs = [*args.takes, args.neutral, args.shapes, args.binding, args.markerset]
     inputs = [x for x in inputs if x is not None]
+    refuse_overwrite(args.output, inputs)
     if all(kinds):
         full = pca_of_retargeted(args.takes, artist.neutral.n_vertices)
     elif any(kinds):

@@ -19,15 +19,26 @@ def add_parser(sub) -> None:
         description="Ingest, stabilize, bind, retarget, build the PCA and quasi-eigen bases, "
                     "fit the weights of every basis and write exports and QA reports for "
                     "every take named by CONFIG.toml; manifest.json records inputs (SHA-256), "
-                    "parameters, versions and metrics. Unchanged takes are skipped.")
+                    "parameters, versions and metrics. Each take's folder is committed whole "
+                    "with a record of what made it; a take is skipped when that record "
+                    "matches the capture, inputs and parameters and every output it lists "
+                    "is intact, so a killed run resumes where it stopped.")
     p.add_argument("config", type=Path, help="run configuration (TOML)")
     p.add_argument("-j", "--workers", type=int, metavar="N",
                    help="parallel takes (default: output.workers, else min(2, takes))")
-    p.add_argument("--force", action="store_true", help="re-run takes even if unchanged")
+    p.add_argument("--force", action="store_true", help="redo every take, even those done")
+    p.add_argument("--check", action="store_true",
+                   help="only print, per take, whether a run would skip it and why; run and "
+                        "write nothing")
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
     config = load_run_config(args.config)
-    outcome = run_takes(config, workers=args.workers, force=args.force)
+    outcome = run_takes(config, workers=args.workers, force=args.force, check=args.check)
+    if outcome.checked:
+        width = max(len(name) for name in outcome.takes)
+        for name, take in outcome.takes.items():
+            print(f"{'skip' if take['skipped'] else 'run '}  {name:<{width}}  {take['reason']}")
+        return 0
     return 1 if outcome.n_failed else 0
