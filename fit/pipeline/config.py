@@ -14,7 +14,12 @@ stage with the same name)::
 
     [output]
     directory = "out"          # default: "out" beside the configuration
-    workers = 2                # default: min(2, number of takes)
+
+    [run]                      # where the takes run (fit.pipeline.executors)
+    executor = "local"         # "local" (a process pool) or "dask"
+    scheduler = "tcp://host:8786"   # dask only; default: a LocalCluster started for the run
+    workers = 2                # parallel takes / LocalCluster workers; default: min(2, takes)
+    timeout = 3600             # s a take may run before it is stopped and failed; default: none
 
     [ingest]    # mocap.clean.ingest.IngestOptions: fix_swaps, reject_implausible, fill, max_gap, ...
     [bind]      # fit.pipeline.stages.BindOptions: frame, icp, skin_offset, max_distance_warn
@@ -30,15 +35,17 @@ Every error names the file and the key at fault (``run.toml: fit.space: ...``).
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from fit.pipeline.executors import EXECUTORS
 from fit.pipeline.options import BasisOptions, BindOptions, FitOptions, ReportOptions
 from mocap.clean.ingest import IngestOptions
 from mocap.errors import InputError
 from mocap.retarget.retargeting import RetargetOptions
 from mocap.util.toml import read_toml
-from mocap.util.validation import as_int
+from mocap.util.validation import as_choice, as_int, as_positive_float
 
 __all__ = ["RunConfig", "load_run_config", "stage_options", "CAPTURE_SUFFIXES", "STAGE_TABLES"]
 
@@ -50,8 +57,9 @@ CAPTURE_SUFFIXES = (".c3d", ".csv", ".trc")
 STAGE_TABLES = {"ingest": IngestOptions, "bind": BindOptions, "retarget": RetargetOptions,
                 "basis": BasisOptions, "fit": FitOptions, "report": ReportOptions}
 _INPUT_KEYS = {"captures", "session", "markerset", "mesh", "mesh_units", "landmarks", "basis"}
-_OUTPUT_KEYS = {"directory", "workers"}
-_TOP = {"inputs", "output", *STAGE_TABLES}
+_OUTPUT_KEYS = {"directory", "workers"}   # output.workers: the old place of run.workers
+_RUN_KEYS = {"executor", "scheduler", "workers", "timeout"}
+_TOP = {"inputs", "output", "run", *STAGE_TABLES}
 _NOT_IN_CONFIG = {"ingest": {"stabilize"}}     # always on in the chain
 
 
@@ -69,8 +77,15 @@ class RunConfig:
     mesh_units : str or None
     output : Path
     workers : int
+        Takes run in parallel (LocalCluster workers for ``executor="dask"``).
     ingest, bind, retarget, basis_options, fit, report
         The options of each stage.
+    executor : {"local", "dask"}
+        Where the takes run (:mod:`fit.pipeline.executors`).
+    scheduler : str or None
+        Address of a Dask scheduler; None starts a LocalCluster for the run.
+    timeout : float or None, s
+        Longest a take may run; None: no limit.
     """
 
     path: Path
@@ -88,6 +103,9 @@ class RunConfig:
     basis_options: BasisOptions
     fit: FitOptions
     report: ReportOptions
+    executor: str = "local"
+    scheduler: str | None = None
+    timeout: float | None = None
 
     @property
     def shared_inputs(self) -> dict:
@@ -233,11 +251,7 @@ def load_run_config(path) -> RunConfig:
     directory = output.get("directory", "out")
     if not isinstance(directory, str) or not directory:
         _fail(path, "output.directory", f"expected a path (string), got {directory!r}")
-    workers = output.get("workers", min(2, len(captures)))
-    try:
-        workers = as_int(workers, "workers", minimum=1)
-    except InputError as exc:
-        _fail(path, "output.workers", str(exc))
+    run = _run_table(path, doc.get("run", {}), output, len(captures))
     stages = {name: stage_options(name, doc.get(name, {}), where=path)
               for name in STAGE_TABLES}
     return RunConfig(
@@ -246,6 +260,44 @@ def load_run_config(path) -> RunConfig:
         mesh=_file(path, inputs["mesh"], "inputs.mesh"),
         landmarks=_file(path, inputs["landmarks"], "inputs.landmarks"),
         basis=_file(path, inputs["basis"], "inputs.basis", directory=None),
-        mesh_units=units, output=(path.parent / directory).resolve(), workers=workers,
+        mesh_units=units, output=(path.parent / directory).resolve(),
         ingest=stages["ingest"], bind=stages["bind"], retarget=stages["retarget"],
-        basis_options=stages["basis"], fit=stages["fit"], report=stages["report"])
+        basis_options=stages["basis"], fit=stages["fit"], report=stages["report"], **run)
+
+
+def _run_table(path: Path, run, output: dict, n_captures: int) -> dict:
+    """``executor``, ``scheduler``, ``workers`` and ``timeout`` from ``[run]``."""
+    if not isinstance(run, dict):
+        _fail(path, "run", f"expected a table, got {run!r}")
+    _unknown(path, run, _RUN_KEYS, "run.")
+    workers_key = "run.workers"
+    if "workers" in output:
+        if "workers" in run:
+            _fail(path, "output.workers", "workers is given in [run] and in [output]; "
+                                          "keep run.workers")
+        warnings.warn(f"{path}: output.workers is now run.workers ([run] table); "
+                      "output.workers is read until mocap2mesh 0.3", FutureWarning,
+                      stacklevel=3)
+        run = {**run, "workers": output["workers"]}
+        workers_key = "output.workers"
+    values = {}
+    for key, check in (("executor", lambda v: as_choice(v, "executor", EXECUTORS)),
+                       ("scheduler", _address),
+                       ("workers", lambda v: as_int(v, "workers", minimum=1)),
+                       ("timeout", lambda v: as_positive_float(v, "timeout"))):
+        if key in run:
+            try:
+                values[key] = check(run[key])
+            except InputError as exc:
+                _fail(path, workers_key if key == "workers" else f"run.{key}", str(exc))
+    values.setdefault("workers", min(2, n_captures))
+    if "scheduler" in values and values.get("executor") != "dask":
+        _fail(path, "run.scheduler", "a scheduler address needs executor = \"dask\"")
+    return values
+
+
+def _address(value) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise InputError(f"scheduler must be an address such as 'tcp://host:8786', "
+                         f"got {value!r}")
+    return value.strip()

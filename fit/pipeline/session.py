@@ -1,26 +1,29 @@
 """Every take of a session through the whole chain: parallel takes, a manifest, skips.
 
 :func:`run_takes` runs the takes of a :class:`fit.pipeline.config.RunConfig`
-in a process pool (one progress bar), each into a folder of its name under the
-output directory, and writes ``manifest.json`` at the top
-(:mod:`fit.pipeline.manifest`). A take whose inputs and parameters are
+on an executor (:mod:`fit.pipeline.executors`: a local process pool, a Dask
+cluster, or any executor; one progress bar), each into a folder of its name
+under the output directory, and keeps ``manifest.json`` at the top up to date
+as each take ends (:mod:`fit.pipeline.manifest`). A take whose inputs and parameters are
 unchanged since its last successful run is skipped; a failing take is
 reported (stderr and manifest) and does not stop the others.
 """
 
 from __future__ import annotations
 
+import os
+import socket
 import sys
 import time
 import traceback
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
 from tqdm import tqdm
 
 from fit.pipeline.config import RunConfig
+from fit.pipeline.executors import TaskOutcome, open_executor
 from fit.pipeline.manifest import (
     MANIFEST_NAME,
     load_manifest,
@@ -31,7 +34,8 @@ from fit.pipeline.manifest import (
     write_manifest,
 )
 from fit.pipeline.reconstruction import Reconstruction
-from mocap.errors import InputError, Mocap2MeshError
+from mocap.errors import Mocap2MeshError
+from mocap.util.validation import as_int
 
 __all__ = ["RunOutcome", "process_take", "run_takes"]
 
@@ -79,42 +83,84 @@ def process_take(capture, config: RunConfig) -> dict:
             "files": sorted(str(Path(f).relative_to(config.output)) for f in files)}
 
 
+def _worker() -> dict:
+    """Where a take ran: host, process, and the process's peak resident memory so far (MB)."""
+    try:
+        import resource
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        peak_mb = round(peak / (1e6 if sys.platform == "darwin" else 1e3), 1)
+    except ImportError:                     # Windows
+        peak_mb = None
+    return {"host": socket.gethostname(), "pid": os.getpid(), "peak_rss_mb": peak_mb}
+
+
 def _guarded(capture: Path, config: RunConfig) -> dict:
-    """:func:`process_take` that turns an exception into a failed record."""
+    """:func:`process_take` that turns an exception into a failed record (the per-take task).
+
+    It runs on a worker (:mod:`fit.pipeline.executors`) and returns the take's
+    manifest record, with where it ran (``worker``).
+    """
     start = time.perf_counter()
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             record = process_take(capture, config)
         record["warnings"] = sorted({str(w.message) for w in caught})
-        return record
     except Exception as exc:  # noqa: BLE001 - one take's failure must not stop the others
         expected = isinstance(exc, Mocap2MeshError)
-        return {"status": "failed", "skipped": False,
-                "error": str(exc) if expected else f"{type(exc).__name__}: {exc}",
-                "traceback": None if expected else traceback.format_exc(),
-                "seconds": round(time.perf_counter() - start, 3)}
-def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = False,
-              progress: bool | None = None) -> RunOutcome:
+        record = {"status": "failed", "skipped": False,
+                  "error": str(exc) if expected else f"{type(exc).__name__}: {exc}",
+                  "traceback": None if expected else traceback.format_exc(),
+                  "seconds": round(time.perf_counter() - start, 3)}
+    record["worker"] = _worker()
+    return record
+
+
+def _failed(outcome: TaskOutcome) -> dict:
+    """The record of a take whose task never returned (timeout, dead worker)."""
+    return {"status": "failed", "skipped": False, "error": outcome.error,
+            "traceback": outcome.traceback, "seconds": round(outcome.seconds, 3)}
+
+
+def run_takes(config: RunConfig, *, executor=None, workers: int | None = None,
+              scheduler: str | None = None, timeout: float | None = None,
+              force: bool = False, progress: bool | None = None) -> RunOutcome:
     """Run every take of `config` (skipping unchanged ones) and write ``manifest.json``.
+
+    The manifest is rewritten (atomically) as each take ends, so a driver
+    killed mid-session leaves a valid manifest, and a re-run skips every take
+    that finished.
 
     Parameters
     ----------
     config : RunConfig
+    executor : {"local", "dask"} or executor object, optional
+        Where the takes run (default ``config.executor``): see
+        :func:`fit.pipeline.executors.open_executor`; any object with
+        ``submit`` (a Dask client's ``get_executor()``, a process pool) is used
+        as it is and left open.
     workers : int, optional
-        Takes processed in parallel (default ``config.workers``); 1 runs in this process.
+        Takes processed in parallel, or LocalCluster workers (default
+        ``config.workers``); local with 1 and no timeout runs in this process.
+    scheduler : str, optional
+        Dask scheduler address (default ``config.scheduler``).
+    timeout : float, optional, s
+        Longest a take may run before it is stopped and recorded as failed
+        (default ``config.timeout``: none).
     force : bool
         Re-run takes even when unchanged.
     progress : bool or None
-        Show the progress bar (None: only on a terminal).
+        Show the progress bar, with the Dask dashboard's address when there
+        is one (None: only on a terminal).
 
     Returns
     -------
     RunOutcome
     """
-    workers = config.workers if workers is None else workers
-    if workers < 1:
-        raise InputError(f"workers must be at least 1, got {workers}")
+    workers = config.workers if workers is None else as_int(workers, "workers", minimum=1)
+    executor = config.executor if executor is None else executor
+    scheduler = config.scheduler if scheduler is None else scheduler
+    timeout = config.timeout if timeout is None else timeout
     config.output.mkdir(parents=True, exist_ok=True)
     manifest_path = config.output / MANIFEST_NAME
     previous = None if force else load_manifest(manifest_path)
@@ -130,28 +176,28 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
         if old is not None:
             takes[capture.stem] = {**old, **base, "skipped": True}
         else:
-            takes[capture.stem] = base
+            takes[capture.stem] = {**base, "status": "pending", "skipped": False}
             todo.append(capture)
+
+    def write():
+        write_manifest(manifest_path, config=config.path, versions=package_versions(),
+                       parameters=parameters, inputs=inputs,
+                       takes={c.stem: takes[c.stem] for c in config.captures})
+
+    write()
     with tqdm(total=len(config.captures), initial=len(config.captures) - len(todo),
               desc="takes", unit="take", disable=None if progress is None else not progress,
               file=sys.stderr) as bar:
-        if workers == 1 or len(todo) <= 1:
-            results = ((c, _guarded(c, config)) for c in todo)
-            for capture, record in results:
-                _collect(takes, capture, record, bar)
-        else:
-            with ProcessPoolExecutor(max_workers=min(workers, len(todo))) as pool:
-                futures = {pool.submit(_guarded, c, config): c for c in todo}
-                for future in as_completed(futures):
-                    try:
-                        record = future.result()
-                    except Exception as exc:  # noqa: BLE001 - a worker died (memory, signal)
-                        record = {"status": "failed", "skipped": False,
-                                  "error": f"worker process failed: {type(exc).__name__}: {exc}"}
-                    _collect(takes, futures[future], record, bar)
-    write_manifest(manifest_path, config=config.path, versions=package_versions(),
-                   parameters=parameters, inputs=inputs,
-                   takes={c.stem: takes[c.stem] for c in config.captures})
+        if todo:
+            with open_executor(executor, workers=min(workers, len(todo)),
+                               scheduler=scheduler) as pool:
+                if pool.dashboard_link:
+                    bar.set_postfix_str(f"dashboard {pool.dashboard_link}")
+                for outcome in pool.map_unordered(_guarded, todo, shared=config,
+                                                  timeout=timeout):
+                    record = outcome.result if outcome.ok else _failed(outcome)
+                    _collect(takes, outcome.job, record, bar)
+                    write()
     failed = sum(t["status"] == "failed" for t in takes.values())
     skipped = sum(bool(t.get("skipped")) for t in takes.values())
     return RunOutcome(manifest=manifest_path, takes=takes, n_failed=failed, n_skipped=skipped)
