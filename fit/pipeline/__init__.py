@@ -5,7 +5,8 @@
 - :mod:`.config`: ``run.toml`` read and validated;
 - :mod:`.reconstruction`: :class:`Reconstruction`, the scripting entry point;
 - :mod:`.session`: every take of a session (:func:`run_takes`), with
-  :mod:`.manifest` recording what was done.
+  :mod:`.manifest` recording what was done and :mod:`.executors` running the
+  takes (a local process pool, a Dask cluster, or any executor).
 """
 
 from fit._moved import PIPELINE_NAMES

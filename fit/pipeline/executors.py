@@ -566,7 +566,10 @@ class DaskExecutor(FuturesExecutor):
             self.client.restart_workers(where, raise_for_error=False)
 
     def close(self) -> None:
+        if self._topic is None:
+            return
         self.client.unsubscribe_topic(self._topic)
+        self._topic = None
         if self.owns_client:
             self.client.close()
         if self.cluster is not None:

@@ -10,8 +10,10 @@ Layout::
      "versions": {"python": ..., "numpy": ..., ...},
      "parameters": {stage: {option: value}},
      "inputs": {role: {"path": ..., "sha256": ...}},
-     "takes": {name: {"capture": {"path", "sha256"}, "key", "status": "ok" | "failed",
+     "takes": {name: {"capture": {"path", "sha256"}, "key",
+                      "status": "ok" | "failed" | "pending" (not finished yet),
                       "skipped": bool, "error": str | null, "seconds",
+                      "worker": {"host", "pid", "peak_rss_mb"},
                       "metrics": {basis: {...}}, "files": [relative paths], ...}}}
 """
 

@@ -17,6 +17,7 @@ import sys
 import time
 import traceback
 import warnings
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -189,8 +190,10 @@ def run_takes(config: RunConfig, *, executor=None, workers: int | None = None,
               desc="takes", unit="take", disable=None if progress is None else not progress,
               file=sys.stderr) as bar:
         if todo:
-            with open_executor(executor, workers=min(workers, len(todo)),
-                               scheduler=scheduler) as pool:
+            pool = open_executor(executor, workers=min(workers, len(todo)),
+                                 scheduler=scheduler)
+            # an executor the caller built is the caller's to close
+            with nullcontext(pool) if pool is executor else pool:
                 if pool.dashboard_link:
                     bar.set_postfix_str(f"dashboard {pool.dashboard_link}")
                 for outcome in pool.map_unordered(_guarded, todo, shared=config,
