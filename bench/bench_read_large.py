@@ -6,8 +6,8 @@ Two files are written by our writer (float storage, Intel, no analog):
 say 65,535, TRIAL holds the range). Positions are a random walk, 2 % of the
 samples missing.
 
-Each read runs in a fresh Python process (``os.wait4`` gives that process's
-peak resident set size, ``ru_maxrss``), the file already in the page cache
+Each read runs in a fresh Python process that prints its own peak resident
+set size (``VmHWM``, Linux), the file already in the page cache
 (just written; one untimed read first). Printed per file: our read time (best
 of ``--repeat``) and ezc3d's (one read: ``ezc3d.c3d(path)``, which also
 builds its ``data["points"]`` array), their ratio, and each peak RSS, also
@@ -40,26 +40,29 @@ OUT = REPO / "bench" / "out" / "large-c3d"
 FILES = ((1300, 17_000), (100, 1_000_000))
 _BLOCK = 20_000         # frames simulated at a time
 
+# Each script prints its read time and its process's peak resident set (VmHWM: of this
+# process's own memory only; ru_maxrss would include the forking parent's).
+PEAK = "print(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM')))"
 OURS = """
 import sys, time
 from mocap.io.c3d import read_c3d
 tic = time.perf_counter(); take = read_c3d(sys.argv[1]); print(time.perf_counter() - tic)
 assert take.n_frames == int(sys.argv[2])
-"""
+""" + PEAK
 INFO = """
 import sys, time
 from mocap.io.c3d import summarize_c3d
 tic = time.perf_counter(); s = summarize_c3d(sys.argv[1]); print(time.perf_counter() - tic)
 assert s.n_frames == int(sys.argv[2])
-"""
+""" + PEAK
 EZC3D = """
 import sys, time
 import ezc3d
 tic = time.perf_counter(); c = ezc3d.c3d(sys.argv[1]); print(time.perf_counter() - tic)
 assert c["data"]["points"].shape[2] == int(sys.argv[2])
-"""
-IMPORT_OURS = "import mocap.io.c3d; print(0.0)"
-IMPORT_EZC3D = "import ezc3d, numpy; print(0.0)"
+""" + PEAK
+IMPORT_OURS = "import mocap.io.c3d; print(0.0)\n" + PEAK
+IMPORT_EZC3D = "import ezc3d, numpy; print(0.0)\n" + PEAK
 
 
 def simulate(n_markers: int, n_frames: int, seed: int = 0) -> Take:
@@ -79,14 +82,13 @@ def simulate(n_markers: int, n_frames: int, seed: int = 0) -> Take:
 
 
 def run(script: str, *args) -> tuple[float, float]:
-    """(seconds printed by `script`, peak RSS in MB) of a fresh Python process."""
-    proc = subprocess.Popen([sys.executable, "-c", script, *map(str, args)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    _, status, usage = os.wait4(proc.pid, 0)
-    out, err = proc.stdout.read(), proc.stderr.read()
-    if status != 0:
-        raise RuntimeError(f"reader failed ({status}): {err.strip()[-500:]}")
-    return float(out.split()[0]), usage.ru_maxrss / 1e3
+    """(seconds, peak RSS in MB) that `script` prints, run in a fresh Python process."""
+    done = subprocess.run([sys.executable, "-c", script, *map(str, args)],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"reader failed ({done.returncode}): {done.stderr.strip()[-500:]}")
+    seconds, peak_kb = done.stdout.split()[:2]
+    return float(seconds), float(peak_kb) / 1e3
 
 
 def main() -> None:

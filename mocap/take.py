@@ -158,8 +158,9 @@ class Take:
             if label in seen:
                 raise MarkerError(label, "label appears more than once in the take")
             seen.add(label)
-        nan = np.isnan(positions)
-        partial = nan.any(axis=2) & ~nan.all(axis=2)
+        # per coordinate, not np.isnan(positions).any(axis=2): no (T, M, 3) temporary
+        x, y, z = (np.isnan(positions[:, :, k]) for k in range(3))
+        partial = (x | y | z) & ~(x & y & z)
         if partial.any():
             t, m = np.argwhere(partial)[0]
             raise MarkerError(labels[m], f"frame index {t} has some coordinates NaN and "

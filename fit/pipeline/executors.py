@@ -37,21 +37,22 @@ caller's executor cannot say, so there it counts from the submission.
 from __future__ import annotations
 
 import importlib.util
-import multiprocessing
 import os
-import signal
-import sys
-import threading
 import time
 import traceback
 from collections import deque
 from concurrent import futures as std_futures
-from dataclasses import dataclass
-from multiprocessing import connection
-from typing import Any, Callable, Iterable, Iterator
 
+from fit.pipeline._executor_base import (
+    SessionExecutor,
+    TaskOutcome,
+    raised,
+    timed_out,
+    timeout_seconds,
+)
+from fit.pipeline._local_executor import LocalExecutor
 from mocap.errors import InputError
-from mocap.util.validation import as_choice, as_int, as_positive_float
+from mocap.util.validation import as_choice, as_int
 
 __all__ = ["EXECUTORS", "DASK_MISSING", "TaskOutcome", "SessionExecutor", "LocalExecutor",
            "FuturesExecutor", "DaskExecutor", "open_executor"]
@@ -62,262 +63,7 @@ EXECUTORS = ("local", "dask")
 DASK_MISSING = ("executor 'dask' needs dask.distributed: pip install 'mocap2mesh[dask]' "
                 "(or: pip install 'dask[distributed]')")
 _POLL = 0.05            # s between looks at Dask futures while timeouts run
-_PARENT_CHECK = 0.5     # s between a local worker's checks that its driver still lives
-_STARTED = "started"    # a local worker's first message: the job's clock starts
 _RECHECK = 0.25         # s between looks for jobs that started, while timeouts run
-
-
-@dataclass(frozen=True)
-class TaskOutcome:
-    """How one job ended.
-
-    Attributes
-    ----------
-    job : object
-        The job, as given.
-    result : object or None
-        What the task returned; None when it failed.
-    error : str or None
-        Why it failed: the exception (``"ValueError: ..."``), ``"timed out
-        after 60 s"``, ``"worker process died (SIGKILL)"``, Dask's
-        ``KilledWorker``...; None on success.
-    traceback : str or None
-        The task's traceback when it raised.
-    seconds : float
-        Wall time from the job's start to its end (as the driver saw it), s.
-    """
-
-    job: Any
-    result: Any
-    error: str | None
-    traceback: str | None
-    seconds: float
-
-    @property
-    def ok(self) -> bool:
-        """True when the task returned."""
-        return self.error is None
-
-
-def _timeout(timeout) -> float | None:
-    return None if timeout is None else as_positive_float(timeout, "timeout")
-
-
-def _timed_out(timeout: float) -> str:
-    return f"timed out after {timeout:g} s (the per-take timeout)"
-
-
-def _raised(exc: BaseException) -> str:
-    return f"{type(exc).__name__}: {exc}"
-
-
-class SessionExecutor:
-    """Runs ``task(job, shared)`` for many jobs; a context manager that cleans up after itself.
-
-    Attributes
-    ----------
-    dashboard_link : str or None
-        Where to watch the work (the Dask dashboard), when there is such a page.
-    """
-
-    dashboard_link: str | None = None
-
-    def map_unordered(self, task: Callable, jobs: Iterable, *, shared=None,
-                      timeout: float | None = None) -> Iterator[TaskOutcome]:
-        """Run ``task(job, shared)`` for every job; yield each :class:`TaskOutcome` as it ends.
-
-        Parameters
-        ----------
-        task : callable
-            A module-level function (it is pickled by reference to the workers).
-        jobs : iterable
-            Picklable arguments, one per task.
-        shared : object, optional
-            Passed to every call; shipped to each worker once where the
-            executor allows (Dask scatters it).
-        timeout : float, optional, s
-            Longest a job may run; past it, it is stopped and reported as failed.
-        """
-        raise NotImplementedError
-
-    def close(self) -> None:
-        """Release what this executor started (processes, a cluster)."""
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-
-# -- local: one process per job ------------------------------------------------------------
-
-
-def _exit_with_parent(parent: int) -> None:
-    """Exit this process as soon as the process that started it is gone (no orphans)."""
-    def watch():
-        while os.getppid() == parent:
-            time.sleep(_PARENT_CHECK)
-        os._exit(1)
-
-    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
-
-
-def _child(conn, task, job, shared) -> None:
-    """A local worker process: say it started, run one job, send ``(ok, result or reason,
-    traceback)``."""
-    _exit_with_parent(os.getppid())
-    conn.send(_STARTED)
-    try:
-        message = (True, task(job, shared), None)
-    except BaseException as exc:  # noqa: BLE001 - everything goes back to the driver
-        message = (False, _raised(exc), traceback.format_exc())
-    try:
-        conn.send(message)
-    except Exception as exc:  # noqa: BLE001 - e.g. a result that cannot be pickled
-        conn.send((False, f"the result could not be sent back: {_raised(exc)}", None))
-    conn.close()
-
-
-def _death(exitcode: int | None) -> str:
-    if exitcode is not None and exitcode < 0:
-        try:
-            name = signal.Signals(-exitcode).name
-        except ValueError:
-            name = f"signal {-exitcode}"
-        hint = " (out of memory?)" if -exitcode == signal.SIGKILL else ""
-        return f"worker process died ({name}){hint} before the take finished"
-    return f"worker process exited with code {exitcode} before the take finished"
-
-
-@dataclass
-class _Running:
-    process: Any
-    conn: Any
-    job: Any
-    start: float | None = None      # when the job started running (monotonic s)
-
-
-class LocalExecutor(SessionExecutor):
-    """At most `workers` jobs at a time, each in a fresh process of its own.
-
-    A fresh process per job returns all of a job's memory to the system when it
-    ends and lets a job past its timeout be killed without touching the
-    others. Processes start from a fork server that has imported the task's
-    module, so a start costs milliseconds, not an import of the chain.
-
-    Parameters
-    ----------
-    workers : int
-        Jobs run at once. With 1 and no timeout, jobs run in this process.
-
-    Examples
-    --------
-    >>> with LocalExecutor(1) as pool:
-    ...     [o.result for o in pool.map_unordered(lambda job, _: -job, [1, 2])]
-    [-1, -2]
-    """
-
-    def __init__(self, workers: int):
-        self.workers = as_int(workers, "workers", minimum=1)
-
-    def map_unordered(self, task, jobs, *, shared=None, timeout=None):
-        timeout = _timeout(timeout)
-        if self.workers == 1 and timeout is None:
-            yield from _in_process(task, jobs, shared)
-            return
-        context = _process_context(task)
-        queue = deque(jobs)
-        running: list[_Running] = []
-        try:
-            while queue or running:
-                while queue and len(running) < self.workers:
-                    running.append(_start(context, task, queue.popleft(), shared))
-                deadlines = [r.start + timeout for r in running
-                             if timeout is not None and r.start is not None]
-                wait = max(0.0, min(deadlines) - time.monotonic()) if deadlines else None
-                connection.wait([r.conn for r in running] + [r.process.sentinel
-                                                             for r in running], wait)
-                for run in list(running):
-                    outcome = _finished(run, timeout)
-                    if outcome is not None:
-                        running.remove(run)
-                        yield outcome
-        finally:
-            for run in running:          # the driver stopped early: no process outlives it
-                run.process.kill()
-                run.process.join()
-                run.conn.close()
-
-
-def _in_process(task, jobs, shared):
-    for job in jobs:
-        start = time.monotonic()
-        try:
-            result = task(job, shared)
-        except Exception as exc:  # noqa: BLE001 - one job's failure must not stop the others
-            yield TaskOutcome(job, None, _raised(exc), traceback.format_exc(),
-                              time.monotonic() - start)
-        else:
-            yield TaskOutcome(job, result, None, None, time.monotonic() - start)
-
-
-def _process_context(task):
-    if "forkserver" not in multiprocessing.get_all_start_methods():
-        return multiprocessing.get_context("spawn")
-    context = multiprocessing.get_context("forkserver")
-    # the fork server imports these once; each worker forked from it starts warm
-    preload = [__name__]
-    module = getattr(task, "__module__", None)
-    if module and module != "__main__" and module in sys.modules:
-        preload.append(module)
-    context.set_forkserver_preload(preload)
-    return context
-
-
-def _start(context, task, job, shared) -> _Running:
-    receive, send = context.Pipe(duplex=False)
-    process = context.Process(target=_child, args=(send, task, job, shared), daemon=True,
-                              name="mocap2mesh-take")
-    process.start()
-    send.close()
-    return _Running(process, receive, job)
-
-
-def _message(run: _Running):
-    """The job's final message if it has come (noting its start on the way), else None."""
-    while run.conn.poll():
-        try:
-            message = run.conn.recv()
-        except (EOFError, OSError):          # died while sending
-            return None
-        if message != _STARTED:
-            return message
-        run.start = time.monotonic()
-    return None
-
-
-def _finished(run: _Running, timeout: float | None) -> TaskOutcome | None:
-    """The outcome of `run` if it has ended (or is stopped now for its timeout), else None."""
-    message = _message(run)
-    seconds = 0.0 if run.start is None else time.monotonic() - run.start
-    if message is not None:
-        ok, value, trace = message
-        run.process.join()
-    elif not run.process.is_alive():
-        run.process.join()
-        ok, value, trace = False, _death(run.process.exitcode), None
-    elif timeout is not None and run.start is not None and seconds >= timeout:
-        run.process.kill()
-        run.process.join()
-        ok, value, trace = False, _timed_out(timeout), None
-    else:
-        return None
-    run.conn.close()
-    return TaskOutcome(run.job, value if ok else None, None if ok else value, trace, seconds)
-
-
-# -- any concurrent.futures-style executor, and Dask ------------------------------------------
 
 
 def _from_dask(obj) -> bool:
@@ -419,7 +165,7 @@ class FuturesExecutor(SessionExecutor):
         return submitted
 
     def map_unordered(self, task, jobs, *, shared=None, timeout=None):
-        timeout = _timeout(timeout)
+        timeout = timeout_seconds(timeout)
         shared = self._share(shared)
         queue = deque(jobs)
         in_flight: dict = {}               # future -> (job, submitted)
@@ -452,7 +198,7 @@ class FuturesExecutor(SessionExecutor):
                         del in_flight[future]
                         waiter.discard(future)
                         self._abandon(future)
-                        yield TaskOutcome(job, None, _timed_out(timeout), None,
+                        yield TaskOutcome(job, None, timed_out(timeout), None,
                                           time.monotonic() - start)
         finally:
             for future in in_flight:
@@ -479,7 +225,7 @@ def _future_outcome(future, job, seconds: float) -> TaskOutcome:
         tb = getattr(exc, "__traceback__", None)
         if tb is not None and type(exc).__name__ not in ("KilledWorker", "BrokenProcessPool"):
             trace = "".join(traceback.format_exception(type(exc), exc, tb))
-        reason = _raised(exc)
+        reason = raised(exc)
         if type(exc).__name__ == "KilledWorker":
             reason = f"every worker that ran it died: {reason}"
         elif type(exc).__name__ == "BrokenProcessPool":

@@ -237,39 +237,36 @@ def _release(buf, start: int, stop: int) -> None:
 
 
 def _chunks(buf, layout: Layout, order: str, frames_per_chunk: int | None = None):
-    """Decoded frames in chunks: ``(first, words)`` with words of shape (c, words per frame).
+    """The frames in chunks: ``(first, words)``, words of shape (c, words per frame).
 
-    Words are float64 copies (no view into `buf` outlives the chunk); each
-    chunk's pages of a memory-mapped `buf` are released once the caller is done
-    with it.
+    Words are a view of `buf` in the file's own type (float32 or int16), or
+    float64 for DEC floats; a chunk's pages of a memory-mapped `buf` are
+    released when the next chunk is asked for.
     """
     per_frame = 4 * layout.n_points + layout.analog_words
     step = frames_per_chunk or max(1, CHUNK_BYTES // layout.frame_bytes)
+    endian = ">" if order == "mips" else "<"
+    kind = "f4" if layout.storage == "float" else "i2"
     for first in range(0, layout.n_frames, step):
         count = min(step, layout.n_frames - first)
         start = layout.offset + first * layout.frame_bytes
-        stop = start + count * layout.frame_bytes
-        with memoryview(buf) as whole, whole[start:stop] as raw:
-            if layout.storage == "float":
-                words = float32(raw, order)
-            else:
-                words = int16(raw, order).astype(np.float64)
-        try:
-            yield first, words.reshape(count, per_frame)
-        finally:
-            _release(buf, start, stop)
+        if order == "dec" and kind == "f4":
+            words = float32(buf[start:start + count * layout.frame_bytes], order)
+        else:
+            words = np.frombuffer(buf, dtype=endian + kind, count=count * per_frame,
+                                  offset=start)
+        yield first, words.reshape(count, per_frame)
+        _release(buf, start, start + count * layout.frame_bytes)
 
 
-def _points(words, layout: Layout):
-    """xyz (c, M, 3) float64 in file units, NaN where missing, and the missing mask."""
-    m = layout.n_points
-    points = words[:, :4 * m].reshape(len(words), m, 4)
-    scale = 1.0 if layout.storage == "float" else layout.scale
-    with np.errstate(all="ignore"):
-        xyz = points[:, :, :3] * scale
-        missing = (points[:, :, 3] < 0) | ~np.isfinite(xyz).all(axis=2)
-    xyz[missing] = np.nan
-    return xyz, missing
+def _missing(points) -> np.ndarray:
+    """Missing samples of (c, M, 4) point words: a negative residual or a coordinate that
+    is not finite."""
+    finite = np.isfinite(points[:, :, :3])
+    with np.errstate(invalid="ignore"):
+        missing = points[:, :, 3] < 0
+    missing |= ~(finite[:, :, 0] & finite[:, :, 1] & finite[:, :, 2])   # not .all(axis=2): slow
+    return missing
 
 
 def decode_frames(buf, layout: Layout, order: str, *, factor: float = 1.0):
@@ -293,18 +290,24 @@ def decode_frames(buf, layout: Layout, order: str, *, factor: float = 1.0):
 
     Notes
     -----
-    Memory: the two outputs, plus the float64 words of one chunk
-    (:data:`CHUNK_BYTES` of file, twice that decoded) and its temporaries.
+    Memory: the two outputs, plus one chunk (:data:`CHUNK_BYTES` of file) and
+    its missing mask: the words are scaled and widened to float64 straight
+    into the output.
     """
     n, m = layout.n_frames, layout.n_points
     xyz = np.empty((n, m, 3))
     per, channels = layout.analog_per_frame, layout.n_channels
     analog = np.empty((n * per, channels))
+    scale = factor * (1.0 if layout.storage == "float" else layout.scale)
     for first, words in _chunks(buf, layout, order):
         count = len(words)
-        chunk, _ = _points(words, layout)
-        chunk *= factor
-        xyz[first:first + count] = chunk
+        points = words[:, :4 * m].reshape(count, m, 4)
+        out = xyz[first:first + count]
+        out[...] = points[:, :, :3]                 # widened to float64 in place
+        if scale != 1.0:
+            with np.errstate(all="ignore"):
+                out *= scale
+        out[_missing(points)] = np.nan
         values = words[:, 4 * m:4 * m + channels * per]
         analog[first * per:(first + count) * per] = values.reshape(count * per, channels)
     return xyz, analog
@@ -326,7 +329,7 @@ def scan_missing(buf, layout: Layout, order: str, *, frames_per_chunk: int | Non
     longest = np.zeros(m, dtype=np.int64)
     carry = np.zeros(m, dtype=np.int64)          # a run still open at the chunk's end
     for _, words in _chunks(buf, layout, order, frames_per_chunk):
-        mask = _points(words, layout)[1]
+        mask = _missing(words[:, :4 * m].reshape(len(words), m, 4))
         missing += mask.sum(axis=0)
         gaps = find_gaps(mask)
         lengths = gaps.length + np.where(gaps.start == 0, carry[gaps.marker], 0)

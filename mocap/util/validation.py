@@ -37,7 +37,9 @@ def as_float_array(value, name: str, *, ndim: int | None = None,
                 want is not None and got != want for got, want in zip(arr.shape, shape)):
             want = "(" + ", ".join("any" if s is None else str(s) for s in shape) + ")"
             raise InputError(f"{name} must have shape {want}, got {arr.shape}")
-    if np.isinf(arr).any():
+    # the extremes (NaN ignored) rather than np.isinf(arr): no temporary the size of arr
+    extremes = [np.fmax.reduce(arr, axis=None), np.fmin.reduce(arr, axis=None)] if arr.size else []
+    if np.isinf(extremes).any():
         raise InputError(f"{name} contains infinite values")
     if not allow_nan and np.isnan(arr).any():
         idx = tuple(int(i) for i in np.argwhere(np.isnan(arr))[0])
