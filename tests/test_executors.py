@@ -83,6 +83,13 @@ def test_a_callers_process_pool(dask_client):
     pool.shutdown()
 
 
+def test_a_dask_clients_concurrent_futures_executor(dask_client):
+    """client.get_executor(): Dask futures behind a concurrent.futures face."""
+    outcomes = {o.job: o for o in FuturesExecutor(dask_client.get_executor()).map_unordered(
+        square, [2, "raise"], shared=5)}
+    assert outcomes[2].result == 32 and outcomes["raise"].error.startswith("ValueError")
+
+
 def test_a_killed_process_pool_worker_fails_its_tasks_with_the_reason():
     with ProcessPoolExecutor(1) as pool:
         outcomes = {o.job: o for o in FuturesExecutor(pool).map_unordered(square, ["die"],
