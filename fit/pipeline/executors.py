@@ -180,12 +180,14 @@ class FuturesExecutor(SessionExecutor):
                     waiter.add(future)
                     in_flight[future] = (job, time.monotonic())
                 starts = {f: self._started(f, t) for f, (_, t) in in_flight.items()}
-                wait = None
+                waits = []
                 if timeout is not None:
                     deadlines = [t + timeout for t in starts.values() if t is not None]
-                    wait = _RECHECK if len(deadlines) < len(starts) else None
                     if deadlines:
-                        wait = min(wait or float('inf'), max(0.0, min(deadlines) - time.monotonic()))
+                        waits.append(max(0.0, min(deadlines) - time.monotonic()))
+                    if len(deadlines) < len(starts):    # look again for jobs that started
+                        waits.append(_RECHECK)
+                wait = min(waits) if waits else None
                 for future in waiter.done(wait):
                     job, submitted = in_flight.pop(future)
                     start = self._started(future, submitted) or submitted

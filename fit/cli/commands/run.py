@@ -20,10 +20,10 @@ def add_parser(sub) -> None:
         description="Ingest, stabilize, bind, retarget, build the PCA and quasi-eigen bases, "
                     "fit the weights of every basis and write exports and QA reports for "
                     "every take named by CONFIG.toml; manifest.json records inputs (SHA-256), "
-                    "parameters, versions and metrics, rewritten as each take ends. Unchanged takes "
-                    "are skipped. Takes run in a local process pool or on a Dask cluster "
-                    "(pip install 'mocap2mesh[dask]'); the exit code is 1 when any take "
-                    "failed.")
+                    "parameters, versions and metrics, rewritten as each take ends. "
+                    "Unchanged takes are skipped. Takes run in a local process pool or on a "
+                    "Dask cluster (pip install 'mocap2mesh[dask]'); the exit code is 1 when "
+                    "any take failed.")
     p.add_argument("config", type=Path, help="run configuration (TOML)")
     p.add_argument("--executor", choices=EXECUTORS,
                    help="where the takes run: a local process pool, or a Dask cluster "
