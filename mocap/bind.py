@@ -31,8 +31,8 @@ from mocap.rigid import apply_transform, fit_rigid
 from mocap.stabilize import ROBUST_GUARD_DEG
 from mocap.take import as_take
 from mocap.util.atomic import atomic_path
-from mocap.util.files import read_input_text
 from mocap.util.deprecation import moved_names
+from mocap.util.files import read_input_text
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["Binding", "bind_markers", "load_binding", "closest_surface_points", "BoundTake",

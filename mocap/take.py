@@ -111,7 +111,9 @@ class Take:
         Marker labels, unique, one per marker.
     positions : ndarray of shape (n_frames, n_markers, 3), mm
         Marker positions; NaN (all three coordinates) where a marker is missing.
-        Read-only: derive new takes with :meth:`replace`.
+        Read-only: derive new takes with :meth:`replace`. A float64 array that
+        is read-only down to the memory it views is kept as it is (nobody can
+        change it, and a large take is not copied); anything else is copied.
     rate : float
         Frame rate, Hz.
     first_frame : int
@@ -147,7 +149,7 @@ class Take:
 
     def __post_init__(self):
         labels = tuple(str(s) for s in self.labels)
-        positions = as_positions(self.positions)
+        positions = as_positions(self.positions, copy=not _immutable(self.positions))
         if len(labels) != positions.shape[1]:
             raise InputError(f"take has {positions.shape[1]} markers but "
                              f"{len(labels)} labels")
@@ -156,8 +158,9 @@ class Take:
             if label in seen:
                 raise MarkerError(label, "label appears more than once in the take")
             seen.add(label)
-        nan = np.isnan(positions)
-        partial = nan.any(axis=2) & ~nan.all(axis=2)
+        # per coordinate, not np.isnan(positions).any(axis=2): no (T, M, 3) temporary
+        x, y, z = (np.isnan(positions[:, :, k]) for k in range(3))
+        partial = (x | y | z) & ~(x & y & z)
         if partial.any():
             t, m = np.argwhere(partial)[0]
             raise MarkerError(labels[m], f"frame index {t} has some coordinates NaN and "
@@ -269,6 +272,15 @@ class Take:
     def replace(self, **changes) -> "Take":
         """A new take with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
+
+
+def _immutable(arr) -> bool:
+    """True when nobody can change `arr`'s data: read-only all the way down to its owner."""
+    while isinstance(arr, np.ndarray):
+        if arr.flags.writeable:
+            return False
+        arr = arr.base
+    return arr is None or isinstance(arr, bytes)
 
 
 def as_take(value, name: str = "take") -> Take:

@@ -395,3 +395,102 @@ def test_read_c3d_parameters(shared_data):
     assert int(params["POINT"]["DATA_START"]) == 188
     ez = ezc3d.c3d(str(shared_data / "c3d-samples/sample_33/bigparlove.c3d"))
     assert list(params["POINT"]["LABELS"]) == list(ez["parameters"]["POINT"]["LABELS"]["value"])
+
+
+# -- files of any size: chunks, saturated counts, many labels -----------------------
+@pytest.fixture(params=[1, 4099], ids=["one-frame-chunks", "odd-chunks"])
+def tiny_chunks(request, monkeypatch):
+    """Decode `param` bytes of frames at a time (at least one frame): runs of missing
+    samples and analog blocks then cross many chunk boundaries."""
+    monkeypatch.setattr("mocap.io._c3d_data.CHUNK_BYTES", request.param)
+
+
+@pytest.mark.parametrize("name", ["c3d-samples/sample_01/Eb015pi.c3d",
+                                  "c3d-samples/sample_02/dec_real.c3d",
+                                  "vicon-nexus/markers.c3d"])
+def test_chunked_reading_agrees_with_ezc3d(shared_data, name, tiny_chunks):
+    path = shared_data / name
+    take = _quiet_read(path)
+    ez = ezc3d.c3d(str(path))
+    points = ez["data"]["points"][:3].transpose(2, 1, 0) * mm_per_unit(take.source.units)
+    np.testing.assert_array_equal(np.isnan(points[:, :, 0]), take.missing)
+    np.testing.assert_allclose(take.positions, points, atol=C3D_VS_EZC3D_MM, rtol=0)
+    analogs = ez["data"]["analogs"][0].T
+    if analogs.size:
+        np.testing.assert_allclose(take.analog.values, analogs, rtol=FLOAT32_REL,
+                                   atol=C3D_ANALOG_FLOOR)
+
+
+def test_summary_streams_the_gaps_of_every_corpus_file(shared_data, tiny_chunks):
+    from mocap.gaps import find_gaps
+    from mocap.io.c3d import summarize_c3d
+    for path in [shared_data / n for n in EZC3D_FILES + OTHER_FILES]:
+        take = _quiet_read(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            summary = summarize_c3d(path)
+        assert (summary.labels, summary.n_frames, summary.first_frame, summary.rate) == \
+            (take.labels, take.n_frames, take.first_frame, take.rate), path
+        np.testing.assert_array_equal(summary.missing, take.missing.sum(axis=0))
+        np.testing.assert_array_equal(summary.longest_gap,
+                                      find_gaps(take.missing).longest(take.n_markers))
+
+
+def test_summary_of_facial_sing_matches_its_published_facts(shared_data):
+    from mocap.io.c3d import summarize_c3d
+    summary = summarize_c3d(shared_data / "captures/facial-sing.c3d")
+    face = [i for i, s in enumerate(summary.labels) if s.startswith("section")]
+    assert int(summary.missing[face].sum()) == 751 and int(summary.longest_gap.max()) >= 192
+    assert int(summary.longest_gap[face].max()) == 192
+    assert (summary.missing[face] > 0).sum() == 6
+
+
+def test_summary_does_not_load_the_data(tmp_path):
+    import tracemalloc
+
+    from mocap.io._c3d_data import CHUNK_BYTES
+    from mocap.io.c3d import summarize_c3d
+    n_frames, n_markers = 300_000, 20
+    positions = np.zeros((n_frames, n_markers, 3))
+    positions[1000:1500, 3] = np.nan
+    write_c3d(Take([f"m{i}" for i in range(n_markers)], positions, 100.0), tmp_path / "big.c3d")
+    positions_bytes = positions.nbytes
+    del positions
+    tracemalloc.start()
+    summary = summarize_c3d(tmp_path / "big.c3d")
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert summary.n_frames == n_frames and summary.longest_gap[3] == 500
+    assert positions_bytes > 30 * CHUNK_BYTES
+    assert peak < 8 * CHUNK_BYTES           # a few chunks, whatever the size of the file
+
+
+def _without_trial(path):
+    """Rename the TRIAL group (to TRIAX) so that only the 16-bit counts remain."""
+    buf = bytearray(path.read_bytes())
+    at = buf.index(b"TRIAL", 512)
+    buf[at:at + 5] = b"TRIAX"
+    path.write_bytes(bytes(buf))
+
+
+def test_frame_count_saturated_at_65535_is_read_from_the_data_size(tmp_path):
+    take = _take(n_frames=70_000, n_markers=2, analog=False, first_frame=1)
+    path = tmp_path / "vicon-long.c3d"
+    write_c3d(take, path)
+    _without_trial(path)
+    assert read_c3d_parameters(path)["POINT"]["FRAMES"] == -1          # 65535 as int16
+    with pytest.warns(UserWarning, match=r"frame count is saturated at 65535 .*reading the "
+                                         r"70000 frames the data section holds"):
+        back = read_c3d(path)
+    assert back.n_frames == 70_000
+    np.testing.assert_array_equal(back.positions, _f32(take.positions))
+
+
+def test_labels_with_colons_past_255_agree_with_ezc3d(tmp_path):
+    take = _take(n_markers=300, analog=False)
+    labels = [f"Subject:{s}" for s in take.labels[:-1]] + ["Rig:Head:Top"]
+    path = tmp_path / "labels.c3d"
+    write_c3d(take.replace(labels=tuple(labels)), path)
+    ez = ezc3d.c3d(str(path))["parameters"]["POINT"]
+    assert list(ez["LABELS"]["value"]) + list(ez["LABELS2"]["value"]) == labels
+    assert read_c3d(path).labels == tuple(labels)

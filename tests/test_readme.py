@@ -12,7 +12,7 @@ from tolerances import FLOAT32_REL, MESH_EXACT
 from basis.artist import load_artist_basis
 from fit.demo import make_demo_session
 from fit.exports import read_weights_csv
-from fit.pipeline.config import INPUT_KEYS, OUTPUT_KEYS, STAGE_TABLES
+from fit.pipeline.config import INPUT_KEYS, OUTPUT_KEYS, RUN_KEYS, STAGE_TABLES
 from fit.pipeline.template import option_rows
 
 README = Path(__file__).resolve().parent.parent / "README.md"
@@ -57,6 +57,7 @@ def test_the_readme_names_every_key_of_the_run_configuration():
     text = README.read_text(encoding="utf-8")
     section = text[text.index("## Your own capture"):text.index("## Python API")]
     keys = [f"inputs.{k}" for k in INPUT_KEYS] + [f"output.{k}" for k in OUTPUT_KEYS]
+    keys += [f"run.{k}" for k in RUN_KEYS]
     keys += [f"{table}.{f.name}" for table, cls in STAGE_TABLES.items()
              for f in dataclasses.fields(cls)]
     missing = [k for k in keys if f"`{k}`" not in section]

@@ -4,13 +4,10 @@ re-run, nothing else is trusted, every output loads, and no worker outlives its 
 from __future__ import annotations
 
 import json
-import os
-import time
 
 import pytest
 from resume import (
     committed,
-    descendants,
     finish,
     kill_when,
     make_session,
@@ -18,12 +15,10 @@ from resume import (
     staged_files,
     start_run,
     verify_outputs,
-    wait_gone,
     write_config,
 )
 
 from fit.pipeline.completion import RECORD_NAME
-from fit.pipeline.workers import local_pool, stop_pool
 
 N_TAKES = 3
 
@@ -87,16 +82,3 @@ def test_a_killed_run_with_other_parameters_is_not_trusted(session):
     assert record_keys(out) == keys_a
     checked = verify_outputs(out)
     assert checked["leftovers"] == checked["unlisted"] == []
-
-
-def test_stopping_a_pool_kills_its_running_workers():
-    """What run_takes does on any error or Ctrl-C in the parent: no take goes on writing."""
-    pool = local_pool(2)
-    futures = [pool.submit(time.sleep, 60) for _ in range(4)]
-    time.sleep(0.5)
-    workers = descendants(os.getpid())
-    assert len(workers) >= 2
-    start = time.monotonic()
-    stop_pool(pool)
-    assert wait_gone(workers, 10) == set() and time.monotonic() - start < 10
-    assert all(f.cancelled() or f.done() for f in futures)

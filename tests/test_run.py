@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import base64
+import dataclasses
 import hashlib
 import importlib.util
 import json
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -217,6 +219,18 @@ def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     (lambda t: t.replace("lowpass_hz = 15.0", 'lowpass_hz = "x"'), r"ingest\.lowpass_hz"),
     (lambda t: t.replace('directory = "results"', 'directory = "results"\nworkers = 0'),
      r"output\.workers: workers must be at least 1"),
+    (lambda t: t + '\n[run]\nworkers = 0\n', r"run\.workers: workers must be at least 1"),
+    (lambda t: t + '\n[run]\nexecutor = "slurm"\n',
+     r"run\.executor: executor must be one of \['dask', 'local'\], got 'slurm'"),
+    (lambda t: t + '\n[run]\nscheduler = "tcp://h:8786"\n',
+     r'run\.scheduler: a scheduler address needs executor = "dask"'),
+    (lambda t: t + '\n[run]\nexecutor = "dask"\nscheduler = 8786\n',
+     r"run\.scheduler: scheduler must be an address such as 'tcp://host:8786', got 8786"),
+    (lambda t: t + '\n[run]\ntimeout = -5\n', r"run\.timeout: timeout must be positive"),
+    (lambda t: t + '\n[run]\nthreads = 2\n', r"run\.threads: unknown key"),
+    (lambda t: t.replace('directory = "results"', 'directory = "results"\nworkers = 2')
+     + '\n[run]\nworkers = 2\n', r"output\.workers: workers is given in \[run\] and in "
+                                   r"\[output\]; keep run\.workers"),
     (lambda t: t.replace("[inputs]", "[inputs]\nsession = \"session\""),
      r"inputs\.captures: give either"),
     (lambda t: t + "\n[extra]\n", r"extra: unknown key"),
@@ -225,8 +239,37 @@ def test_config_errors_name_the_key(session_root, edit, match):
     path = session_root / "bad.toml"
     good = _config(session_root, ["session/capture.c3d"]).read_text()
     path.write_text(edit(good), encoding="utf-8")
-    with pytest.raises(InputError, match=match):
-        load_run_config(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)      # output.workers: the old key
+        with pytest.raises(InputError, match=match):
+            load_run_config(path)
+
+
+def test_run_table_and_the_old_output_workers(session_root):
+    path = session_root / "run-table.toml"
+    good = _config(session_root, ["session/capture.c3d"]).read_text()
+    path.write_text(good + '\n[run]\nexecutor = "dask"\nscheduler = " tcp://h:8786 "\n'
+                           'workers = 3\ntimeout = 90\n', encoding="utf-8")
+    config = load_run_config(path)
+    assert (config.executor, config.scheduler, config.workers, config.timeout) == \
+        ("dask", "tcp://h:8786", 3, 90.0)
+    assert "run" not in config.parameters()          # where takes run changes no output
+    path.write_text(good.replace('directory = "results"', 'directory = "results"\nworkers = 1'),
+                    encoding="utf-8")
+    with pytest.warns(FutureWarning, match=r"output\.workers is now run\.workers"):
+        assert load_run_config(path).workers == 1
+
+
+def test_a_take_past_its_timeout_is_failed_with_the_reason(session_root, tmp_path):
+    path = _config(session_root, ["session/capture.c3d"])
+    config = load_run_config(path)
+    config = dataclasses.replace(config, output=tmp_path / "out")
+    outcome = run_takes(config, timeout=0.01, progress=False)
+    record = outcome.takes["capture"]
+    assert outcome.n_failed == 1 and record["status"] == "failed"
+    assert record["error"] == "timed out after 0.01 s (the per-take timeout)"
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["takes"]["capture"]["error"] == record["error"]
 
 
 def test_config_not_toml(session_root):

@@ -18,8 +18,8 @@ import shutil
 
 import numpy as np
 import pytest
-from scipy.linalg import subspace_angles, svd
 from helpers import stub_take
+from scipy.linalg import subspace_angles, svd
 from tolerances import EXACT_FLOAT64, PCA_ANGLE_RAD, PCA_IMPLICIT_RTOL
 
 from basis.basis_io import load_basis
@@ -236,7 +236,7 @@ def test_a_session_re_runs_every_take_when_one_capture_changes(session, monkeypa
     """The skip logic alone: the chain and the basis are stubs that record their calls."""
     calls, built = [], []
 
-    def fake_basis(config, *, workers, progress):
+    def fake_basis(config, *, executor, progress):
         built.append(len(config.captures))
         return None, {}
 

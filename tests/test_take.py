@@ -55,3 +55,18 @@ def test_find_gaps_against_a_loop():
                 t += 1
     assert list(zip(gaps.marker, gaps.start, gaps.stop)) == expect
     assert gaps.length.sum() == missing.sum()
+
+
+def test_take_keeps_an_immutable_array_and_copies_anything_else():
+    owned = np.zeros((4, 2, 3))
+    owned.flags.writeable = False
+    assert Take(("a", "b"), owned, 100.0).positions is owned          # no second copy
+    writable = np.zeros((4, 2, 3))
+    take = Take(("a", "b"), writable, 100.0)
+    writable[0, 0] = 5.0
+    assert take.positions[0, 0, 0] == 0.0
+    view = writable.view()
+    view.flags.writeable = False                   # read-only, but its memory is not
+    take = Take(("a", "b"), view, 100.0)
+    writable[1, 0] = 7.0
+    assert take.positions[1, 0, 0] == 0.0

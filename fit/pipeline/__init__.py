@@ -10,8 +10,9 @@
   takes share (``[basis] scope = "session"``), :mod:`.take_warnings` what
   each take warned about, :mod:`.completion` committing each take as a unit
   with the record a later run verifies, :mod:`.outdir` keeping the output
-  directory safe (lock, names, stale files) and :mod:`.workers` making pool
-  workers die with the run;
+  directory safe (lock, names, stale files), :mod:`.executors` running the
+  takes (a local process pool, a Dask cluster, or any executor) and
+  :mod:`.workers` making worker processes die with the run;
 - :mod:`.template`: a complete ``run.toml``, every key with its default and a comment;
 - :mod:`.initialize`: what ``mocap2mesh init`` writes for a capture never seen.
 """

@@ -14,7 +14,12 @@ stage with the same name)::
 
     [output]
     directory = "out"          # default: "out" beside the configuration
-    workers = 2                # default: min(2, number of takes)
+
+    [run]                      # where the takes run (fit.pipeline.executors)
+    executor = "local"         # "local" (a process pool) or "dask"
+    scheduler = "tcp://host:8786"   # dask only; default: a LocalCluster started for the run
+    workers = 2                # parallel takes / LocalCluster workers; default: min(2, takes)
+    timeout = 3600             # s a take may run before it is stopped and failed; default: none
 
     [ingest]    # mocap.clean.ingest.IngestOptions: fix_swaps, reject_implausible, fill,
                 #   max_gap (default 0.1 s), min_visible, extra_markers, lowpass_hz, ...,
@@ -40,19 +45,21 @@ Every error names the file and the key at fault (``run.toml: fit.space: ...``).
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from fit.pipeline.executors import EXECUTORS
 from fit.pipeline.options import BasisOptions, BindOptions, FitOptions, ReportOptions
 from mocap.clean.ingest import STABILIZATIONS, IngestOptions
 from mocap.errors import InputError
 from mocap.retarget.retargeting import RetargetOptions
 from mocap.util.files import as_path
 from mocap.util.toml import check_open_questions, read_toml
-from mocap.util.validation import as_int
+from mocap.util.validation import as_choice, as_int, as_positive_float
 
 __all__ = ["RunConfig", "load_run_config", "stage_options", "CAPTURE_SUFFIXES", "STAGE_TABLES",
-           "INPUT_KEYS", "OUTPUT_KEYS", "CHAIN_DEFAULTS"]
+           "INPUT_KEYS", "OUTPUT_KEYS", "RUN_KEYS", "CHAIN_DEFAULTS"]
 
 #: Files of a session directory taken as captures.
 CAPTURE_SUFFIXES = (".c3d", ".csv", ".trc")
@@ -74,12 +81,18 @@ INPUT_KEYS = {
 #: The keys of ``[output]``, each with what it is.
 OUTPUT_KEYS = {
     "directory": "where every take's outputs go (default: out, beside this file)",
-    "workers": "takes run in parallel (default: min(2, number of takes))",
+}
+#: The keys of ``[run]``: where the takes run (:mod:`fit.pipeline.executors`).
+RUN_KEYS = {
+    "executor": 'where the takes run: "local" (a process pool) or "dask"',
+    "scheduler": "Dask scheduler address (tcp://host:8786); default: a LocalCluster for the run",
+    "workers": "takes run in parallel, or LocalCluster workers (default: min(2, takes))",
+    "timeout": "seconds a take may run before it is stopped and failed (default: none)",
 }
 #: Options whose default in the chain differs from their stage's (the stage
 #: function alone does not stabilize; the chain always does).
 CHAIN_DEFAULTS = {"ingest": {"stabilize": "head"}}
-_TOP = {"inputs", "output", "open_questions", *STAGE_TABLES}
+_TOP = {"inputs", "output", "run", "open_questions", *STAGE_TABLES}
 
 
 @dataclass(frozen=True)
@@ -96,10 +109,17 @@ class RunConfig:
     mesh_units : str or None
     output : Path
     workers : int
+        Takes run in parallel (LocalCluster workers for ``executor="dask"``).
     ingest, bind, retarget, basis_options, fit, report
         The options of each stage.
     session : Path or None
         The directory of ``inputs.session``, when the captures come from one.
+    executor : {"local", "dask"}
+        Where the takes run (:mod:`fit.pipeline.executors`).
+    scheduler : str or None
+        Address of a Dask scheduler; None starts a LocalCluster for the run.
+    timeout : float or None, s
+        Longest a take may run; None: no limit.
     """
 
     path: Path
@@ -118,6 +138,9 @@ class RunConfig:
     fit: FitOptions
     report: ReportOptions
     session: Path | None = None
+    executor: str = "local"
+    scheduler: str | None = None
+    timeout: float | None = None
 
     @property
     def shared_inputs(self) -> dict:
@@ -269,7 +292,7 @@ def load_run_config(path) -> RunConfig:
     output = doc.get("output", {})
     if not isinstance(output, dict):
         _fail(path, "output", f"expected a table, got {output!r}")
-    _unknown(path, output, OUTPUT_KEYS, "output.")
+    _unknown(path, output, {*OUTPUT_KEYS, "workers"}, "output.")  # workers: the old place of run.workers
     directory = output.get("directory", "out")
     if not isinstance(directory, str) or not directory:
         _fail(path, "output.directory", f"expected a path (string), got {directory!r}")
@@ -280,11 +303,7 @@ def load_run_config(path) -> RunConfig:
     except (OSError, RuntimeError) as exc:
         _fail(path, "output.directory", f"{directory!r} is not a usable path: "
                                         f"{exc.strerror or exc}")
-    workers = output.get("workers", min(2, len(captures)))
-    try:
-        workers = as_int(workers, "workers", minimum=1)
-    except InputError as exc:
-        _fail(path, "output.workers", str(exc))
+    run = _run_table(path, doc.get("run", {}), output, len(captures))
     stages = {}
     for name in STAGE_TABLES:
         table = doc.get(name, {})
@@ -297,7 +316,45 @@ def load_run_config(path) -> RunConfig:
         mesh=_file(path, inputs["mesh"], "inputs.mesh"),
         landmarks=_file(path, inputs["landmarks"], "inputs.landmarks"),
         basis=_file(path, inputs["basis"], "inputs.basis", directory=None),
-        mesh_units=units, output=out_dir, workers=workers,
+        mesh_units=units, output=out_dir,
         ingest=stages["ingest"], bind=stages["bind"], retarget=stages["retarget"],
         basis_options=stages["basis"], fit=stages["fit"], report=stages["report"],
-        session=captures[0].parent if "session" in inputs else None)
+        session=captures[0].parent if "session" in inputs else None, **run)
+
+
+def _run_table(path: Path, run, output: dict, n_captures: int) -> dict:
+    """``executor``, ``scheduler``, ``workers`` and ``timeout`` from ``[run]``."""
+    if not isinstance(run, dict):
+        _fail(path, "run", f"expected a table, got {run!r}")
+    _unknown(path, run, RUN_KEYS, "run.")
+    workers_key = "run.workers"
+    if "workers" in output:
+        if "workers" in run:
+            _fail(path, "output.workers", "workers is given in [run] and in [output]; "
+                                          "keep run.workers")
+        warnings.warn(f"{path}: output.workers is now run.workers ([run] table); "
+                      "output.workers is read until mocap2mesh 0.3", FutureWarning,
+                      stacklevel=3)
+        run = {**run, "workers": output["workers"]}
+        workers_key = "output.workers"
+    values = {}
+    for key, check in (("executor", lambda v: as_choice(v, "executor", EXECUTORS)),
+                       ("scheduler", _address),
+                       ("workers", lambda v: as_int(v, "workers", minimum=1)),
+                       ("timeout", lambda v: as_positive_float(v, "timeout"))):
+        if key in run:
+            try:
+                values[key] = check(run[key])
+            except InputError as exc:
+                _fail(path, workers_key if key == "workers" else f"run.{key}", str(exc))
+    values.setdefault("workers", min(2, n_captures))
+    if "scheduler" in values and values.get("executor") != "dask":
+        _fail(path, "run.scheduler", "a scheduler address needs executor = \"dask\"")
+    return values
+
+
+def _address(value) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise InputError(f"scheduler must be an address such as 'tcp://host:8786', "
+                         f"got {value!r}")
+    return value.strip()

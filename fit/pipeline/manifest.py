@@ -11,8 +11,9 @@ Layout::
      "parameters": {stage: {option: value}},
      "inputs": {role: {"path": ..., "sha256": ...}},      # + "session": {"takes", "sha256"}
      "session_basis": {"takes": {name: frames}, "n_components", "sha256", ...},  # if shared
-     "takes": {name: {"capture": {"path", "sha256"}, "key", "status": "ok" | "failed",
+     "takes": {name: {"capture": {"path", "sha256"}, "key", "status": "ok" | "failed" | "pending" (not finished yet),
                       "skipped": bool, "error": str | null, "seconds",
+                      "worker": {"host", "pid", "peak_rss_mb"},
                       "basis": {"scope", "pca_sha256"}, "warnings": [str],
                       "metrics": {basis: {...}}, "files": [relative paths], ...}}}
 """

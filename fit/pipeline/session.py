@@ -1,15 +1,16 @@
 """Every take of a session through the whole chain: parallel takes, a manifest, skips.
 
 :func:`run_takes` runs the takes of a :class:`fit.pipeline.config.RunConfig`
-in a process pool (one progress bar), each committed as a unit into a folder
+on an executor (:mod:`fit.pipeline.executors`: a local process pool, a Dask
+cluster, or any executor; one progress bar), each committed as a unit into a folder
 of its name under the output directory (:mod:`fit.pipeline.completion`), and
 keeps ``manifest.json`` at the top up to date after every take
 (:mod:`fit.pipeline.manifest`). A take is skipped only when its committed
 folder verifies against the current capture, inputs and parameters; a failing
 take is reported (stderr and manifest) and does not stop the others; a killed
 run resumes with every finished take skipped. The output directory is locked
-for the run, cleaned of what killed runs left, and the pool's workers die with
-the run (:mod:`fit.pipeline.outdir`, :mod:`fit.pipeline.workers`). With
+for the run and cleaned of what killed runs left (:mod:`fit.pipeline.outdir`);
+local workers die with the run (:mod:`fit.pipeline.workers`). With
 ``[basis] scope = "session"`` the takes share one PCA/QE basis
 (:mod:`fit.pipeline.session_basis`), built first; each take's warnings are
 printed as it completes and recorded (:mod:`fit.pipeline.take_warnings`).
@@ -18,11 +19,13 @@ printed as it completes and recorded (:mod:`fit.pipeline.take_warnings`).
 from __future__ import annotations
 
 import dataclasses
+import os
+import socket
 import sys
 import time
 import traceback
 import warnings
-from concurrent.futures import as_completed
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,6 +40,7 @@ from fit.pipeline.completion import (
     plan_takes,
 )
 from fit.pipeline.config import RunConfig
+from fit.pipeline.executors import TaskOutcome, open_executor
 from fit.pipeline.manifest import (
     MANIFEST_NAME,
     load_manifest,
@@ -48,9 +52,9 @@ from fit.pipeline.outdir import clean_stale, output_lock, safe_stem, take_names
 from fit.pipeline.reconstruction import Reconstruction
 from fit.pipeline.session_basis import build_session_basis, session_input, uses_session_basis
 from fit.pipeline.take_warnings import capture_warnings, print_warnings
-from fit.pipeline.workers import local_pool, stop_pool
-from mocap.errors import InputError, Mocap2MeshError
+from mocap.errors import Mocap2MeshError
 from mocap.util.atomic import refuse_overwrite
+from mocap.util.validation import as_int
 
 __all__ = ["RunOutcome", "process_take", "run_takes"]
 
@@ -144,6 +148,31 @@ def _entry(summary: dict, record, provenance: Provenance) -> dict:
             "files": sorted(f"{record.name}/{rel}" for rel in record.files)}
 
 
+@dataclass(frozen=True)
+class _TakeJob:
+    """One take of a run as a task of an executor: its capture, folder name and provenance."""
+
+    capture: Path
+    name: str
+    provenance: Provenance
+
+    @property
+    def stem(self) -> str:
+        """The name Dask shows the task by."""
+        return self.name
+
+
+def _worker() -> dict:
+    """Where a take ran: host, process, and the process's peak resident memory so far (MB)."""
+    try:
+        import resource
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        peak_mb = round(peak / (1e6 if sys.platform == "darwin" else 1e3), 1)
+    except ImportError:                     # Windows
+        peak_mb = None
+    return {"host": socket.gethostname(), "pid": os.getpid(), "peak_rss_mb": peak_mb}
+
+
 def _guarded(capture: Path, config: RunConfig, name: str, provenance: Provenance,
              session_basis=None) -> dict:
     """:func:`process_take` that turns an exception into a failed record."""
@@ -160,21 +189,51 @@ def _guarded(capture: Path, config: RunConfig, name: str, provenance: Provenance
                 "seconds": round(time.perf_counter() - start, 3), "warnings": caught}
 
 
-def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = False,
-              check: bool = False, progress: bool | None = None) -> RunOutcome:
+def _take_task(job: _TakeJob, shared) -> dict:
+    """The task an executor runs for each take: ``shared`` is ``(config, session_basis)``.
+
+    Returns the take's manifest record, with where it ran (``worker``).
+    """
+    config, session_basis = shared
+    record = _guarded(job.capture, config, job.name, job.provenance, session_basis)
+    return {**record, "worker": _worker()}
+
+
+def _failed(outcome: TaskOutcome) -> dict:
+    """The record of a take whose task never returned (timeout, dead worker)."""
+    return {"status": "failed", "skipped": False, "error": outcome.error,
+            "traceback": outcome.traceback, "seconds": round(outcome.seconds, 3)}
+
+
+def run_takes(config: RunConfig, *, executor=None, workers: int | None = None,
+              scheduler: str | None = None, timeout: float | None = None,
+              force: bool = False, check: bool = False,
+              progress: bool | None = None) -> RunOutcome:
     """Run every take of `config` (skipping those already done) and keep ``manifest.json``.
 
     Parameters
     ----------
     config : RunConfig
+    executor : {"local", "dask"} or executor object, optional
+        Where the takes run (default ``config.executor``): see
+        :func:`fit.pipeline.executors.open_executor`; any object with
+        ``submit`` (a Dask client's ``get_executor()``, a process pool) is used
+        as it is and left open. The session basis is built on it too.
     workers : int, optional
-        Takes processed in parallel (default ``config.workers``); 1 runs in this process.
+        Takes processed in parallel, or LocalCluster workers (default
+        ``config.workers``); local with 1 and no timeout runs in this process.
+    scheduler : str, optional
+        Dask scheduler address (default ``config.scheduler``).
+    timeout : float, optional, s
+        Longest a take may run before it is stopped and recorded as failed
+        (default ``config.timeout``: none).
     force : bool
         Re-run every take, done or not.
     check : bool
         Only say what would be skipped and why (``reasons``); run and write nothing.
     progress : bool or None
-        Show the progress bar (None: only on a terminal).
+        Show the progress bar, with the Dask dashboard's address when there
+        is one (None: only on a terminal).
 
     Returns
     -------
@@ -186,9 +245,10 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
         `workers` < 1, the output directory lies inside an input directory or
         cannot be written, or another run holds it.
     """
-    workers = config.workers if workers is None else workers
-    if workers < 1:
-        raise InputError(f"workers must be at least 1, got {workers}")
+    workers = config.workers if workers is None else as_int(workers, "workers", minimum=1)
+    executor = config.executor if executor is None else executor
+    scheduler = config.scheduler if scheduler is None else scheduler
+    timeout = config.timeout if timeout is None else timeout
     refuse_overwrite(config.output, [config.session, *config.shared_inputs.values()])
     names, renamed = take_names(config.captures)
     digests = {capture: sha256_path(capture) for capture in config.captures}
@@ -221,31 +281,14 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
                                                "skipped": True}
             else:
                 todo.append(capture)
-        shared = None
         if uses_session_basis(config):
             manifest.session_basis = (load_manifest(manifest.path) or {}).get("session_basis")
-        if todo and uses_session_basis(config):
-            shared, unprepared = build_session_basis(config, workers=workers, progress=progress)
-            manifest.session_basis = None if shared is None else shared.record()
-            for capture in [c for c in todo if c.stem in unprepared]:
-                todo.remove(capture)
-                manifest.collect(names[capture], capture, {
-                    "status": "failed", "skipped": False, "error": unprepared[capture.stem]})
         manifest.write()
-        with tqdm(total=len(config.captures), initial=len(config.captures) - len(todo),
-                  desc="takes", unit="take", disable=None if progress is None else not progress,
-                  file=sys.stderr) as bar:
-            def collect(capture, record):
-                manifest.collect(names[capture], capture, record)
-                bar.update()
-
-            if workers == 1 or len(todo) <= 1:
-                for capture in todo:
-                    collect(capture, _guarded(capture, config, names[capture],
-                                              provenances[names[capture]], shared))
-            else:
-                _in_pool(todo, config, names, provenances, shared, min(workers, len(todo)),
-                         collect)
+        if todo:
+            pool = open_executor(executor, workers=min(workers, len(todo)), scheduler=scheduler)
+            # an executor the caller built is the caller's to close
+            with nullcontext(pool) if pool is executor else pool:
+                _run_on(pool, todo, config, names, provenances, manifest, timeout, progress)
         clean_stale(config.output)      # the staging folder, empty once every take is done
     takes = manifest.takes
     return RunOutcome(manifest=manifest.path, takes=takes,
@@ -254,23 +297,28 @@ def run_takes(config: RunConfig, *, workers: int | None = None, force: bool = Fa
                       reasons={n: v.reason for n, v in verdicts.items()})
 
 
-def _in_pool(todo, config, names, provenances, shared, workers: int, collect) -> None:
-    """Run `todo` in a pool whose workers die with this process (and on any error here)."""
-    pool = local_pool(workers)
-    try:
-        futures = {pool.submit(_guarded, c, config, names[c], provenances[names[c]], shared): c
-                   for c in todo}
-        for future in as_completed(futures):
-            try:
-                record = future.result()
-            except Exception as exc:  # noqa: BLE001 - a worker died (memory, signal)
-                record = {"status": "failed", "skipped": False,
-                          "error": f"worker process failed: {type(exc).__name__}: {exc}"}
-            collect(futures[future], record)
-    except BaseException:
-        stop_pool(pool)
-        raise
-    pool.shutdown()
+def _run_on(pool, todo, config, names, provenances, manifest, timeout, progress) -> None:
+    """Build the session basis (when the takes share one) and run `todo` on `pool`."""
+    shared = None
+    if uses_session_basis(config):
+        shared, unprepared = build_session_basis(config, executor=pool, progress=progress)
+        manifest.session_basis = None if shared is None else shared.record()
+        for capture in [c for c in todo if c.stem in unprepared]:
+            todo.remove(capture)
+            manifest.collect(names[capture], capture, {
+                "status": "failed", "skipped": False, "error": unprepared[capture.stem]})
+        manifest.write()
+    jobs = [_TakeJob(c, names[c], provenances[names[c]]) for c in todo]
+    with tqdm(total=len(config.captures), initial=len(config.captures) - len(jobs),
+              desc="takes", unit="take", disable=None if progress is None else not progress,
+              file=sys.stderr) as bar:
+        if pool.dashboard_link:
+            bar.set_postfix_str(f"dashboard {pool.dashboard_link}")
+        for outcome in pool.map_unordered(_take_task, jobs, shared=(config, shared),
+                                          timeout=timeout):
+            record = outcome.result if outcome.ok else _failed(outcome)
+            manifest.collect(outcome.job.name, outcome.job.capture, record)
+            bar.update()
 
 
 class _Manifest:

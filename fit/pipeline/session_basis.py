@@ -40,9 +40,9 @@ from tqdm import tqdm
 
 from basis.pca import MarkerMoments, PCAModel, marker_moments, pca_from_operators
 from fit.pipeline.config import RunConfig
+from fit.pipeline.executors import LocalExecutor
 from fit.pipeline.options import BasisOptions
 from fit.pipeline.reconstruction import Reconstruction
-from fit.pipeline.workers import local_pool, stop_pool
 from mocap.errors import InputError, Mocap2MeshError
 
 __all__ = ["TakeMoments", "SessionBasis", "take_moments", "session_basis",
@@ -199,7 +199,7 @@ def _moments_or_error(capture: Path, config: RunConfig):
         return str(exc) if isinstance(exc, Mocap2MeshError) else f"{type(exc).__name__}: {exc}"
 
 
-def build_session_basis(config: RunConfig, *, workers: int = 1,
+def build_session_basis(config: RunConfig, *, executor=None,
                         progress: bool | None = None) -> tuple:
     """The session basis of a run's takes, and the takes that could not contribute.
 
@@ -207,8 +207,9 @@ def build_session_basis(config: RunConfig, *, workers: int = 1,
     ----------
     config : RunConfig
         Every capture of it is pooled, whether or not it is run again.
-    workers : int
-        Takes prepared in parallel (processes); 1 runs in this process.
+    executor : fit.pipeline.executors.SessionExecutor, optional
+        Where the takes are prepared, one task each (default: one after the
+        other in this process).
     progress : bool or None
         Show a progress bar (None: only on a terminal).
 
@@ -225,28 +226,14 @@ def build_session_basis(config: RunConfig, *, workers: int = 1,
         From :func:`session_basis` (the options do not fit the pooled takes).
     """
     captures = list(config.captures)
+    executor = LocalExecutor(1) if executor is None else executor
+    done = {}
     with tqdm(total=len(captures), desc="session basis", unit="take", file=sys.stderr,
               disable=None if progress is None else not progress) as bar:
-        if workers == 1 or len(captures) == 1:
-            outcomes = []
-            for capture in captures:
-                outcomes.append(_moments_or_error(capture, config))
-                bar.update()
-        else:
-            pool = local_pool(min(workers, len(captures)))     # workers die with the run
-            try:
-                futures = [pool.submit(_moments_or_error, c, config) for c in captures]
-                outcomes = []
-                for future in futures:             # in the run's order
-                    try:
-                        outcomes.append(future.result())
-                    except Exception as exc:  # noqa: BLE001 - a worker died (memory, signal)
-                        outcomes.append(f"worker process failed: {type(exc).__name__}: {exc}")
-                    bar.update()
-            except BaseException:
-                stop_pool(pool)
-                raise
-            pool.shutdown()
+        for outcome in executor.map_unordered(_moments_or_error, captures, shared=config):
+            done[outcome.job] = outcome.result if outcome.ok else outcome.error
+            bar.update()
+    outcomes = [done[c] for c in captures]          # pooled in the run's order
     failed = {c.stem: o for c, o in zip(captures, outcomes) if isinstance(o, str)}
     prepared = [o for o in outcomes if isinstance(o, TakeMoments)]
     if not prepared:

@@ -5,8 +5,9 @@ stage's options appears here without anyone editing a template: the tables
 and their options classes (:data:`fit.pipeline.config.STAGE_TABLES`), each
 field's default, the first sentence of its entry in the class's numpy-style
 ``Attributes`` section, the chain's own defaults
-(:data:`fit.pipeline.config.CHAIN_DEFAULTS`) and the ``[inputs]`` and
-``[output]`` keys (:data:`fit.pipeline.config.INPUT_KEYS`, ``OUTPUT_KEYS``).
+(:data:`fit.pipeline.config.CHAIN_DEFAULTS`) and the ``[inputs]``,
+``[output]`` and ``[run]`` keys (:data:`fit.pipeline.config.INPUT_KEYS`,
+``OUTPUT_KEYS``, ``RUN_KEYS``).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import dataclasses
 import math
 import re
 
-from fit.pipeline.config import CHAIN_DEFAULTS, INPUT_KEYS, OUTPUT_KEYS, STAGE_TABLES
+from fit.pipeline.config import CHAIN_DEFAULTS, INPUT_KEYS, OUTPUT_KEYS, RUN_KEYS, STAGE_TABLES
 from mocap.errors import InputError
 
 __all__ = ["field_docs", "toml_value", "run_config_text", "option_rows"]
@@ -117,8 +118,8 @@ def _line(key: str, value, comment: str) -> str:
 
 
 def run_config_text(inputs: dict, *, options: dict | None = None, reasons: dict | None = None,
-                    output: dict | None = None, questions: dict | None = None,
-                    header: str = "") -> str:
+                    output: dict | None = None, run: dict | None = None,
+                    questions: dict | None = None, header: str = "") -> str:
     """The text of a complete run configuration.
 
     Parameters
@@ -130,8 +131,8 @@ def run_config_text(inputs: dict, *, options: dict | None = None, reasons: dict 
         Stage table -> key -> value set instead of the default.
     reasons : dict of str to str, optional
         ``"table.key"`` -> why it is set so (added to the key's comment).
-    output : dict, optional
-        ``[output]`` values (default: the defaults, commented).
+    output, run : dict, optional
+        ``[output]`` and ``[run]`` values (default: the defaults, commented).
     questions : dict of str to str, optional
         Open questions: written as ``[open_questions]``, which makes ``run``
         refuse the file until they are answered and deleted.
@@ -162,12 +163,13 @@ def run_config_text(inputs: dict, *, options: dict | None = None, reasons: dict 
             lines.append(f"{key} = {toml_value(inputs[key])}   # {meaning}")
         else:
             lines.append(f"# {key} =   # {meaning}")
-    lines += ["", "[output]"]
-    for key, meaning in OUTPUT_KEYS.items():
-        if output and key in output:
-            lines.append(f"{key} = {toml_value(output[key])}   # {meaning}")
-        else:
-            lines.append(f"# {key} =   # {meaning}")
+    for name, keys, given in (("output", OUTPUT_KEYS, output), ("run", RUN_KEYS, run)):
+        lines += ["", f"[{name}]"]
+        for key, meaning in keys.items():
+            if given and key in given:
+                lines.append(f"{key} = {toml_value(given[key])}   # {meaning}")
+            else:
+                lines.append(f"# {key} =   # {meaning}")
     for table, cls in STAGE_TABLES.items():
         docs = field_docs(cls)
         lines += ["", f"[{table}]   # {cls.__module__}.{cls.__name__}"]

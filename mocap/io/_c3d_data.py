@@ -2,22 +2,28 @@
 
 The header and the parameters both describe the data section and either may
 be wrong in files in the wild: :func:`plan_layout` weighs them against the file
-size before anything is allocated, and :func:`decode_frames` then decodes all
-frames at once with ``numpy.frombuffer`` (no loop over frames).
+size before anything is allocated. :func:`decode_frames` then decodes the
+frames in chunks (each chunk vectorized with ``numpy.frombuffer``) straight
+into the arrays it returns, from a memory map whose pages it releases as it
+goes: a read holds one float64 copy of the positions and one chunk of the
+file. :func:`scan_missing` counts missing samples and gaps the same way
+without keeping the positions at all.
 """
 
 from __future__ import annotations
 
+import mmap
 from dataclasses import dataclass
 
 import numpy as np
 
 from mocap.errors import FileFormatError
+from mocap.gaps import find_gaps
 from mocap.io._c3d_header import BLOCK, Header
-from mocap.io._c3d_numbers import float32, int16
+from mocap.io._c3d_numbers import float32
 from mocap.io._c3d_params import Parameters
 
-__all__ = ["Layout", "plan_layout", "decode_frames"]
+__all__ = ["Layout", "plan_layout", "decode_frames", "scan_missing", "CHUNK_BYTES"]
 
 _HEADER_POINTS = 2
 _HEADER_SCALE_OFFSET = 12
@@ -104,9 +110,18 @@ def _data_offset(size: int, header: Header, params: Parameters, param_start: int
 
 
 def _frame_counts(header: Header, params: Parameters) -> tuple[list, int]:
-    """Candidate frame counts ``[(count, may_have_wrapped_at_16_bits), ...]`` and the
-    first frame number, from TRIAL:ACTUAL_START/END_FIELD, the header and POINT:FRAMES."""
-    counts = [((header.last_frame - header.first_frame + 1) % _WRAP, True)]
+    """Candidate frame counts ``[(count, kind), ...]`` and the first frame number, from
+    TRIAL:ACTUAL_START/END_FIELD, the header and POINT:FRAMES.
+
+    `kind` is ``"exact"`` (32-bit or float counts), ``"wrapped"`` (a 16-bit
+    count that may have wrapped past 65535) or ``"at_least"`` (a 16-bit count
+    saturated at 65535, as Vicon writes for longer takes).
+    """
+    def sixteen(count: int) -> str:
+        return "at_least" if count == _WRAP - 1 else "wrapped"
+
+    counts = [((header.last_frame - header.first_frame + 1) % _WRAP,
+               sixteen(header.last_frame))]
     first = header.first_frame
     start = params.numbers("TRIAL", "ACTUAL_START_FIELD", unsigned16=True)
     stop = params.numbers("TRIAL", "ACTUAL_END_FIELD", unsigned16=True)
@@ -114,22 +129,24 @@ def _frame_counts(header: Header, params: Parameters) -> tuple[list, int]:
         trial_first = int(start[0] + _WRAP * start[1])
         trial_last = int(stop[0] + _WRAP * stop[1])
         if trial_last >= trial_first:
-            counts.append((trial_last - trial_first + 1, False))
+            counts.append((trial_last - trial_first + 1, "exact"))
             first = trial_first
     frames = params.get("POINT", "FRAMES")
     if frames is not None and frames.type != -1 and len(frames.value) > 0:
         value = float(frames.value[0])
         if frames.type == 4 and np.isfinite(value) and value >= 0:
-            counts.append((int(min(value, 2.0 ** 62)), False))
+            counts.append((int(min(value, 2.0 ** 62)), "exact"))
         elif frames.type != 4:
-            counts.append((int(value) % _WRAP, True))
+            counts.append((int(value) % _WRAP, sixteen(int(value) % _WRAP)))
     return counts, first
 
 
 def _n_frames(counts: list, available: int, path, frame_bytes: int, size: int,
               notes: list) -> int:
-    """The largest claimed count the file holds; the complete frames if none fits."""
-    fitting = [(n, wrapped) for n, wrapped in counts if n <= available]
+    """The largest claimed count the file holds; the complete frames if none fits, or
+    when the only counts are 16-bit ones saturated at 65535 and the data section holds
+    more."""
+    fitting = [(n, kind) for n, kind in counts if n <= available]
     claimed = min(n for n, _ in counts)
     if not fitting:
         if available == 0:
@@ -139,12 +156,16 @@ def _n_frames(counts: list, available: int, path, frame_bytes: int, size: int,
         notes.append(f"data section is truncated: {available} complete frames of {claimed} "
                      "claimed; reading those")
         return available
-    n, wrapped = max(fitting)
+    n, kind = max(fitting)
     if n == 0 and available > 0:
         notes.append(f"the file claims no frames; reading the {available} frames its data "
                      "section holds")
         return available
-    if wrapped and available - n >= _WRAP:
+    if kind == "at_least" and available > n:
+        notes.append(f"the frame count is saturated at {n} (16-bit header and POINT:FRAMES, "
+                     f"no TRIAL range); reading the {available} frames the data section holds")
+        return available
+    if kind == "wrapped" and available - n >= _WRAP:
         n += _WRAP * ((available - n) // _WRAP)
     return n
 
@@ -195,30 +216,124 @@ def plan_layout(size: int, header: Header, params: Parameters, param_start: int,
                   channels, layout.storage, layout.scale)
 
 
-def decode_frames(buf: bytes, layout: Layout, order: str):
-    """Decode all frames at once.
+#: Bytes of the data section decoded at a time: bounds the float64 temporaries of a read.
+CHUNK_BYTES = 4 << 20
+
+
+def _release(buf, start: int, stop: int) -> None:
+    """Drop the pages of bytes [start, stop) of a memory map from this process's memory.
+
+    The file's pages stay in the system's cache; only the process's resident
+    set shrinks, so a read holds no more of the file than one chunk.
+    """
+    advise = getattr(buf, "madvise", None)
+    dontneed = getattr(mmap, "MADV_DONTNEED", None)
+    if advise is None or dontneed is None:
+        return
+    start -= start % mmap.PAGESIZE
+    if stop > start:
+        advise(dontneed, start, min(stop, len(buf)) - start)
+
+
+def _chunks(buf, layout: Layout, order: str, frames_per_chunk: int | None = None):
+    """The frames in chunks: ``(first, words)``, words of shape (c, words per frame).
+
+    Words are a view of `buf` in the file's own type (float32 or int16), or
+    float64 for DEC floats; a chunk's pages of a memory-mapped `buf` are
+    released when the next chunk is asked for.
+    """
+    per_frame = 4 * layout.n_points + layout.analog_words
+    step = frames_per_chunk or max(1, CHUNK_BYTES // layout.frame_bytes)
+    endian = ">" if order == "mips" else "<"
+    kind = "f4" if layout.storage == "float" else "i2"
+    for first in range(0, layout.n_frames, step):
+        count = min(step, layout.n_frames - first)
+        start = layout.offset + first * layout.frame_bytes
+        if order == "dec" and kind == "f4":
+            words = float32(buf[start:start + count * layout.frame_bytes], order)
+        else:
+            words = np.frombuffer(buf, dtype=endian + kind, count=count * per_frame,
+                                  offset=start)
+        yield first, words.reshape(count, per_frame)
+        _release(buf, start, start + count * layout.frame_bytes)
+
+
+def _missing(points) -> np.ndarray:
+    """Missing samples of (c, M, 4) point words: a negative residual or a coordinate that
+    is not finite."""
+    finite = np.isfinite(points[:, :, :3])
+    with np.errstate(invalid="ignore"):
+        missing = points[:, :, 3] < 0
+    missing |= ~(finite[:, :, 0] & finite[:, :, 1] & finite[:, :, 2])   # not .all(axis=2): slow
+    return missing
+
+
+def decode_frames(buf, layout: Layout, order: str, *, factor: float = 1.0):
+    """Decode every frame, a chunk of frames at a time, into arrays allocated once.
+
+    Parameters
+    ----------
+    buf : bytes-like or mmap.mmap
+        The whole file; a memory map's pages are released chunk by chunk.
+    layout : Layout
+    order : str
+    factor : float
+        Multiplies the positions (file units to mm).
 
     Returns
     -------
-    xyz : ndarray of shape (n_frames, n_points, 3), float64, file units
+    xyz : ndarray of shape (n_frames, n_points, 3), float64, mm
         NaN where the residual word is negative or a coordinate is not finite.
     analog : ndarray of shape (n_frames * analog_per_frame, n_channels), float64
         Raw analog values (before offset and scale).
+
+    Notes
+    -----
+    Memory: the two outputs, plus one chunk (:data:`CHUNK_BYTES` of file) and
+    its missing mask: the words are scaled and widened to float64 straight
+    into the output.
     """
     n, m = layout.n_frames, layout.n_points
-    per_frame = 4 * m + layout.analog_words
-    raw = memoryview(buf)[layout.offset:layout.offset + n * layout.frame_bytes]
-    if layout.storage == "float":
-        words = float32(raw, order).reshape(n, per_frame)
-        scale = 1.0
-    else:
-        words = int16(raw, order).reshape(n, per_frame)
-        scale = layout.scale
-    points = words[:, :4 * m].reshape(n, m, 4)
-    with np.errstate(all="ignore"):
-        xyz = points[:, :, :3] * scale
-        missing = (points[:, :, 3] < 0) | ~np.isfinite(xyz).all(axis=2)
-    xyz[missing] = np.nan
-    analog = words[:, 4 * m:4 * m + layout.n_channels * layout.analog_per_frame]
-    analog = analog.reshape(n * layout.analog_per_frame, layout.n_channels).astype(np.float64)
+    xyz = np.empty((n, m, 3))
+    per, channels = layout.analog_per_frame, layout.n_channels
+    analog = np.empty((n * per, channels))
+    scale = factor * (1.0 if layout.storage == "float" else layout.scale)
+    for first, words in _chunks(buf, layout, order):
+        count = len(words)
+        points = words[:, :4 * m].reshape(count, m, 4)
+        out = xyz[first:first + count]
+        out[...] = points[:, :, :3]                 # widened to float64 in place
+        if scale != 1.0:
+            with np.errstate(all="ignore"):
+                out *= scale
+        out[_missing(points)] = np.nan
+        values = words[:, 4 * m:4 * m + channels * per]
+        analog[first * per:(first + count) * per] = values.reshape(count * per, channels)
     return xyz, analog
+
+
+def scan_missing(buf, layout: Layout, order: str, *, frames_per_chunk: int | None = None):
+    """Missing samples and the longest gap of every marker, without holding the positions.
+
+    Returns
+    -------
+    missing : ndarray of shape (n_points,), int
+        Frames in which each marker is missing.
+    longest : ndarray of shape (n_points,), int
+        Each marker's longest run of missing frames (0 if none), runs joined
+        across chunks.
+    """
+    m = layout.n_points
+    missing = np.zeros(m, dtype=np.int64)
+    longest = np.zeros(m, dtype=np.int64)
+    carry = np.zeros(m, dtype=np.int64)          # a run still open at the chunk's end
+    for _, words in _chunks(buf, layout, order, frames_per_chunk):
+        mask = _missing(words[:, :4 * m].reshape(len(words), m, 4))
+        missing += mask.sum(axis=0)
+        gaps = find_gaps(mask)
+        lengths = gaps.length + np.where(gaps.start == 0, carry[gaps.marker], 0)
+        np.maximum.at(longest, gaps.marker, lengths)
+        carry = np.zeros(m, dtype=np.int64)
+        open_end = gaps.stop == len(mask)
+        carry[gaps.marker[open_end]] = lengths[open_end]
+    return missing, longest

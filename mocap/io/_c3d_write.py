@@ -108,27 +108,43 @@ def _parameters(take: Take, per_frame: int, data_block: int) -> bytes:
     return b"".join(out)
 
 
-def _data(take: Take, per_frame: int) -> bytes:
+_CHUNK_FRAMES_BYTES = 16 << 20     # bytes of frames encoded at a time
+
+
+def _frames(take: Take, per_frame: int):
+    """The data section in chunks of frames (bytes), each encoded vectorized."""
     n, m = take.n_frames, take.n_markers
-    missing = take.missing
-    positions = np.where(missing[:, :, None], 0.0, take.positions)
     limit = np.finfo(np.float32).max
-    if np.abs(positions).max(initial=0.0) > limit:
-        raise InputError("positions exceed the float32 range of a C3D file")
-    points = np.empty((n, m, 4), dtype="<f4")
-    points[:, :, :3] = positions
-    points[:, :, 3] = np.where(missing, -1.0, 0.0)
-    blocks = [points.reshape(n, 4 * m)]
-    if per_frame:
-        values = take.analog.values
-        if np.abs(np.nan_to_num(values)).max(initial=0.0) > limit:
-            raise InputError("analog values exceed the float32 range of a C3D file")
-        blocks.append(values.astype("<f4").reshape(n, per_frame * values.shape[1]))
-    return np.concatenate(blocks, axis=1).astype("<f4", copy=False).tobytes()
+    values = None if not per_frame else take.analog.values
+    if values is not None and np.abs(np.nan_to_num(values)).max(initial=0.0) > limit:
+        raise InputError("analog values exceed the float32 range of a C3D file")
+    width = 4 * m + (0 if values is None else per_frame * values.shape[1])
+    step = max(1, _CHUNK_FRAMES_BYTES // (4 * width))
+    for first in range(0, n, step):
+        stop = min(n, first + step)
+        positions = take.positions[first:stop]
+        missing = np.isnan(positions[:, :, 0])
+        if np.nanmax(np.abs(positions), initial=0.0) > limit:
+            raise InputError("positions exceed the float32 range of a C3D file")
+        words = np.empty((stop - first, width), dtype="<f4")
+        points = words[:, :4 * m].reshape(stop - first, m, 4)
+        points[:, :, :3] = np.where(missing[:, :, None], 0.0, positions)
+        points[:, :, 3] = np.where(missing, -1.0, 0.0)
+        if values is not None:
+            words[:, 4 * m:] = values[first * per_frame:stop * per_frame].reshape(
+                stop - first, -1)
+        yield words.tobytes()
 
 
-def encode_c3d(take: Take) -> bytes:
-    """The bytes of a C3D file holding `take` (see :func:`mocap.io.c3d.write_c3d`)."""
+def encode_c3d(take: Take):
+    """The bytes of a C3D file holding `take` (see :func:`mocap.io.c3d.write_c3d`), in
+    pieces: the header and parameter blocks, then the frames a chunk at a time.
+
+    Raises
+    ------
+    InputError
+        As :func:`mocap.io.c3d.write_c3d`, before the first piece.
+    """
     if take.n_frames == 0:
         raise InputError("a take with no frames cannot be written to C3D")
     if take.first_frame < 0:
@@ -148,6 +164,10 @@ def encode_c3d(take: Take) -> bytes:
                      min(take.first_frame, _MAX_WORD),
                      min(take.first_frame + take.n_frames - 1, _MAX_WORD), 0)
     struct.pack_into("<fHHf", header, 12, -1.0, data_block, per_frame, take.rate)
+    frames = _frames(take, per_frame)
+    first = next(frames)            # raises here, before anything is written
     # The data section is not padded to a whole block: readers that count frames
     # from the file size past 65535 frames (ezc3d) would read the padding as frames.
-    return bytes(header) + params.ljust(n_blocks * BLOCK, b"\x00") + _data(take, per_frame)
+    yield bytes(header) + params.ljust(n_blocks * BLOCK, b"\x00")
+    yield first
+    yield from frames

@@ -8,21 +8,23 @@ and float storage, and the ways files in the wild bend the standard (see
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 from mocap.errors import FileFormatError, InputError
-from mocap.io._c3d_data import decode_frames, plan_layout
+from mocap.io._c3d_data import decode_frames, plan_layout, scan_missing
 from mocap.io._c3d_header import BLOCK, locate_parameters, parse_header
 from mocap.io._c3d_params import Parameters, parse_parameters
 from mocap.io._c3d_write import encode_c3d
 from mocap.take import Analog, SourceInfo, Take, as_take
 from mocap.units import mm_per_unit
+from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
 from mocap.util.budget import check_allocation
-from mocap.util.files import as_path, read_input_bytes
+from mocap.util.files import as_path, mapped_input
 
-__all__ = ["read_c3d", "read_c3d_parameters", "write_c3d"]
+__all__ = ["read_c3d", "read_c3d_parameters", "summarize_c3d", "C3DSummary", "write_c3d"]
 
 _HEADER_RATE_OFFSET = 20
 
@@ -84,6 +86,18 @@ def _per_channel(values, n: int, default: float, name: str, notes: list) -> np.n
     return out
 
 
+def _analog_meta(params: Parameters, layout, point_rate: float, notes: list):
+    """(rate, labels, units) of the analog channels."""
+    n = layout.n_channels
+    rate = params.number("ANALOG", "RATE")
+    if not _positive(rate):
+        rate = point_rate * layout.analog_per_frame
+    labels = _unique_labels(params.string_series("ANALOG", "LABELS"), n, "analog", "analog",
+                            notes)
+    units = params.string_series("ANALOG", "UNITS")
+    return rate, labels, tuple(units[i] if i < len(units) else "" for i in range(n))
+
+
 def _analog(raw: np.ndarray, params: Parameters, layout, point_rate: float,
             notes: list) -> Analog | None:
     """Scaled analog channels: ``(raw - OFFSET) * SCALE * GEN_SCALE``."""
@@ -104,14 +118,7 @@ def _analog(raw: np.ndarray, params: Parameters, layout, point_rate: float,
     if bad.any():
         notes.append(f"{int(bad.sum())} analog samples are not finite; set to NaN")
         values[bad] = np.nan
-    rate = params.number("ANALOG", "RATE")
-    if not _positive(rate):
-        rate = point_rate * layout.analog_per_frame
-    labels = _unique_labels(params.string_series("ANALOG", "LABELS"), n, "analog", "analog",
-                            notes)
-    units = params.string_series("ANALOG", "UNITS")
-    units = tuple(units[i] if i < len(units) else "" for i in range(n))
-    return Analog(values, rate, labels, units)
+    return Analog(values, *_analog_meta(params, layout, point_rate, notes))
 
 
 def _producer(params: Parameters) -> str:
@@ -146,10 +153,41 @@ def _check_budget(layout, path) -> None:
                      justified=stored * 8 // layout.word_size, offset=layout.offset)
 
 
-def _decode(buf: bytes, path, notes: list) -> Take:
+@dataclass(frozen=True)
+class C3DSummary:
+    """What a C3D file holds, found without keeping its positions (``mocap2mesh info``).
+
+    Attributes
+    ----------
+    labels : tuple of str
+        Marker labels, as :func:`read_c3d` gives them.
+    n_frames, first_frame : int
+    rate : float, Hz
+    source : SourceInfo
+        As :attr:`Take.source` of :func:`read_c3d`.
+    missing : ndarray of shape (n_markers,), int
+        Frames in which each marker is missing.
+    longest_gap : ndarray of shape (n_markers,), int
+        Each marker's longest run of missing frames.
+    analog_labels : tuple of str
+    analog_rate : float or None, Hz
+    """
+
+    labels: tuple
+    n_frames: int
+    first_frame: int
+    rate: float
+    source: SourceInfo
+    missing: np.ndarray
+    longest_gap: np.ndarray
+    analog_labels: tuple
+    analog_rate: float | None
+
+
+def _frame(buf, path, notes: list):
+    """Header, parameters and layout: everything about the file but its frames."""
     start, order, header, params = _parse(buf, path, notes)
     layout = plan_layout(len(buf), header, params, start, path, notes)
-    _check_budget(layout, path)
     rate = params.number("POINT", "RATE")
     if not _positive(rate):
         if not _positive(header.rate):
@@ -157,16 +195,66 @@ def _decode(buf: bytes, path, notes: list) -> Take:
                                         f"rate {header.rate}", offset=_HEADER_RATE_OFFSET)
         rate = header.rate
     units, factor = _units(params, path, notes)
-    xyz, raw_analog = decode_frames(buf, layout, order)
-    xyz *= factor  # float64: even the largest float32 or scaled int16 stays finite
     labels = _unique_labels(params.string_series("POINT", "LABELS"), layout.n_points,
                             "point", "point", notes)
     extra = dict(header.as_extra(), data_offset=layout.offset,
                  analog_per_frame=layout.analog_per_frame, groups=tuple(params.groups))
     source = SourceInfo(path=str(path), format="c3d", units=units, producer=_producer(params),
                         byte_order=order, storage=layout.storage, extra=extra)
-    return Take(labels, xyz, rate, first_frame=layout.first_frame, source=source,
+    return order, params, layout, rate, factor, labels, source
+
+
+def _decode(buf, path, notes: list) -> Take:
+    order, params, layout, rate, factor, labels, source = _frame(buf, path, notes)
+    _check_budget(layout, path)
+    # float64: even the largest float32 or scaled int16 stays finite in mm
+    xyz, raw_analog = decode_frames(buf, layout, order, factor=factor)
+    # read-only: the take keeps this array as it is, no second copy of the positions
+    return Take(labels, read_only(xyz), rate, first_frame=layout.first_frame, source=source,
                 analog=_analog(raw_analog, params, layout, rate, notes))
+
+
+def summarize_c3d(path) -> C3DSummary:
+    """Labels, frames, rate, encoding and gaps of a C3D file, without loading its data.
+
+    The data section is streamed through a memory map a chunk at a time;
+    memory stays at a few chunks whatever the file's size (a 3 GB file's
+    positions would be 4.5 GB in float64).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    C3DSummary
+
+    Raises
+    ------
+    FileFormatError
+        As :func:`read_c3d`.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> from mocap.take import Take
+    >>> xyz = np.ones((5, 2, 3)); xyz[1:3, 1] = np.nan
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "t.c3d"
+    >>> write_c3d(Take(("a", "b"), xyz, 100.0), path)
+    >>> s = summarize_c3d(path)
+    >>> s.n_frames, s.missing.tolist(), s.longest_gap.tolist()
+    (5, [0, 2], [0, 2])
+    """
+    path = as_path(path)
+    notes: list[str] = []
+    with mapped_input(path, "C3D file") as buf:
+        order, params, layout, rate, _, labels, source = _frame(buf, path, notes)
+        missing, longest = scan_missing(buf, layout, order)
+    analog_rate, analog_labels, _ = _analog_meta(params, layout, rate, notes)
+    _warn_all(path, notes)
+    return C3DSummary(labels, layout.n_frames, layout.first_frame, rate, source,
+                      read_only(missing), read_only(longest), analog_labels,
+                      analog_rate if layout.n_channels else None)
 
 
 def read_c3d(path) -> Take:
@@ -218,7 +306,8 @@ def read_c3d(path) -> Take:
     """
     path = as_path(path)
     notes: list[str] = []
-    take = _decode(read_input_bytes(path, "C3D file"), path, notes)
+    with mapped_input(path, "C3D file") as buf:
+        take = _decode(buf, path, notes)
     _warn_all(path, notes)
     return take
 
@@ -237,7 +326,8 @@ def read_c3d_parameters(path) -> dict:
     """
     path = as_path(path)
     notes: list[str] = []
-    params = _parse(read_input_bytes(path, "C3D file"), path, notes)[3]
+    with mapped_input(path, "C3D file") as buf:
+        params = _parse(buf, path, notes)[3]
     _warn_all(path, notes)
     return params.as_dict()
 
@@ -266,6 +356,9 @@ def write_c3d(take: Take, path, *, inputs=()) -> None:
         the frame rate, or more than 255 analog channels.
     """
     take = as_take(take)
-    blob = encode_c3d(take)
-    with atomic_path(as_path(path), inputs=inputs) as tmp:
-        tmp.write_bytes(blob)
+    pieces = encode_c3d(take)
+    first = next(pieces)            # a take C3D cannot hold fails before any file exists
+    with atomic_path(as_path(path), inputs=inputs) as tmp, open(tmp, "wb") as fh:
+        fh.write(first)
+        for piece in pieces:        # frames a chunk at a time: no copy of the whole take
+            fh.write(piece)

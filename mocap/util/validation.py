@@ -19,13 +19,15 @@ __all__ = ["as_positions", "as_float_array", "as_positive_float", "as_nonnegativ
 
 
 def as_float_array(value, name: str, *, ndim: int | None = None,
-                   shape: tuple | None = None, allow_nan: bool = True) -> np.ndarray:
+                   shape: tuple | None = None, allow_nan: bool = True,
+                   copy: bool = True) -> np.ndarray:
     """Convert `value` to a float64 array and check its dimensions.
 
-    ``shape`` may hold ``None`` for axes of any length.
+    ``shape`` may hold ``None`` for axes of any length. With ``copy=False`` a
+    float64 array is returned as it is (not copied).
     """
     try:
-        arr = np.array(value, dtype=np.float64, copy=True)
+        arr = np.array(value, dtype=np.float64, copy=True if copy else None)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{name} must be a numeric array: {exc}") from None
     if ndim is not None and arr.ndim != ndim:
@@ -35,7 +37,9 @@ def as_float_array(value, name: str, *, ndim: int | None = None,
                 want is not None and got != want for got, want in zip(arr.shape, shape)):
             want = "(" + ", ".join("any" if s is None else str(s) for s in shape) + ")"
             raise InputError(f"{name} must have shape {want}, got {arr.shape}")
-    if np.isinf(arr).any():
+    # the extremes (NaN ignored) rather than np.isinf(arr): no temporary the size of arr
+    extremes = [np.fmax.reduce(arr, axis=None), np.fmin.reduce(arr, axis=None)] if arr.size else []
+    if np.isinf(extremes).any():
         raise InputError(f"{name} contains infinite values")
     if not allow_nan and np.isnan(arr).any():
         idx = tuple(int(i) for i in np.argwhere(np.isnan(arr))[0])
@@ -43,9 +47,10 @@ def as_float_array(value, name: str, *, ndim: int | None = None,
     return arr
 
 
-def as_positions(value, name: str = "positions") -> np.ndarray:
-    """Marker positions as a new float64 array of shape (n_frames, n_markers, 3), NaN allowed."""
-    return as_float_array(value, name, shape=(None, None, 3))
+def as_positions(value, name: str = "positions", *, copy: bool = True) -> np.ndarray:
+    """Marker positions as a float64 array of shape (n_frames, n_markers, 3), NaN allowed
+    (a new one unless ``copy=False`` and `value` already is one)."""
+    return as_float_array(value, name, shape=(None, None, 3), copy=copy)
 
 
 def as_positive_float(value, name: str) -> float:

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import mocap
 from mocap.gaps import find_gaps
+from mocap.io.c3d import C3DSummary, summarize_c3d
 
 __all__ = ["add_parser", "run", "describe"]
 
@@ -19,28 +21,43 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
-def describe(take: mocap.Take) -> dict:
-    """A JSON-ready summary of a take (the ``info --json`` object)."""
-    missing = take.missing
-    longest = find_gaps(missing).longest(take.n_markers)
+def describe(take) -> dict:
+    """A JSON-ready summary of a take or a C3D summary (the ``info --json`` object)."""
+    if isinstance(take, C3DSummary):
+        missing, longest, analog = take.missing, take.longest_gap, None
+        if take.analog_rate is not None:
+            analog = {"channels": len(take.analog_labels), "rate": take.analog_rate,
+                      "labels": list(take.analog_labels)}
+        duration = take.n_frames / take.rate
+    else:
+        missing = take.missing.sum(axis=0)
+        longest = find_gaps(take.missing).longest(take.n_markers)
+        analog = None if take.analog is None else {
+            "channels": len(take.analog.labels), "rate": take.analog.rate,
+            "labels": list(take.analog.labels)}
+        duration = take.duration
     src = take.source
     return {
         "file": src.path, "format": src.format, "producer": src.producer,
         "byte_order": src.byte_order, "storage": src.storage,
         "labels": list(take.labels), "frames": take.n_frames, "first_frame": take.first_frame,
-        "rate": take.rate, "duration": take.duration,
+        "rate": take.rate, "duration": duration,
         "units": "mm", "units_in_file": src.units,
-        "missing": {label: int(n) for label, n in zip(take.labels, missing.sum(axis=0))},
+        "missing": {label: int(n) for label, n in zip(take.labels, missing)},
         "longest_gap": {label: int(n) for label, n in zip(take.labels, longest)},
-        "analog": None if take.analog is None else {
-            "channels": len(take.analog.labels), "rate": take.analog.rate,
-            "labels": list(take.analog.labels)},
+        "analog": analog,
     }
 
 
+def _summary(path):
+    """A C3D file's summary (its data streamed, never loaded), or the take of another file."""
+    if Path(path).suffix.lower() != ".c3d":
+        return mocap.read(path)
+    return summarize_c3d(path)
+
+
 def run(args) -> int:
-    take = mocap.read(args.file)
-    info = describe(take)
+    info = describe(_summary(args.file))
     if args.json:
         print(json.dumps(info, indent=1))
         return 0
