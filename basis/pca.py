@@ -82,8 +82,10 @@ class PCAModel:
                                allow_nan=False)
         evals = as_float_array(self.eigenvalues, "eigenvalues", shape=(len(comps),),
                                allow_nan=False)
+        # C order whatever the solver returned (eigenvectors come transposed): a model
+        # shipped to a worker (pickled: C order) then fits the same bits as here
         for name, value in (("mean", mean), ("components", comps), ("eigenvalues", evals)):
-            object.__setattr__(self, name, read_only(value))
+            object.__setattr__(self, name, read_only(np.ascontiguousarray(value)))
         object.__setattr__(self, "total_variance", float(self.total_variance))
 
     @property
