@@ -21,6 +21,9 @@ from resume import (
 from fit.pipeline.completion import RECORD_NAME
 
 N_TAKES = 3
+#: Longest a worker may outlive its killed run (s): well under a take's time, so that a worker
+#: that goes on with its take (and writes into the folder) is caught.
+ORPHAN_S = 3.0
 
 
 @pytest.fixture(scope="module")
@@ -42,13 +45,15 @@ def test_killed_runs_resume_and_leave_no_orphans(session):
     takes = {f"t{k}" for k in range(1, N_TAKES + 1)}
     # killed as soon as one take is committed: the other worker was mid-take
     killed, workers, orphans, first = kill_when(start_run(config), out,
-                                                lambda o: len(committed(o)) >= 1)
+                                                lambda o: len(committed(o)) >= 1,
+                                                orphan_timeout=ORPHAN_S)
     assert killed and len(workers) >= 2 and orphans == set()
     assert 1 <= len(first) < N_TAKES
     inodes = {name: (out / name / RECORD_NAME).stat().st_ino for name in first}
     # killed while a take is being written, before it is committed
     killed, workers, orphans, second = kill_when(
-        start_run(config), out, lambda o: staged_files(o) >= 3 and committed(o) == first)
+        start_run(config), out, lambda o: staged_files(o) >= 3 and committed(o) == first,
+        orphan_timeout=ORPHAN_S)
     assert killed and orphans == set()
     assert second >= first
     # to the end: what was committed is skipped (untouched), the rest redone
@@ -71,7 +76,8 @@ def test_a_killed_run_with_other_parameters_is_not_trusted(session):
     keys_a = record_keys(out)
     other = write_config(config.parent, lowpass=10.0, path="run-b.toml")
     killed, _, orphans, _ = kill_when(start_run(other), out,
-                                      lambda o: record_keys(o) != keys_a)
+                                      lambda o: record_keys(o) != keys_a,
+                                      orphan_timeout=ORPHAN_S)
     assert killed and orphans == set()
     replaced = {name for name, key in record_keys(out).items() if key != keys_a.get(name)}
     assert replaced
@@ -82,3 +88,17 @@ def test_a_killed_run_with_other_parameters_is_not_trusted(session):
     assert record_keys(out) == keys_a
     checked = verify_outputs(out)
     assert checked["leftovers"] == checked["unlisted"] == []
+
+
+def test_no_worker_outlives_a_run_killed_as_its_first_take_is_written(session):
+    """Workers forked by a fork server outlive their parent's parent unless told otherwise:
+    none may go on with its take once the run is killed."""
+    config, _ = session
+    config = write_config(config.parent, lowpass=15.0, path="run-first.toml")
+    config.write_text(config.read_text(encoding="utf-8").replace(
+        'directory = "results"', 'directory = "results-first"'), encoding="utf-8")
+    out = config.parent / "results-first"
+    killed, workers, orphans, _ = kill_when(start_run(config), out,
+                                            lambda o: staged_files(o) > 0,
+                                            orphan_timeout=ORPHAN_S)
+    assert killed and workers and orphans == set()

@@ -6,7 +6,6 @@ Re-exported by :mod:`fit.pipeline.executors`.
 from __future__ import annotations
 
 import multiprocessing
-import os
 import signal
 import sys
 import time
@@ -23,7 +22,7 @@ from fit.pipeline._executor_base import (
     timed_out,
     timeout_seconds,
 )
-from fit.pipeline.workers import die_with_parent
+from fit.pipeline.workers import die_with_driver, lifeline
 from mocap.util.validation import as_int
 
 __all__ = ["LocalExecutor"]
@@ -31,10 +30,10 @@ __all__ = ["LocalExecutor"]
 _STARTED = "started"    # a worker's first message: the job's clock starts
 
 
-def _child(conn, task, job, shared) -> None:
+def _child(conn, alive, task, job, shared) -> None:
     """A local worker process: say it started, run one job, send ``(ok, result or reason,
     traceback)``."""
-    die_with_parent(os.getppid())       # no orphan when the driver is killed
+    die_with_driver(alive)              # no orphan when the driver is killed
     conn.send(_STARTED)
     try:
         message = (True, task(job, shared), None)
@@ -62,8 +61,15 @@ def _death(exitcode: int | None) -> str:
 class _Running:
     process: Any
     conn: Any
+    alive: Any                      # the driver's end of the worker's lifeline
     job: Any
     start: float | None = None      # when the job started running (monotonic s)
+
+    def close(self) -> None:
+        """Join the ended process and close both pipes."""
+        self.process.join()
+        self.conn.close()
+        self.alive.close()
 
 
 class LocalExecutor(SessionExecutor):
@@ -114,8 +120,7 @@ class LocalExecutor(SessionExecutor):
         finally:
             for run in running:          # the driver stopped early: no process outlives it
                 run.process.kill()
-                run.process.join()
-                run.conn.close()
+                run.close()
 
 
 def _in_process(task, jobs, shared):
@@ -145,11 +150,13 @@ def _process_context(task):
 
 def _start(context, task, job, shared) -> _Running:
     receive, send = context.Pipe(duplex=False)
-    process = context.Process(target=_child, args=(send, task, job, shared), daemon=True,
-                              name="mocap2mesh-take")
+    worker_end, driver_end = lifeline(context)
+    process = context.Process(target=_child, args=(send, worker_end, task, job, shared),
+                              daemon=True, name="mocap2mesh-take")
     process.start()
     send.close()
-    return _Running(process, receive, job)
+    worker_end.close()
+    return _Running(process, receive, driver_end, job)
 
 
 def _message(run: _Running):
@@ -171,15 +178,13 @@ def _finished(run: _Running, timeout: float | None) -> TaskOutcome | None:
     seconds = 0.0 if run.start is None else time.monotonic() - run.start
     if message is not None:
         ok, value, trace = message
-        run.process.join()
     elif not run.process.is_alive():
         run.process.join()
         ok, value, trace = False, _death(run.process.exitcode), None
     elif timeout is not None and run.start is not None and seconds >= timeout:
         run.process.kill()
-        run.process.join()
         ok, value, trace = False, timed_out(timeout), None
     else:
         return None
-    run.conn.close()
+    run.close()
     return TaskOutcome(run.job, value if ok else None, None if ok else value, trace, seconds)

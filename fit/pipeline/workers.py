@@ -1,46 +1,43 @@
 """Worker processes that die with the run that started them.
 
 A worker of a killed run must not go on writing into the output directory.
-:func:`die_with_parent`, called first in each local worker
-(:class:`fit.pipeline.executors.LocalExecutor`), asks the kernel to kill the
-worker when its parent dies (Linux ``PR_SET_PDEATHSIG``; on other systems a
-thread of the worker watches the parent). The executor itself kills its
-running workers on every other exit path (an exception, Ctrl-C).
+Each local worker (:class:`fit.pipeline.executors.LocalExecutor`) gets the
+read end of a pipe of its own, a lifeline (:func:`lifeline`), whose write end
+only the driver holds: a thread of the worker (:func:`die_with_driver`) waits
+on it and ends the worker the moment it reads end-of-file, which the system
+delivers as soon as the driver is gone, however it ended (even SIGKILL). This
+holds whoever the worker's parent is (workers are forked by a fork server,
+which lives on while any worker does, so the parent's death is not the
+signal). The executor itself kills its running workers on every other exit
+path (an exception, Ctrl-C).
 """
 
 from __future__ import annotations
 
-import ctypes
 import os
-import signal
-import sys
 import threading
-import time
 
-__all__ = ["die_with_parent"]
-
-_PR_SET_PDEATHSIG = 1
-_POLL_S = 0.5
+__all__ = ["lifeline", "die_with_driver"]
 
 
-def _watch(parent_pid: int) -> None:
-    while os.getppid() == parent_pid:
-        time.sleep(_POLL_S)
-    os._exit(1)
+def lifeline(context) -> tuple:
+    """A new lifeline: ``(worker_end, driver_end)`` connections of `context`.
 
-
-def die_with_parent(parent_pid: int) -> None:
-    """Make the calling (worker) process end when process `parent_pid` ends.
-
-    Called first in a worker process: on Linux the kernel sends the
-    worker SIGKILL when its parent exits, however it exits (even SIGKILL);
-    elsewhere a daemon thread polls the parent and exits the worker.
+    The driver passes ``worker_end`` to the worker process, closes its own
+    copy of it once the worker has started, and keeps ``driver_end`` open
+    (writing nothing) for as long as the worker may run.
     """
-    if sys.platform.startswith("linux"):
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
-            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
-    else:  # pragma: no cover - macOS and BSDs
-        threading.Thread(target=_watch, args=(parent_pid,), daemon=True).start()
-    if os.getppid() != parent_pid:      # the parent died before the request took effect
+    worker_end, driver_end = context.Pipe(duplex=False)
+    return worker_end, driver_end
+
+
+def die_with_driver(worker_end) -> None:
+    """End this (worker) process as soon as the driver's end of its lifeline closes."""
+    def watch():
+        try:
+            worker_end.recv_bytes()         # the driver never writes: this returns at EOF
+        except (EOFError, OSError):
+            pass
         os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="die-with-driver").start()
