@@ -29,6 +29,8 @@ __all__ = ["weights_frame", "write_weights_csv", "read_weights_csv", "MeshSequen
 
 #: Frames evaluated per matrix product when materializing a sequence.
 _CHUNK_FRAMES = 256
+#: Rows of a weights CSV formatted per string (a few MB of text).
+_CSV_ROWS = 4096
 _SEQ_VERSION = 1
 #: The leading columns of a weights table.
 _COLUMNS = ("frame", "time")
@@ -91,8 +93,18 @@ def write_weights_csv(path, weights, names, *, rate: float, first_frame: int = 1
         Shapes, names or NaN as in :func:`weights_frame`; the file cannot be written.
     """
     table = weights_frame(weights, names, rate=rate, first_frame=first_frame)
-    with atomic_path(path, inputs=inputs) as tmp:
-        table.to_csv(tmp, lineterminator="\n")
+    cells = table.to_numpy(dtype=np.float64)                       # time, then the weights
+    # One %-format per block of rows, in C: %d for the frame and %r for the floats (the
+    # shortest repr that reads back exactly), no per-row Python code.
+    row = "%d" + ",%r" * cells.shape[1] + "\n"
+    with atomic_path(path, inputs=inputs) as tmp, open(tmp, "w", encoding="utf-8",
+                                                        newline="") as fh:
+        table.iloc[:0].to_csv(fh, lineterminator="\n")             # the header, quoted as needed
+        for start in range(0, len(table), _CSV_ROWS):              # blocks of rows, not rows
+            block = np.empty((min(_CSV_ROWS, len(table) - start), cells.shape[1] + 1), object)
+            block[:, 0] = table.index[start:start + len(block)].to_numpy()
+            block[:, 1:] = cells[start:start + len(block)]
+            fh.write((row * len(block)) % tuple(block.ravel()))
 
 
 def read_weights_csv(path) -> pd.DataFrame:

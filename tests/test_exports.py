@@ -201,3 +201,17 @@ def test_malformed_files_are_reported(tmp_path):
     seq.write_bytes(b"junk")
     with pytest.raises(FileFormatError, match="seq.npz: cannot read mesh sequence"):
         read_mesh_sequence(seq)
+
+
+def test_weights_csv_is_the_text_pandas_writes(tmp_path):
+    """The block-formatted writer against pandas' own CSV of the same table (the oracle):
+    the same bytes, header quoting included, for more rows than one block."""
+    rng = np.random.default_rng(3)
+    w = rng.random((9000, 5))
+    w[::7, 0], w[::5, 1], w[1, 2], w[2, 3] = 0.0, 1.0, 1e-300, -2.5e17
+    names = ["jaw", 'a,"b"', "c d", "é", "x"]
+    path = tmp_path / "w.csv"
+    write_weights_csv(path, w, names, rate=59.94, first_frame=-3)
+    expected = weights_frame(w, names, rate=59.94, first_frame=-3).to_csv(lineterminator="\n")
+    assert path.read_text(encoding="utf-8") == expected
+    np.testing.assert_array_equal(read_weights_csv(path)[names].to_numpy(), w)
