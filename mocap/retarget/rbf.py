@@ -200,8 +200,8 @@ class RBFOperator:
                     scratch = np.empty((3 * c, n_points), dtype)
                 prod = np.matmul(lhs, matrix.T, out=scratch)
             block = out[frames] if out is not None else np.empty((c, n_points, 3), dtype)
-            for axis, rows in enumerate(prod.reshape(3, c, n_points)):
-                block[:, :, axis] = rows
+            # (3, c, N) -> (c, N, 3) in one pass, while the product is still in cache
+            np.copyto(block, prod.reshape(3, c, n_points).transpose(1, 2, 0))
             yield frames, block
 
 
