@@ -154,6 +154,21 @@ def test_npz_members_that_are_not_plain_arrays(tmp_path):
         read_npz(tmp_path / "b.npz", "take archive")
 
 
+@pytest.mark.parametrize("damage", [b"{", b"(", b"'"])
+def test_an_npz_header_that_python_cannot_tokenize(tmp_path, damage):
+    """numpy parses a 1.0 header as Python: an unclosed bracket or string ends in a TokenError
+    or SyntaxError of the tokenizer, which must come out as our error (seen in the fuzz)."""
+    out = io.BytesIO()
+    np.lib.format.write_array(out, np.arange(3.0))
+    raw = bytearray(out.getvalue())
+    end = raw.index(b"}")
+    raw[end:end + 1] = damage
+    with zipfile.ZipFile(tmp_path / "t.npz", "w") as archive:
+        archive.writestr("positions.npy", bytes(raw))
+    with pytest.raises(FileFormatError, match=r"t\.npz: cannot read take archive"):
+        read_npz(tmp_path / "t.npz", "take archive")
+
+
 def test_the_global_limit_names_its_variable(tmp_path, monkeypatch):
     write_c3d(Take(("a",), np.zeros((50_000, 1, 3)), 100.0), tmp_path / "a.c3d")
     monkeypatch.setenv("MOCAP2MESH_MAX_BYTES", "1M")

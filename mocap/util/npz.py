@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import tokenize
 import zipfile
 import zlib
 
@@ -118,8 +119,10 @@ def read_npz(path, what: str, *, required=(), version: tuple | None = None) -> d
             arrays = _read_members(fh, path, what)
         except FileFormatError:
             raise
-        except (OSError, ValueError, EOFError, RuntimeError, zlib.error, zipfile.BadZipFile,
-                zipfile.LargeZipFile) as exc:
+        except (OSError, ValueError, EOFError, RuntimeError, SyntaxError, tokenize.TokenError,
+                zlib.error, zipfile.BadZipFile, zipfile.LargeZipFile) as exc:
+            # (numpy tokenizes a .npy header of format 1.0 as Python: a damaged one can end
+            # in a TokenError or SyntaxError)
             raise FileFormatError(path, f"cannot read {what}: {exc}") from None
     absent = [name for name in required if name not in arrays]
     if absent:
