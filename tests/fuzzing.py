@@ -19,6 +19,7 @@ before the case (``VmHWM`` reset through ``/proc/self/clear_refs``).
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -564,11 +565,25 @@ def _ply_target(shared_data: Path, folder: Path, n_cases: int) -> Target:
                   n_cases, folder)
 
 
+def _reproducible_zip(data: bytes) -> bytes:
+    """An archive with its members' times fixed, so that the cases made from it are the same
+    on every machine and at every time (numpy stamps members with the time of writing)."""
+    out = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(data)) as source, zipfile.ZipFile(out, "w") as target:
+        for info in source.infolist():
+            fixed = zipfile.ZipInfo(info.filename, date_time=(1980, 1, 1, 0, 0, 0))
+            fixed.compress_type = info.compress_type
+            target.writestr(fixed, source.read(info))
+    return out.getvalue()
+
+
 def _npz_target(shared_data: Path, folder: Path, n_cases: int) -> Target:
     import mocap
     from mocap.io.take_npz import read_take_npz
 
     take = _small_take(shared_data)
+    # paths as relative names: the archives hold their source's path
+    take = take.replace(source=dataclasses.replace(take.source, path="facial-sing.c3d"))
     mocap.write(take, folder / "plain.npz")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -576,9 +591,10 @@ def _npz_target(shared_data: Path, folder: Path, n_cases: int) -> Target:
     trial = trial.replace(positions=trial.positions[:10], filled=trial.filled[:10],
                           analog=type(trial.analog)(trial.analog.values[:100],
                                                     trial.analog.rate, trial.analog.labels,
-                                                    trial.analog.units))
+                                                    trial.analog.units),
+                          source=dataclasses.replace(trial.source, path="markers.c3d"))
     mocap.write(trial, folder / "analog.npz")
-    seeds = [(folder / n).read_bytes() for n in ("plain.npz", "analog.npz")]
+    seeds = [_reproducible_zip((folder / n).read_bytes()) for n in ("plain.npz", "analog.npz")]
     return Target("take-npz", ".npz", read_take_npz, seeds,
                   lambda s, c, r: npz_mutation(s, r), n_cases, folder)
 
