@@ -210,3 +210,27 @@ def test_view_and_video_errors(sing_case, tmp_path):
                             neutral=neutral, rate=100.0)
     with pytest.raises(InputError, match="output directory does not exist"):
         build_report(face, recs, neutral, tmp_path / "absent")
+
+
+@pytest.mark.parametrize("spike", [1_234, 6_001, 8_765])
+def test_a_one_frame_error_of_a_long_take_shows_in_the_heatmap(tmp_path, spike):
+    """10,000 frames drawn in about a thousand pixels: the image keeps the largest error of
+    each column, so a single bad frame is there to see, wherever it falls (drawn as it was,
+    one sample of ten, two of these three were not)."""
+    from matplotlib import colormaps
+
+    from fit.report.plots import plot_error_heatmap
+
+    T, M = 10_000, 8
+    top = (np.array(colormaps["magma"](1.0)[:3]) * 255).round().astype(int)
+
+    def saturated_pixels(captured):
+        errors = reconstruction_errors(captured, np.ones((T, M, 3)), np.zeros((M, 3)))
+        plot_error_heatmap(errors, tmp_path / "h.png", vmax=1.0)
+        image = cv2.imread(str(tmp_path / "h.png"))[:, :, ::-1].astype(int)
+        return int((np.abs(image - top).max(axis=2) <= 2).sum())
+
+    captured = np.ones((T, M, 3))
+    without = saturated_pixels(captured)                         # the colour bar's top only
+    captured[spike, 5, 0] = 50.0                                 # one marker, one frame
+    assert saturated_pixels(captured) >= without + 3

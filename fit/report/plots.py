@@ -17,7 +17,11 @@ from mocap.util.deprecation import moved_names
 from mocap.viz.figures import distinct_colours, new_figure, save_figure
 
 __all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "plot_held_out",
-           "region_groups"]
+           "region_groups", "HEATMAP_COLUMNS"]
+
+#: Most columns of an error heatmap: fewer than its pixels across at the report's size,
+#: so that drawing the image drops no column.
+HEATMAP_COLUMNS = 1000
 
 
 def region_groups(labels, markerset=None) -> tuple[np.ndarray, list]:
@@ -165,12 +169,21 @@ def plot_error_heatmap(errors: ReconstructionErrors, path, *, markerset=None,
     vmax : float, optional
         Top of the colour scale, mm; default the 99.5th percentile of the errors
         (larger errors saturate). Excluded samples are grey.
+
+    Notes
+    -----
+    A take of more than :data:`HEATMAP_COLUMNS` frames is drawn with that many
+    columns, each the largest error of its frames (so that resampling the
+    image hides no error), grey only where every one of its frames is excluded.
     """
     order, groups = region_groups(errors.labels, markerset)
     data = errors.errors[:, order].T
     if vmax is None:
         finite = data[np.isfinite(data)]
         vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
+    if data.shape[1] > HEATMAP_COLUMNS:         # more columns than pixels: max-pool
+        starts = np.linspace(0, data.shape[1], HEATMAP_COLUMNS, endpoint=False).astype(int)
+        data = np.fmax.reduceat(data, starts, axis=1)
     x, xlabel = _time_axis(errors.n_frames, rate)
     step = x[1] - x[0] if len(x) > 1 else 1.0
     n = len(order)
