@@ -8,6 +8,8 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 
+import distributed  # the test extra installs Dask and psutil (.[test])
+import psutil
 import pytest
 from executor_tasks import square
 
@@ -19,12 +21,6 @@ from fit.pipeline.executors import (
     open_executor,
 )
 from mocap.errors import InputError
-
-if os.environ.get("CI"):                    # `make test` installs it: its absence is a failure
-    import distributed
-else:
-    distributed = pytest.importorskip("distributed")
-
 
 JOBS = [1, "raise", 2, "die", 3, "hang", 4]
 
@@ -109,7 +105,6 @@ def test_serial_local_runs_in_this_process():
 
 
 def test_no_local_process_outlives_an_abandoned_run(tmp_path):
-    psutil = pytest.importorskip("psutil")
     pid_file = tmp_path / "pid"
     run = LocalExecutor(2).map_unordered(square, [1, ("hang", pid_file)], shared=2)
     assert next(run).result == 1

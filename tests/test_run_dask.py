@@ -13,7 +13,9 @@ import threading
 import time
 from pathlib import Path
 
+import distributed  # the test extra installs Dask and psutil (.[test])
 import numpy as np
+import psutil
 import pytest
 
 import mocap
@@ -21,12 +23,6 @@ from fit.demo import demo_config_toml, make_demo_session
 from fit.pipeline.completion import RECORD_NAME
 from fit.pipeline.config import load_run_config
 from fit.pipeline.session import run_takes
-
-if os.environ.get("CI"):                    # `make test` installs it: its absence is a failure
-    import distributed
-else:
-    distributed = pytest.importorskip("distributed")
-psutil = pytest.importorskip("psutil")
 
 TAKES = ("a", "b")
 KILL_WAIT = 120         # s: longest we wait for a take to be running or done
