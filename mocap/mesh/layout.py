@@ -41,7 +41,7 @@ _BARY_TOL = 1e-6
 
 #: Frames whose marker positions :meth:`MarkerLayout.positions_under_weights`
 #: forms together (their edge and normal arrays stay in cache).
-_FRAMES_PER_PASS = 256
+_FRAMES_PER_PASS = 64
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,19 +97,27 @@ class MarkerLayout:
         """What evaluation needs, in ids local to the few vertices it reads.
 
         ``needed`` lists the vertices the markers and their normals depend on;
-        ``local`` the marker corners, ``sub_faces`` the faces around corners of
-        offset markers and ``incidence`` (corners x sub_faces) sums their
-        normals, all indexing ``needed``.
+        ``local`` the marker corners among them; ``edges`` (2 Fs x K, sparse)
+        forms the two edges from the first corner of each face around a
+        marker corner, ``incidence`` (corners x Fs) sums those faces' normals
+        at the corners, and ``slot`` is each marker corner's row among the
+        corners.
         """
-        corners = np.unique(self.vertex_ids[self.offsets != 0])
+        corners = np.unique(self.vertex_ids)
         sub_faces = self.faces[np.isin(self.faces, corners).any(axis=1)]
         needed = np.unique(np.concatenate([self.vertex_ids.ravel(), sub_faces.ravel()]))
+        local_faces = np.searchsorted(needed, sub_faces)
+        n_sub = len(sub_faces)
+        rows = np.tile(np.arange(2 * n_sub), 2)
+        cols = np.concatenate([local_faces[:, 1], local_faces[:, 2],
+                               local_faces[:, 0], local_faces[:, 0]])
+        edges = sp.csr_matrix((np.repeat([1.0, -1.0], 2 * n_sub), (rows, cols)),
+                              shape=(2 * n_sub, len(needed)))
         rows, cols = np.nonzero(np.isin(sub_faces, corners))
         incidence = sp.csr_matrix((np.ones(len(rows)), (np.searchsorted(
-            corners, sub_faces[rows, cols]), rows)), shape=(len(corners), len(sub_faces)))
-        return (needed, np.searchsorted(needed, self.vertex_ids),
-                np.searchsorted(needed, sub_faces), np.searchsorted(needed, corners),
-                incidence, np.searchsorted(corners, self.vertex_ids))
+            corners, sub_faces[rows, cols]), rows)), shape=(len(corners), n_sub))
+        return (needed, np.searchsorted(needed, self.vertex_ids), edges, incidence,
+                np.searchsorted(corners, self.vertex_ids))
 
     @property
     def n_markers(self) -> int:
@@ -145,21 +153,22 @@ class MarkerLayout:
         if vertices.ndim < 2 or vertices.shape[-2:] != (self.n_vertices, 3):
             raise InputError(f"vertices must have shape (..., {self.n_vertices}, 3) for layout "
                              f"{self.name!r}, got {vertices.shape}")
-        near = vertices[..., self._normal_op[0], :]                      # (..., K, 3) copy
+        batch = vertices.shape[:-2]
+        near = vertices[..., self._normal_op[0], :].reshape(-1, len(self._normal_op[0]), 3)
         if np.isinf(near).any():
             raise InputError("vertices contains infinite values")
-        xyz = np.ascontiguousarray(np.moveaxis(near.reshape((-1,) + near.shape[-2:]), -1, 0))
-
-        def combine(index, coeffs):
-            return np.einsum("cbrk,rk->cbr", xyz[:, :, index], coeffs)
-        return self._place(combine, near.shape[:-2], offset)
+        out = np.empty((len(near), self.n_markers, 3))
+        for first in range(0, len(near), _FRAMES_PER_PASS):
+            part = np.ascontiguousarray(near[first:first + _FRAMES_PER_PASS].transpose(2, 1, 0))
+            out[first:first + part.shape[-1]] = self._place(part, offset=offset)
+        return out.reshape(batch + out.shape[1:])
 
     def positions_under_weights(self, neutral, displacements, weights) -> np.ndarray:
         """Marker positions on ``neutral + Σ_i w_i e_i`` for each row of `weights`.
 
-        The skin points and the edges of the faces whose normals the markers
-        use are linear in the weights: each is one product with them (no
-        mesh is formed), frames ``_FRAMES_PER_PASS`` at a time.
+        Only the vertices the markers and their normals read are formed (no
+        mesh is), by one product with the weights, frames ``_FRAMES_PER_PASS``
+        at a time.
 
         Parameters
         ----------
@@ -180,51 +189,46 @@ class MarkerLayout:
             raise InputError(f"displacements must have shape (n, {self.n_vertices}, 3), got "
                              f"{displacements.shape}")
         weights = as_float_array(weights, "weights", shape=(None, len(displacements)))
-        rest, shapes = neutral[needed], displacements[:, needed]
-        maps = {}
-
-        def linear_map(index, coeffs):
-            # Σ_k coeffs·v[index[:, k]] is linear in the weights: (3, 1, R) and (n, 3R)
-            key = (index.tobytes(), coeffs.tobytes())
-            if key not in maps:
-                maps[key] = (np.einsum("rkc,rk->cr", rest[index], coeffs)[:, None, :],
-                             np.einsum("nrkc,rk->ncr", shapes[:, index], coeffs).reshape(
-                                 len(shapes), -1))
-            return maps[key]
-
+        rest = neutral[needed].T[:, :, None]                                   # (3, K, 1)
+        shapes = displacements[:, needed].transpose(2, 1, 0).reshape(-1, len(displacements))
         out = np.empty((len(weights), self.n_markers, 3))
         for first in range(0, len(weights), _FRAMES_PER_PASS):
             part = weights[first:first + _FRAMES_PER_PASS]
-
-            def combine(index, coeffs):
-                at_rest, moved = linear_map(index, coeffs)
-                return (part @ moved).reshape(len(part), 3, -1).transpose(1, 0, 2) + at_rest
-            out[first:first + len(part)] = self._place(combine, (len(part),))
+            near = (shapes @ part.T).reshape(3, len(needed), len(part))       # (3, K, B)
+            near += rest
+            out[first:first + len(part)] = self._place(near)
         return out
 
-    def _place(self, combine, batch: tuple, offset: bool = True) -> np.ndarray:
-        """Marker positions (batch + (M, 3)) from vertex combinations.
-
-        ``combine(index, coeffs)`` returns ``Σ_k coeffs[r, k] · v[index[r, k]]``
-        for the vertices v the markers depend on (indices into them), as
-        (3, B, R): each coordinate a contiguous (B, R) array for B frames.
-        """
-        _, local, sub_faces, corners, incidence, slot = self._normal_op
-        points = combine(local, self.weights).transpose(1, 2, 0).copy()      # (B, M, 3)
-        if not offset or not np.any(self.offsets):
-            return points.reshape(batch + points.shape[1:])
-        ones = np.ones((len(sub_faces), 2))
-        u = combine(sub_faces[:, [0, 1]], ones * [-1.0, 1.0])               # edges (3, B, Fs)
-        v = combine(sub_faces[:, [0, 2]], ones * [-1.0, 1.0])
-        cross = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
-                 u[0] * v[1] - u[1] * v[0])
-        # area-weighted vertex normals at the corners: (B, Fs) @ (Fs, C) per coordinate
-        summed = np.stack([(incidence @ comp.T).T for comp in cross])      # (3, B, C)
-        normals = summed / _norm(summed)
+    def _place(self, near: np.ndarray, offset: bool = True) -> np.ndarray:
+        """Marker positions (B, M, 3) from the needed vertices ``near``, (3, K, B)."""
+        local = self._normal_op[1]
+        points = np.einsum("cmkb,mk->bmc", near[:, local], self.weights)       # (B, M, 3)
         has = self.offsets != 0
-        along = np.einsum("cbmk,mk->cbm", normals[:, :, slot[has]], self.weights[has])
-        points[:, has] += (self.offsets[has] * along / _norm(along)).transpose(1, 2, 0)
-        return points.reshape(batch + points.shape[1:])
+        if offset and has.any():
+            along = self._normals(near)[:, has]                                # (3, M', B)
+            points[:, has] += (self.offsets[has, None] * along).transpose(2, 1, 0)
+        return points
+
+    def _normals(self, near: np.ndarray) -> np.ndarray:
+        """Unit normals at the markers (3, M, B) from the needed vertices ``near``, (3, K, B).
+
+        Each marker's corner normals are the area-weighted sums of the face
+        normals around them (edge cross products; edges and sums are sparse
+        products, one per coordinate), interpolated by its barycentric weights.
+        """
+        _, _, edges, incidence, slot = self._normal_op
+        n_sub = incidence.shape[1]
+        uv = [edges @ coordinate for coordinate in near]                        # 3 x (2 Fs, B)
+        u, v = [e[:n_sub] for e in uv], [e[n_sub:] for e in uv]
+        summed = np.empty((3, incidence.shape[0], near.shape[-1]))
+        for c, (a, b) in enumerate(((1, 2), (2, 0), (0, 1))):
+            cross = u[a] * v[b]
+            cross -= u[b] * v[a]
+            summed[c] = incidence @ cross
+        summed /= _norm(summed)                                                 # (3, C, B)
+        along = np.einsum("cmkb,mk->cmb", summed[:, slot], self.weights)
+        along /= _norm(along)
+        return along
 
 
 def _norm(v: np.ndarray) -> np.ndarray:
