@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from dataclasses import dataclass, field
 from typing import Mapping
@@ -263,11 +264,23 @@ class Take:
         return self.positions[:, self.index(label)].copy()
 
     def select(self, labels) -> "Take":
-        """A new take with only `labels`, in that order."""
+        """A new take with only `labels`, in that order.
+
+        The columns of a valid take are valid: they are gathered, not checked
+        or copied again.
+        """
         idx = self.indices(labels)
-        return self.replace(labels=tuple(self.labels[i] for i in idx),
-                            positions=self.positions[:, idx],
-                            filled=self.filled[:, idx])
+        labels = tuple(self.labels[i] for i in idx)
+        if len(set(labels)) != len(labels):
+            dup = next(x for x in labels if labels.count(x) > 1)
+            raise MarkerError(dup, "label appears more than once in the take")
+        selected = copy.copy(self)
+        # np.take, not positions[:, idx]: a gather of whole rows, several times faster
+        for name, value in (("labels", labels),
+                            ("positions", read_only(np.take(self.positions, idx, axis=1))),
+                            ("filled", read_only(np.take(self.filled, idx, axis=1)))):
+            object.__setattr__(selected, name, value)
+        return selected
 
     def replace(self, **changes) -> "Take":
         """A new take with some fields changed (validated again)."""
