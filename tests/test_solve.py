@@ -19,6 +19,7 @@ from tolerances import (
     SOLVE_TOL,
 )
 
+from fit.solve.sampling_estimator import estimate_weights_by_sampling
 from fit.solve.weights import WeightSolution, solve_weights
 from mocap.errors import InputError
 
@@ -464,3 +465,16 @@ def test_update_leaves_frames_with_nothing_bound_alone():
     w = schur_weights(qp, new[updated], lam[updated], systems.unconstrained[updated])
     np.testing.assert_allclose(w, reduced_solve(qp, new[updated], c[updated])[0],
                                rtol=0, atol=SOLVE_ROUTES)
+
+
+def test_solve_weights_leaves_its_arguments_alone():
+    """Basis and data are read in place (not copied): the solve must not write to them."""
+    rng = np.random.default_rng(7)
+    basis, data = rng.standard_normal((5, 4, 3)), rng.standard_normal((30, 4, 3))
+    kept = basis.copy(), data.copy()
+    for smoothness in (0.0, 0.3, "gcv"):
+        solve_weights(basis, data, lower=0.0, upper=1.0, smoothness=smoothness)
+        estimate_weights_by_sampling(basis, data, lower=0.0, upper=1.0, n_samples=50,
+                                     n_neighbors=10)
+        np.testing.assert_array_equal(basis, kept[0])
+        np.testing.assert_array_equal(data, kept[1])

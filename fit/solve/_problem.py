@@ -16,9 +16,12 @@ __all__ = ["as_problem", "as_bounds"]
 
 
 def as_problem(basis, data, mask):
-    """B (K, n), D (T, K) and the valid rows (T, K) or None, from either layout."""
-    basis = as_float_array(basis, "basis", allow_nan=False)
-    data = as_float_array(data, "data")
+    """B (K, n), D (T, K) and the valid rows (T, K) or None, from either layout.
+
+    B and D are only read: a float64 argument is used as it is, not copied.
+    """
+    basis = as_float_array(basis, "basis", allow_nan=False, copy=False)
+    data = as_float_array(data, "data", copy=False)
     if basis.ndim == 3:
         if basis.shape[2] != 3 or data.ndim != 3 or data.shape[1:] != basis.shape[1:]:
             raise InputError(f"with basis of shape (n_shapes, n_markers, 3) = {basis.shape}, "
