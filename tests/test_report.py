@@ -15,12 +15,14 @@ from basis.coverage import plot_coverage
 from basis.pca import pca_streaming
 from fit.metrics import reconstruction_errors
 from fit.report import build_report
+from fit.report.drawing import IMAGE_WIDTH_PX, plain_log_axis, report_figure, write_png
 from fit.report.html import render_report
-from fit.report.plots import region_groups
+from fit.report.plots import HEATMAP_COLUMNS, bar_collection, plot_error_heatmap, region_groups
 from fit.report.video import write_overlay_video
 from fit.report.views import CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_views, view_axes
 from mocap.errors import InputError
 from mocap.stabilize import stabilize
+from mocap.viz.figures import new_figure, save_figure
 
 N_FRAMES = 600
 
@@ -102,6 +104,9 @@ def test_pngs_are_non_trivial(report):
     # Figure sizes in inches at 120 dpi.
     assert _png_size(files["alpha"]) == (1320, 576)
     assert _png_size(files["coverage"]) == (1440, 540)
+    # The report's own figures at most as wide as the page shows them (text at its size).
+    for key in ("alpha", "heatmap-QE", "markers-QE", "views-QE", "heatmap-H"):
+        assert _png_size(files[key])[0] <= IMAGE_WIDTH_PX, key
 
 
 @pytest.mark.parametrize("basis", ["QE", "H"])
@@ -219,8 +224,6 @@ def test_a_one_frame_error_of_a_long_take_shows_in_the_heatmap(tmp_path, spike):
     one sample of ten, two of these three were not)."""
     from matplotlib import colormaps
 
-    from fit.report.plots import plot_error_heatmap
-
     T, M = 10_000, 8
     top = (np.array(colormaps["magma"](1.0)[:3]) * 255).round().astype(int)
 
@@ -234,3 +237,105 @@ def test_a_one_frame_error_of_a_long_take_shows_in_the_heatmap(tmp_path, spike):
     without = saturated_pixels(captured)                         # the colour bar's top only
     captured[spike, 5, 0] = 50.0                                 # one marker, one frame
     assert saturated_pixels(captured) >= without + 3
+
+
+def test_the_heatmap_of_a_real_marker_set_has_a_pixel_per_column(ict_markerset, tmp_path):
+    """Beside the ICT layout's 60 marker names and 13 regions, at the page's width, the
+    heatmap's image is wider than HEATMAP_COLUMNS pixels: resampling it to the screen drops
+    no column."""
+    from matplotlib import colormaps
+
+    labels = ict_markerset.face_markers
+    captured = np.ones((HEATMAP_COLUMNS, len(labels), 3))      # error √3 mm everywhere
+    errors = reconstruction_errors(captured, np.zeros_like(captured),
+                                   np.zeros((len(labels), 3)), labels=labels)
+    plot_error_heatmap(errors, tmp_path / "h.png", markerset=ict_markerset, vmax=1.0)
+    image = cv2.imread(str(tmp_path / "h.png"))[:, :, ::-1].astype(int)
+    top = (np.array(colormaps["magma"](1.0)[:3]) * 255).round().astype(int)
+    saturated = np.flatnonzero(np.abs(image[image.shape[0] // 2] - top).max(axis=1) <= 2)
+    image_width = saturated[-1] - saturated[0] + 1        # the colour bar is not saturated here
+    assert image.shape[1] <= IMAGE_WIDTH_PX
+    assert image_width >= HEATMAP_COLUMNS
+
+
+def _sample_chart(fig):
+    ax = fig.add_subplot()
+    ax.plot([0, 1, 2], [0.7, 1.3, 0.9], label="$\\frac{a}{$ b$")
+    ax.scatter([0.5, 1.5], [1.0, 1.1], s=30, color="red")
+    ax.set_title("$x$: a label from a file")
+    fig.legend(loc="outside lower center")
+
+
+def test_a_report_figure_has_the_pixels_of_savefig_in_one_draw(tmp_path):
+    with report_figure(tmp_path / "once.png", 5, 3) as fig:
+        _sample_chart(fig)
+    reference = new_figure(5, 3)
+    _sample_chart(reference)
+    save_figure(reference, tmp_path / "savefig.png")
+    once, saved = (cv2.imread(str(tmp_path / n)) for n in ("once.png", "savefig.png"))
+    assert once.shape == (360, 600, 3)
+    np.testing.assert_array_equal(once, saved)
+    with pytest.raises(RuntimeError, match="drawing failed"):
+        with report_figure(tmp_path / "none.png", 5, 3) as fig:
+            fig.add_subplot()
+            raise RuntimeError("drawing failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["once.png", "savefig.png"]
+
+
+def test_log_axis_labels_are_plain_numbers(tmp_path):
+    with report_figure(tmp_path / "log.png", 5, 3) as fig:
+        ax = fig.add_subplot()
+        ax.plot([0, 1], [0.65, 1.4])
+        ax.set_yscale("log")
+        plain_log_axis(ax.yaxis)
+    shown = [t.get_text() for t in ax.yaxis.get_ticklabels(which="both")
+             if t.get_text() and ax.get_ylim()[0] <= t.get_position()[1] <= ax.get_ylim()[1]]
+    assert {"0.7", "0.8", "0.9", "1"} <= set(shown)
+    assert all("$" not in text for text in shown)
+
+
+def test_bar_collection_draws_finite_bars_from_zero():
+    colours = np.array([[1, 0, 0, 1], [0, 1, 0, 1], [0, 0, 1, 0.5]], float)
+    bars = bar_collection(np.array([0.0, 1.0, 2.0]), np.array([2.0, np.nan, -1.0]),
+                          np.array([0.8, 0.8, 0.4]), colours)
+    corners = [p.vertices[:4] for p in bars.get_paths()]
+    np.testing.assert_allclose(corners, [[[-0.4, 0], [-0.4, 2], [0.4, 2], [0.4, 0]],
+                                         [[1.8, 0], [1.8, -1], [2.2, -1], [2.2, 0]]])
+    np.testing.assert_array_equal(bars.get_facecolor(), colours[[0, 2]])
+    assert bars.sticky_edges.y == [0] and bars.sticky_edges.x == []
+    across = bar_collection(np.array([3.0]), np.array([5.0]), np.array([0.5]), colours[:1],
+                            horizontal=True)
+    np.testing.assert_allclose(across.get_paths()[0].vertices[:4],
+                               [[0, 2.75], [5, 2.75], [5, 3.25], [0, 3.25]])
+    assert across.sticky_edges.x == [0] and across.sticky_edges.y == []
+
+
+@pytest.mark.parametrize("bad, message", [
+    (-2e6, r"reconstructed positions: marker 'm3' at frame 16 is -2e\+06, beyond ±1e\+06"),
+    (2e6, r"reconstructed positions: marker 'm3' at frame 16 is 2e\+06, beyond ±1e\+06"),
+    (-np.inf, "reconstructed contains infinite values")])
+def test_views_refuse_a_value_out_of_range_in_a_frame_not_drawn(tmp_path, bad, message):
+    rng = np.random.default_rng(1)
+    neutral = rng.normal(size=(5, 3)) * 30
+    captured = neutral + rng.normal(size=(8, 5, 3))
+    captured[2, 1] = np.nan                              # missing: kept, not refused
+    reconstructed = captured + 0.5
+    reconstructed[6, 3, 2] = bad
+    with pytest.raises(InputError, match=message):
+        plot_frame_views(captured, reconstructed, [1], tmp_path / "v.png", neutral=neutral,
+                         labels=[f"m{j}" for j in range(5)], first_frame=10)
+    assert not (tmp_path / "v.png").exists()
+    plot_frame_views(captured, captured + 0.5, [1, 2], tmp_path / "v.png", neutral=neutral)
+    assert _png_size(tmp_path / "v.png")[0] <= IMAGE_WIDTH_PX
+
+
+
+def test_write_png_keeps_the_pixels_and_refuses_what_is_no_image(tmp_path):
+    rgba = np.zeros((4, 6, 4), np.uint8)
+    rgba[1, 2] = (255, 10, 0, 255)
+    write_png(rgba, tmp_path / "a.png")
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "a.png"))[:, :, ::-1],
+                                  rgba[:, :, :3])
+    with pytest.raises(InputError, match="need a uint8 RGB or RGBA image, got float64"):
+        write_png(rgba.astype(float), tmp_path / "b.png")
+    assert [p.name for p in tmp_path.iterdir()] == ["a.png"]

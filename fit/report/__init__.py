@@ -264,7 +264,12 @@ def _mesh_section(take, neutral, results, worst, space, markerset, out, files,
     extremes = [] if markerset is None else take_extremes(take.positions, neutral, take.labels,
                                                           markerset)
     cameras = mesh_cameras(space.neutral)
-    markers = space.to_mesh(take.positions.reshape(-1, 3)).reshape(take.positions.shape)
+
+    def markers(index):
+        """The captured markers at frames `index` in mesh coordinates."""
+        shown = take.positions[index]
+        return space.to_mesh(shown.reshape(-1, 3)).reshape(shown.shape)
+
     chosen = {}
     for basis in results:
         frames = [(int(t), f"frame {number + int(t)}: {basis} worst #{k}")
@@ -284,7 +289,7 @@ def _mesh_section(take, neutral, results, worst, space, markerset, out, files,
         index = [t for t, _ in frames]
         plot_mesh_frames(space.basis_mesh(basis, index), space.faces, out(f"mesh-{basis}"),
                          captions=[c for _, c in frames], cameras=cameras,
-                         markers=markers[index], colors=distances[basis], vmax=vmax,
+                         markers=markers(index), colors=distances[basis], vmax=vmax,
                          color_label="mm to W.D",
                          title=f"{basis} mesh at its worst frames and the take's extremes")
         items.append(Figure(files[f"mesh-{basis}"], f"{basis}: the reconstructed mesh",
@@ -303,7 +308,7 @@ def _mesh_section(take, neutral, results, worst, space, markerset, out, files,
             frames.append((t, caption))
     index = [t for t, _ in frames]
     plot_mesh_frames(space.retargeted_mesh(index), space.faces, out("mesh-WD"),
-                     captions=[c for _, c in frames], cameras=cameras, markers=markers[index],
+                     captions=[c for _, c in frames], cameras=cameras, markers=markers(index),
                      title="The retargeted mesh W.D at the same frames")
     items.append(Figure(files["mesh-WD"], "W·D: the retargeted mesh",
                         "The mesh motion every basis is fitted to: if the mouth stays shut "

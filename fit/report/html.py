@@ -23,6 +23,7 @@ from typing import Mapping
 import numpy as np
 
 from fit.metrics import ReconstructionErrors
+from fit.report.drawing import FIGURE_MARGIN_PX, PAGE_WIDTH_PX
 from fit.report.grades import GRADES
 from fit.report.video import VIDEO_MIME
 from fit.report.warning_list import warnings_section
@@ -97,21 +98,22 @@ class Section:
     anchor: str = ""
     warnings: tuple = ()
 
-_STYLE = """
-body { font-family: sans-serif; margin: 2em; color: #222; max-width: 1400px; }
-table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.85em; }
-th, td { border: 1px solid #ccc; padding: 2px 8px; }
-td.num { text-align: right; font-variant-numeric: tabular-nums; }
-th { background: #f0f0f0; }
-img, video { max-width: 100%; border: 1px solid #eee; margin: 0.5em 0; }
-figcaption { font-size: 0.85em; color: #555; max-width: 1100px; }
-.badge { display: inline-block; padding: 0 6px; border-radius: 3px; font-weight: bold;
-         color: white; font-size: 0.85em; }
-.pass { background: #2e7d32; } .warn { background: #ef8f00; } .fail { background: #c62828; }
-.na { background: #888; }
-dl.glossary dt { font-weight: bold; float: left; width: 3em; }
-dl.glossary dd { margin: 0 0 0.4em 3.5em; }
-p.warning { background: #fff3cd; border-left: 4px solid #e0a800; padding: 4px 8px; }
+_STYLE = f"""
+body {{ font-family: sans-serif; margin: 2em; color: #222; max-width: {PAGE_WIDTH_PX}px; }}
+figure {{ margin: 1em {FIGURE_MARGIN_PX}px; }}
+table {{ border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.85em; }}
+th, td {{ border: 1px solid #ccc; padding: 2px 8px; }}
+td.num {{ text-align: right; font-variant-numeric: tabular-nums; }}
+th {{ background: #f0f0f0; }}
+img, video {{ max-width: 100%; border: 1px solid #eee; margin: 0.5em 0; }}
+figcaption {{ font-size: 0.85em; color: #555; max-width: 1100px; }}
+.badge {{ display: inline-block; padding: 0 6px; border-radius: 3px; font-weight: bold;
+         color: white; font-size: 0.85em; }}
+.pass {{ background: #2e7d32; }} .warn {{ background: #ef8f00; }} .fail {{ background: #c62828; }}
+.na {{ background: #888; }}
+dl.glossary dt {{ font-weight: bold; float: left; width: 3em; }}
+dl.glossary dd {{ margin: 0 0 0.4em 3.5em; }}
+p.warning {{ background: #fff3cd; border-left: 4px solid #e0a800; padding: 4px 8px; }}
 """
 
 

@@ -8,20 +8,24 @@ from typing import Mapping
 
 import numpy as np
 from matplotlib import colormaps
+from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.colors import to_rgba
 from matplotlib.patches import Patch
 
 from fit._moved import PLOTS_NAMES
 from fit.metrics import ReconstructionErrors
+from fit.report.drawing import PAGE_WIDTH, plain_log_axis, report_figure
 from mocap.errors import InputError
 from mocap.util.deprecation import moved_names
-from mocap.viz.figures import distinct_colours, new_figure, save_figure
+from mocap.viz.figures import distinct_colours
 
 __all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "plot_held_out",
-           "region_groups", "HEATMAP_COLUMNS"]
+           "region_groups", "region_colours", "bar_collection", "HEATMAP_COLUMNS"]
 
-#: Most columns of an error heatmap: fewer than its pixels across at the report's size,
-#: so that drawing the image drops no column.
-HEATMAP_COLUMNS = 1000
+#: Most columns of an error heatmap: fewer than its pixels across at the page's width (about
+#: 1,000 with the marker names, region names and colour bar beside it), so that drawing the
+#: image drops no column, with room for longer names.
+HEATMAP_COLUMNS = 800
 
 
 def region_groups(labels, markerset=None) -> tuple[np.ndarray, list]:
@@ -113,34 +117,34 @@ def plot_alpha(results, path, *, rate: float | None = None, worst: Mapping | Non
     if log is None:
         positive = [m for m in medians if m > 0]
         log = len(positive) > 1 and max(positive) / min(positive) > 10
-    fig = new_figure(11, 4.8)
-    ax = fig.add_subplot()
-    for (name, res), colour in zip(results.items(), distinct_colours(len(results))):
-        ax.plot(x, res.alpha, lw=0.8, color=colour,
-                label=f"{name}: α = {res.totals['alpha']:.3g} % over the take, "
-                      f"max {res.totals['alpha_max']:.3g} %")
-        frames = np.asarray(worst.get(name, ()), dtype=np.intp)
-        ax.scatter(x[frames], res.alpha[frames], s=40, facecolor="none", edgecolor=colour,
-                   linewidth=1.5, zorder=3)
-        for rank, t in enumerate(frames, start=1):
-            ax.annotate(f"#{rank}: {t + first_frame}", (x[t], res.alpha[t]), fontsize=7,
-                        color=colour, xytext=(0, 7 + 9 * (rank % 2)), ha="center",
-                        textcoords="offset points",
-                        bbox=dict(boxstyle="square,pad=0.1", fc="white", ec="none", alpha=0.7))
-    if log:
-        ax.set_yscale("log")
-    else:
-        ax.set_ylim(0, ax.get_ylim()[1] * 1.08)
-    ax.set_xlim(x[0], x[-1])
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel("α (%)")
-    origin = ", ".join(f"{v:.0f}" for v in first.origin)
-    ax.set_title(title or f"Reconstruction error α (eq. 6, origin at ({origin}) mm); "
-                          "circles: worst frames by RMS, #rank: frame")
-    fig.legend(loc="outside upper center", fontsize=8, ncol=min(len(results), 3),
-               frameon=False)
-    ax.grid(alpha=0.3, which="both")
-    save_figure(fig, path)
+    with report_figure(path, PAGE_WIDTH, 4.8) as fig:
+        ax = fig.add_subplot()
+        for (name, res), colour in zip(results.items(), distinct_colours(len(results))):
+            ax.plot(x, res.alpha, lw=0.8, color=colour,
+                    label=f"{name}: α = {res.totals['alpha']:.3g} % over the take, "
+                          f"max {res.totals['alpha_max']:.3g} %")
+            frames = np.asarray(worst.get(name, ()), dtype=np.intp)
+            ax.scatter(x[frames], res.alpha[frames], s=40, facecolor="none", edgecolor=colour,
+                       linewidth=1.5, zorder=3)
+            for rank, t in enumerate(frames, start=1):
+                ax.annotate(f"#{rank}: {t + first_frame}", (x[t], res.alpha[t]), fontsize=7,
+                            color=colour, xytext=(0, 7 + 9 * (rank % 2)), ha="center",
+                            textcoords="offset points",
+                            bbox=dict(boxstyle="square,pad=0.1", fc="white", ec="none", alpha=0.7))
+        if log:
+            ax.set_yscale("log")
+            plain_log_axis(ax.yaxis)
+        else:
+            ax.set_ylim(0, ax.get_ylim()[1] * 1.08)
+        ax.set_xlim(x[0], x[-1])
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("α (%)")
+        origin = ", ".join(f"{v:.0f}" for v in first.origin)
+        ax.set_title(title or f"Reconstruction error α (eq. 6, origin at ({origin}) mm); "
+                              "circles: worst frames by RMS, #rank: frame")
+        fig.legend(loc="outside upper center", fontsize=8, ncol=min(len(results), 3),
+                   frameon=False)
+        ax.grid(alpha=0.3, which="both")
 
 
 def _region_labels_right(ax, groups) -> None:
@@ -187,21 +191,20 @@ def plot_error_heatmap(errors: ReconstructionErrors, path, *, markerset=None,
     x, xlabel = _time_axis(errors.n_frames, rate)
     step = x[1] - x[0] if len(x) > 1 else 1.0
     n = len(order)
-    fig = new_figure(12, min(max(3.5, 0.17 * n + 1.8), 14.0))
-    ax = fig.add_subplot()
-    cmap = colormaps["magma"].with_extremes(bad="#b0b0b0")
-    image = ax.imshow(np.ma.masked_invalid(data), aspect="auto", interpolation="nearest",
-                      cmap=cmap, vmin=0, vmax=vmax,
-                      extent=(x[0], x[-1] + step, n - 0.5, -0.5))
-    ax.set_yticks(range(n))
-    ax.set_yticklabels([errors.labels[i] for i in order],
-                       fontsize=max(4, min(8, 400 // max(n, 1))))
-    _region_labels_right(ax, groups)
-    ax.set_xlabel(xlabel)
-    fig.colorbar(image, ax=ax, label="error (mm)", extend="max", pad=0.01)
-    ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker and frame "
-                          f"(RMS {errors.totals['rms_mm']:.2f} mm; grey = missing)")
-    save_figure(fig, path)
+    with report_figure(path, PAGE_WIDTH, min(max(3.5, 0.17 * n + 1.8), 14.0)) as fig:
+        ax = fig.add_subplot()
+        cmap = colormaps["magma"].with_extremes(bad="#b0b0b0")
+        image = ax.imshow(np.ma.masked_invalid(data), aspect="auto", interpolation="nearest",
+                          cmap=cmap, vmin=0, vmax=vmax,
+                          extent=(x[0], x[-1] + step, n - 0.5, -0.5))
+        ax.set_yticks(range(n))
+        ax.set_yticklabels([errors.labels[i] for i in order],
+                           fontsize=max(4, min(8, 400 // max(n, 1))))
+        _region_labels_right(ax, groups)
+        ax.set_xlabel(xlabel)
+        fig.colorbar(image, ax=ax, label="error (mm)", extend="max", pad=0.01, fraction=0.05)
+        ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker and frame "
+                              f"(RMS {errors.totals['rms_mm']:.2f} mm; grey = missing)")
 
 
 def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
@@ -221,36 +224,81 @@ def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
     gap = 0.8
     pos = np.concatenate([np.arange(start, stop) + gap * k
                           for k, (_, start, stop) in enumerate(groups)])
-    colours = np.empty(len(order), dtype=object)
-    palette = distinct_colours(len(groups))
-    for k, (_, start, stop) in enumerate(groups):
-        colours[start:stop] = [palette[k]] * (stop - start)
-    fig = new_figure(max(8.0, 0.28 * len(order) + 2.5), 5.0)
-    ax = fig.add_subplot()
-    ax.bar(pos, errors.marker_p95[order], width=0.8, color=list(colours), alpha=0.35)
-    ax.bar(pos, errors.marker_mean[order], width=0.45, color=list(colours))
-    ax.set_xticks(pos)
-    ax.set_xticklabels([errors.labels[i] for i in order], rotation=70, ha="right",
-                       rotation_mode="anchor", fontsize=7)
-    sec = ax.secondary_xaxis("top")
-    sec.set_xticks([(pos[start] + pos[stop - 1]) / 2 for _, start, stop in groups],
-                   labels=[name.replace("_", " ") for name, _, _ in groups], fontsize=8,
-                   rotation=30, ha="left", rotation_mode="anchor")
-    sec.tick_params(length=0)
-    for k, (_, start, _) in enumerate(groups[1:], start=1):
-        ax.axvline(pos[start] - 0.5 - gap / 2, color="grey", lw=0.6, ls=":")
-    ax.set_xlim(pos[0] - 0.8, pos[-1] + 0.8)
-    ax.set_ylabel("error (mm)")
-    if ymax is not None:
-        ax.set_ylim(0, ymax)
-    fig.legend(handles=[Patch(color="grey", alpha=0.35, label="95th percentile (wide, pale)"),
-                        Patch(color="grey", label="mean (narrow)")],
-               loc="outside lower center", ncol=2, fontsize=8, frameon=False)
-    ax.grid(axis="y", alpha=0.3)
-    ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker "
-                          f"(mean {errors.totals['mean_mm']:.2f} mm, "
-                          f"95th percentile {errors.totals['p95_mm']:.2f} mm)")
-    save_figure(fig, path)
+    colours = region_colours(groups)
+    with report_figure(path, _marker_chart_width(len(pos), len(groups), gap), 5.0) as fig:
+        ax = fig.add_subplot()
+        # Every bar in one collection, the wide pale ones first (under the narrow ones).
+        ax.add_collection(bar_collection(
+            np.concatenate([pos, pos]),
+            np.concatenate([errors.marker_p95[order], errors.marker_mean[order]]),
+            np.repeat([0.8, 0.45], len(pos)),
+            np.concatenate([colours * [1, 1, 1, 0.35], colours])))
+        ax.set_xticks(pos)
+        ax.set_xticklabels([errors.labels[i] for i in order], rotation=70, ha="right",
+                           rotation_mode="anchor", fontsize=7)
+        sec = ax.secondary_xaxis("top")
+        sec.set_xticks([(pos[start] + pos[stop - 1]) / 2 for _, start, stop in groups],
+                       labels=[name.replace("_", " ") for name, _, _ in groups], fontsize=8,
+                       rotation=30, ha="left", rotation_mode="anchor")
+        sec.tick_params(length=0)
+        between = [pos[start] - 0.5 - gap / 2 for _, start, _ in groups[1:]]
+        ax.add_collection(LineCollection([[(x, 0), (x, 1)] for x in between], colors="grey",
+                                         linewidths=0.6, linestyles=":",
+                                         transform=ax.get_xaxis_transform()), autolim=False)
+        ax.set_xlim(pos[0] - 0.8, pos[-1] + 0.8)
+        ax.set_ylabel("error (mm)")
+        if ymax is not None:
+            ax.set_ylim(0, ymax)
+        fig.legend(handles=[Patch(color="grey", alpha=0.35, label="95th percentile (wide, pale)"),
+                            Patch(color="grey", label="mean (narrow)")],
+                   loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+        ax.grid(axis="y", alpha=0.3)
+        ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker "
+                              f"(mean {errors.totals['mean_mm']:.2f} mm, "
+                              f"95th percentile {errors.totals['p95_mm']:.2f} mm)")
+
+
+def _marker_chart_width(n_markers: int, n_groups: int, gap: float) -> float:
+    """Inches of the per-marker chart: the page's width when its labels fit there (a marker's
+    rotated name needs about 0.11 in), wider for more markers, narrower for a few."""
+    slots = n_markers + gap * (n_groups - 1)
+    return min(max(8.0, 0.28 * n_markers + 2.5), max(PAGE_WIDTH, 0.11 * slots + 1.6))
+
+
+def region_colours(groups) -> np.ndarray:
+    """RGBA (M, 4) of the markers in display order, a colour per group of
+    :func:`region_groups`."""
+    palette = np.array([to_rgba(c) for c in distinct_colours(len(groups))])
+    return np.repeat(palette, [stop - start for _, start, stop in groups], axis=0)
+
+
+def bar_collection(at, lengths, widths, colours, *, horizontal: bool = False) -> PolyCollection:
+    """Bars from 0 to `lengths`, centred on `at`, as one collection (NaN lengths: no bar).
+
+    Parameters
+    ----------
+    at, lengths, widths : ndarray, shape (B,)
+    colours : ndarray, shape (B, 4)
+        RGBA of each bar, drawn in order (later bars over earlier ones).
+    horizontal : bool
+        Bars along x (``Axes.barh``) instead of y (``Axes.bar``).
+
+    Returns
+    -------
+    matplotlib.collections.PolyCollection
+        For ``Axes.add_collection``; the length axis sticks to 0 as with ``Axes.bar``.
+    """
+    keep = np.isfinite(lengths)
+    at, lengths, half = at[keep], lengths[keep], widths[keep] / 2
+    zero = np.zeros_like(at)
+    corners = np.stack([np.column_stack(c) for c in ((at - half, zero), (at - half, lengths),
+                                                     (at + half, lengths), (at + half, zero))],
+                       axis=1)
+    if horizontal:
+        corners = corners[:, :, ::-1]
+    bars = PolyCollection(corners, facecolors=colours[keep], edgecolors="none", linewidths=0)
+    (bars.sticky_edges.x if horizontal else bars.sticky_edges.y).append(0)
+    return bars
 
 
 def plot_held_out(in_sample: dict, held_out: dict, path, *, label: str) -> None:
@@ -267,25 +315,24 @@ def plot_held_out(in_sample: dict, held_out: dict, path, *, label: str) -> None:
         How the frames were held out (the subtitle).
     """
     names = list(in_sample)
-    fig = new_figure(7.5, 3.4)
-    axes = fig.subplots(1, 2)
-    colours = {"in-sample": "#7f9fbf", "out-of-sample": "#d9822b"}
-    for ax, key, what in zip(axes, ("rms_mm", "p95_mm"), ("RMS", "95th percentile")):
-        for k, (kind, source) in enumerate((("in-sample", in_sample),
-                                           ("out-of-sample", held_out))):
-            x = [i + (k - 0.5) * 0.38 for i, n in enumerate(names) if n in source]
-            v = [source[n].totals[key] for n in names if n in source]
-            bars = ax.bar(x, v, width=0.36, color=colours[kind], label=kind)
-            ax.bar_label(bars, fmt="%.2f", fontsize=7, padding=1)
-        ax.set_xticks(range(len(names)), names)
-        ax.set_ylabel(f"marker error, {what} (mm)")
-        ax.set_ylim(0, ax.get_ylim()[1] * 1.15)
-        ax.grid(axis="y", alpha=0.3)
-    handles, texts = axes[0].get_legend_handles_labels()
-    fig.legend(handles, texts, loc="outside lower center", ncol=2, fontsize=8, frameon=False)
-    fig.suptitle("\n".join(textwrap.wrap(f"In-sample vs out-of-sample: {label}", 95)),
-                 fontsize=8)
-    save_figure(fig, path)
+    with report_figure(path, 7.5, 3.4) as fig:
+        axes = fig.subplots(1, 2)
+        colours = {"in-sample": "#7f9fbf", "out-of-sample": "#d9822b"}
+        for ax, key, what in zip(axes, ("rms_mm", "p95_mm"), ("RMS", "95th percentile")):
+            for k, (kind, source) in enumerate((("in-sample", in_sample),
+                                               ("out-of-sample", held_out))):
+                x = [i + (k - 0.5) * 0.38 for i, n in enumerate(names) if n in source]
+                v = [source[n].totals[key] for n in names if n in source]
+                bars = ax.bar(x, v, width=0.36, color=colours[kind], label=kind)
+                ax.bar_label(bars, fmt="%.2f", fontsize=7, padding=1)
+            ax.set_xticks(range(len(names)), names)
+            ax.set_ylabel(f"marker error, {what} (mm)")
+            ax.set_ylim(0, ax.get_ylim()[1] * 1.15)
+            ax.grid(axis="y", alpha=0.3)
+        handles, texts = axes[0].get_legend_handles_labels()
+        fig.legend(handles, texts, loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+        fig.suptitle("\n".join(textwrap.wrap(f"In-sample vs out-of-sample: {label}", 95)),
+                     fontsize=8)
 
 
 __getattr__ = moved_names(__name__, PLOTS_NAMES)

@@ -18,10 +18,11 @@ import numpy as np
 import scipy.sparse as sp
 from matplotlib.patches import Patch
 
+from fit.report.drawing import report_figure
 from fit.report.html import Figure, Section, Table
-from fit.report.plots import region_groups
+from fit.report.plots import bar_collection, region_colours, region_groups
 from mocap.errors import InputError
-from mocap.viz.figures import distinct_colours, new_figure, save_figure
+from mocap.viz.figures import distinct_colours
 
 __all__ = ["mesh_lip_gaps", "plot_lip_seal", "plot_cross_validation", "lip_seal_section",
            "cross_validation_section"]
@@ -119,45 +120,44 @@ def plot_lip_seal(check, path, *, title: str | None = None) -> None:
     x = check.frames
     names = list(check.mesh_gap)
     colours = distinct_colours(len(names))
-    fig = new_figure(11, 5.2)
-    ax = fig.add_subplot()
-    ax.plot(x, check.marker_opening, color="black", lw=1.4,
-            label=f"lip markers ({check.witness})" if check.witness else "lip markers")
-    for name, colour in zip(names, colours):
-        ax.plot(x, check.mesh_opening(name), color=colour, lw=0.9, label=f"{name} mesh")
-    ax.axhline(check.marker_open_mm, color="grey", lw=0.8, ls="--")
-    ax.annotate(f"markers open: {check.marker_open_mm:.3g} mm", (x[0], check.marker_open_mm),
-                fontsize=7, color="grey", xytext=(2, 2), textcoords="offset points")
-    top = max(float(np.max(check.marker_opening, initial=0.0)),
-              max((float(np.max(check.mesh_opening(n), initial=0.0)) for n in names),
-                  default=0.0), check.marker_open_mm) * 1.08
-    low = min(float(np.min(check.marker_opening, initial=0.0)),
-              min((float(np.min(check.mesh_opening(n), initial=0.0)) for n in names),
-                  default=0.0))
-    strip = 0.05 * (top - low)
-    for k, (name, colour) in enumerate(zip(names, colours)):
-        y0 = low - (k + 1.2) * strip
-        for mask, hatch in ((check.shut(name), None), (check.parted(name), "////")):
-            ax.fill_between(x, y0, y0 + 0.8 * strip, where=mask, step="mid",
-                            facecolor=colour if hatch is None else "none",
-                            edgecolor=colour, hatch=hatch, lw=0)
-        ax.annotate(name, (x[-1], y0 + 0.4 * strip), fontsize=7, color=colour,
-                    xytext=(4, 0), textcoords="offset points", va="center")
-    ax.set_ylim(low - (len(names) + 1.4) * strip, top)
-    ax.set_xlim(x[0], x[-1])
-    ax.set_xlabel("capture frame")
-    ax.set_ylabel("opening from rest (mm)")
-    ax.grid(alpha=0.3)
-    handles, labels = ax.get_legend_handles_labels()
-    handles += [Patch(facecolor="grey", label="strip: mesh shut, markers open"),
-                Patch(facecolor="none", edgecolor="grey", hatch="////",
-                      label="strip: mesh open, markers shut")]
-    fig.legend(handles=handles, loc="outside upper center", fontsize=8,
-               ncol=min(len(handles), 4), frameon=False)
-    ax.set_title(title or f"Lip seal: opening from rest (mesh rest gap {check.rest_gap:.1f} mm);"
-                          f" shut: opened by < {check.fraction:.0%} of the markers' opening",
-                 fontsize=10)
-    save_figure(fig, path)
+    with report_figure(path, 11, 5.2) as fig:
+        ax = fig.add_subplot()
+        ax.plot(x, check.marker_opening, color="black", lw=1.4,
+                label=f"lip markers ({check.witness})" if check.witness else "lip markers")
+        for name, colour in zip(names, colours):
+            ax.plot(x, check.mesh_opening(name), color=colour, lw=0.9, label=f"{name} mesh")
+        ax.axhline(check.marker_open_mm, color="grey", lw=0.8, ls="--")
+        ax.annotate(f"markers open: {check.marker_open_mm:.3g} mm", (x[0], check.marker_open_mm),
+                    fontsize=7, color="grey", xytext=(2, 2), textcoords="offset points")
+        top = max(float(np.max(check.marker_opening, initial=0.0)),
+                  max((float(np.max(check.mesh_opening(n), initial=0.0)) for n in names),
+                      default=0.0), check.marker_open_mm) * 1.08
+        low = min(float(np.min(check.marker_opening, initial=0.0)),
+                  min((float(np.min(check.mesh_opening(n), initial=0.0)) for n in names),
+                      default=0.0))
+        strip = 0.05 * (top - low)
+        for k, (name, colour) in enumerate(zip(names, colours)):
+            y0 = low - (k + 1.2) * strip
+            for mask, hatch in ((check.shut(name), None), (check.parted(name), "////")):
+                ax.fill_between(x, y0, y0 + 0.8 * strip, where=mask, step="mid",
+                                facecolor=colour if hatch is None else "none",
+                                edgecolor=colour, hatch=hatch, lw=0)
+            ax.annotate(name, (x[-1], y0 + 0.4 * strip), fontsize=7, color=colour,
+                        xytext=(4, 0), textcoords="offset points", va="center")
+        ax.set_ylim(low - (len(names) + 1.4) * strip, top)
+        ax.set_xlim(x[0], x[-1])
+        ax.set_xlabel("capture frame")
+        ax.set_ylabel("opening from rest (mm)")
+        ax.grid(alpha=0.3)
+        handles, labels = ax.get_legend_handles_labels()
+        handles += [Patch(facecolor="grey", label="strip: mesh shut, markers open"),
+                    Patch(facecolor="none", edgecolor="grey", hatch="////",
+                          label="strip: mesh open, markers shut")]
+        fig.legend(handles=handles, loc="outside upper center", fontsize=8,
+                   ncol=min(len(handles), 4), frameon=False)
+        ax.set_title(title or f"Lip seal: opening from rest (mesh rest gap "
+                              f"{check.rest_gap:.1f} mm); shut: opened by < "
+                              f"{check.fraction:.0%} of the markers' opening", fontsize=10)
 
 
 def plot_cross_validation(cv, path, *, markerset=None, title: str | None = None) -> None:
@@ -172,34 +172,35 @@ def plot_cross_validation(cv, path, *, markerset=None, title: str | None = None)
     """
     order, groups = region_groups(cv.labels, markerset)
     n = len(order)
-    fig = new_figure(8.5, min(max(4.0, 0.2 * n + 1.6), 16.0))
-    ax = fig.add_subplot()
-    y = np.arange(n)
-    palette = distinct_colours(len(groups))
-    colours = np.empty(n, dtype=object)
-    for k, (_, start, stop) in enumerate(groups):
-        colours[start:stop] = [palette[k]] * (stop - start)
-    ax.barh(y, cv.motion_rms[order], height=0.8, color=list(colours), alpha=0.25)
-    ax.barh(y, np.nan_to_num(cv.marker_rms[order]), height=0.45, color=list(colours))
-    singular = np.flatnonzero(~np.isfinite(cv.marker_rms[order]))
-    ax.scatter(np.zeros(len(singular)), y[singular], marker="x", color="black", zorder=3)
-    ax.set_yticks(y)
-    ax.set_yticklabels([cv.labels[i] for i in order], fontsize=max(5, min(8, 420 // max(n, 1))))
-    ax.set_ylim(n - 0.5, -0.5)
-    for _, start, _ in groups[1:]:
-        ax.axhline(start - 0.5, color="grey", lw=0.6, ls=":")
-    sec = ax.secondary_yaxis("right")
-    sec.set_yticks([(start + stop - 1) / 2 for _, start, stop in groups],
-                   labels=[name.replace("_", " ") for name, _, _ in groups], fontsize=8)
-    sec.tick_params(length=0)
-    ax.set_xlabel("mm (RMS over the frames)")
-    ax.grid(axis="x", alpha=0.3)
-    fig.legend(handles=[Patch(color="grey", alpha=0.25, label="the marker's motion (wide, pale)"),
-                        Patch(color="grey", label="held-out error (narrow)")],
-               loc="outside lower center", ncol=2, fontsize=8, frameon=False)
-    ax.set_title(title or f"Held-out error per marker: RMS {cv.rms:.2f} mm, "
-                          f"{cv.relative:.0%} of the markers' motion", fontsize=10)
-    save_figure(fig, path)
+    y = np.arange(n, dtype=float)
+    colours = region_colours(groups)
+    with report_figure(path, 8.5, min(max(4.0, 0.2 * n + 1.6), 16.0)) as fig:
+        ax = fig.add_subplot()
+        # Every bar in one collection, the wide pale ones first (under the narrow ones).
+        ax.add_collection(bar_collection(
+            np.concatenate([y, y]),
+            np.concatenate([cv.motion_rms[order], np.nan_to_num(cv.marker_rms[order])]),
+            np.repeat([0.8, 0.45], n), np.concatenate([colours * [1, 1, 1, 0.25], colours]),
+            horizontal=True))
+        singular = np.flatnonzero(~np.isfinite(cv.marker_rms[order]))
+        ax.scatter(np.zeros(len(singular)), y[singular], marker="x", color="black", zorder=3)
+        ax.set_yticks(y)
+        ax.set_yticklabels([cv.labels[i] for i in order], fontsize=max(5, min(8, 420 // max(n, 1))))
+        ax.set_ylim(n - 0.5, -0.5)
+        for _, start, _ in groups[1:]:
+            ax.axhline(start - 0.5, color="grey", lw=0.6, ls=":")
+        sec = ax.secondary_yaxis("right")
+        sec.set_yticks([(start + stop - 1) / 2 for _, start, stop in groups],
+                       labels=[name.replace("_", " ") for name, _, _ in groups], fontsize=8)
+        sec.tick_params(length=0)
+        ax.set_xlabel("mm (RMS over the frames)")
+        ax.grid(axis="x", alpha=0.3)
+        fig.legend(handles=[Patch(color="grey", alpha=0.25,
+                                  label="the marker's motion (wide, pale)"),
+                            Patch(color="grey", label="held-out error (narrow)")],
+                   loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+        ax.set_title(title or f"Held-out error per marker: RMS {cv.rms:.2f} mm, "
+                              f"{cv.relative:.0%} of the markers' motion", fontsize=10)
 
 
 def _region_of(markerset, label: str) -> str:

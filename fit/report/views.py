@@ -6,12 +6,15 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.collections import LineCollection
 
+from fit.report.drawing import PAGE_WIDTH, report_figure
 from mocap.errors import InputError
 from mocap.util.validation import as_float_array, as_positions
-from mocap.viz.figures import new_figure, plottable, save_figure
+from mocap.viz.figures import MAX_PLOT_MM, plottable
 
 __all__ = ["view_axes", "plot_frame_views"]
 
+#: Inches per mm of the views at most (a few frames of a small face).
+_SCALE = 0.028
 CAPTURED_COLOUR = "#d62728"
 RECONSTRUCTED_COLOUR = "#1f5fd6"
 
@@ -113,11 +116,9 @@ def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=N
     names : sequence of str, optional
         A caption per frame (e.g. "RMS 2.1 mm").
     """
-    captured = plottable(as_positions(captured, "captured"), "captured positions",
-                         labels=labels, first_frame=first_frame)
-    reconstructed = plottable(as_positions(reconstructed, "reconstructed"),
-                              "reconstructed positions", labels=labels,
-                              first_frame=first_frame)
+    captured = _plottable(captured, "captured", labels=labels, first_frame=first_frame)
+    reconstructed = _plottable(reconstructed, "reconstructed", labels=labels,
+                               first_frame=first_frame)
     if reconstructed.shape != captured.shape:
         raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
                          f"got {reconstructed.shape}")
@@ -135,32 +136,50 @@ def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=N
     every = np.concatenate([rest[None], cap, rec]).reshape(-1, 3)
     lo, hi = np.nanmin(every, axis=0) - 4, np.nanmax(every, axis=0) + 4
     span = hi - lo
-    fig = new_figure(1.2 + 0.028 * len(frames) * (span[0] + span[2]), 0.028 * span[1] + 1.6)
-    grid = fig.subplots(1, 2 * len(frames), sharey=True,
-                        width_ratios=[span[0], span[2]] * len(frames))
-    for k, t in enumerate(frames):
-        err = np.linalg.norm(reconstructed[t] - captured[t], axis=1)
-        caption = (names[k] if names is not None
-                   else f"RMS {np.sqrt(np.nanmean(err ** 2)):.2f} mm")
-        for ax, h, view in ((grid[2 * k], 0, "front"), (grid[2 * k + 1], 2, "side")):
-            ax.scatter(rest[:, h], rest[:, 1], s=10, color="#cccccc", zorder=1)
-            segs = np.stack([cap[k][:, [h, 1]], rec[k][:, [h, 1]]], axis=1)
-            ax.add_collection(LineCollection(segs, colors="black", linewidths=0.8, zorder=2))
-            ax.scatter(cap[k][:, h], cap[k][:, 1], s=28, color=CAPTURED_COLOUR, zorder=3,
-                       label="captured")
-            ax.scatter(rec[k][:, h], rec[k][:, 1], s=10, color=RECONSTRUCTED_COLOUR,
-                       zorder=3, label="reconstructed")
-            ax.set_xlim(lo[h], hi[h])
-            ax.set_ylim(lo[1], hi[1])
-            ax.set_aspect("equal")
-            ax.tick_params(labelsize=7)
-            ax.set_xlabel(f"{view} (mm)", fontsize=8)
-        grid[2 * k].set_title(f"frame {t + first_frame}: {caption}", fontsize=9, loc="left")
-    grid[0].set_ylabel("up (mm)", fontsize=8)
-    handles, texts = grid[0].get_legend_handles_labels()
-    scale = "" if exaggerate == 1 else f", error vectors ×{exaggerate:g}"
-    fig.legend(handles, texts, loc="outside lower center", ncol=2, fontsize=8, frameon=False)
-    fig.suptitle(title or f"Captured (red) vs reconstructed (blue){scale}; grey: rest pose. "
-                          "Front: subject's left on the right; side: face to the right",
-                 fontsize=10)
-    save_figure(fig, path)
+    # Inches per mm: the frames' views fill the page's width, at most _SCALE; the dots' areas
+    # scale with it, so that they keep their size against the face.
+    scale = min(_SCALE, (PAGE_WIDTH - 1.2) / (len(frames) * (span[0] + span[2])))
+    dot = (scale / _SCALE) ** 2
+    scale_text = "" if exaggerate == 1 else f", error vectors ×{exaggerate:g}"
+    with report_figure(path, 1.2 + scale * len(frames) * (span[0] + span[2]),
+                       scale * span[1] + 1.6) as fig:
+        grid = fig.subplots(1, 2 * len(frames), sharey=True,
+                            width_ratios=[span[0], span[2]] * len(frames))
+        for k, t in enumerate(frames):
+            err = np.linalg.norm(reconstructed[t] - captured[t], axis=1)
+            caption = (names[k] if names is not None
+                       else f"RMS {np.sqrt(np.nanmean(err ** 2)):.2f} mm")
+            for ax, h, view in ((grid[2 * k], 0, "front"), (grid[2 * k + 1], 2, "side")):
+                ax.scatter(rest[:, h], rest[:, 1], s=10 * dot, color="#cccccc", zorder=1)
+                segs = np.stack([cap[k][:, [h, 1]], rec[k][:, [h, 1]]], axis=1)
+                ax.add_collection(LineCollection(segs, colors="black", linewidths=0.8,
+                                                 zorder=2))
+                ax.scatter(cap[k][:, h], cap[k][:, 1], s=28 * dot, color=CAPTURED_COLOUR,
+                           zorder=3, label="captured")
+                ax.scatter(rec[k][:, h], rec[k][:, 1], s=10 * dot, color=RECONSTRUCTED_COLOUR,
+                           zorder=3, label="reconstructed")
+                ax.set_xlim(lo[h], hi[h])
+                ax.set_ylim(lo[1], hi[1])
+                ax.set_aspect("equal")
+                ax.tick_params(labelsize=7)
+                ax.set_xlabel(f"{view} (mm)", fontsize=8)
+            grid[2 * k].set_title(f"frame {t + first_frame}: {caption}", fontsize=9, loc="left")
+        grid[0].set_ylabel("up (mm)", fontsize=8)
+        handles, texts = grid[0].get_legend_handles_labels()
+        fig.legend(handles, texts, loc="outside lower center", ncol=2, fontsize=8,
+                   frameon=False, markerscale=1 / np.sqrt(dot))
+        fig.suptitle(title or f"Captured (red) vs reconstructed (blue){scale_text}; grey: "
+                              "rest pose. Front: subject's left on the right; side: face to "
+                              "the right", fontsize=10)
+
+
+def _plottable(values, name: str, *, labels, first_frame: int) -> np.ndarray:
+    """`values` (T, M, 3) as float64 (no copy when they already are), refused as
+    :func:`mocap.viz.figures.plottable` refuses them; one pass for the extremes instead of
+    its pass over every sample, which only runs (to name the sample) when one is out of range."""
+    values = as_positions(values, name, copy=False)
+    top = max(np.fmax.reduce(values, axis=None, initial=-np.inf),
+              -np.fmin.reduce(values, axis=None, initial=np.inf))
+    if top > MAX_PLOT_MM:               # NaN samples are kept, as plottable keeps them
+        plottable(values, f"{name} positions", labels=labels, first_frame=first_frame)
+    return values

@@ -1,0 +1,137 @@
+"""Benchmark: the QA report of the 35,000-frame take against its floor (issue 16, "Report").
+
+The inputs are those of ``bench_chain.py``: its simulated take (the ICT face, 60 face
+markers), read, ingested, bound, retargeted and fitted as the chain does. Timed:
+:func:`fit.report.build_report` as the chain calls it (figures and HTML, no video), and
+each figure's own time beside the time of encoding its pixels.
+
+Floor: what the report must do however its figures are drawn, i.e. encode the pixels of
+every PNG it writes (decoded from its own files beforehand, then encoded again by
+:func:`fit.report.drawing.write_png`, the report's encoder: zlib level 6) and write the
+HTML page's bytes. Drawing is what lies between the two; the ratio says how far from the
+floor it is. Ratios are of one run (the machine may be shared).
+
+Usage: ``python bench/bench_report.py [--frames 35000] [--repeat 2]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import cv2  # noqa: E402
+from _common import REPO  # noqa: E402
+from bench_chain import simulate  # noqa: E402
+
+import fit.report.drawing  # noqa: E402
+import mocap  # noqa: E402
+from fit import pipeline  # noqa: E402
+from fit.report import build_report  # noqa: E402
+from fit.report.drawing import write_png  # noqa: E402
+from mocap.clean.ingest import IngestOptions  # noqa: E402
+from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
+
+
+def inputs(frames: int, out: Path) -> dict:
+    """The arguments of the chain's build_report call."""
+    artist, markerset, sim = simulate(frames, out / "take.c3d")
+    landmarks = load_mesh_landmarks(REPO / "tests" / "ict_landmarks.toml", artist.neutral)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ingested = pipeline.ingest_stage(mocap.read(out / "take.c3d"), markerset,
+                                         IngestOptions(fill="auto", max_gap=sim.n_frames))
+        take = pipeline.complete_span(ingested.take, markerset.face_markers)
+        bound = pipeline.bind_stage(take, markerset, artist.neutral, landmarks,
+                                    options=pipeline.BindOptions(skin_offset=2.0))
+        retargeted = pipeline.retarget_stage(take, bound, artist.neutral, markerset)
+        bases = pipeline.basis_stage(retargeted, artist)
+        fitted = pipeline.fit_stage(take, bound, retargeted, bases)
+    face = take.select(retargeted.labels)
+    return dict(take=face, reconstructions=fitted.reconstructed,
+                neutral=face.positions[bound.frame], markerset=markerset, pca=bases.pca,
+                ingest=ingested)
+
+
+def report(args: dict, out: Path) -> dict:
+    out.mkdir(exist_ok=True)
+    return build_report(args["take"], args["reconstructions"], args["neutral"], out,
+                        markerset=args["markerset"], pca=args["pca"], ingest=args["ingest"],
+                        video=False)
+
+
+def figure_seconds(args: dict, out: Path) -> dict:
+    """Seconds from each report figure's creation to its PNG written, keyed by the file's
+    name: the report once more, with :mod:`fit.report.drawing` timed (the coverage plot of
+    :mod:`basis` is drawn without it)."""
+    seconds, started = {}, []
+    new_figure, write_png_ = fit.report.drawing.new_figure, fit.report.drawing.write_png
+
+    def start(*size):
+        started.append(time.perf_counter())
+        return new_figure(*size)
+
+    def end(image, path):
+        write_png_(image, path)
+        seconds[Path(path).name] = time.perf_counter() - started.pop()
+
+    fit.report.drawing.new_figure, fit.report.drawing.write_png = start, end
+    try:
+        report(args, out)
+    finally:
+        fit.report.drawing.new_figure, fit.report.drawing.write_png = new_figure, write_png_
+    return seconds
+
+
+def floor_seconds(files: dict, out: Path) -> tuple[float, dict]:
+    """The floor: every PNG's pixels encoded again, and the HTML bytes written."""
+    pngs = {path.name: cv2.imread(str(path))[:, :, ::-1] for path in files.values()
+            if path.suffix == ".png"}
+    page = files["html"].read_bytes()
+    out.mkdir(exist_ok=True)
+    per_png = {}
+    for name, pixels in pngs.items():
+        tic = time.perf_counter()
+        write_png(pixels, out / name)
+        per_png[name] = time.perf_counter() - tic
+    tic = time.perf_counter()
+    (out / "page.html").write_bytes(page)
+    return sum(per_png.values()) + time.perf_counter() - tic, per_png
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=35_000)
+    parser.add_argument("--repeat", type=int, default=2)
+    options = parser.parse_args()
+    out = Path(tempfile.mkdtemp(prefix="bench_report_"))
+    args = inputs(options.frames, out)
+    take = args["take"]
+    print(f"take: {take.n_frames} frames, {take.n_markers} face markers, bases "
+          f"{', '.join(args['reconstructions'])}")
+    report(args, out / "warm")                            # fonts, caches
+    best = floor = float("inf")
+    for k in range(options.repeat):                       # interleaved: one run's ratio
+        tic = time.perf_counter()
+        files = report(args, out / f"report-{k}")
+        best = min(best, time.perf_counter() - tic)
+        total, per_png = floor_seconds(files, out / f"floor-{k}")
+        floor = min(floor, total)
+    seconds = figure_seconds(args, out / "figures")
+    print(f"\n{'figure':<28} {'drawn s':>8} {'encode s':>9}")
+    for name, sec in sorted(seconds.items(), key=lambda item: -item[1]):
+        print(f"{name:<28} {sec:>8.3f} {per_png.get(name, float('nan')):>9.3f}")
+    print(f"{'figures, sum':<28} {sum(seconds.values()):>8.3f} {sum(per_png.values()):>9.3f}")
+    print(f"\nfloor (PNG pixels encoded + HTML bytes written): {floor:.2f} s")
+    print(f"build_report: {best:.2f} s = {best / floor:.1f}× the floor (aim: 3 s; the rest "
+          "beside the figures: the errors of fit.metrics, the HTML)")
+    print(f"outputs in {out}")
+
+
+if __name__ == "__main__":
+    main()
