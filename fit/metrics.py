@@ -25,6 +25,8 @@ from mocap.util.validation import as_choice, as_float_array, as_int, as_position
 __all__ = ["ReconstructionErrors", "reconstruction_errors", "summary_frame",
            "FRAME_METRICS"]
 
+#: Frames whose differences :func:`_squared_lengths` forms at a time (they stay in cache).
+_ROWS = 1024
 #: Per-frame series by which frames can be ranked (:meth:`ReconstructionErrors.worst_frames`).
 FRAME_METRICS = ("alpha", "displacement_error", "rms", "max_error")
 
@@ -211,8 +213,8 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
     NaN policy: a sample missing from either array is excluded and counted in
     ``n_missing``; a frame without samples gets NaN statistics.
     """
-    captured = as_positions(captured, "captured")
-    reconstructed = as_positions(reconstructed, "reconstructed")
+    captured = as_positions(captured, "captured", copy=False)           # only read
+    reconstructed = as_positions(reconstructed, "reconstructed", copy=False)
     if reconstructed.shape != captured.shape:
         raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
                          f"got {reconstructed.shape}")
@@ -229,11 +231,13 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
     origin = (neutral.mean(axis=0) if origin is None
               else as_float_array(origin, "origin", shape=(3,), allow_nan=False))
 
-    valid = ~(np.isnan(captured).any(axis=2) | np.isnan(reconstructed).any(axis=2))
-    sq_err = np.where(valid, ((captured - reconstructed) ** 2).sum(axis=2), 0.0)
-    sq_pos = np.where(valid, ((captured - origin) ** 2).sum(axis=2), 0.0)
-    sq_disp = np.where(valid, ((captured - neutral) ** 2).sum(axis=2), 0.0)
-    errors = np.where(valid, np.sqrt(sq_err), np.nan)
+    # squared lengths (T, M), NaN where a coordinate of either sample is: the valid ones
+    sq_err, sq_pos, sq_disp = (_squared_lengths(captured, other)
+                               for other in (reconstructed, origin, neutral))
+    valid = ~np.isnan(sq_err)
+    errors = np.sqrt(sq_err)
+    for sq in (sq_err, sq_pos, sq_disp):
+        sq[~valid] = 0.0
 
     n_valid = valid.sum(axis=1)
     per_frame_err = sq_err.sum(axis=1)
@@ -281,6 +285,15 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
         marker_max=read_only(np.where(n_frames_valid > 0, marker_max, np.nan)),
         n_missing=read_only(n_frames - n_frames_valid), origin=read_only(origin),
         totals=totals)
+
+
+def _squared_lengths(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``‖a − b‖²`` over the last axis, (T, M), by blocks of frames (no (T, M, 3) temporary)."""
+    out = np.empty(a.shape[:2])
+    for first in range(0, len(a), _ROWS):
+        diff = a[first:first + _ROWS] - (b if b.ndim < 3 else b[first:first + _ROWS])
+        out[first:first + _ROWS] = np.einsum("tmc,tmc->tm", diff, diff)
+    return out
 
 
 def summary_frame(results) -> pd.DataFrame:
