@@ -80,10 +80,13 @@ class _Buffer:
         self.views.append(pygltflib.BufferView(buffer=0, byteOffset=self.length,
                                                byteLength=data.nbytes, byteStride=stride,
                                                target=target))
-        columns = data.reshape(len(data), -1)
+        # one reduction per column, each a single strided loop (an axis-0 reduction of a
+        # (count, 3) array loops over the 3 components innermost, ~8 times slower)
+        columns = data.reshape(len(data), -1).T
         self.accessors.append(pygltflib.Accessor(
             bufferView=len(self.views) - 1, componentType=component, count=len(data),
-            type=kind, min=columns.min(axis=0).tolist(), max=columns.max(axis=0).tolist()))
+            type=kind, min=[c.min().item() for c in columns],
+            max=[c.max().item() for c in columns]))
         self.chunks.append(data)
         self.length += data.nbytes
         return len(self.accessors) - 1
