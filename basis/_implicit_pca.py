@@ -35,25 +35,20 @@ from basis._streaming_pca import Spectrum, frame_chunks
 from mocap.errors import InputError
 
 
-def marker_moments(displacements: np.ndarray, chunk_frames: int):
+def marker_moments(displacements: np.ndarray):
     """Mean (M, 3) and covariance C_D (3M, 3M) of marker frames, 1/T convention.
 
-    Two passes over `displacements` (T, M, 3) in chunks of `chunk_frames`: the
-    mean, then the centred Gram matrix; the only copies are one centred chunk
-    at a time. A non-finite frame raises InputError naming it (first pass).
+    One float64 GEMM of the centred frames (T, 3M) with themselves (a symmetric
+    rank-T update); the centred copy is the only temporary. A non-finite frame
+    raises InputError naming it.
     """
     n_frames, n_markers, _ = displacements.shape
-    total = np.zeros(3 * n_markers)
-    for _, flat in frame_chunks(displacements, "displacements", chunk_frames):
-        total += flat.sum(axis=0)
-    mean = total / n_frames
-    cov = np.zeros((3 * n_markers, 3 * n_markers))
-    buffer = np.empty((min(chunk_frames, n_frames), 3 * n_markers))
-    for start in range(0, n_frames, chunk_frames):
-        chunk = displacements[start:start + chunk_frames].reshape(-1, 3 * n_markers)
-        centred = np.subtract(chunk, mean, out=buffer[:len(chunk)])
-        cov += centred.T @ centred
-    return mean.reshape(n_markers, 3), cov / n_frames
+    _, flat = next(frame_chunks(displacements, "displacements", n_frames))
+    mean = flat.mean(axis=0)
+    centred = flat - mean
+    cov = centred.T @ centred
+    cov /= n_frames
+    return mean.reshape(n_markers, 3), cov
 
 
 def orthonormal_factor(operator: np.ndarray):
@@ -78,13 +73,13 @@ def orthonormal_factor(operator: np.ndarray):
 
 
 def operator_pca(operator: np.ndarray, displacements: np.ndarray, *,
-                 n_components: int | None, chunk_frames: int) -> Spectrum:
+                 n_components: int | None) -> Spectrum:
     """Exact PCA of W · D(t) from the marker covariance; see the module notes.
 
     `n_components` None keeps every component above the numerical-rank cutoff
     λ > λ₁ · 3k · ε (ε: float64 machine epsilon); at most 3k exist.
     """
-    mean_d, cov_d = marker_moments(displacements, chunk_frames)
+    mean_d, cov_d = marker_moments(displacements)
     return pooled_spectrum([operator], [(displacements.shape[0], mean_d, cov_d)],
                            n_components=n_components)
 
@@ -140,8 +135,12 @@ def pooled_spectrum(operators, moments, *, n_components: int | None,
         raise InputError(f"{what} numerical rank {k}: at most {3 * k} components "
                          f"exist, got n_components={n_components}")
     vecs = vecs[:, :n_components].reshape(k, 3, n_components)
-    # lift by Q ⊗ I₃: component[m, n, c] = Σ_a Q[n, a] V[a, c, m]
-    components = np.tensordot(q, vecs, axes=(1, 0)).transpose(2, 0, 1)
+    # lift by Q ⊗ I₃: component[m, n, c] = Σ_a Q[n, a] V[a, c, m], one GEMM per axis c
+    # written into C order (m, N, 3): a transposed result would cost every later pass
+    # over the components (sign fix, validation, copies) a strided walk
+    components = np.empty((n_components, len(q), 3))
+    for axis in range(3):
+        components[:, :, axis] = vecs[:, axis].T @ q.T
     takes = f" of {len(operators)} takes" if len(operators) > 1 else ""
     return Spectrum(components=components.reshape(n_components, -1),
                     eigenvalues=evals[:n_components], mean=mean.ravel(),

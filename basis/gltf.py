@@ -34,6 +34,7 @@ units is written unscaled, with a warning.
 from __future__ import annotations
 
 import base64
+import struct
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,6 +60,8 @@ NEGATIVE_SUFFIX = ".neg"
 PLAYBACK_RANGE = (0.0, 1.0)
 
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+#: Bytes of the GLB header (magic, version, length) and of a chunk header (length, type).
+_GLB_HEADER, _CHUNK_HEADER = 12, 8
 
 
 class _Buffer:
@@ -72,21 +75,24 @@ class _Buffer:
         component = pygltflib.UNSIGNED_INT if arr.dtype == np.uint32 else pygltflib.FLOAT
         data = np.ascontiguousarray(arr, dtype="<u4" if component == pygltflib.UNSIGNED_INT
                                     else "<f4")
-        raw = data.tobytes()  # every element is 4 bytes: views stay 4-byte aligned
+        # every element is 4 bytes: views stay 4-byte aligned
         stride = data.itemsize * data.shape[1] if target == _ARRAY_BUFFER else None
         self.views.append(pygltflib.BufferView(buffer=0, byteOffset=self.length,
-                                               byteLength=len(raw), byteStride=stride,
+                                               byteLength=data.nbytes, byteStride=stride,
                                                target=target))
-        columns = data.reshape(len(data), -1)
+        # one reduction per column, each a single strided loop (an axis-0 reduction of a
+        # (count, 3) array loops over the 3 components innermost, ~8 times slower)
+        columns = data.reshape(len(data), -1).T
         self.accessors.append(pygltflib.Accessor(
             bufferView=len(self.views) - 1, componentType=component, count=len(data),
-            type=kind, min=columns.min(axis=0).tolist(), max=columns.max(axis=0).tolist()))
-        self.chunks.append(raw)
-        self.length += len(raw)
+            type=kind, min=[c.min().item() for c in columns],
+            max=[c.max().item() for c in columns]))
+        self.chunks.append(data)
+        self.length += data.nbytes
         return len(self.accessors) - 1
 
     def blob(self) -> bytes:
-        return b"".join(self.chunks)
+        return b"".join(chunk.tobytes() for chunk in self.chunks)
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,8 +120,9 @@ class MorphTargets:
 
     def weights(self, weights) -> np.ndarray:
         """Target weights (T, K) in [0, 1] of shape weights (T, n)."""
-        weights = np.asarray(weights, dtype=float)
-        return np.maximum(weights[:, self.shape] / self.factor, 0.0)
+        out = np.asarray(weights, dtype=float)[:, self.shape]     # a new array: scaled in place
+        out /= self.factor
+        return np.maximum(out, 0.0, out=out)
 
     def shape_weights(self, target_weights) -> np.ndarray:
         """Shape weights (T, n) back from target weights (T, K)."""
@@ -290,7 +297,7 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
         scenes=[pygltflib.Scene(nodes=[0])], nodes=[pygltflib.Node(name=name, mesh=0)],
         meshes=[mesh], animations=animations, accessors=buf.accessors,
         bufferViews=buf.views, buffers=[pygltflib.Buffer(byteLength=buf.length)])
-    _save(gltf, buf.blob(), path, [*inputs, neutral.path])
+    _save(gltf, buf, path, [*inputs, neutral.path])
 
 
 def _animation(weights, rotation, translation, rate, n: int, first_frame):
@@ -338,14 +345,28 @@ def _to_metres(neutral: Mesh) -> float:
     return mm_per_unit(neutral.units) / 1000.0
 
 
-def _save(gltf: pygltflib.GLTF2, blob: bytes, path: Path, inputs) -> None:
-    if path.suffix.lower() == ".gltf":
-        gltf.buffers[0].uri = ("data:application/octet-stream;base64,"
-                               + base64.b64encode(blob).decode("ascii"))
-    else:
-        gltf.set_binary_blob(blob)
+def _save(gltf: pygltflib.GLTF2, buf: _Buffer, path: Path, inputs) -> None:
     with atomic_path(path, inputs=inputs) as tmp:
         if path.suffix.lower() == ".gltf":
+            gltf.buffers[0].uri = ("data:application/octet-stream;base64,"
+                                   + base64.b64encode(buf.blob()).decode("ascii"))
             gltf.save_json(str(tmp))
         else:
-            gltf.save_binary(str(tmp))
+            _save_glb(gltf, buf, tmp)
+
+
+def _save_glb(gltf: pygltflib.GLTF2, buf: _Buffer, path: Path) -> None:
+    """Write the binary glTF: the bytes of ``pygltflib.GLTF2.save_binary`` (header, JSON
+    chunk padded with spaces to 4 bytes, BIN chunk), each array written from its own
+    memory instead of being copied into one blob and re-sliced per view."""
+    text = gltf.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8")
+    text += b" " * (-(_GLB_HEADER + len(text)) % 4)
+    header = struct.pack("<4sIII4s", pygltflib.MAGIC, pygltflib.GLTF_VERSION,
+                         _GLB_HEADER + 2 * _CHUNK_HEADER + len(text) + buf.length,
+                         len(text), pygltflib.JSON.encode("ascii"))
+    with open(path, "wb") as fh:
+        fh.write(header)
+        fh.write(text)
+        fh.write(struct.pack("<I4s", buf.length, pygltflib.BIN.encode("ascii")))
+        for chunk in buf.chunks:
+            fh.write(memoryview(chunk).cast("B"))

@@ -200,8 +200,7 @@ def _model(spec: Spectrum, method: str) -> PCAModel:
                     n_frames=spec.n_frames, method=method, message=spec.message)
 
 
-def pca_from_operator(operator, displacements, *, n_components: int | None = None,
-                      chunk_frames: int = 4096) -> PCAModel:
+def pca_from_operator(operator, displacements, *, n_components: int | None = None) -> PCAModel:
     """Exact PCA of the mesh sequence Ξ(t) = W · D(t), without forming Ξ.
 
     Parameters
@@ -216,8 +215,6 @@ def pca_from_operator(operator, displacements, *, n_components: int | None = Non
     n_components : int, optional
         Components to keep, at most 3·min(N, M). Default: every component
         above the numerical-rank cutoff λ > λ₁ · 3 min(N, M) · ε.
-    chunk_frames : int
-        Frames per chunk when accumulating the marker covariance (memory only).
 
     Returns
     -------
@@ -234,8 +231,9 @@ def pca_from_operator(operator, displacements, *, n_components: int | None = Non
     -----
     C_Ξ = (W⊗I₃) C_D (W⊗I₃)ᵀ; with W = QR, the eigenpairs come from the
     3k × 3k matrix (R⊗I₃) C_D (R⊗I₃)ᵀ, lifted by Q⊗I₃ (k = min(N, M)).
-    This is exact, not an approximation; cost O(T M² + N M²), memory
-    O(N M + chunk · M). See :mod:`basis._implicit_pca`.
+    This is exact, not an approximation; cost O(T M² + N M²) (the T M²
+    term one GEMM of the centred marker frames), memory O(N M + T M). See
+    :mod:`basis._implicit_pca`.
 
     Examples
     --------
@@ -255,15 +253,13 @@ def pca_from_operator(operator, displacements, *, n_components: int | None = Non
                          f"match operator {operator.shape}, got {displacements.shape}")
     if len(displacements) == 0:
         raise InputError("displacements has no frame")
-    chunk_frames = as_int(chunk_frames, "chunk_frames", minimum=1)
     if n_components is not None:
         n_components = as_int(n_components, "n_components", minimum=1)
         most = 3 * min(operator.shape)
         if n_components > most:
             raise InputError(f"n_components must be at most 3 * min(N, M) = {most}, "
                              f"got {n_components}")
-    return _model(operator_pca(operator, displacements, n_components=n_components,
-                               chunk_frames=chunk_frames), "implicit")
+    return _model(operator_pca(operator, displacements, n_components=n_components), "implicit")
 
 
 @dataclass(frozen=True, eq=False)
@@ -298,8 +294,8 @@ class MarkerMoments:
         return len(self.mean)
 
 
-def marker_moments(displacements, *, chunk_frames: int = 4096) -> MarkerMoments:
-    """The :class:`MarkerMoments` of marker displacements D(t), (T, M, 3), in chunks of frames.
+def marker_moments(displacements) -> MarkerMoments:
+    """The :class:`MarkerMoments` of marker displacements D(t), (T, M, 3), marker units.
 
     Raises
     ------
@@ -317,8 +313,7 @@ def marker_moments(displacements, *, chunk_frames: int = 4096) -> MarkerMoments:
     if displacements.ndim != 3 or displacements.shape[2] != 3 or len(displacements) == 0:
         raise InputError(f"displacements must have shape (T, M, 3) with T >= 1, got "
                          f"{displacements.shape}")
-    chunk_frames = as_int(chunk_frames, "chunk_frames", minimum=1)
-    mean, cov = _moments(displacements, chunk_frames)
+    mean, cov = _moments(displacements)
     return MarkerMoments(len(displacements), mean, cov)
 
 

@@ -1,15 +1,19 @@
 """Benchmark: RBF retargeting of a 35,000-frame take of 66 markers onto the ICT face.
 
 Compares, in one run:
-* ``RBFOperator.apply`` (one GEMM per chunk of frames) against
+* ``RBFOperator.apply`` (one GEMM per cache-sized tile of frames and vertices) against
   ``scipy.interpolate.RBFInterpolator`` rebuilt for every frame (timed on a
   subset of frames and extrapolated: the full take would take many minutes);
-* the same against a bare float32 GEMM of the same shapes, W (N, M) @ D (M, 3T);
+* the same against a bare float32 GEMM of the same shapes, W (N, M) @ D (M, 3T), the
+  two timed alternately in one run (best of three each) so that a load on the machine
+  weighs on both;
 * operator build times (Euclidean thin-plate spline; geodesic Wendland, heat
   method included);
 * peak memory of the whole take streamed to disk in chunks (``iter_chunks``),
   as the peak RSS of a child process run first (interpreter, mesh, operator,
   input take and chunks all included).
+
+Both on the BLAS threads of ``OPENBLAS_NUM_THREADS`` (1 unless set).
 
 Run: ``python bench/bench_rbf_speed.py [--frames 35000]``.
 """
@@ -17,6 +21,7 @@ Run: ``python bench/bench_rbf_speed.py [--frames 35000]``.
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import subprocess
 import sys
@@ -24,9 +29,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-import trimesh
-from scipy.interpolate import RBFInterpolator
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+import trimesh  # noqa: E402
+from scipy.interpolate import RBFInterpolator  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, shared_data  # noqa: E402
@@ -90,6 +97,21 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def against_gemm(op, compact, d) -> tuple[float, float, float]:
+    """Seconds of ``op.apply(d)`` and of the bare float32 GEMM W @ D (M, 3T), best of three
+    timed alternately so that a load on the machine weighs on both, and of
+    ``compact.apply(d)`` once; all write the same bytes into one buffer, touched first
+    (no page faults timed)."""
+    out = np.ones((len(d), op.n_points, 3), np.float32)
+    w32, rhs = op.matrix.astype(np.float32), np.ones((op.n_centers, 3 * len(d)), np.float32)
+    gemm_out = out.reshape(op.n_points, 3 * len(d))
+    ours = bare = float("inf")
+    for _ in range(3):
+        ours = min(ours, best_time(lambda: op.apply(d, out=out), repeat=1))
+        bare = min(bare, best_time(lambda: np.matmul(w32, rhs, out=gemm_out), repeat=1))
+    return ours, bare, best_time(lambda: compact.apply(d, out=out), repeat=1)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=35_000)
@@ -134,17 +156,11 @@ def main() -> None:
     print(f"\nmax |ours - scipy| on frame 0 (float64): "
           f"{np.abs(op.apply(d[:1], dtype=np.float64)[0] - check).max():.2e} mm")
 
-    out = np.ones((t, n, 3), np.float32)                   # touched: no page faults timed
-    ours = best_time(lambda: op.apply(d, out=out), repeat=2)
     compact = ops["geodesic wendland_c2 (r=5 cm)"]
-    ours_compact = best_time(lambda: compact.apply(d, out=out), repeat=1)
-    del out
-    w32, rhs = op.matrix.astype(np.float32), np.ones((m, 3 * t), np.float32)
-    gemm_out = np.ones((n, 3 * t), np.float32)
-    bare = best_time(lambda: np.matmul(w32, rhs, out=gemm_out), repeat=2)
-    del gemm_out, rhs
+    ours, bare, ours_compact = against_gemm(op, compact, d)
 
-    print(f"\nretargeting {t} frames (float32 out, {t * n * 3 * 4 / 1e9:.2f} GB)")
+    print(f"\nretargeting {t} frames (float32 out, {t * n * 3 * 4 / 1e9:.2f} GB; "
+          f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']})")
     print(f"  {'method':44s} {'time (s)':>9s} {'ratio':>8s}")
     rows = [
         (f"scipy RBFInterpolator per frame (x{t // SCIPY_FRAMES} of {SCIPY_FRAMES} fr.)",

@@ -36,11 +36,12 @@ _SEQ_VERSION = 1
 _COLUMNS = ("frame", "time")
 
 
-def _weights(weights, n_names: int | None = None) -> np.ndarray:
-    """Weights (T, n) float64 from an array or a WeightSolution; NaN rejected."""
+def _weights(weights, n_names: int | None = None, *, copy: bool = True) -> np.ndarray:
+    """Weights (T, n) float64 from an array or a WeightSolution (a float64 array is not
+    copied with ``copy=False``); NaN rejected."""
     if isinstance(weights, WeightSolution):
         weights = weights.weights
-    weights = as_float_array(weights, "weights", shape=(None, n_names))
+    weights = as_float_array(weights, "weights", shape=(None, n_names), copy=copy)
     bad = np.argwhere(np.isnan(weights))
     if len(bad):
         raise InputError(f"weights contain NaN ({len(np.unique(bad[:, 0]))} frames, first at "
@@ -278,9 +279,10 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
     """
     if not isinstance(neutral, Mesh):
         raise InputError(f"neutral must be a Mesh, got {type(neutral).__name__}")
-    displacements = as_float_array(displacements, "displacements",
+    # checked where they are (no float64 copy): only their float32 values are stored
+    displacements = as_float_array(displacements, "displacements", copy=False,
                                    shape=(None, neutral.n_vertices, 3), allow_nan=False)
-    weights = _weights(weights, len(displacements))
+    weights = _weights(weights, len(displacements), copy=False)
     names = () if names is None else as_shape_names(names, len(displacements))
     rate = np.nan if rate is None else as_positive_float(rate, "rate")
     arrays = dict(format_version=np.int64(_SEQ_VERSION), faces=neutral.faces,
@@ -300,8 +302,8 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
         out = np.empty((len(weights), neutral.n_vertices, 3), dtype=np.float32)
         for start in range(0, len(weights), _CHUNK_FRAMES):  # chunks, not frames
             chunk = weights[start:start + _CHUNK_FRAMES] @ flat
-            out[start:start + _CHUNK_FRAMES] = chunk.reshape(-1, neutral.n_vertices, 3) \
-                + neutral.vertices
+            np.add(chunk.reshape(-1, neutral.n_vertices, 3), neutral.vertices,
+                   out=out[start:start + _CHUNK_FRAMES])              # rounded once, on store
         arrays["vertices"] = out
     else:
         arrays.update(neutral=neutral.vertices.astype(np.float32),

@@ -48,7 +48,7 @@ def dense_pca(xi):
 
 def fit(method, operator, disp, xi, n_components):
     if method == "implicit":
-        return pca_from_operator(operator, disp, n_components=n_components, chunk_frames=7)
+        return pca_from_operator(operator, disp, n_components=n_components)
     return pca_streaming(xi, n_components=n_components, method=method, chunk_frames=7)
 
 
@@ -200,7 +200,7 @@ def test_implicit_nan_frame_named():
     operator, disp, _ = make_case(**CASES["signal+noise"])
     disp[17, 2, 1] = np.nan
     with pytest.raises(InputError, match="displacements: frame 17 has NaN"):
-        pca_from_operator(operator, disp, chunk_frames=5)
+        pca_from_operator(operator, disp)
 
 
 def test_streaming_nan_frame_named():

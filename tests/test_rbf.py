@@ -100,6 +100,21 @@ def test_apply_equals_per_frame_loop(kernel, dtype, atol):
     np.testing.assert_array_equal(np.concatenate([blk for _, blk in blocks]), got)
 
 
+def test_apply_over_several_tiles_matches_scipy():
+    # more vertices and frames than one tile of the product holds, with partial tiles
+    # at both ends, against scipy interpolating every frame's x, y and z at once
+    points = RNG.uniform(-1.2, 1.2, (1300, 3))
+    d = RNG.normal(size=(150, len(CENTERS), 3))
+    ref = RBFInterpolator(CENTERS, d.transpose(1, 0, 2).reshape(len(CENTERS), -1))(points)
+    ref = ref.reshape(len(points), len(d), 3).transpose(1, 0, 2)
+    op = build_rbf_operator(CENTERS, points)
+    np.testing.assert_allclose(op.apply(d, dtype=np.float64), ref,
+                               atol=RBF_VS_SCIPY_RTOL * np.abs(ref).max())
+    got = op.apply(d)
+    np.testing.assert_allclose(got, ref, atol=RBF_APPLY_FLOAT32 * np.abs(ref).max())
+    np.testing.assert_array_equal(op.apply(d, chunk_frames=70), got)
+
+
 def test_apply_does_not_touch_input():
     op = build_rbf_operator(CENTERS, POINTS)
     d = RNG.normal(size=(4, len(CENTERS), 3))

@@ -86,7 +86,7 @@ def test_moments_stand_for_the_frames_and_one_take_is_the_take_pca():
 
 def test_marker_moments_match_numpy():
     d = random_session(seed=2)[1][0]
-    moments = marker_moments(d, chunk_frames=7)
+    moments = marker_moments(d)
     flat = d.reshape(len(d), -1)
     np.testing.assert_allclose(moments.mean.ravel(), flat.mean(axis=0), rtol=EXACT_FLOAT64)
     np.testing.assert_allclose(moments.covariance, np.cov(flat.T, bias=True),

@@ -1,0 +1,88 @@
+"""Benchmark: the exports of one basis of a 35,000-frame take, against writing their bytes.
+
+As ``bench_chain.py``'s exports stage writes them for each basis: the weights CSV
+(:func:`fit.exports.write_weights_csv`), the compact mesh sequence npz
+(:func:`fit.exports.write_mesh_sequence`) and the animated ``.glb``
+(:func:`basis.gltf.write_gltf`), here of the 53 ICT expressions on the 9,409-vertex ICT
+face, with signed weights (so the ``.glb`` carries ``.neg`` targets). Each is timed
+against ``numpy.ndarray.tofile`` of the bytes it wrote (the file read back as one
+uint8 array), alternately in one run (best of three each), so that a load on the
+machine weighs on both. The CSV is text: it is also timed against the floor of its
+formatting, ``repr`` of every float it holds (the shortest repr that reads back
+exactly, what it writes), joined into one string.
+
+Run: ``python bench/bench_exports.py [--frames 35000]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import best_time, shared_data  # noqa: E402
+
+from basis.gltf import write_gltf  # noqa: E402
+from fit.exports import write_mesh_sequence, write_weights_csv  # noqa: E402
+from mocap.mesh.mesh import Mesh  # noqa: E402
+
+RATE = 276.0
+N_SHAPES = 53
+
+
+def alternately(fn, floor) -> tuple[float, float]:
+    """Best of three of ``fn()`` and of ``floor()``, s, timed one after the other."""
+    ours = base = float("inf")
+    for _ in range(3):
+        ours = min(ours, best_time(fn, repeat=1))
+        base = min(base, best_time(floor, repeat=1))
+    return ours, base
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=35_000)
+    args = parser.parse_args()
+    face = trimesh.load(shared_data() / "ict-face" / "generic_neutral_mesh.obj", process=False)
+    neutral = Mesh(np.asarray(face.vertices), np.asarray(face.faces), units="cm")
+    rng = np.random.default_rng(0)
+    displacements = rng.normal(0.0, 0.1, (N_SHAPES, neutral.n_vertices, 3))   # cm
+    weights = rng.normal(0.3, 0.5, (args.frames, N_SHAPES))
+    names = [f"shape_{i:02d}" for i in range(N_SHAPES)]
+    out = Path(tempfile.mkdtemp(prefix="bench_exports_"))
+    print(f"{args.frames} frames, {N_SHAPES} shapes, ICT face {neutral.n_vertices} vertices")
+
+    exports = {
+        "weights CSV": (out / "weights.csv", lambda path: write_weights_csv(
+            path, weights, names, rate=RATE)),
+        "mesh sequence npz (compact)": (out / "mesh.npz", lambda path: write_mesh_sequence(
+            path, neutral, displacements, weights, names=names, rate=RATE)),
+        "glb (morph targets + weights)": (out / "face.glb", lambda path: write_gltf(
+            path, neutral, displacements, names, weights=weights, rate=RATE)),
+    }
+    print(f"\n{'export':<32}{'MB':>8}{'ours [s]':>10}{'tofile [s]':>12}{'ratio':>8}")
+    for name, (path, write) in exports.items():
+        write(path)
+        data = np.fromfile(path, dtype=np.uint8)
+        ours, floor = alternately(lambda: write(path),
+                                  lambda: data.tofile(out / "same-bytes.bin"))
+        print(f"{name:<32}{data.size / 1e6:>8.1f}{ours:>10.3f}{floor:>12.4f}"
+              f"{ours / floor:>8.1f}", flush=True)
+
+    cells = np.column_stack([np.arange(args.frames) / RATE, weights]).ravel()
+    csv_path, write_csv = exports["weights CSV"]
+    ours, floor = alternately(lambda: write_csv(csv_path),
+                              lambda: ",".join(map(repr, cells.tolist())))
+    print(f"\nweights CSV against formatting its {cells.size:,} floats with repr alone: "
+          f"{ours:.3f} s vs {floor:.3f} s, ratio {ours / floor:.2f} (aim: the text's floor "
+          "is its float formatting, ~100x tofile of its bytes)")
+    print("aim: npz and glb <= 2x tofile of the same bytes")
+
+
+if __name__ == "__main__":
+    main()
