@@ -4,16 +4,39 @@ The take is simulated (:func:`mocap.synth.capture.simulate_capture`: the ICT fac
 driven by ``alex_rom_4.csv``, sampled at 276 Hz so that its 127 s give 35,000
 frames; 66 markers of ``tests/ict_marker_layout.toml``, 0.2 mm noise, head
 motion, 60 gaps) and written to C3D. Timed per stage, as ``mocap2mesh run``
-runs them (:mod:`fit.pipeline.stages`): read + ingest (gap fill, stabilization),
+runs them (:mod:`fit.pipeline.stages`): read, ingest (gap fill, stabilization),
 bind (with the layout's 2 mm skin offset), retarget (W), bases (PCA of W·D
 without Ξ, quasi-eigen), fit (H at the exact marker centres, QE, PCA in marker
 space), exports (CSV, compact mesh npz, glb per basis) and the QA
 figures (no video). Peak memory: the process's maximum resident set size.
 
+Floors, timed in the same run on the same arrays: what each stage cannot go
+under.
+
+* read: reading the file's bytes (``numpy.fromfile``);
+* ingest: one pass over the take and one 3 × 3 SVD a frame (the rigid fit
+  of head stabilization), not a tight floor: the gap fill's regressions
+  and the stabilization's robust weights read the take a few times more;
+* bind: one pass over the take's positions (a copy), not a tight floor: the
+  neutral-frame search, the landmark fit and the projection onto the mesh
+  each read the take or the mesh once more;
+* retarget: one LU factorization of the (M + 4)² kernel system per variant
+  that ``kernel = "auto"`` scores, and one kernel evaluation at the N vertices;
+* bases: one GEMM of the centred marker displacements (T × 3M)ᵀ(T × 3M) and
+  its eigendecomposition;
+* fit: per basis, the unconstrained least-squares fit of every frame (one
+  eigendecomposition of BᵀB and one GEMM), and, for H, the bounded fit of
+  the linear (tangent) model that the exact marker centres refine;
+* exports: the same number of bytes written by one ``ndarray.tofile``;
+* QA figures + HTML: the figures' pixels encoded once more as PNG
+  (``cv2.imencode``) and the page's bytes written.
+
 Baseline, the naive chain, on the first ``--naive-frames`` frames: an RBF
 (scipy ``RBFInterpolator``) rebuilt for every frame, a dense SVD of the
-materialized Ξ for PCA, and ``scipy.optimize.lsq_linear`` per frame and basis.
-Ratios are per frame.
+materialized Ξ for PCA, ``scipy.optimize.lsq_linear`` per frame for QE and
+PCA, and for H at the exact marker centres ``scipy.optimize.least_squares``
+per frame on the whole deformed mesh (the first ``--naive-frames // 40``
+frames). Ratios are per frame.
 
 Usage: ``python bench/bench_chain.py [--frames 35000] [--naive-frames 200]``.
 """
@@ -21,16 +44,19 @@ Usage: ``python bench/bench_chain.py [--frames 35000] [--naive-frames 200]``.
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import tempfile
 import time
 import warnings
 from pathlib import Path
 
+import cv2
 import numpy as np
+import scipy.linalg
 from _common import REPO, shared_data
 from scipy.interpolate import RBFInterpolator
-from scipy.optimize import lsq_linear
+from scipy.optimize import least_squares, lsq_linear
 
 import mocap
 from basis.artist import ArtistBasis, load_artist_basis
@@ -47,6 +73,8 @@ from fit.pipeline import (
     retarget_stage,
 )
 from fit.report import build_report
+from fit.solve.marker_basis import marker_basis
+from fit.solve.weights import solve_weights
 from mocap.clean.ingest import IngestOptions
 from mocap.markerset import load_markerset
 from mocap.mesh.landmarks import load_mesh_landmarks
@@ -68,6 +96,97 @@ def simulate(frames: int, path: Path):
                                duration=(frames - 0.5) / rate, noise_mm=0.2, n_gaps=60, seed=2)
     mocap.write(sim.take, path)
     return basis, markerset, sim.take
+
+
+def fit_h_exact_naively(bound, retargeted, basis, data) -> None:
+    """H at the exact marker centres, frame by frame: ``least_squares`` on the whole mesh."""
+    layout = bound.binding.centre_layout(retargeted.mesh, retargeted.labels)
+    V0, E = retargeted.mesh.vertices, basis.displacements
+    rest = layout.positions(V0)
+    for d in data:
+        least_squares(lambda w, d=d: (layout.positions(V0 + np.tensordot(w, E, axes=1))
+                                      - rest - d).ravel(),
+                      np.zeros(len(E)), bounds=(basis.lower, basis.upper))
+
+
+def timed_best(fn, repeat: int = 3) -> float:
+    """Best wall time of `repeat` calls, s."""
+    best = np.inf
+    for _ in range(repeat):
+        tic = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - tic)
+    return best
+
+
+def measure_floors(out: Path, take, bound, retargeted, bases) -> dict:
+    """Each stage's floor (see the module docstring): stage name to (seconds, what it is)."""
+    floors = {}
+    path = out / "take.c3d"
+    floors["read"] = (timed_best(lambda: np.fromfile(path, np.uint8)),
+                      f"reading the file's {path.stat().st_size / 1e6:.0f} MB")
+    rotations = np.broadcast_to(np.eye(3), (take.n_frames, 3, 3))
+    floors["ingest"] = (timed_best(lambda: (take.positions.copy(), np.linalg.svd(rotations))),
+                        "one pass over the take, a 3x3 SVD a frame (not tight)")
+    floors["bind"] = (timed_best(lambda: take.positions.copy()),
+                      "one pass over the take (not tight)")
+    M = len(retargeted.labels)
+    selection = retargeted.selection
+    n_variants = len(selection.candidates) if selection else 1
+    rng = np.random.default_rng(0)
+    system = rng.standard_normal((M + 4, M + 4)) + (M + 4) * np.eye(M + 4)
+    vertices, centres = retargeted.mesh.vertices, rng.standard_normal((M, 3))
+    floors["retarget (W)"] = (
+        timed_best(lambda: [scipy.linalg.lu_factor(system) for _ in range(n_variants)])
+        + timed_best(lambda: np.sqrt(((vertices[:, None] - centres) ** 2).sum(axis=2))),
+        f"{n_variants} factorizations of the {M + 4}² system, one kernel at the vertices")
+    D = retargeted.displacements.reshape(take.n_frames, -1)
+
+    def pca_floor():
+        centred = D - D.mean(axis=0)
+        np.linalg.eigh(centred.T @ centred)
+    floors["bases (PCA, QE)"] = (timed_best(pca_floor), f"one GEMM ({D.shape[1]}² of "
+                                 f"{take.n_frames} frames) and its eigh")
+    binding = bound.binding
+
+    sampled = [marker_basis(binding, b.displacements, retargeted.labels)[b.n_fixed:]
+               for b in bases.bases.values()]
+
+    def least_squares_floor():
+        for at in sampled:
+            B = at.reshape(len(at), -1)
+            (D @ B.T) @ np.linalg.pinv(B @ B.T, hermitian=True)     # QE's G is singular
+    H = bases.bases["H"]
+    tangent = marker_basis(binding, H.displacements, retargeted.labels, mesh=retargeted.mesh)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        linear_h = timed_best(lambda: solve_weights(tangent, retargeted.displacements,
+                                                    lower=H.lower, upper=H.upper), repeat=1)
+    floors["fit (H, QE, PCA)"] = (timed_best(least_squares_floor),
+                                  f"3 unconstrained least-squares fits (H's bounded linear "
+                                  f"model: {linear_h:.2f} s)")
+    exported = [f for f in out.iterdir() if f.suffix in {".csv", ".npz", ".glb"}]
+    size = sum(f.stat().st_size for f in exported)
+    blob = np.zeros(size, np.uint8)
+    target = out / "floor.bin"
+
+    def write_bytes():
+        blob.tofile(target)
+        os.unlink(target)
+    floors["exports"] = (timed_best(write_bytes), f"tofile of the same {size / 1e6:.0f} MB")
+    report = out / "report"
+    images = [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in sorted(report.rglob("*.png"))]
+    pages = [f.read_bytes() for f in report.rglob("*.html")]
+
+    def encode_report():
+        for image in images:
+            cv2.imencode(".png", image)
+        for page in pages:
+            target.write_bytes(page)
+        os.unlink(target)
+    floors["QA figures + HTML"] = (timed_best(encode_report),
+                                   f"{len(images)} PNGs encoded, the page written")
+    return floors
 
 
 def main() -> None:
@@ -93,9 +212,9 @@ def main() -> None:
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ingested = timed("read + ingest", lambda: ingest_stage(
-            mocap.read(out / "take.c3d"), markerset,
-            IngestOptions(fill="auto", max_gap=sim_take.n_frames)))      # every gap, asked
+        raw = timed("read", lambda: mocap.read(out / "take.c3d"))
+        ingested = timed("ingest", lambda: ingest_stage(
+            raw, markerset, IngestOptions(fill="auto", max_gap=sim_take.n_frames)))  # every gap
         take = complete_span(ingested.take, markerset.face_markers)
         bound = timed("bind", lambda: bind_stage(take, markerset, mesh, landmarks,
                                                  options=BindOptions(skin_offset=2.0)))
@@ -120,13 +239,16 @@ def main() -> None:
             face, fitted.reconstructed, face.positions[bound.frame], out / "report",
             markerset=markerset, pca=bases.pca, ingest=ingested, video=False))
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    floors = measure_floors(out, take, bound, retargeted, bases)
     total = sum(times.values())
     T = take.n_frames
-    print(f"\n{'stage':<20} {'seconds':>8}")
+    print(f"\n{'stage':<20} {'seconds':>8} {'floor s':>8} {'ratio':>7}   floor")
     for name, sec in times.items():
-        print(f"{name:<20} {sec:>8.2f}")
-    print(f"{'total':<20} {total:>8.2f}   (aim < 60 s)")
-    print(f"peak RSS {peak:.2f} GB (after the simulation: {rss0:.2f} GB; aim < 3 GB); "
+        floor, what = floors[name]
+        print(f"{name:<20} {sec:>8.2f} {floor:>8.3f} {sec / floor:>6.1f}×   {what}")
+    print(f"{'total':<20} {total:>8.2f} {sum(f for f, _ in floors.values()):>8.3f} "
+          f"{total / sum(f for f, _ in floors.values()):>6.1f}×   (aim ≤ 20 s)")
+    print(f"peak RSS {peak:.2f} GB (after the simulation: {rss0:.2f} GB; aim ≤ 1.5 GB); "
           f"PCA m = {bases.n_components}")
 
     # naive chain on a subset of frames
@@ -143,24 +265,45 @@ def main() -> None:
     flat = xi.reshape(n, -1)
     np.linalg.svd(flat - flat.mean(axis=0), full_matrices=False)
     naive["bases (PCA, QE)"] = time.perf_counter() - tic
-    tic = time.perf_counter()
+    fit_naive = 0.0
     for name, b in bases.bases.items():
         at = binding.marker_points(b.displacements)[:, rows]
         B = at[b.n_fixed:].reshape(len(at) - b.n_fixed, -1).T
         data = (D - at[:b.n_fixed].sum(axis=0)).reshape(n, -1)
-        lo, hi = (0, 1) if name == "H" else (-np.inf, np.inf)
+        tic = time.perf_counter()
+        if name == "H":
+            n_h = max(2, n // 40)
+            fit_h_exact_naively(bound, retargeted, b, D[:n_h])
+            h_exact_naive = (time.perf_counter() - tic) * n / n_h
+            fit_naive += h_exact_naive
+            tangent = marker_basis(binding, b.displacements, retargeted.labels, mesh=mesh)
+            tic = time.perf_counter()
+            for d in D.reshape(n, -1):
+                lsq_linear(tangent.reshape(len(tangent), -1).T, d, bounds=(b.lower, b.upper),
+                           method="bvls")
+            h_linear_naive = time.perf_counter() - tic
+            continue
         for d in data:
-            lsq_linear(B, d, bounds=(lo, hi), method="bvls")
-    naive["fit (H, QE, PCA)"] = time.perf_counter() - tic
+            lsq_linear(B, d, method="bvls")
+        fit_naive += time.perf_counter() - tic
+    naive["fit (H, QE, PCA)"] = fit_naive
     print(f"\nnaive chain on {n} frames vs ours on {T} (per frame):")
     print(f"{'stage':<20} {'naive ms/frame':>14} {'ours ms/frame':>13} {'ratio':>8}")
     for name, sec in naive.items():
         ours = 1e3 * times[name] / T
         print(f"{name:<20} {1e3 * sec / n:>14.3f} {ours:>13.4f} {1e3 * sec / n / ours:>7.0f}×")
+    linear_naive = fit_naive - h_exact_naive + h_linear_naive
+    print(f"{'':<20} (with H by lsq_linear on its linear model instead of least_squares at "
+          f"the exact centres: {1e3 * linear_naive / n:.3f} ms/frame, "
+          f"{linear_naive / n / (times['fit (H, QE, PCA)'] / T):.0f}×)")
     naive_total = sum(naive.values()) / n
     ours_total = sum(times[k] for k in naive) / T
     print(f"{'retarget+bases+fit':<20} {1e3 * naive_total:>14.3f} {1e3 * ours_total:>13.4f} "
           f"{naive_total / ours_total:>7.0f}×")
+    others = sum(sec for name, sec in times.items() if name not in naive)
+    print(f"whole chain, the other stages counted as ours in both: naive "
+          f"{naive_total * T + others:.0f} s, ours {total:.1f} s, "
+          f"{(naive_total * T + others) / total:.0f}× (aim ≥ 100×)")
     print(f"naive chain extrapolated to {T} frames: {naive_total * T / 60:.0f} min "
           f"(the SVD grows faster than linearly)")
 
