@@ -28,7 +28,6 @@ import os
 import shutil
 import subprocess
 import sys
-import time
 
 import numpy as np
 from _common import REPO
