@@ -1,27 +1,22 @@
 """The report's matplotlib figures: drawn once, at the size the page shows them, every text
 as typed (PNG).
 
-:func:`report_figure` gives a figure to draw on and writes its pixels when the block ends:
-one draw (layout and rendering together, where ``savefig`` lays a constrained figure out in
-a draw of its own first), and plain text without a pass over the figure's artists (labels
-come from files: ``$\\frac{a}{$`` is drawn as typed).
+:func:`report_figure` gives a figure to draw on and writes its pixels when the block ends
+(:func:`mocap.viz.figures.draw_png`: one draw), with plain text without a pass over the
+figure's artists (labels come from files: ``$\\frac{a}{$`` is drawn as typed).
 """
 
 from __future__ import annotations
 
 from contextlib import contextmanager
 
-import cv2
-import numpy as np
 from matplotlib import rc_context
 from matplotlib.ticker import LogFormatter
 
-from mocap.errors import InputError
-from mocap.util.atomic import atomic_path
-from mocap.viz.figures import new_figure
+from mocap.viz.figures import draw_png, new_figure
 
 __all__ = ["DPI", "PAGE_WIDTH", "PAGE_WIDTH_PX", "FIGURE_MARGIN_PX", "IMAGE_WIDTH_PX",
-           "report_figure", "plain_log_axis", "write_png"]
+           "report_figure", "plain_log_axis"]
 
 #: Widest the report page's body gets, CSS pixels.
 PAGE_WIDTH_PX = 1400
@@ -34,9 +29,6 @@ IMAGE_WIDTH_PX = PAGE_WIDTH_PX - 2 * FIGURE_MARGIN_PX
 DPI = 120
 #: Figure width, inches, that fills the page's image width at :data:`DPI`.
 PAGE_WIDTH = IMAGE_WIDTH_PX / DPI
-#: zlib level of the PNGs: the size of level 9 at a fraction of its time (charts are flat
-#: colours; a lower level or OpenCV's default RLE makes noisy heatmaps several times larger).
-_PNG_LEVEL = 6
 
 
 @contextmanager
@@ -62,8 +54,7 @@ def report_figure(path, width: float, height: float):
         fig = new_figure(width, height)
         fig.set_dpi(DPI)
         yield fig
-        fig.canvas.draw()               # lays out, then renders
-    write_png(np.asarray(fig.canvas.buffer_rgba()), path)
+        draw_png(fig, path, dpi=DPI)
 
 
 class _PlainLogFormatter(LogFormatter):
@@ -78,19 +69,3 @@ def plain_log_axis(axis) -> None:
     (``$\\mathdefault{10^{0}}$``), which :func:`report_figure` turns off."""
     axis.set_major_formatter(_PlainLogFormatter())
     axis.set_minor_formatter(_PlainLogFormatter(labelOnlyBase=False))
-
-
-def write_png(image, path) -> None:
-    """Write an RGB (h, w, 3) or RGBA (h, w, 4, alpha dropped) uint8 image to `path` as PNG,
-    atomically."""
-    image = np.asarray(image)
-    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] not in (3, 4):
-        raise InputError(f"{path}: need a uint8 RGB or RGBA image, got {image.dtype} "
-                         f"{image.shape}")
-    code = cv2.COLOR_RGB2BGR if image.shape[2] == 3 else cv2.COLOR_RGBA2BGR
-    ok, data = cv2.imencode(".png", cv2.cvtColor(image, code),
-                            [cv2.IMWRITE_PNG_COMPRESSION, _PNG_LEVEL])
-    if not ok:
-        raise InputError(f"{path}: cannot encode the image as PNG")
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data.tobytes())

@@ -3,15 +3,18 @@
 Labels come from files (marker names, take names) and must reach matplotlib as
 plain text: :func:`save_figure` turns mathtext off on every text of the
 figure, so that a label such as ``$\\frac{a}{$`` is drawn as typed instead of
-failing the figure. Values are checked by :func:`plottable` before they size
+failing the figure. A figure is drawn once (:func:`draw_png`: ``savefig``
+lays a constrained figure out in a draw of its own first) and its pixels
+encoded by OpenCV. Values are checked by :func:`plottable` before they size
 axes or figures: non-finite or absurd values (a sample at 1e30 mm) are
 refused with an error naming where they are.
 """
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
-from matplotlib import colormaps
+from matplotlib import colormaps, rc_context
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.text import Text
@@ -19,10 +22,14 @@ from matplotlib.text import Text
 from mocap.errors import InputError
 from mocap.util.atomic import atomic_path
 
-__all__ = ["MAX_PLOT_MM", "new_figure", "save_figure", "distinct_colours", "plottable"]
+__all__ = ["MAX_PLOT_MM", "new_figure", "save_figure", "draw_png", "write_png",
+           "distinct_colours", "plottable"]
 
 #: Positions and distances beyond this many mm (1 km) are no capture: refused before plotting.
 MAX_PLOT_MM = 1e6
+#: zlib level of the PNGs: the size of level 9 at a fraction of its time (charts are flat
+#: colours; a lower level or OpenCV's default RLE makes noisy heatmaps several times larger).
+_PNG_LEVEL = 6
 
 
 def new_figure(width: float, height: float) -> Figure:
@@ -36,8 +43,32 @@ def save_figure(fig: Figure, path, *, dpi: int = 120) -> None:
     """Write `fig` as PNG to `path` (temp file + rename), every text drawn as plain text."""
     for text in fig.findobj(Text):
         text.set_parse_math(False)
+    draw_png(fig, path, dpi=dpi)
+
+
+def draw_png(fig: Figure, path, *, dpi: int = 120) -> None:
+    """Draw `fig` once at `dpi` (layout and rendering together) and write its pixels to
+    `path` as PNG, atomically; texts the draw makes (tick labels) are plain text."""
+    with rc_context({"text.parse_math": False}):
+        fig.set_dpi(dpi)
+        fig.canvas.draw()
+    write_png(np.asarray(fig.canvas.buffer_rgba()), path)
+
+
+def write_png(image, path) -> None:
+    """Write an RGB (h, w, 3) or RGBA (h, w, 4, alpha dropped) uint8 image to `path` as PNG,
+    atomically."""
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] not in (3, 4):
+        raise InputError(f"{path}: need a uint8 RGB or RGBA image, got {image.dtype} "
+                         f"{image.shape}")
+    code = cv2.COLOR_RGB2BGR if image.shape[2] == 3 else cv2.COLOR_RGBA2BGR
+    ok, data = cv2.imencode(".png", cv2.cvtColor(image, code),
+                            [cv2.IMWRITE_PNG_COMPRESSION, _PNG_LEVEL])
+    if not ok:
+        raise InputError(f"{path}: cannot encode the image as PNG")
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png")
+        tmp.write_bytes(data.tobytes())
 
 
 def distinct_colours(n: int) -> list:
