@@ -28,8 +28,8 @@ under.
   eigendecomposition of BᵀB and one GEMM), and, for H, the bounded fit of
   the linear (tangent) model that the exact marker centres refine;
 * exports: the same number of bytes written by one ``ndarray.tofile``;
-* QA figures + HTML: the figures' pixels encoded once more as PNG
-  (``cv2.imencode``) and the page's bytes written.
+* QA figures + HTML: the figures' pixels encoded once more by the report's PNG
+  encoder and the page's bytes written (:func:`_common.report_floor`).
 
 Baseline, the naive chain, on the first ``--naive-frames`` frames: an RBF
 (scipy ``RBFInterpolator``) rebuilt for every frame, a dense SVD of the
@@ -51,10 +51,9 @@ import time
 import warnings
 from pathlib import Path
 
-import cv2
 import numpy as np
 import scipy.linalg
-from _common import REPO, shared_data
+from _common import REPO, best_time, report_floor, shared_data
 from scipy.interpolate import RBFInterpolator
 from scipy.optimize import least_squares, lsq_linear
 
@@ -109,26 +108,16 @@ def fit_h_exact_naively(bound, retargeted, basis, data) -> None:
                       np.zeros(len(E)), bounds=(basis.lower, basis.upper))
 
 
-def timed_best(fn, repeat: int = 3) -> float:
-    """Best wall time of `repeat` calls, s."""
-    best = np.inf
-    for _ in range(repeat):
-        tic = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - tic)
-    return best
-
-
 def measure_floors(out: Path, take, bound, retargeted, bases) -> dict:
     """Each stage's floor (see the module docstring): stage name to (seconds, what it is)."""
     floors = {}
     path = out / "take.c3d"
-    floors["read"] = (timed_best(lambda: np.fromfile(path, np.uint8)),
+    floors["read"] = (best_time(lambda: np.fromfile(path, np.uint8)),
                       f"reading the file's {path.stat().st_size / 1e6:.0f} MB")
     rotations = np.broadcast_to(np.eye(3), (take.n_frames, 3, 3))
-    floors["ingest"] = (timed_best(lambda: (take.positions.copy(), np.linalg.svd(rotations))),
+    floors["ingest"] = (best_time(lambda: (take.positions.copy(), np.linalg.svd(rotations))),
                         "one pass over the take, a 3x3 SVD a frame (not tight)")
-    floors["bind"] = (timed_best(lambda: take.positions.copy()),
+    floors["bind"] = (best_time(lambda: take.positions.copy()),
                       "one pass over the take (not tight)")
     M = len(retargeted.labels)
     selection = retargeted.selection
@@ -137,15 +126,15 @@ def measure_floors(out: Path, take, bound, retargeted, bases) -> dict:
     system = rng.standard_normal((M + 4, M + 4)) + (M + 4) * np.eye(M + 4)
     vertices, centres = retargeted.mesh.vertices, rng.standard_normal((M, 3))
     floors["retarget (W)"] = (
-        timed_best(lambda: [scipy.linalg.lu_factor(system) for _ in range(n_variants)])
-        + timed_best(lambda: np.sqrt(((vertices[:, None] - centres) ** 2).sum(axis=2))),
+        best_time(lambda: [scipy.linalg.lu_factor(system) for _ in range(n_variants)])
+        + best_time(lambda: np.sqrt(((vertices[:, None] - centres) ** 2).sum(axis=2))),
         f"{n_variants} factorizations of the {M + 4}² system, one kernel at the vertices")
     D = retargeted.displacements.reshape(take.n_frames, -1)
 
     def pca_floor():
         centred = D - D.mean(axis=0)
         np.linalg.eigh(centred.T @ centred)
-    floors["bases (PCA, QE)"] = (timed_best(pca_floor), f"one GEMM ({D.shape[1]}² of "
+    floors["bases (PCA, QE)"] = (best_time(pca_floor), f"one GEMM ({D.shape[1]}² of "
                                  f"{take.n_frames} frames) and its eigh")
     binding = bound.binding
 
@@ -160,9 +149,9 @@ def measure_floors(out: Path, take, bound, retargeted, bases) -> dict:
     tangent = marker_basis(binding, H.displacements, retargeted.labels, mesh=retargeted.mesh)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        linear_h = timed_best(lambda: solve_weights(tangent, retargeted.displacements,
+        linear_h = best_time(lambda: solve_weights(tangent, retargeted.displacements,
                                                     lower=H.lower, upper=H.upper), repeat=1)
-    floors["fit (H, QE, PCA)"] = (timed_best(least_squares_floor),
+    floors["fit (H, QE, PCA)"] = (best_time(least_squares_floor),
                                   f"3 unconstrained least-squares fits (H's bounded linear "
                                   f"model: {linear_h:.2f} s)")
     exported = [f for f in out.iterdir() if f.suffix in {".csv", ".npz", ".glb"}]
@@ -173,19 +162,11 @@ def measure_floors(out: Path, take, bound, retargeted, bases) -> dict:
     def write_bytes():
         blob.tofile(target)
         os.unlink(target)
-    floors["exports"] = (timed_best(write_bytes), f"tofile of the same {size / 1e6:.0f} MB")
+    floors["exports"] = (best_time(write_bytes), f"tofile of the same {size / 1e6:.0f} MB")
     report = out / "report"
-    images = [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in sorted(report.rglob("*.png"))]
-    pages = [f.read_bytes() for f in report.rglob("*.html")]
-
-    def encode_report():
-        for image in images:
-            cv2.imencode(".png", image)
-        for page in pages:
-            target.write_bytes(page)
-        os.unlink(target)
-    floors["QA figures + HTML"] = (timed_best(encode_report),
-                                   f"{len(images)} PNGs encoded, the page written")
+    floors["QA figures + HTML"] = (
+        min(report_floor(report.rglob("*"), out / "floor")[0] for _ in range(3)),
+        f"{len(list(report.rglob('*.png')))} PNGs encoded, the page written")
     return floors
 
 

@@ -7,7 +7,7 @@ each figure's own time beside the time of encoding its pixels.
 
 Floor: what the report must do however its figures are drawn, i.e. encode the pixels of
 every PNG it writes (decoded from its own files beforehand, then encoded again by
-:func:`fit.report.drawing.write_png`, the report's encoder: zlib level 6) and write the
+:func:`mocap.viz.figures.write_png`, the report's encoder: zlib level 6) and write the
 HTML page's bytes. Drawing is what lies between the two; the ratio says how far from the
 floor it is. Ratios are of one run (the machine may be shared).
 
@@ -25,15 +25,13 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import cv2  # noqa: E402
-from _common import REPO  # noqa: E402
+from _common import REPO, report_floor  # noqa: E402
 from bench_chain import simulate  # noqa: E402
 
 import fit.report.drawing  # noqa: E402
 import mocap  # noqa: E402
 from fit import pipeline  # noqa: E402
 from fit.report import build_report  # noqa: E402
-from fit.report.drawing import write_png  # noqa: E402
 from mocap.clean.ingest import IngestOptions  # noqa: E402
 from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
 
@@ -70,38 +68,22 @@ def figure_seconds(args: dict, out: Path) -> dict:
     name: the report once more, with :mod:`fit.report.drawing` timed (the coverage plot of
     :mod:`basis` is drawn without it)."""
     seconds, started = {}, []
-    new_figure, write_png_ = fit.report.drawing.new_figure, fit.report.drawing.write_png
+    new_figure, draw_png = fit.report.drawing.new_figure, fit.report.drawing.draw_png
 
     def start(*size):
         started.append(time.perf_counter())
         return new_figure(*size)
 
-    def end(image, path):
-        write_png_(image, path)
+    def end(fig, path, **options):
+        draw_png(fig, path, **options)
         seconds[Path(path).name] = time.perf_counter() - started.pop()
 
-    fit.report.drawing.new_figure, fit.report.drawing.write_png = start, end
+    fit.report.drawing.new_figure, fit.report.drawing.draw_png = start, end
     try:
         report(args, out)
     finally:
-        fit.report.drawing.new_figure, fit.report.drawing.write_png = new_figure, write_png_
+        fit.report.drawing.new_figure, fit.report.drawing.draw_png = new_figure, draw_png
     return seconds
-
-
-def floor_seconds(files: dict, out: Path) -> tuple[float, dict]:
-    """The floor: every PNG's pixels encoded again, and the HTML bytes written."""
-    pngs = {path.name: cv2.imread(str(path))[:, :, ::-1] for path in files.values()
-            if path.suffix == ".png"}
-    page = files["html"].read_bytes()
-    out.mkdir(exist_ok=True)
-    per_png = {}
-    for name, pixels in pngs.items():
-        tic = time.perf_counter()
-        write_png(pixels, out / name)
-        per_png[name] = time.perf_counter() - tic
-    tic = time.perf_counter()
-    (out / "page.html").write_bytes(page)
-    return sum(per_png.values()) + time.perf_counter() - tic, per_png
 
 
 def main() -> None:
@@ -120,7 +102,7 @@ def main() -> None:
         tic = time.perf_counter()
         files = report(args, out / f"report-{k}")
         best = min(best, time.perf_counter() - tic)
-        total, per_png = floor_seconds(files, out / f"floor-{k}")
+        total, per_png = report_floor(files.values(), out / f"floor-{k}")
         floor = min(floor, total)
     seconds = figure_seconds(args, out / "figures")
     print(f"\n{'figure':<28} {'drawn s':>8} {'encode s':>9}")
