@@ -49,6 +49,7 @@ from fit.cli.main import main as cli  # noqa: E402
 from mocap.synth.capture import load_capture_truth  # noqa: E402
 
 OUT = REPO / "bench" / "out" / "fit-options"
+MAX_GAP_FRAMES = 60
 VARIANTS = (
     ("exact", {}),
     *((f"smoothness λ = {lam:g}", {"smoothness": lam})
@@ -86,7 +87,9 @@ def config_text(root: Path, capture: Path, output: Path, fit: dict) -> str:
             f'mesh = "{ict / "generic_neutral_mesh.obj"}"\nmesh_units = "cm"\n'
             f'landmarks = "{REPO / "tests" / "ict_landmarks.toml"}"\n'
             f'basis = "{ict / "expressions"}"\n\n'
-            f'[output]\ndirectory = "{output}"\nworkers = 1\n\n'
+            f'[output]\ndirectory = "{output}"\n\n[run]\nworkers = 1\n\n'
+            # synth's 40 gaps last up to 1 s: fill them all (the default is 0.1 s)
+            f'[ingest]\nmax_gap = {MAX_GAP_FRAMES}\n\n'
             f'[bind]\nframe = "hold"\nskin_offset = 2.0\n\n'
             f'[fit]\nspace = "marker"\n{fit_lines}\n[report]\nvideo = false\n')
 
