@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 import pytest
 import scipy.sparse as sp
+import threadpoolctl
 from helpers import slit_grid
 from scipy.interpolate import BSpline, RBFInterpolator
 from scipy.spatial.distance import cdist
@@ -18,6 +19,7 @@ from tolerances import (
     RBF_AFFINE_ICT_CM,
     RBF_APPLY_FLOAT32,
     RBF_REGION_SUM,
+    RBF_RETILED_EPS,
     RBF_VS_SCIPY_RTOL,
 )
 
@@ -93,11 +95,12 @@ def test_apply_equals_per_frame_loop(kernel, dtype, atol):
     assert got.dtype == dtype and got.shape == (23, len(POINTS), 3)
     np.testing.assert_allclose(got, expected, atol=atol)
     out = np.empty_like(got)
-    assert op.apply(d, dtype=dtype, out=out) is out
+    assert op.apply(d, chunk_frames=5, dtype=dtype, out=out) is out
     np.testing.assert_array_equal(out, got)
+    assert_retiled(op.apply(d, dtype=dtype), got)
     blocks = list(op.iter_chunks(d, chunk_frames=10, dtype=dtype))
     assert [fr for fr, _ in blocks] == [slice(0, 10), slice(10, 20), slice(20, 23)]
-    np.testing.assert_array_equal(np.concatenate([blk for _, blk in blocks]), got)
+    assert_retiled(np.concatenate([blk for _, blk in blocks]), got)
 
 
 def test_apply_over_several_tiles_matches_scipy():
@@ -112,7 +115,36 @@ def test_apply_over_several_tiles_matches_scipy():
                                atol=RBF_VS_SCIPY_RTOL * np.abs(ref).max())
     got = op.apply(d)
     np.testing.assert_allclose(got, ref, atol=RBF_APPLY_FLOAT32 * np.abs(ref).max())
-    np.testing.assert_array_equal(op.apply(d, chunk_frames=70), got)
+    assert_retiled(op.apply(d, chunk_frames=70), got)
+
+
+def test_apply_shares_tiles_among_blas_threads():
+    # with a BLAS of two threads the tiles are shared between two Python threads, each
+    # on a one-thread BLAS: the same tiles, so the same bits as on one thread
+    points = RNG.uniform(-1.2, 1.2, (1300, 3))
+    d = RNG.normal(size=(150, len(CENTERS), 3))
+    op = build_rbf_operator(CENTERS, points)
+    with threadpoolctl.threadpool_limits(1, user_api="blas"):
+        one = op.apply(d)
+    with threadpoolctl.threadpool_limits(2, user_api="blas"):
+        if _blas_threads() < 2:
+            pytest.skip("this BLAS cannot run two threads")
+        two = op.apply(d)
+        assert _blas_threads() == 2                 # the tiles' one-thread limit is undone
+    np.testing.assert_array_equal(two, one)
+
+
+def _blas_threads() -> int:
+    return max(lib["num_threads"] for lib in threadpoolctl.threadpool_info()
+               if lib["user_api"] == "blas")
+
+
+def assert_retiled(actual, desired):
+    """The same product cut into other tiles: equal but for the BLAS's order of sums."""
+    assert actual.dtype == desired.dtype
+    eps = np.finfo(desired.dtype).eps
+    np.testing.assert_allclose(actual, desired, rtol=0,
+                               atol=RBF_RETILED_EPS * eps * np.abs(desired).max())
 
 
 def test_apply_does_not_touch_input():

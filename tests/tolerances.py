@@ -244,6 +244,10 @@ RBF_AFFINE_EXACT = 1e-9
 RBF_AFFINE_ICT_CM = 1e-8
 #: op.apply in float32 against a float64 loop over frames (sums of 25 O(1) products), abs.
 RBF_APPLY_FLOAT32 = 1e-4
+#: op.apply cut into other tiles (chunk sizes, threads): the BLAS may sum a row's 25
+#: products in another order for another row count, so the same result to a few units
+#: of rounding of the largest value, in units of the dtype's eps (rel).
+RBF_RETILED_EPS = 32
 #: Influence of upper-lip centres across the slit of the grid (geodesic support 0.15 <
 #: the way around): none, but rounding.
 RBF_ACROSS_CUT = 1e-9

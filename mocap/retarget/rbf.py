@@ -9,10 +9,12 @@ whole take costs one matrix product per chunk of frames: ``Xi(t) = W D(t)``.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+import threadpoolctl
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
@@ -207,6 +209,12 @@ _TILE_POINTS = 512
 class _TiledProduct:
     """``block[t] = W @ d[t]`` for a chunk of frames, one GEMM per cache-sized tile.
 
+    The tiles are too small for a threaded BLAS to split well (its threads meet
+    at every one of ~10,000 small GEMMs), so with a BLAS of k threads the frames'
+    tiles are shared among k Python threads instead, the BLAS running on one
+    thread (numpy releases the GIL in the GEMM and the copies). One-thread tiles
+    also make the result independent of the thread count, bit for bit.
+
     Parameters
     ----------
     wt : ndarray of shape (n_centers, n_points)
@@ -217,24 +225,42 @@ class _TiledProduct:
 
     def __init__(self, wt: np.ndarray, tile_frames: int):
         self.wt = wt
-        self.lhs = np.empty((3, tile_frames, wt.shape[0]), wt.dtype)
-        self.scratch = np.empty((3 * tile_frames, min(_TILE_POINTS, wt.shape[1])), wt.dtype)
+        self.tile_frames = tile_frames
+        self.blas = threadpoolctl.ThreadpoolController().select(user_api="blas")
+        self.workers = max([1, *(lib["num_threads"] for lib in self.blas.info())])
+        shape = (3 * tile_frames, min(_TILE_POINTS, wt.shape[1]))
+        self.scratch = [(np.empty((3, tile_frames, wt.shape[0]), wt.dtype),
+                         np.empty(shape, wt.dtype)) for _ in range(self.workers)]
 
     def __call__(self, d: np.ndarray, block: np.ndarray) -> None:
         """Write the vertex displacements of marker displacements `d` (c, M, 3) into
         `block` (c, N, 3)."""
+        starts = range(0, len(d), self.tile_frames)
+        workers = min(self.workers, len(starts))
+        with self.blas.limit(limits=1):
+            if workers == 1:
+                self._tiles(d, block, starts, *self.scratch[0])
+                return
+            with ThreadPoolExecutor(workers) as pool:
+                shares = [pool.submit(self._tiles, d, block, starts[k::workers],
+                                      *self.scratch[k]) for k in range(workers)]
+                for share in shares:
+                    share.result()
+
+    def _tiles(self, d, block, starts, lhs_scratch, scratch) -> None:
+        """The tiles of the frames starting at `starts`, with one thread's scratch."""
         n_centers, n_points = self.wt.shape
-        for first in range(0, len(d), self.lhs.shape[1]):
-            frames = slice(first, min(first + self.lhs.shape[1], len(d)))
+        for first in starts:
+            frames = slice(first, min(first + self.tile_frames, len(d)))
             f = frames.stop - frames.start
             # rows (coordinate, frame) of D: (3f, M) @ W^T tile (M, n) = (W_tile @ D)^T
-            lhs = self.lhs[:, :f]
+            lhs = lhs_scratch[:, :f]
             lhs[...] = d[frames].transpose(2, 0, 1)
             lhs = lhs.reshape(3 * f, n_centers)
             for v in range(0, n_points, _TILE_POINTS):
                 points = slice(v, min(v + _TILE_POINTS, n_points))
                 n = points.stop - points.start
-                prod = np.matmul(lhs, self.wt[:, points], out=self.scratch[:3 * f, :n])
+                prod = np.matmul(lhs, self.wt[:, points], out=scratch[:3 * f, :n])
                 _interleave(prod.reshape(3, f, n), block[frames, points])
 
 
