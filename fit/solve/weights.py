@@ -17,6 +17,7 @@ from fit.solve._problem import as_bounds, as_problem
 from fit.solve.gcv import SMOOTHNESS_RULES, gcv_smoothness
 from fit.solve.temporal import solve_smooth
 from mocap.errors import InputError
+from mocap.util.blas import on_one_blas_thread
 from mocap.util.validation import as_float_array, as_int
 
 __all__ = ["WeightSolution", "solve_weights", "as_smoothness"]
@@ -65,6 +66,7 @@ class WeightSolution:
     smoothness: float = 0.0
 
 
+@on_one_blas_thread
 def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
                   warm_start: bool = True, smoothness: float | str = 0.0,
                   tol: float = 1e-9, max_iter: int | None = None,
@@ -142,6 +144,9 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
     (G⁻¹ computed once); frames of about equal size are factored together,
     and the monotone phase borders a factorization with the one variable its
     next iteration changes instead of factoring anew.
+
+    The products are of n-wide batches: the solve runs on one BLAS thread
+    (:func:`mocap.util.blas.one_blas_thread`), whatever the BLAS is set to.
 
     References
     ----------

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-import threadpoolctl
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
@@ -24,6 +23,7 @@ from mocap.mesh.regions import RegionWeights, as_region_markers, painted_region_
 from mocap.retarget import _kernels as _k
 from mocap.retarget import _system
 from mocap.retarget._kernels import COMPACT_KERNELS, KERNELS
+from mocap.util.blas import blas_threads, one_blas_thread
 from mocap.util.validation import as_choice, as_float_array, as_int
 
 __all__ = ["RBFOperator", "RBFSolveInfo", "build_rbf_operator", "KERNELS", "DISTANCES"]
@@ -226,8 +226,7 @@ class _TiledProduct:
     def __init__(self, wt: np.ndarray, tile_frames: int):
         self.wt = wt
         self.tile_frames = tile_frames
-        self.blas = threadpoolctl.ThreadpoolController().select(user_api="blas")
-        self.workers = max([1, *(lib["num_threads"] for lib in self.blas.info())])
+        self.workers = blas_threads()
         shape = (3 * tile_frames, min(_TILE_POINTS, wt.shape[1]))
         self.scratch = [(np.empty((3, tile_frames, wt.shape[0]), wt.dtype),
                          np.empty(shape, wt.dtype)) for _ in range(self.workers)]
@@ -237,7 +236,7 @@ class _TiledProduct:
         `block` (c, N, 3)."""
         starts = range(0, len(d), self.tile_frames)
         workers = min(self.workers, len(starts))
-        with self.blas.limit(limits=1):
+        with one_blas_thread():
             if workers == 1:
                 self._tiles(d, block, starts, *self.scratch[0])
                 return
