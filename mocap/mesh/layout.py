@@ -29,6 +29,7 @@ from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.mesh.mesh import Mesh
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
+from mocap.util.blas import on_one_blas_thread
 from mocap.util.toml import read_toml
 from mocap.util.validation import as_float_array
 
@@ -163,12 +164,13 @@ class MarkerLayout:
             out[first:first + part.shape[-1]] = self._place(part, offset=offset)
         return out.reshape(batch + out.shape[1:])
 
+    @on_one_blas_thread
     def positions_under_weights(self, neutral, displacements, weights) -> np.ndarray:
         """Marker positions on ``neutral + Σ_i w_i e_i`` for each row of `weights`.
 
         Only the vertices the markers and their normals read are formed (no
         mesh is), by one product with the weights, frames ``_FRAMES_PER_PASS``
-        at a time.
+        at a time (too small a product to split: on one BLAS thread).
 
         Parameters
         ----------
