@@ -17,6 +17,7 @@ from tolerances import (
     EXACT_FLOAT64,
     EXACT_MM,
     FLOAT32_FACE_CM,
+    FLOAT32_REL,
     GESTURES_AT_BOUND,
     GESTURES_CLI_VS_API,
     GESTURES_NOISE_FREE,
@@ -666,7 +667,11 @@ def test_cli_transfers_details_onto_the_ict_face(ict_mesh, ict_layout, ict_neutr
     total = np.tensordot(seq.weights, seq.displacements, axes=1)
     np.testing.assert_allclose(total - blend, want_details, atol=FLOAT32_FACE_CM)
     far = cdist(neutral.vertices, centers).min(axis=1) >= support
-    assert far.sum() > 0.5 * len(far) and np.all(total[:, far] == blend[:, far])
+    # far from the markers the details are exact zeros: the blend alone, but for the
+    # order the BLAS sums the shapes in
+    assert far.sum() > 0.5 * len(far)
+    np.testing.assert_allclose(total[:, far], blend[:, far], rtol=0,
+                               atol=FLOAT32_REL * np.abs(blend).max())
     assert (out / "gestures.glb").stat().st_size > 0
 
 
