@@ -34,6 +34,7 @@ units is written unscaled, with a warning.
 from __future__ import annotations
 
 import base64
+import json
 import struct
 import warnings
 from dataclasses import dataclass
@@ -65,7 +66,11 @@ _GLB_HEADER, _CHUNK_HEADER = 12, 8
 
 
 class _Buffer:
-    """One glTF buffer assembled from float32/uint32 arrays, one view each."""
+    """One glTF buffer assembled from float32/uint32 arrays, one view and accessor each.
+
+    Views and accessors are the glTF JSON objects as dicts, with pygltflib's key
+    order (so that the document is the one ``pygltflib.GLTF2.gltf_to_json`` writes).
+    """
 
     def __init__(self):
         self.chunks, self.views, self.accessors, self.length = [], [], [], 0
@@ -75,18 +80,19 @@ class _Buffer:
         component = pygltflib.UNSIGNED_INT if arr.dtype == np.uint32 else pygltflib.FLOAT
         data = np.ascontiguousarray(arr, dtype="<u4" if component == pygltflib.UNSIGNED_INT
                                     else "<f4")
-        # every element is 4 bytes: views stay 4-byte aligned
-        stride = data.itemsize * data.shape[1] if target == _ARRAY_BUFFER else None
-        self.views.append(pygltflib.BufferView(buffer=0, byteOffset=self.length,
-                                               byteLength=data.nbytes, byteStride=stride,
-                                               target=target))
-        # one reduction per column, each a single strided loop (an axis-0 reduction of a
-        # (count, 3) array loops over the 3 components innermost, ~8 times slower)
-        columns = data.reshape(len(data), -1).T
-        self.accessors.append(pygltflib.Accessor(
-            bufferView=len(self.views) - 1, componentType=component, count=len(data),
-            type=kind, min=[c.min().item() for c in columns],
-            max=[c.max().item() for c in columns]))
+        view = {"buffer": 0, "byteOffset": self.length, "byteLength": data.nbytes}
+        if target == _ARRAY_BUFFER:     # every element is 4 bytes: views stay 4-byte aligned
+            view["byteStride"] = data.itemsize * data.shape[1]
+        if target is not None:
+            view["target"] = target
+        self.views.append(view)
+        # the components as contiguous rows, reduced along them (an axis-0 reduction of a
+        # (count, 3) array loops over the 3 components innermost, ~20 times slower)
+        columns = np.ascontiguousarray(data.reshape(len(data), -1).T)
+        self.accessors.append({
+            "bufferView": len(self.views) - 1, "byteOffset": 0, "componentType": component,
+            "normalized": False, "count": len(data), "type": kind,
+            "max": columns.max(axis=1).tolist(), "min": columns.min(axis=1).tolist()})
         self.chunks.append(data)
         self.length += data.nbytes
         return len(self.accessors) - 1
@@ -118,10 +124,14 @@ class MorphTargets:
     shape: np.ndarray
     factor: np.ndarray
 
-    def weights(self, weights) -> np.ndarray:
-        """Target weights (T, K) in [0, 1] of shape weights (T, n)."""
-        out = np.asarray(weights, dtype=float)[:, self.shape]     # a new array: scaled in place
-        out /= self.factor
+    def weights(self, weights, dtype=np.float64) -> np.ndarray:
+        """Target weights (T, K) in [0, 1] of shape weights (T, n), as `dtype` (rounded
+        once, from the float64 quotients)."""
+        weights = np.asarray(weights, dtype=float)
+        out = np.empty((len(weights), len(self.shape)), dtype=dtype)
+        # np.take along axis 1 gathers whole rows (C-contiguous), unlike weights[:, shape]
+        np.divide(np.take(weights, self.shape, axis=1), self.factor, out=out,
+                  casting="same_kind")
         return np.maximum(out, 0.0, out=out)
 
     def shape_weights(self, target_weights) -> np.ndarray:
@@ -251,7 +261,7 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
         raise InputError(f"neutral must be a Mesh, got {type(neutral).__name__}")
     n_vertices = neutral.n_vertices
     displacements = as_float_array(displacements, "displacements", shape=(None, n_vertices, 3),
-                                   allow_nan=False)
+                                   allow_nan=False, copy=False)
     names = as_shape_names(names, len(displacements))
     times, weights, motion = _animation(weights, rotation, translation, rate, len(names),
                                         first_frame)
@@ -263,40 +273,37 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
     buf = _Buffer()
     indices = buf.add(neutral.faces.reshape(-1).astype(np.uint32), pygltflib.SCALAR,
                       target=_ELEMENT_ARRAY_BUFFER)
-    position = buf.add(neutral.vertices * scale, pygltflib.VEC3, target=_ARRAY_BUFFER)
+    position = buf.add(_scaled(neutral.vertices, scale), pygltflib.VEC3, target=_ARRAY_BUFFER)
     normal = buf.add(normals, pygltflib.VEC3, target=_ARRAY_BUFFER)
-    morphs = [{"POSITION": buf.add(displacements[i] * (f * scale), pygltflib.VEC3,
+    morphs = [{"POSITION": buf.add(_scaled(displacements[i], f * scale), pygltflib.VEC3,
                                    target=_ARRAY_BUFFER)}
               for i, f in zip(targets.shape, targets.factor)]
-    primitive = pygltflib.Primitive(
-        attributes=pygltflib.Attributes(POSITION=position, NORMAL=normal), indices=indices,
-        mode=pygltflib.TRIANGLES, targets=morphs)
     record = {"shapes": list(names), "target_shape": targets.shape.tolist(),
               "target_factor": targets.factor.tolist()}
-    mesh = pygltflib.Mesh(name=name, primitives=[primitive], weights=[0.0] * len(targets.names),
-                          extras={"targetNames": list(targets.names), "mocap2mesh": record})
-    animations = []
+    # the glTF JSON objects, keys in pygltflib's order, empty ones left out as it does
+    primitive = {"attributes": {"POSITION": position, "NORMAL": normal}, "indices": indices,
+                 "mode": pygltflib.TRIANGLES, "targets": morphs}
+    mesh = {"extras": {"targetNames": list(targets.names), "mocap2mesh": record},
+            "primitives": [primitive], "weights": [0.0] * len(targets.names), "name": name}
+    gltf = {"accessors": buf.accessors}
     if times is not None:
         time = buf.add(times, pygltflib.SCALAR)
         outputs = [] if weights is None else [
-            ("weights", buf.add(targets.weights(weights).reshape(-1), pygltflib.SCALAR))]
+            ("weights", buf.add(targets.weights(weights, np.float32).reshape(-1),
+                                pygltflib.SCALAR))]
         if motion is not None:
             outputs += [("rotation", buf.add(motion[0], pygltflib.VEC4)),
-                        ("translation", buf.add(motion[1] * scale, pygltflib.VEC3))]
-        samplers = [pygltflib.AnimationSampler(input=time, output=out,
-                                               interpolation=pygltflib.ANIM_LINEAR)
-                    for _, out in outputs]
-        channels = [pygltflib.AnimationChannel(
-            sampler=i, target=pygltflib.AnimationChannelTarget(node=0, path=target))
-            for i, (target, _) in enumerate(outputs)]
-        animations = [pygltflib.Animation(name=name, samplers=samplers, channels=channels,
-                                          extras={"rate": float(rate),
-                                                  "first_frame": int(first_frame)})]
-    gltf = pygltflib.GLTF2(
-        asset=pygltflib.Asset(version="2.0", generator="mocap2mesh"), scene=0,
-        scenes=[pygltflib.Scene(nodes=[0])], nodes=[pygltflib.Node(name=name, mesh=0)],
-        meshes=[mesh], animations=animations, accessors=buf.accessors,
-        bufferViews=buf.views, buffers=[pygltflib.Buffer(byteLength=buf.length)])
+                        ("translation", buf.add(_scaled(motion[1], scale), pygltflib.VEC3))]
+        gltf["animations"] = [{
+            "extras": {"rate": float(rate), "first_frame": int(first_frame)}, "name": name,
+            "channels": [{"sampler": i, "target": {"node": 0, "path": path}}
+                         for i, (path, _) in enumerate(outputs)],
+            "samplers": [{"input": time, "interpolation": pygltflib.ANIM_LINEAR, "output": out}
+                         for _, out in outputs]}]
+    gltf.update({
+        "asset": {"generator": "mocap2mesh", "version": "2.0"}, "bufferViews": buf.views,
+        "buffers": [{"byteLength": buf.length}], "meshes": [mesh],
+        "nodes": [{"mesh": 0, "name": name}], "scene": 0, "scenes": [{"nodes": [0]}]})
     _save(gltf, buf, path, [*inputs, neutral.path])
 
 
@@ -313,7 +320,8 @@ def _animation(weights, rotation, translation, rate, n: int, first_frame):
     rate = as_positive_float(rate, "rate")
     counts = []
     if weights is not None:
-        weights = as_float_array(weights, "weights", shape=(None, n), allow_nan=False)
+        weights = as_float_array(weights, "weights", shape=(None, n), allow_nan=False,
+                                 copy=False)
         counts.append(len(weights))
     motion = None
     if rotation is not None:
@@ -345,21 +353,33 @@ def _to_metres(neutral: Mesh) -> float:
     return mm_per_unit(neutral.units) / 1000.0
 
 
-def _save(gltf: pygltflib.GLTF2, buf: _Buffer, path: Path, inputs) -> None:
+def _scaled(values: np.ndarray, factor: float) -> np.ndarray:
+    """``values * factor`` as float32, rounded once from the float64 product."""
+    out = np.empty(values.shape, dtype="<f4")
+    return np.multiply(values, factor, out=out, casting="same_kind")
+
+
+def _json(gltf: dict, **layout) -> str:
+    """The glTF JSON text, as ``pygltflib.GLTF2.gltf_to_json`` writes it."""
+    return json.dumps(gltf, allow_nan=False, **layout)
+
+
+def _save(gltf: dict, buf: _Buffer, path: Path, inputs) -> None:
     with atomic_path(path, inputs=inputs) as tmp:
         if path.suffix.lower() == ".gltf":
-            gltf.buffers[0].uri = ("data:application/octet-stream;base64,"
-                                   + base64.b64encode(buf.blob()).decode("ascii"))
-            gltf.save_json(str(tmp))
+            gltf["buffers"][0] = {"uri": "data:application/octet-stream;base64,"
+                                         + base64.b64encode(buf.blob()).decode("ascii"),
+                                  "byteLength": buf.length}
+            tmp.write_text(_json(gltf, indent="  "), encoding="ascii")
         else:
             _save_glb(gltf, buf, tmp)
 
 
-def _save_glb(gltf: pygltflib.GLTF2, buf: _Buffer, path: Path) -> None:
+def _save_glb(gltf: dict, buf: _Buffer, path: Path) -> None:
     """Write the binary glTF: the bytes of ``pygltflib.GLTF2.save_binary`` (header, JSON
     chunk padded with spaces to 4 bytes, BIN chunk), each array written from its own
     memory instead of being copied into one blob and re-sliced per view."""
-    text = gltf.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8")
+    text = _json(gltf, separators=(",", ":")).encode("ascii")
     text += b" " * (-(_GLB_HEADER + len(text)) % 4)
     header = struct.pack("<4sIII4s", pygltflib.MAGIC, pygltflib.GLTF_VERSION,
                          _GLB_HEADER + 2 * _CHUNK_HEADER + len(text) + buf.length,

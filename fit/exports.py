@@ -42,7 +42,10 @@ def _weights(weights, n_names: int | None = None, *, copy: bool = True) -> np.nd
     if isinstance(weights, WeightSolution):
         weights = weights.weights
     weights = as_float_array(weights, "weights", shape=(None, n_names), copy=copy)
-    bad = np.argwhere(np.isnan(weights))
+    # finite values sum to a finite number: only a NaN (or an overflow) needs the search
+    with np.errstate(all="ignore"):
+        total = np.add.reduce(weights, axis=None)
+    bad = np.argwhere(np.isnan(weights)) if not np.isfinite(total) else ()
     if len(bad):
         raise InputError(f"weights contain NaN ({len(np.unique(bad[:, 0]))} frames, first at "
                          f"frame index {bad[0, 0]}, shape {bad[0, 1]}): an export needs "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 import struct
 from pathlib import Path
 
@@ -13,7 +14,6 @@ import trimesh
 from helpers import play_gltf, read_gltf_accessor
 from tolerances import FLOAT32_FACE_CM, FLOAT32_REL
 
-from basis import gltf as gltf_module
 from basis.artist import load_artist_basis
 from basis.gltf import GLTF_FORMATS, morph_targets, write_gltf
 from mocap.errors import InputError
@@ -193,27 +193,35 @@ def test_glb_chunks_are_aligned(tmp_path):
     assert offset == len(raw)
 
 
-def test_glb_bytes_are_pygltflib_own(tmp_path, monkeypatch):
-    """The .glb is byte for byte what pygltflib's ``save_binary`` writes of the same glTF,
-    and its BIN chunk is the buffer the .gltf embeds."""
+def _glb_chunks(raw: bytes) -> tuple[dict, bytes]:
+    """The JSON document and the BIN chunk of a .glb, its framing checked."""
+    (json_length,) = struct.unpack("<I", raw[12:16])
+    (bin_length,) = struct.unpack("<I", raw[20 + json_length:24 + json_length])
+    assert len(raw) == 28 + json_length + bin_length
+    return json.loads(raw[20:20 + json_length]), raw[28 + json_length:]
+
+
+def test_glb_and_gltf_are_pygltflib_own(tmp_path, monkeypatch):
+    """The .glb and the .gltf hold the document and buffer pygltflib's ``save_binary`` and
+    ``save_json`` write of the same glTF read into pygltflib's own objects (JSON values and
+    buffer bytes equal), and the .glb's BIN chunk is the buffer the .gltf embeds."""
     neutral = _grid("cm", n=4)
     rng = np.random.default_rng(3)
-    args = (neutral, rng.normal(size=(3, 16, 3)), ["a", "b", "c"])
+    args = (neutral, rng.normal(size=(3, 16, 3)), ["a", "b", "\u00e9"])
     motion = dict(weights=rng.normal(0, 2.0, (7, 3)), rotation=np.tile(np.eye(3), (7, 1, 1)),
                   translation=rng.normal(size=(7, 3)), rate=30, first_frame=4)
-    write_gltf(tmp_path / "a.glb", *args, **motion)
-    write_gltf(tmp_path / "a.gltf", *args, **motion)
-
-    def by_pygltflib(gltf, buf, path):
-        gltf.set_binary_blob(buf.blob())
-        gltf.save_binary(str(path))
-    monkeypatch.setattr(gltf_module, "_save_glb", by_pygltflib)
-    write_gltf(tmp_path / "b.glb", *args, **motion)
-    raw = (tmp_path / "a.glb").read_bytes()
-    assert raw == (tmp_path / "b.glb").read_bytes()
-    embedded = pygltflib.GLTF2().load(str(tmp_path / "a.gltf"))
-    blob = embedded.decode_data_uri(embedded.buffers[0].uri)
-    assert raw.endswith(struct.pack("<I4s", len(blob), b"BIN\x00") + blob)
+    for kwargs in (motion, {}):
+        write_gltf(tmp_path / "a.glb", *args, **kwargs)
+        write_gltf(tmp_path / "a.gltf", *args, **kwargs)
+        theirs = pygltflib.GLTF2().load(str(tmp_path / "a.glb"))
+        theirs.save_binary(str(tmp_path / "b.glb"))
+        ours, blob = _glb_chunks((tmp_path / "a.glb").read_bytes())
+        assert (ours, blob) == _glb_chunks((tmp_path / "b.glb").read_bytes())
+        embedded = pygltflib.GLTF2().load(str(tmp_path / "a.gltf"))
+        assert embedded.decode_data_uri(embedded.buffers[0].uri) == blob
+        embedded.save_json(str(tmp_path / "b.gltf"))
+        assert (json.loads((tmp_path / "a.gltf").read_text())
+                == json.loads((tmp_path / "b.gltf").read_text()))
 
 
 def test_one_frame_animation_and_unitless_mesh(tmp_path):

@@ -37,7 +37,12 @@ def as_float_array(value, name: str, *, ndim: int | None = None,
                 want is not None and got != want for got, want in zip(arr.shape, shape)):
             want = "(" + ", ".join("any" if s is None else str(s) for s in shape) + ")"
             raise InputError(f"{name} must have shape {want}, got {arr.shape}")
-    # the extremes (NaN ignored) rather than np.isinf(arr): no temporary the size of arr
+    # one sum, finite unless arr holds NaN or inf (or overflows): only then the exact
+    # checks, by the extremes (NaN ignored, no temporary the size of arr) and np.isnan
+    with np.errstate(all="ignore"):
+        total = np.add.reduce(arr, axis=None)
+    if np.isfinite(total):
+        return arr
     extremes = [np.fmax.reduce(arr, axis=None), np.fmin.reduce(arr, axis=None)] if arr.size else []
     if np.isinf(extremes).any():
         raise InputError(f"{name} contains infinite values")
