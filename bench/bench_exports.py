@@ -8,9 +8,9 @@ face, with signed weights (so the ``.glb`` carries ``.neg`` targets). Each is ti
 against ``numpy.ndarray.tofile`` of the bytes it wrote (the file read back as one
 uint8 array), alternately in one run (best of three each), so that a load on the
 machine weighs on both; both write new files (as the exports of a new take), and the
-``.glb`` is timed again over an existing file. The CSV is text: it is also timed against the floor of its
-formatting, ``repr`` of every float it holds (the shortest repr that reads back
-exactly, what it writes), joined into one string.
+``.glb`` is timed again over an existing file. The CSV is text: it is also timed
+against the floor of its formatting, ``repr`` of every float it holds (the shortest
+repr that reads back exactly, what it writes), joined into one string.
 
 Run: ``python bench/bench_exports.py [--frames 35000]``.
 """
