@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 import threadpoolctl
 
 from fit.solve.weights import solve_weights
@@ -11,10 +10,9 @@ from mocap.util.blas import blas_threads, on_one_blas_thread, one_blas_thread
 
 
 def _two_threads():
+    """The BLAS on two threads (the OpenBLAS of numpy's wheels can always be given two)."""
     limits = threadpoolctl.threadpool_limits(2, user_api="blas")
-    if blas_threads() < 2:
-        limits.restore_original_limits()
-        pytest.skip("this BLAS cannot run two threads")
+    assert blas_threads() == 2, "the BLAS did not take a limit of two threads"
     return limits
 
 
