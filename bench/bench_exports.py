@@ -39,16 +39,13 @@ N_SHAPES = 53
 def alternately(fn, floor, *, fresh=()) -> tuple[float, float]:
     """Best of three of ``fn()`` and of ``floor()``, s, timed one after the other, each
     into new files (the files of `fresh` removed before each call, untimed)."""
-    ours = base = float("inf")
-    for _ in range(3):
-        for timed in ("ours", "floor"):
-            for path in fresh:
-                path.unlink(missing_ok=True)
-            if timed == "ours":
-                ours = min(ours, best_time(fn, repeat=1))
-            else:
-                base = min(base, best_time(floor, repeat=1))
-    return ours, base
+    def into_new_files(call):
+        for path in fresh:
+            path.unlink(missing_ok=True)
+        return best_time(call, repeat=1)
+
+    times = [(into_new_files(fn), into_new_files(floor)) for _ in range(3)]
+    return tuple(min(column) for column in zip(*times))
 
 
 def main() -> None:

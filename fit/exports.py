@@ -22,7 +22,7 @@ from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh
 from mocap.util.atomic import atomic_path
 from mocap.util.npz import read_npz
-from mocap.util.validation import as_float_array, as_int, as_positive_float
+from mocap.util.validation import as_float_array, as_int, as_positive_float, surely_finite
 
 __all__ = ["weights_frame", "write_weights_csv", "read_weights_csv", "MeshSequence",
            "write_mesh_sequence", "read_mesh_sequence"]
@@ -42,10 +42,7 @@ def _weights(weights, n_names: int | None = None, *, copy: bool = True) -> np.nd
     if isinstance(weights, WeightSolution):
         weights = weights.weights
     weights = as_float_array(weights, "weights", shape=(None, n_names), copy=copy)
-    # finite values sum to a finite number: only a NaN (or an overflow) needs the search
-    with np.errstate(all="ignore"):
-        total = np.add.reduce(weights, axis=None)
-    bad = np.argwhere(np.isnan(weights)) if not np.isfinite(total) else ()
+    bad = () if surely_finite(weights) else np.argwhere(np.isnan(weights))
     if len(bad):
         raise InputError(f"weights contain NaN ({len(np.unique(bad[:, 0]))} frames, first at "
                          f"frame index {bad[0, 0]}, shape {bad[0, 1]}): an export needs "

@@ -14,8 +14,15 @@ import numpy as np
 
 from mocap.errors import InputError
 
-__all__ = ["as_positions", "as_float_array", "as_positive_float", "as_nonnegative_float", "as_int",
-           "as_choice", "as_fraction"]
+__all__ = ["as_positions", "as_float_array", "surely_finite", "as_positive_float",
+           "as_nonnegative_float", "as_int", "as_choice", "as_fraction"]
+
+
+def surely_finite(arr: np.ndarray) -> bool:
+    """True when every value of `arr` is finite, by one sum (no temporary); False when
+    one may not be (a NaN, an inf, or finite values whose sum overflows)."""
+    with np.errstate(all="ignore"):
+        return bool(np.isfinite(np.add.reduce(arr, axis=None)))
 
 
 def as_float_array(value, name: str, *, ndim: int | None = None,
@@ -37,11 +44,9 @@ def as_float_array(value, name: str, *, ndim: int | None = None,
                 want is not None and got != want for got, want in zip(arr.shape, shape)):
             want = "(" + ", ".join("any" if s is None else str(s) for s in shape) + ")"
             raise InputError(f"{name} must have shape {want}, got {arr.shape}")
-    # one sum, finite unless arr holds NaN or inf (or overflows): only then the exact
-    # checks, by the extremes (NaN ignored, no temporary the size of arr) and np.isnan
-    with np.errstate(all="ignore"):
-        total = np.add.reduce(arr, axis=None)
-    if np.isfinite(total):
+    # only an array that may not be finite needs the exact checks, by the extremes (NaN
+    # ignored, no temporary the size of arr) and np.isnan
+    if surely_finite(arr):
         return arr
     extremes = [np.fmax.reduce(arr, axis=None), np.fmin.reduce(arr, axis=None)] if arr.size else []
     if np.isinf(extremes).any():
