@@ -36,6 +36,10 @@ basis = "{ict / 'expressions'}"
 [output]
 directory = "{results}"
 
+# the simulated gaps last up to ~0.7 s: filled, as the export check needs every frame
+[ingest]
+max_gap = 60
+
 [bind]
 frame = "hold"
 skin_offset = 2.0
