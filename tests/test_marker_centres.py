@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import threadpoolctl
 from tolerances import (
     EXACT_FLOAT64,
     MARKER_CENTRES_CM,
@@ -12,6 +13,7 @@ from tolerances import (
     MARKER_CENTRES_WEIGHTS,
 )
 
+import fit.solve.marker_centres
 from fit.solve.gcv import gcv_smoothness
 from fit.solve.marker_centres import solve_at_marker_centres
 from fit.solve.weights import solve_weights
@@ -95,6 +97,29 @@ def test_gcv_smoothness_is_chosen_once_on_the_tangent_model(centres_case):
     assert chosen.solution.smoothness == lam > 0
     fixed = solve_at_marker_centres(*args, lower=0.0, upper=1.0, smoothness=lam)
     np.testing.assert_array_equal(chosen.solution.weights, fixed.solution.weights)
+
+
+def test_pieces_of_the_frames_on_threads_are_one_fit(centres_case, monkeypatch):
+    """Independent frames step in pieces shared among threads: the same weights, bit for bit,
+    on one BLAS thread or two, and those of the frames fitted as one piece up to rounding."""
+    basis, layout, truth, data, tangent = centres_case
+    noisy = data + 0.02 * np.random.default_rng(5).standard_normal(data.shape)
+    args = (layout, basis.neutral.vertices, basis.displacements, tangent, noisy)
+    whole = solve_at_marker_centres(*args, lower=0.0, upper=1.0)
+    monkeypatch.setattr(fit.solve.marker_centres, "_FRAMES_PER_TASK", 25)   # 5 pieces
+    fits = {}
+    for threads in (1, 2):
+        with threadpoolctl.threadpool_limits(threads, user_api="blas"):
+            fits[threads] = solve_at_marker_centres(*args, lower=0.0, upper=1.0)
+    for got in fits.values():
+        assert got.solution.status == 0, got.solution.message
+        np.testing.assert_array_equal(got.n_steps, whole.n_steps)
+        np.testing.assert_allclose(got.solution.weights, whole.solution.weights, rtol=0,
+                                   atol=EXACT_FLOAT64)
+        np.testing.assert_allclose(got.displacements, whole.displacements, rtol=0,
+                                   atol=EXACT_FLOAT64)
+    np.testing.assert_array_equal(fits[2].solution.weights, fits[1].solution.weights)
+    np.testing.assert_array_equal(fits[2].solution.cost, fits[1].solution.cost)
 
 
 def test_an_unsettled_frame_is_reported(centres_case):

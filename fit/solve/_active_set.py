@@ -37,12 +37,14 @@ from fit.solve._reduced import (
     reduced_solve,
     schur_weights,
 )
+from mocap.util.blas import map_on_blas_threads
 
 __all__ = ["RANK_RTOL", "BoxQP", "kkt_residual", "reduced_solve", "residual", "solve_box_qp",
            "start_state"]
 
-#: Frames solved together (working set of the iterations).
-_BLOCK = 16384
+#: Frames solved together (working set of the iterations); the blocks are shared among
+#: Python threads (:func:`mocap.util.blas.map_on_blas_threads`).
+_BLOCK = 4096
 #: Iterations of the primal-dual phase before the monotone fallback takes over:
 #: most frames settle in two; the rest cycle or creep, and the monotone phase
 #: finishes them with a guarantee of progress.
@@ -318,7 +320,8 @@ def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
     bound, +1 at the upper, 0 free; e.g. the active set of a nearby
     problem's solution), else, with ``warm_start``, from :func:`start_state`
     (the active set of its clipped unconstrained minimizer), else with every
-    weight free (one more iteration). Frames go through in blocks of ``_BLOCK``.
+    weight free (one more iteration). Frames go through in blocks of ``_BLOCK``, shared
+    among the BLAS's threads (the same result on any number of them).
     """
     T = len(c)
     if np.isinf(qp.lo).all() and np.isinf(qp.hi).all():
@@ -330,7 +333,8 @@ def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
         kkt = residual(qp, w, c)
         return w, np.ones(T, np.int64), kkt, kkt <= tol
     w, n_iter, kkt = np.empty_like(c), np.zeros(T, np.int64), np.empty(T)
-    for start in range(0, T, _BLOCK):
+
+    def solve_block(start):
         part = slice(start, start + _BLOCK)
         cp = c[part]
         u = None if qp.inverse is None else dot(cp, qp.inverse)
@@ -339,6 +343,8 @@ def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
         else:
             initial = start_state(qp, cp, u) if warm_start else np.zeros(cp.shape, np.int8)
         w[part], n_iter[part], kkt[part] = _solve_from(qp, cp, u, initial, tol, max_iter)
+
+    map_on_blas_threads(solve_block, range(0, T, _BLOCK))
     return w, n_iter, kkt, kkt <= tol
 
 

@@ -23,6 +23,7 @@ differs from the least-squares fit of c by the second order of the offset.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -30,6 +31,7 @@ from fit.solve.gcv import SMOOTHNESS_RULES, gcv_smoothness
 from fit.solve.weights import WeightSolution, as_smoothness, solve_weights
 from mocap.errors import InputError
 from mocap.mesh.layout import MarkerLayout
+from mocap.util.blas import map_on_blas_threads
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["MarkerCentreFit", "solve_at_marker_centres"]
@@ -115,31 +117,100 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     tol = as_positive_float(tol, "tol")
     max_steps = as_int(max_steps, "max_steps", minimum=1)
 
-    def centres(w):
-        return layout.positions_under_weights(neutral, displacements, w) - rest
-
     n, T = len(basis), len(data)
     smoothness = as_smoothness(smoothness)
     if smoothness in SMOOTHNESS_RULES:
         smoothness = gcv_smoothness(basis.reshape(n, -1).T, data.reshape(T, -1))
     rest = layout.positions_under_weights(neutral, displacements, np.zeros((1, n)))[0]
-    coupled = smoothness > 0            # the frames are one problem: they step together
-    # the first step from x = 0 is the linear model's solve (r(0) = 0); a smooth
-    # fit starts from the frames' own fixed points, a few coupled steps away
-    x = np.zeros((T, n)) if not coupled else solve_at_marker_centres(
-        layout, neutral, displacements, basis, data, lower=lower, upper=upper, tol=tol,
-        max_steps=max_steps).solution.weights
+    model = _CentreModel(layout, neutral, displacements, basis, rest, lower, upper)
+    if smoothness > 0:
+        # the frames are one problem and step together, from their own fixed points
+        start = solve_at_marker_centres(
+            layout, neutral, displacements, basis, data, lower=lower, upper=upper, tol=tol,
+            max_steps=max_steps).solution.weights
+        steps = _chord_steps(model, data, start, smoothness, tol, max_steps)
+    else:
+        # frames are independent: pieces of them step on the BLAS's threads
+        pieces = map_on_blas_threads(
+            lambda first: _chord_steps(model, data[first:first + _FRAMES_PER_TASK], None, 0.0,
+                                       tol, max_steps),
+            range(0, T, _FRAMES_PER_TASK))
+        steps = _ChordSteps.joined(pieces)
+    w, moved, step, n_steps = steps.weights, steps.moved, steps.step, steps.n_steps
+    settled = step <= tol
+    ok = steps.converged & settled
+    solution = WeightSolution(
+        weights=w, cost=0.5 * np.sum((moved - data) ** 2, axis=(1, 2)), n_iter=steps.n_iter,
+        converged=ok, kkt_residual=steps.kkt, rank=steps.rank, status=int(not ok.all()),
+        message=_message(ok, settled, step, n_steps, tol), smoothness=smoothness)
+    return MarkerCentreFit(solution=solution, displacements=moved, n_steps=n_steps, step=step,
+                           tol=tol)
+
+
+#: Frames that step together in one piece of an independent-frame fit (pieces of a
+#: fixed size: the result does not depend on the thread count).
+_FRAMES_PER_TASK = 4096
+
+
+@dataclass(frozen=True)
+class _CentreModel:
+    """The centres' model: ``centres(w) = c(w) − c(0)`` and the bounds."""
+
+    layout: MarkerLayout
+    neutral: np.ndarray
+    displacements: np.ndarray
+    basis: np.ndarray
+    rest: np.ndarray
+    lower: object
+    upper: object
+
+    def centres(self, w: np.ndarray) -> np.ndarray:
+        """``c(w) − c(0)`` of the weights `w` (T, n), (T, M, 3)."""
+        return self.layout.positions_under_weights(self.neutral, self.displacements, w) \
+            - self.rest
+
+
+class _ChordSteps(NamedTuple):
+    """Per frame: weights, centres, KKT residual and convergence of the last solve, chord
+    steps, solver iterations, last step; and the basis' rank."""
+
+    weights: np.ndarray
+    moved: np.ndarray
+    kkt: np.ndarray
+    converged: np.ndarray
+    n_steps: np.ndarray
+    n_iter: np.ndarray
+    step: np.ndarray
+    rank: int
+
+    @classmethod
+    def joined(cls, pieces) -> "_ChordSteps":
+        """The steps of consecutive pieces of the frames as one."""
+        arrays = [np.concatenate([getattr(p, name) for p in pieces])
+                  for name in cls._fields[:-1]]
+        return cls(*arrays, rank=min(p.rank for p in pieces))
+
+
+def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps) -> _ChordSteps:
+    """The chord steps of `data` (T, M, 3) from weights `start` (None: zero weights, whose
+    first step is the linear model's solve); with `smoothness` > 0 the frames step together."""
+    basis, lower, upper = model.basis, model.lower, model.upper
+    T, n = len(data), len(basis)
+    coupled = smoothness > 0
+    x = np.zeros((T, n)) if start is None else start.copy()
     w, kkt, converged = np.empty((T, n)), np.empty(T), np.zeros(T, bool)
     n_steps, n_iter, step = np.zeros(T, np.int64), np.zeros(T, np.int64), np.full(T, np.inf)
     rank = n
     last_x = last_g = None              # the previous iterate and its chord step, for Anderson
     todo = np.arange(T)
-    for _ in range(max_steps):
+    for first in (True, *[False] * (max_steps - 1)):
         xt = x[todo]
-        nonlinear = centres(xt) - np.tensordot(xt, basis, axes=1)
+        # r(0) = 0 exactly: a first step from zero weights needs no evaluation
+        nonlinear = 0.0 if first and start is None else \
+            model.centres(xt) - np.tensordot(xt, basis, axes=1)
         sol = solve_weights(basis, data[todo] - nonlinear, lower=lower, upper=upper,
-                            smoothness=smoothness,
-                            start=xt if coupled or last_g is not None else None)
+                            smoothness=smoothness, start=None if first and start is None
+                            else xt)
         g = sol.weights - xt
         step[todo] = np.abs(g).max(axis=1)
         w[todo], n_steps[todo], n_iter[todo] = sol.weights, n_steps[todo] + 1, \
@@ -155,15 +226,7 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
             break
         if not coupled:
             todo = todo[moving]
-    moved = centres(w)
-    settled = step <= tol
-    ok = converged & settled
-    solution = WeightSolution(
-        weights=w, cost=0.5 * np.sum((moved - data) ** 2, axis=(1, 2)), n_iter=n_iter,
-        converged=ok, kkt_residual=kkt, rank=rank, status=int(not ok.all()),
-        message=_message(ok, settled, step, n_steps, tol), smoothness=smoothness)
-    return MarkerCentreFit(solution=solution, displacements=moved, n_steps=n_steps, step=step,
-                           tol=tol)
+    return _ChordSteps(w, model.centres(w), kkt, converged, n_steps, n_iter, step, rank)
 
 
 def _anderson(fx, g, last_fx, last_g, lower, upper):

@@ -3,18 +3,27 @@
 A batched solve of 53-wide systems or a cache-sized tile of the RBF product is too small
 for a threaded BLAS to split: its threads meet at each of thousands of small calls,
 which on a loaded 2-core machine made such paths several times slower than on one
-thread. They run on one BLAS thread (and share their work among Python threads where
-they can, as the RBF tiles do); large single products keep the BLAS's threads.
+thread. They run on one BLAS thread and share their work among as many Python threads
+as the BLAS had (:func:`map_on_blas_threads`; numpy releases the GIL in its products and
+loops); large single products keep the BLAS's threads.
 """
 
 from __future__ import annotations
 
 import functools
+import threading
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import scipy.linalg  # noqa: F401  (scipy's own BLAS is loaded before the controller looks)
 import threadpoolctl
 
-__all__ = ["blas_threads", "on_one_blas_thread", "one_blas_thread"]
+__all__ = ["blas_threads", "map_on_blas_threads", "on_one_blas_thread", "one_blas_thread",
+           "worker_threads"]
+
+#: Per thread: the BLAS's threads outside this thread's outermost :func:`one_blas_thread`.
+_outside = threading.local()
 
 
 @functools.cache
@@ -27,9 +36,47 @@ def blas_threads() -> int:
     return max([1, *(lib["num_threads"] for lib in _blas().info())])
 
 
+def worker_threads() -> int:
+    """Python threads that work of many small products may share (at least 1).
+
+    The BLAS's threads, as they were outside the calling thread's outermost
+    :func:`one_blas_thread`; 1 in a thread of :func:`map_on_blas_threads` (its
+    work is already shared).
+    """
+    threads = getattr(_outside, "threads", None)
+    return threads if threads is not None else blas_threads()
+
+
+@contextmanager
 def one_blas_thread():
     """Context manager: the BLAS on one thread inside, its thread count restored after."""
-    return _blas().limit(limits=1)
+    if getattr(_outside, "threads", None) is not None:     # nested: already on one thread
+        yield
+        return
+    _outside.threads = blas_threads()
+    try:
+        with _blas().limit(limits=1):
+            yield
+    finally:
+        _outside.threads = None
+
+
+def map_on_blas_threads(function: Callable, items: Iterable) -> list:
+    """``[function(item) for item in items]``, the items shared among :func:`worker_threads`
+    Python threads, each product on one BLAS thread.
+
+    For independent pieces of work made of small products (a few thousand frames of a
+    batched solve each): split in pieces that do not depend on the thread count, the
+    results are the same, bit for bit, on any number of threads. The first error raised
+    by `function` is raised here.
+    """
+    items = list(items)
+    workers = min(worker_threads(), len(items))
+    with one_blas_thread():
+        if workers <= 1:
+            return [function(item) for item in items]
+        with ThreadPoolExecutor(workers) as pool:
+            return list(pool.map(function, items))
 
 
 def on_one_blas_thread(function):
