@@ -15,7 +15,22 @@ __all__ = ["Mocap2MeshError", "FileFormatError", "MarkerError", "InputError",
 
 
 class Mocap2MeshError(Exception):
-    """Base class of every error that mocap2mesh raises on bad input."""
+    """Base class of every error that mocap2mesh raises on bad input.
+
+    Errors pickle with their type, message and attributes (an error raised in a helper
+    process reaches the caller as itself), whatever their constructor takes.
+    """
+
+    def __reduce__(self):
+        return _rebuilt, (type(self), self.args, self.__dict__)
+
+
+def _rebuilt(cls, args: tuple, attributes: dict) -> Mocap2MeshError:
+    """An error of type `cls` with `args` and `attributes`, without calling its constructor."""
+    error = Exception.__new__(cls)
+    error.args = args
+    error.__dict__.update(attributes)
+    return error
 
 
 class InputError(Mocap2MeshError, ValueError):
