@@ -11,12 +11,12 @@ Kim & Ko, "Intuitive quasi-eigen faces", GRAPHITE 2007, section 5.5, eq. 5-6.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
 import pandas as pd
-from scipy.signal import find_peaks
 
 from mocap.errors import InputError, MarkerError
 from mocap.util.arrays import read_only
@@ -89,6 +89,11 @@ class ReconstructionErrors:
         """Number of frames T."""
         return self.errors.shape[0]
 
+    def per_frame(self) -> ReconstructionErrors:
+        """These statistics without the per-sample errors (`errors` of shape (T, 0)): what a
+        chart of the per-frame series reads, cheap to send to another process."""
+        return dataclasses.replace(self, errors=read_only(self.errors[:, :0].copy()))
+
     def summary(self) -> dict:
         """Take-wide figures, a new dict.
 
@@ -125,6 +130,8 @@ class ReconstructionErrors:
         if separation == 1:
             ranked = np.argsort(-np.nan_to_num(series, nan=-np.inf), kind="stable")
             return ranked[np.isfinite(series[ranked])][:n]
+        from scipy.signal import find_peaks  # here: scipy.signal takes ~1 s to import
+
         padded = np.concatenate(([-np.inf], np.nan_to_num(series, nan=-np.inf), [-np.inf]))
         peaks, _ = find_peaks(padded, distance=separation, plateau_size=1)
         peaks = peaks - 1
