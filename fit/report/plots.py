@@ -8,8 +8,9 @@ from typing import Mapping
 
 import numpy as np
 from matplotlib import colormaps
+from matplotlib.cm import ScalarMappable
 from matplotlib.collections import LineCollection, PolyCollection
-from matplotlib.colors import to_rgba
+from matplotlib.colors import Normalize, to_rgba
 from matplotlib.patches import Patch
 
 from fit._moved import PLOTS_NAMES
@@ -194,15 +195,17 @@ def plot_error_heatmap(errors: ReconstructionErrors, path, *, markerset=None,
     with report_figure(path, PAGE_WIDTH, min(max(3.5, 0.17 * n + 1.8), 14.0)) as fig:
         ax = fig.add_subplot()
         cmap = colormaps["magma"].with_extremes(bad="#b0b0b0")
-        image = ax.imshow(np.ma.masked_invalid(data), aspect="auto", interpolation="nearest",
-                          cmap=cmap, vmin=0, vmax=vmax,
-                          extent=(x[0], x[-1] + step, n - 0.5, -0.5))
+        colours = ScalarMappable(Normalize(0, vmax), cmap)
+        # coloured here, at the data's size: matplotlib would colour the image at its size on
+        # the page, 20 times the pixels (nearest-neighbour, so the same colours either way)
+        ax.imshow(colours.to_rgba(np.ma.masked_invalid(data), bytes=True), aspect="auto",
+                  interpolation="nearest", extent=(x[0], x[-1] + step, n - 0.5, -0.5))
         ax.set_yticks(range(n))
         ax.set_yticklabels([errors.labels[i] for i in order],
                            fontsize=max(4, min(8, 400 // max(n, 1))))
         _region_labels_right(ax, groups)
         ax.set_xlabel(xlabel)
-        fig.colorbar(image, ax=ax, label="error (mm)", extend="max", pad=0.01, fraction=0.05)
+        fig.colorbar(colours, ax=ax, label="error (mm)", extend="max", pad=0.01, fraction=0.05)
         ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker and frame "
                               f"(RMS {errors.totals['rms_mm']:.2f} mm; grey = missing)")
 
