@@ -1,0 +1,60 @@
+"""A helper process of :class:`fit.report.figure_queue.FigureQueue`.
+
+Reads pickled figures on stdin, one at a time, draws each and answers on stdout:
+``("ok", [(message, category), ...])`` with the figure's warnings, or
+``("error", exception, traceback text)``. Anything the figures print goes to stderr, so
+that it cannot break the answers. Ends at EOF.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import sys
+import traceback
+import warnings
+
+import matplotlib
+
+import fit.report  # noqa: F401  (the report's modules, imported before the first figure)
+from fit.report.figure_queue import READY
+
+
+def _draw(task: bytes) -> tuple:
+    try:
+        function, args, kwargs, rc = pickle.loads(task)
+        with warnings.catch_warnings(record=True) as caught, matplotlib.rc_context(rc):
+            warnings.simplefilter("always")
+            function(*args, **kwargs)
+    except Exception as error:
+        trace = traceback.format_exc()
+        try:
+            pickle.dumps(error)
+        except Exception:
+            error = RuntimeError(f"{type(error).__name__}: {error}")
+        return ("error", error, trace)
+    return ("ok", [(str(w.message), w.category) for w in caught])
+
+
+def _send(outbox, outcome: tuple) -> None:
+    """Write `outcome`, its warnings' categories as UserWarning when one does not pickle."""
+    try:
+        answer = pickle.dumps(outcome, protocol=pickle.HIGHEST_PROTOCOL)
+    except Exception:
+        answer = pickle.dumps((outcome[0], [(m, UserWarning) for m, _ in outcome[1]]))
+    outbox.write(answer)
+    outbox.flush()
+
+
+def main() -> None:
+    inbox = sys.stdin.buffer
+    outbox = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+    _send(outbox, READY)
+    while True:
+        try:
+            task = pickle.load(inbox)
+        except EOFError:
+            return
+        _send(outbox, _draw(task))
+

@@ -1,0 +1,44 @@
+"""Figures for the tests of :class:`fit.report.figure_queue.FigureQueue`: module-level so
+that they pickle by name into a helper process."""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from mocap.errors import FileFormatError
+
+
+def lines(path, seed: int) -> None:
+    """A figure of random lines and text, its look taken from the rcParams."""
+    points = np.random.default_rng(seed).normal(size=(50, 2))
+    figure, axes = plt.subplots(figsize=(3, 2))
+    axes.plot(points[:, 0], points[:, 1])
+    axes.set_title(f"seed {seed}")
+    figure.savefig(path)
+    plt.close(figure)
+
+
+def pid(path) -> None:
+    """Write the drawing process's id."""
+    with open(path, "w") as out:
+        out.write(str(os.getpid()))
+
+
+def bad_file(path) -> None:
+    raise FileFormatError(path, "not a figure", offset=7)
+
+
+def warned(path) -> None:
+    warnings.warn(f"careful with {os.path.basename(path)}", UserWarning)
+    pid(path)
+
+
+def dies_in_helper(path, caller: int) -> None:
+    """Kill the helper that draws it; drawn by the caller, write its pid."""
+    if os.getpid() != caller:
+        os._exit(3)
+    pid(path)
