@@ -16,14 +16,14 @@ def plot_coverage(model, path, *, thresholds=(0.99, 0.995), title: str | None = 
 
     Parameters
     ----------
-    model : basis.pca.PCAModel
-        Its ``coverage()`` (fraction of the total variance, shape (m,)).
+    model : basis.pca.PCAModel or array_like, shape (m,)
+        Its ``coverage()`` (fraction of the total variance), or that coverage.
     path : str or os.PathLike
     thresholds : sequence of float in (0, 1]
         Drawn as horizontal lines, with the smallest m reaching each marked
         (or "not reached with the m kept").
     """
-    cov = np.asarray(model.coverage(), dtype=float)
+    cov = np.asarray(model.coverage() if hasattr(model, "coverage") else model, dtype=float)
     thresholds = [float(t) for t in thresholds]
     if not all(0 < t <= 1 for t in thresholds):
         raise InputError(f"thresholds must be in (0, 1], got {thresholds}")

@@ -304,7 +304,7 @@ def stub_take(calls, bases=None):
     `calls` (and the session basis it was given to `bases`)."""
     from fit.pipeline.completion import begin_take, commit_take
 
-    def fake(capture, config, name, provenance, session_basis=None):
+    def fake(capture, config, name, provenance, session_basis=None, figure_helpers=None):
         calls.append(capture.name)
         if bases is not None:
             bases.append(session_basis)

@@ -17,6 +17,7 @@ from basis.pca import pca_streaming
 from fit.metrics import reconstruction_errors
 from fit.report import build_report
 from fit.report.drawing import IMAGE_WIDTH_PX, plain_log_axis, report_figure
+from fit.report.figure_queue import FigureQueue
 from fit.report.html import render_report
 from fit.report.plots import HEATMAP_COLUMNS, bar_collection, plot_error_heatmap, region_groups
 from fit.report.video import write_overlay_video
@@ -63,6 +64,18 @@ def _png_size(path: Path) -> tuple[int, int]:
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
     return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+def test_a_report_drawn_with_a_helper_is_the_same_pictures(sing_case, report, tmp_path):
+    ms, face, recs, neutral = sing_case
+    files, _, pca = report
+    with FigureQueue(helpers=1) as figures:
+        shared = build_report(face, recs, neutral, tmp_path, markerset=ms, pca=pca,
+                              name="sing", figures=figures)
+    pictures = [key for key, path in files.items() if path.suffix == ".png"]
+    assert len(pictures) >= 6 and set(shared) == set(files)
+    for key in pictures:
+        assert shared[key].read_bytes() == files[key].read_bytes(), key
 
 
 def test_region_groups_follow_the_markerset(sing_case):

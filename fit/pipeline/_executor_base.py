@@ -89,6 +89,10 @@ class SessionExecutor:
         """
         raise NotImplementedError
 
+    def slots(self) -> int:
+        """Jobs run side by side at most."""
+        return 1
+
     def close(self) -> None:
         """Release what this executor started (processes, a cluster)."""
 

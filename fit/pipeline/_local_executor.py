@@ -95,6 +95,9 @@ class LocalExecutor(SessionExecutor):
     def __init__(self, workers: int):
         self.workers = as_int(workers, "workers", minimum=1)
 
+    def slots(self) -> int:
+        return self.workers
+
     def map_unordered(self, task, jobs, *, shared=None, timeout=None):
         timeout = timeout_seconds(timeout)
         if self.workers == 1 and timeout is None:

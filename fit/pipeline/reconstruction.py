@@ -54,6 +54,7 @@ from fit.pipeline.stages import (
 )
 from fit.pipeline.take_warnings import warn_unconverged
 from fit.report import build_report
+from fit.report.figure_queue import FigureQueue
 from fit.report.html import Figure
 from fit.report.ingest_plots import plot_gaps, plot_head_residuals
 from fit.report.mesh_views import MeshSpace
@@ -448,19 +449,26 @@ class ReconstructionResult:
                          displacements=self.retargeted.displacements,
                          to_mesh=self.binding.to_mesh)
 
-    def report(self, directory, *, inputs=None, warnings=()) -> list:
+    def report(self, directory, *, inputs=None, warnings=(), figures=None) -> list:
         """Write the QA pictures, videos and ``<name>.html`` into `directory`; returns the paths.
 
         `inputs` (role to path) are hashed into the report's provenance (default
         the capture, the mesh and the marker set); `warnings` (messages) are
-        listed in a section of the page of their own.
+        listed in a section of the page of their own. `figures`
+        (:class:`fit.report.figure_queue.FigureQueue`) draws the figures; default one of
+        its own, with :func:`~fit.report.figure_queue.default_helpers` helper processes.
         """
+        if figures is None:
+            with FigureQueue() as figures:
+                return self.report(directory, inputs=inputs, warnings=warnings,
+                                   figures=figures)
         qa = Path(directory)
         qa.mkdir(parents=True, exist_ok=True)
         options = self.reconstruction.report
         face = self.face
-        plot_gaps(self.ingested.cleaned, qa / "gaps.png")
-        plot_head_residuals(self.ingested.stabilization, qa / "head_residuals.png")
+        figures.submit(plot_gaps, self.ingested.cleaned, qa / "gaps.png")
+        figures.submit(plot_head_residuals, self.ingested.stabilization,
+                       qa / "head_residuals.png")
         files = [qa / "gaps.png", qa / "head_residuals.png"]
         pictures = {
             "gaps": Figure(files[0], "Gaps: present, missing, filled by method",
@@ -482,7 +490,7 @@ class ReconstructionResult:
                               mesh_space=self.mesh_space() if options.mesh_views else None,
                               cross_validation=self.retargeted.cross_validation,
                               selection=self.retargeted.selection,
-                              lip_seal=self.lip_seal).values()
+                              lip_seal=self.lip_seal, figures=figures).values()
         return files
 
     def _head_frame_summary(self) -> dict:

@@ -52,6 +52,7 @@ from fit.pipeline.outdir import clean_stale, output_lock, safe_stem, take_names
 from fit.pipeline.reconstruction import Reconstruction
 from fit.pipeline.session_basis import build_session_basis, session_input, uses_session_basis
 from fit.pipeline.take_warnings import capture_warnings, print_warnings
+from fit.report.figure_queue import FigureQueue
 from mocap.errors import Mocap2MeshError
 from mocap.util.atomic import refuse_overwrite
 from mocap.util.validation import as_int
@@ -90,7 +91,8 @@ def _provenance(capture: Path, config: RunConfig, inputs: dict | None = None) ->
 
 
 def process_take(capture, config: RunConfig, session_basis=None, *, name: str | None = None,
-                 provenance: Provenance | None = None) -> dict:
+                 provenance: Provenance | None = None,
+                 figure_helpers: int | None = None) -> dict:
     """Run one take through the chain and commit its folder; returns its manifest record.
 
     Files (relative to ``config.output``): ``<name>/`` with the exports of
@@ -111,6 +113,10 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
         :func:`~fit.pipeline.outdir.safe_stem`).
     provenance : Provenance, optional
         What the outputs are made from (default: computed from `config`).
+    figure_helpers : int, optional
+        Helper processes drawing the report's figures
+        (:class:`~fit.report.figure_queue.FigureQueue`; default one per spare core);
+        0 when other takes share the machine's cores.
     """
     capture = Path(capture)
     name = safe_stem(capture.stem) if name is None else name
@@ -123,13 +129,15 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
                 result = dataclasses.replace(Reconstruction.from_config(config).process(
                     capture, session_basis=session_basis), name=name)
             stages = dict(result.stage_seconds)
-            tic = time.perf_counter()
-            result.save(stage, inputs=[capture])
-            stages["exports"] = time.perf_counter() - tic
-            tic = time.perf_counter()
-            result.report(stage / "report", warnings=caught,
-                          inputs={"capture": capture, **config.shared_inputs})
-            stages["report"] = time.perf_counter() - tic
+            # the figure helpers start while the exports are written
+            with FigureQueue(figure_helpers) as figures:
+                tic = time.perf_counter()
+                result.save(stage, inputs=[capture])
+                stages["exports"] = time.perf_counter() - tic
+                tic = time.perf_counter()
+                result.report(stage / "report", warnings=caught, figures=figures,
+                              inputs={"capture": capture, **config.shared_inputs})
+                stages["report"] = time.perf_counter() - tic
         summary = {"status": "ok", "skipped": False, "error": None,
                    "seconds": round(time.perf_counter() - start, 3),
                    "stage_seconds": {k: round(v, 3) for k, v in stages.items()},
@@ -155,6 +163,7 @@ class _TakeJob:
     capture: Path
     name: str
     provenance: Provenance
+    figure_helpers: int | None = None     # of its report: 0 when takes run side by side
 
     @property
     def stem(self) -> str:
@@ -174,13 +183,13 @@ def _worker() -> dict:
 
 
 def _guarded(capture: Path, config: RunConfig, name: str, provenance: Provenance,
-             session_basis=None) -> dict:
+             session_basis=None, figure_helpers: int | None = None) -> dict:
     """:func:`process_take` that turns an exception into a failed record."""
     start = time.perf_counter()
     try:
         with capture_warnings(reemit=False) as caught:
             return process_take(capture, config, session_basis, name=name,
-                                provenance=provenance)
+                                provenance=provenance, figure_helpers=figure_helpers)
     except Exception as exc:  # noqa: BLE001 - one take's failure must not stop the others
         expected = isinstance(exc, Mocap2MeshError)
         return {"status": "failed", "skipped": False,
@@ -195,7 +204,8 @@ def _take_task(job: _TakeJob, shared) -> dict:
     Returns the take's manifest record, with where it ran (``worker``).
     """
     config, session_basis = shared
-    record = _guarded(job.capture, config, job.name, job.provenance, session_basis)
+    record = _guarded(job.capture, config, job.name, job.provenance, session_basis,
+                      job.figure_helpers)
     return {**record, "worker": _worker()}
 
 
@@ -308,7 +318,9 @@ def _run_on(pool, todo, config, names, provenances, manifest, timeout, progress)
             manifest.collect(names[capture], capture, {
                 "status": "failed", "skipped": False, "error": unprepared[capture.stem]})
         manifest.write()
-    jobs = [_TakeJob(c, names[c], provenances[names[c]]) for c in todo]
+    # one take at a time has the spare cores for the figures; side by side, the takes have them
+    helpers = None if pool.slots() == 1 else 0
+    jobs = [_TakeJob(c, names[c], provenances[names[c]], helpers) for c in todo]
     with tqdm(total=len(config.captures), initial=len(config.captures) - len(jobs),
               desc="takes", unit="take", disable=None if progress is None else not progress,
               file=sys.stderr) as bar:

@@ -17,6 +17,7 @@ import numpy as np
 from basis.coverage import plot_coverage
 from fit.metrics import reconstruction_errors
 from fit.report.extremes import take_extremes
+from fit.report.figure_queue import FigureQueue
 from fit.report.html import Figure, Section, Video, ingest_stats, write_report
 from fit.report.mesh_views import mesh_cameras, plot_mesh_frames
 from fit.report.plots import plot_alpha, plot_error_heatmap, plot_held_out, plot_marker_errors
@@ -27,7 +28,7 @@ from fit.report.retarget_qa import (
     plot_lip_seal,
 )
 from fit.report.video import VIDEO_SUFFIX, write_overlay_video
-from fit.report.views import plot_frame_views
+from fit.report.views import plot_frame_views, plottable_positions
 from mocap.errors import InputError
 
 __all__ = ["build_report"]
@@ -54,7 +55,7 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
                  video_step: int = 1, n_worst: int = 5, exaggerate: float = 1.0,
                  name: str | None = None, warnings=(), provenance: Mapping | None = None,
                  grades=(), held_out=None, mesh_space=None, sections=(), cross_validation=None,
-                 selection=None, lip_seal=None) -> dict:
+                 selection=None, lip_seal=None, figures: FigureQueue | None = None) -> dict:
     """Metrics, figures, (video) and the HTML report of one take.
 
     Parameters
@@ -113,6 +114,9 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         With it, what ``kernel = "auto"`` tried.
     lip_seal : mocap.retarget.lip_seal.LipSealCheck, optional
         Adds the lip-seal section (its warnings at the top of it).
+    figures : fit.report.figure_queue.FigureQueue, optional
+        Draws the figures, shared with its helper processes (make it before other work,
+        so that they have started); default: all in this process, one after another.
 
     Returns
     -------
@@ -128,12 +132,7 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
     if not reconstructions:
         raise InputError("reconstructions is empty: give at least one basis")
     name = name or (Path(take.source.path).stem if take.source.path else "take")
-    results = {basis: reconstruction_errors(take.positions, rec, neutral, origin=origin,
-                                            labels=take.labels, name=basis)
-               for basis, rec in reconstructions.items()}
-    first = next(iter(results.values()))
     separation = max(1, take.n_frames // 50)
-    worst = {b: r.worst_frames(n_worst, separation=separation) for b, r in results.items()}
     files = {}
     number = take.first_frame
 
@@ -141,31 +140,48 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         files[key] = out_dir / f"{name}-{key}{suffix}"
         return files[key]
 
+    queue = FigureQueue(helpers=0) if figures is None else figures
     # The video's VP9 encoding is the report's longest part and runs in OpenCV without the
     # GIL: it goes on beside the figures.
-    encoder = ThreadPoolExecutor(max_workers=1)
-    encoding = None if not video else encoder.submit(
-        write_overlay_video, take.positions, reconstructions, out("video", VIDEO_SUFFIX),
-        neutral=neutral, rate=take.rate, labels=take.labels, markerset=markerset,
-        step=video_step, exaggerate=exaggerate, first_frame=number)
+    encoder, encoding = ThreadPoolExecutor(max_workers=1), None
     try:
-        page = _figures(take, neutral, results, worst, reconstructions, out, files, number,
-                        markerset=markerset, pca=pca, pictures=pictures, video=video,
-                        exaggerate=exaggerate, held_out=held_out, mesh_space=mesh_space,
-                        origin=origin)
+        results, worst = {}, {}
+        captured = plottable_positions(take.positions, "captured", labels=take.labels,
+                                       first_frame=number)
+        for basis, rec in reconstructions.items():   # each basis's views drawn meanwhile
+            results[basis] = reconstruction_errors(take.positions, rec, neutral,
+                                                   origin=origin, labels=take.labels,
+                                                   name=basis)
+            worst[basis] = results[basis].worst_frames(n_worst, separation=separation)
+            _submit_views(queue.submit, captured, rec, worst[basis], basis,
+                          out(f"views-{basis}"), neutral=neutral, labels=take.labels,
+                          markerset=markerset, exaggerate=exaggerate, first_frame=number)
+        first = next(iter(results.values()))
+        if video:
+            encoding = encoder.submit(
+                write_overlay_video, take.positions, reconstructions,
+                out("video", VIDEO_SUFFIX), neutral=neutral, rate=take.rate, labels=take.labels,
+                markerset=markerset, step=video_step, exaggerate=exaggerate, first_frame=number)
+        held, page = _figures(take, neutral, results, worst, reconstructions, out, files,
+                              number, queue.submit, markerset=markerset, pca=pca,
+                              pictures=pictures, video=video, exaggerate=exaggerate,
+                              held_out=held_out, mesh_space=mesh_space, origin=origin)
+        if cross_validation is not None:
+            queue.submit(plot_cross_validation, cross_validation, out("cross-validation"),
+                         markerset=markerset)
+            page.append(cross_validation_section(cross_validation, markerset=markerset,
+                                                 selection=selection,
+                                                 image=files["cross-validation"]))
+        if lip_seal is not None:
+            queue.submit(plot_lip_seal, lip_seal, out("lip-seal"))
+            page.append(lip_seal_section(lip_seal, image=files["lip-seal"]))
+        queue.run()
     finally:
+        if figures is None:
+            queue.close()
         if encoding is not None:
             encoding.result()               # its error, if any, is the report's
         encoder.shutdown()
-    held, page = page
-    if cross_validation is not None:
-        plot_cross_validation(cross_validation, out("cross-validation"), markerset=markerset)
-        page.append(cross_validation_section(cross_validation, markerset=markerset,
-                                             selection=selection,
-                                             image=files["cross-validation"]))
-    if lip_seal is not None:
-        plot_lip_seal(lip_seal, out("lip-seal"))
-        page.append(lip_seal_section(lip_seal, image=files["lip-seal"]))
     page += list(sections)
     graded = []
     for basis, res in results.items():
@@ -188,14 +204,16 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
     return files
 
 
-def _figures(take, neutral, results, worst, reconstructions, out, files, number, *, markerset,
-             pca, pictures, video, exaggerate, held_out, mesh_space, origin):
-    """Every figure of the report, drawn once; returns (held-out errors, sections)."""
+def _figures(take, neutral, results, worst, reconstructions, out, files, number, draw, *,
+             markerset, pca, pictures, video, exaggerate, held_out, mesh_space, origin):
+    """Every figure of the report, given to `draw` (``draw(function, *args, **kwargs)``)
+    with what it shows; returns (held-out errors, sections)."""
     page = []
     if pictures:
         page.append(Section("Ingestion and head stabilization", items=tuple(
             v if isinstance(v, Figure) else Figure(v, k) for k, v in pictures.items())))
-    plot_alpha(results, out("alpha"), rate=take.rate, worst=worst, first_frame=number)
+    draw(plot_alpha, {b: r.per_frame() for b, r in results.items()}, out("alpha"),
+         rate=take.rate, worst=worst, first_frame=number)
     page.append(Section("Error over time", items=(Figure(
         files["alpha"], "α(t) per basis",
         "One curve per basis on one axis; circles mark each basis's worst frames (by RMS), "
@@ -203,16 +221,9 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
         "than 10×."),)))
     vmax, ymax = _shared_scales(results)
     for basis, res in results.items():
-        plot_error_heatmap(res, out(f"heatmap-{basis}"), markerset=markerset, rate=take.rate,
-                           vmax=vmax)
-        plot_marker_errors(res, out(f"markers-{basis}"), markerset=markerset, ymax=ymax)
-        plot_frame_views(take.positions, reconstructions[basis], worst[basis][:3],
-                         out(f"views-{basis}"), neutral=neutral, labels=take.labels,
-                         markerset=markerset, exaggerate=exaggerate, first_frame=number,
-                         title=f"{basis}: captured (red) vs reconstructed (blue) at the "
-                               "worst frames" + (f", errors ×{exaggerate:g}"
-                                                 if exaggerate != 1 else "")
-                               + "; front: subject's left on the right")
+        draw(plot_error_heatmap, res, out(f"heatmap-{basis}"), markerset=markerset,
+             rate=take.rate, vmax=vmax)
+        draw(plot_marker_errors, res, out(f"markers-{basis}"), markerset=markerset, ymax=ymax)
         items = [
             Figure(files[f"heatmap-{basis}"], f"{basis}: error per marker and frame",
                    f"Rows are markers grouped by region, columns time; colour is the error "
@@ -236,7 +247,7 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
         held = {b: reconstruction_errors(take.positions, rec, neutral, origin=origin,
                                          labels=take.labels, name=b)
                 for b, rec in held_out.reconstructed.items() if b in results}
-        plot_held_out(results, held, out("held-out"), label=held_out.label)
+        draw(plot_held_out, results, held, out("held-out"), label=held_out.label)
         page.append(Section(
             "Out-of-sample basis errors",
             text=f"QE and PCA are built from this take; in-sample they are scored on the very "
@@ -248,9 +259,9 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
                           "the take rather than the face."),)))
     if mesh_space is not None:
         page.append(_mesh_section(take, np.asarray(neutral, float), results, worst, mesh_space,
-                                  markerset, out, files, number))
+                                  markerset, out, files, number, draw))
     if pca is not None:
-        plot_coverage(pca, out("coverage"))
+        draw(plot_coverage, pca.coverage(), out("coverage"))
         page.append(Section("PCA coverage", items=(Figure(
             files["coverage"], "PCA coverage",
             "The share of the take's mesh motion (variance of W·D) the first k components "
@@ -258,8 +269,22 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
     return held, page
 
 
-def _mesh_section(take, neutral, results, worst, space, markerset, out, files,
-                  number) -> Section:
+def _submit_views(draw, captured, reconstructed, frames, basis: str, path, *, neutral, labels,
+                  markerset, exaggerate: float, first_frame: int) -> None:
+    """Give `draw` the views of `basis` at its 3 worst `frames`, with only those frames."""
+    shown = np.asarray(frames[:3])
+    reconstructed = plottable_positions(reconstructed, "reconstructed", labels=labels,
+                                        first_frame=first_frame)
+    draw(plot_frame_views, captured[shown], reconstructed[shown], np.arange(shown.size), path,
+         neutral=neutral, labels=labels, markerset=markerset, exaggerate=exaggerate,
+         numbers=shown + first_frame,
+         title=f"{basis}: captured (red) vs reconstructed (blue) at the worst frames"
+               + (f", errors ×{exaggerate:g}" if exaggerate != 1 else "")
+               + "; front: subject's left on the right")
+
+
+def _mesh_section(take, neutral, results, worst, space, markerset, out, files, number,
+                  draw) -> Section:
     """Renders of each basis's mesh and of W·D at the worst frames and the take's extremes."""
     extremes = [] if markerset is None else take_extremes(take.positions, neutral, take.labels,
                                                           markerset)
@@ -287,11 +312,11 @@ def _mesh_section(take, neutral, results, worst, space, markerset, out, files,
     items = []
     for basis, frames in chosen.items():
         index = [t for t, _ in frames]
-        plot_mesh_frames(space.basis_mesh(basis, index), space.faces, out(f"mesh-{basis}"),
-                         captions=[c for _, c in frames], cameras=cameras,
-                         markers=markers(index), colors=distances[basis], vmax=vmax,
-                         color_label="mm to W.D",
-                         title=f"{basis} mesh at its worst frames and the take's extremes")
+        draw(plot_mesh_frames, space.basis_mesh(basis, index), space.faces,
+             out(f"mesh-{basis}"), captions=[c for _, c in frames], cameras=cameras,
+             markers=markers(index), colors=distances[basis], vmax=vmax,
+             color_label="mm to W.D",
+             title=f"{basis} mesh at its worst frames and the take's extremes")
         items.append(Figure(files[f"mesh-{basis}"], f"{basis}: the reconstructed mesh",
                             "Front and side of the mesh this basis gives (what the exports "
                             "play), coloured by each vertex's distance to the retargeted mesh "
@@ -307,9 +332,9 @@ def _mesh_section(take, neutral, results, worst, space, markerset, out, files,
             seen.add(t)
             frames.append((t, caption))
     index = [t for t, _ in frames]
-    plot_mesh_frames(space.retargeted_mesh(index), space.faces, out("mesh-WD"),
-                     captions=[c for _, c in frames], cameras=cameras, markers=markers(index),
-                     title="The retargeted mesh W.D at the same frames")
+    draw(plot_mesh_frames, space.retargeted_mesh(index), space.faces, out("mesh-WD"),
+         captions=[c for _, c in frames], cameras=cameras, markers=markers(index),
+         title="The retargeted mesh W.D at the same frames")
     items.append(Figure(files["mesh-WD"], "W·D: the retargeted mesh",
                         "The mesh motion every basis is fitted to: if the mouth stays shut "
                         "here while the red markers open it, no basis can open it."))

@@ -11,7 +11,7 @@ from mocap.errors import InputError
 from mocap.util.validation import as_float_array, as_positions
 from mocap.viz.figures import MAX_PLOT_MM, plottable
 
-__all__ = ["view_axes", "plot_frame_views"]
+__all__ = ["view_axes", "plot_frame_views", "plottable_positions"]
 
 #: Inches per mm of the views at most (a few frames of a small face).
 _SCALE = 0.028
@@ -92,7 +92,7 @@ class _NoLandmarks:
 
 def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=None,
                      markerset=None, exaggerate: float = 1.0, first_frame: int = 0,
-                     names=None, title: str | None = None) -> None:
+                     names=None, numbers=None, title: str | None = None) -> None:
     """Front and side views of captured and reconstructed markers at some frames (PNG).
 
     Parameters
@@ -115,10 +115,13 @@ def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=N
         Added to the indices in the panel titles (the take's frame numbers).
     names : sequence of str, optional
         A caption per frame (e.g. "RMS 2.1 mm").
+    numbers : sequence of int, optional
+        The frame number in each panel's title (default ``frames + first_frame``): when
+        `captured` holds only the frames shown.
     """
-    captured = _plottable(captured, "captured", labels=labels, first_frame=first_frame)
-    reconstructed = _plottable(reconstructed, "reconstructed", labels=labels,
-                               first_frame=first_frame)
+    captured = plottable_positions(captured, "captured", labels=labels, first_frame=first_frame)
+    reconstructed = plottable_positions(reconstructed, "reconstructed", labels=labels,
+                                        first_frame=first_frame)
     if reconstructed.shape != captured.shape:
         raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
                          f"got {reconstructed.shape}")
@@ -126,6 +129,10 @@ def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=N
     if frames.size == 0 or frames.min() < 0 or frames.max() >= captured.shape[0]:
         raise InputError(f"frames must be 1 or more indices in [0, {captured.shape[0]}), "
                          f"got {frames.tolist()}")
+    numbers = frames + first_frame if numbers is None else np.asarray(numbers, dtype=np.intp)
+    if numbers.shape != frames.shape:
+        raise InputError(f"numbers must give one frame number per frame ({frames.size}), "
+                         f"got {numbers.shape}")
     labels = tuple(str(i) for i in range(captured.shape[1])) if labels is None else labels
     axes3 = view_axes(neutral, labels, markerset)
     neutral = np.asarray(neutral, dtype=float)
@@ -163,7 +170,7 @@ def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=N
                 ax.set_aspect("equal")
                 ax.tick_params(labelsize=7)
                 ax.set_xlabel(f"{view} (mm)", fontsize=8)
-            grid[2 * k].set_title(f"frame {t + first_frame}: {caption}", fontsize=9, loc="left")
+            grid[2 * k].set_title(f"frame {numbers[k]}: {caption}", fontsize=9, loc="left")
         grid[0].set_ylabel("up (mm)", fontsize=8)
         handles, texts = grid[0].get_legend_handles_labels()
         fig.legend(handles, texts, loc="outside lower center", ncol=2, fontsize=8,
@@ -173,7 +180,7 @@ def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=N
                               "the right", fontsize=10)
 
 
-def _plottable(values, name: str, *, labels, first_frame: int) -> np.ndarray:
+def plottable_positions(values, name: str, *, labels, first_frame: int) -> np.ndarray:
     """`values` (T, M, 3) as float64 (no copy when they already are), refused as
     :func:`mocap.viz.figures.plottable` refuses them; one pass for the extremes instead of
     its pass over every sample, which only runs (to name the sample) when one is out of range."""
