@@ -72,6 +72,7 @@ from fit.pipeline import (
     retarget_stage,
 )
 from fit.report import build_report
+from fit.report.figure_queue import FigureQueue
 from fit.solve.marker_basis import marker_basis
 from fit.solve.weights import solve_weights
 from mocap.clean.ingest import IngestOptions
@@ -106,6 +107,18 @@ def fit_h_exact_naively(bound, retargeted, basis, data) -> None:
         least_squares(lambda w, d=d: (layout.positions(V0 + np.tensordot(w, E, axes=1))
                                       - rest - d).ravel(),
                       np.zeros(len(E)), bounds=(basis.lower, basis.upper))
+
+
+def _peak_rss_gb(pid: int) -> float:
+    """Peak resident memory (GB) of the running process `pid` (Linux; 0 elsewhere)."""
+    try:
+        with open(f"/proc/{pid}/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1e6     # kB, as ru_maxrss
+    except OSError:
+        pass
+    return 0.0
 
 
 def measure_floors(out: Path, take, bound, retargeted, bases) -> dict:
@@ -213,12 +226,16 @@ def main() -> None:
                                     names=b.names, rate=take.rate)
                 write_gltf(out / f"face-{name}.glb", mesh, b.displacements, b.names, weights=w,
                            rate=take.rate)
-        timed("exports", exports)
-        face = take.select(retargeted.labels)
-        (out / "report").mkdir()
-        timed("QA figures + HTML", lambda: build_report(
-            face, fitted.reconstructed, face.positions[bound.frame], out / "report",
-            markerset=markerset, pca=bases.pca, ingest=ingested, video=False))
+        # as `mocap2mesh run` does: the report's figure helpers start while the exports run
+        with FigureQueue() as figures:
+            timed("exports", exports)
+            face = take.select(retargeted.labels)
+            (out / "report").mkdir()
+            timed("QA figures + HTML", lambda: build_report(
+                face, fitted.reconstructed, face.positions[bound.frame], out / "report",
+                markerset=markerset, pca=bases.pca, ingest=ingested, video=False,
+                figures=figures))
+            helpers = [_peak_rss_gb(pid) for pid in figures.pids]
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     floors = measure_floors(out, take, bound, retargeted, bases)
     total = sum(times.values())
@@ -230,6 +247,7 @@ def main() -> None:
     print(f"{'total':<20} {total:>8.2f} {sum(f for f, _ in floors.values()):>8.3f} "
           f"{total / sum(f for f, _ in floors.values()):>6.1f}×   (aim ≤ 20 s)")
     print(f"peak RSS {peak:.2f} GB (after the simulation: {rss0:.2f} GB; aim ≤ 1.5 GB); "
+          f"{len(helpers)} figure helper(s), peak RSS {max(helpers, default=0):.2f} GB; "
           f"PCA m = {bases.n_components}")
 
     # naive chain on a subset of frames
