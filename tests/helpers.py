@@ -298,16 +298,18 @@ def off_lip_layout(layout, mesh, markerset, landmarks):
                       clusters=markerset.clusters, landmarks=kept))
 
 
-def stub_take(calls, bases=None):
+def stub_take(calls, bases=None, helpers=None):
     """A stand-in for one take of ``run_takes`` (``fit.pipeline.session._guarded``) that
     commits one small file through the completion API; appends each capture's name to
-    `calls` (and the session basis it was given to `bases`)."""
+    `calls` (the session basis it was given to `bases`, its figure helpers to `helpers`)."""
     from fit.pipeline.completion import begin_take, commit_take
 
     def fake(capture, config, name, provenance, session_basis=None, figure_helpers=None):
         calls.append(capture.name)
         if bases is not None:
             bases.append(session_basis)
+        if helpers is not None:
+            helpers.append(figure_helpers)
         stage = begin_take(config.output, name)
         (stage / "out.txt").write_text(f"{capture.name} {provenance.key}")
         record = commit_take(stage, config.output, name, provenance,

@@ -9,6 +9,7 @@ import importlib.util
 import json
 import shutil
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -161,18 +162,38 @@ def test_rerun_of_the_same_config_skips_the_done_take(session_root, first_run):
     assert not outcome.takes["broken"]["skipped"] and outcome.n_failed == 1
 
 
+def _two_takes(session_root, folder) -> Path:
+    """A run configuration of two copies of the demo capture, a.c3d and b.c3d, in `folder`."""
+    for name in ("a.c3d", "b.c3d"):
+        shutil.copy(session_root / "session" / "capture.c3d", folder / name)
+    for name in ("markerset.toml", "neutral.obj", "landmarks.toml"):
+        shutil.copy(session_root / "session" / name, folder / name)
+    shutil.copytree(session_root / "session" / "shapes", folder / "shapes")
+    path = folder / "run.toml"
+    path.write_text(demo_config_toml(".", "out").replace("./capture.c3d", "a.c3d\", \"b.c3d")
+                    .replace("pca_coverage = 0.995", 'pca_coverage = 0.995\nscope = "take"'))
+    return path
+
+
+def test_takes_side_by_side_leave_the_cores_to_each_other(session_root, monkeypatch,
+                                                           tmp_path):
+    """One take at a time draws its report with helper processes; takes run side by side
+    (here two threads of a pool) draw their figures themselves."""
+    calls, helpers = [], []
+    monkeypatch.setattr("fit.pipeline.session._guarded", stub_take(calls, helpers=helpers))
+    config = load_run_config(_two_takes(session_root, tmp_path))
+    run_takes(config, workers=1, progress=False)
+    assert helpers == [None, None]              # FigureQueue's default: the spare cores
+    with ThreadPoolExecutor(2) as pool:
+        run_takes(config, executor=pool, force=True, progress=False)
+    assert helpers[2:] == [0, 0] and sorted(calls) == ["a.c3d", "a.c3d", "b.c3d", "b.c3d"]
+
+
 def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     """Skip logic alone: the chain is replaced by a stub that records its calls."""
     calls = []
     monkeypatch.setattr("fit.pipeline.session._guarded", stub_take(calls))
-    for name in ("a.c3d", "b.c3d"):
-        shutil.copy(session_root / "session" / "capture.c3d", tmp_path / name)
-    for name in ("markerset.toml", "neutral.obj", "landmarks.toml"):
-        shutil.copy(session_root / "session" / name, tmp_path / name)
-    shutil.copytree(session_root / "session" / "shapes", tmp_path / "shapes")
-    path = tmp_path / "run.toml"
-    path.write_text(demo_config_toml(".", "out").replace("./capture.c3d", "a.c3d\", \"b.c3d")
-                    .replace("pca_coverage = 0.995", 'pca_coverage = 0.995\nscope = "take"'))
+    path = _two_takes(session_root, tmp_path)
     config = load_run_config(path)
     assert config.captures[1].name == "b.c3d"
     run_takes(config, workers=1, progress=False)
