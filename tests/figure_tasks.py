@@ -42,3 +42,14 @@ def dies_in_helper(path, caller: int) -> None:
     if os.getpid() != caller:
         os._exit(3)
     pid(path)
+
+
+class PickyError(Exception):
+    """Pickles, but does not unpickle: its constructor wants a keyword argument."""
+
+    def __init__(self, path, *, why: str):
+        super().__init__(f"{path}: {why}")
+
+
+def picky(path) -> None:
+    raise PickyError(path, why="no figure")

@@ -139,3 +139,12 @@ def test_errors_cross_processes_as_themselves(error):
     assert type(copy) is type(error)
     assert str(copy) == str(error) and copy.args == error.args
     assert copy.__dict__ == error.__dict__
+
+
+def test_an_error_that_does_not_unpickle_is_raised_by_the_callers_own_draw(tmp_path):
+    with FigureQueue(helpers=1) as figures:
+        figures.submit(figure_tasks.picky, tmp_path / "picky.png")
+        figures.submit(figure_tasks.pid, tmp_path / "after.txt")
+        _wait_for(tmp_path / "after.txt")           # the helper drew both
+        with pytest.raises(figure_tasks.PickyError, match="picky.png: no figure"):
+            figures.run()

@@ -2,8 +2,10 @@
 
 Reads pickled figures on stdin, one at a time, draws each and answers on stdout:
 ``("ok", [(message, category), ...])`` with the figure's warnings, or
-``("error", exception, traceback text)``. Anything the figures print goes to stderr, so
-that it cannot break the answers. Ends at EOF.
+``("error", exception, traceback text)``, or ``(UNSENT,)`` when the answer does not
+pickle. Each answer goes as one pickled ``bytes``, so that the caller reads it whole even
+when it cannot load what it holds. Anything the figures print goes to stderr, so that it
+cannot break the answers. Ends at EOF.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import warnings
 import matplotlib
 
 import fit.report  # noqa: F401  (the report's modules, imported before the first figure)
-from fit.report.figure_queue import READY
+from fit.report.figure_queue import READY, UNSENT
 
 
 def _draw(task: bytes) -> tuple:
@@ -27,22 +29,17 @@ def _draw(task: bytes) -> tuple:
             warnings.simplefilter("always")
             function(*args, **kwargs)
     except Exception as error:
-        trace = traceback.format_exc()
-        try:
-            pickle.dumps(error)
-        except Exception:
-            error = RuntimeError(f"{type(error).__name__}: {error}")
-        return ("error", error, trace)
+        return ("error", error, traceback.format_exc())
     return ("ok", [(str(w.message), w.category) for w in caught])
 
 
-def _send(outbox, outcome: tuple) -> None:
-    """Write `outcome`, its warnings' categories as UserWarning when one does not pickle."""
+def _send(outbox, outcome) -> None:
+    """Write `outcome` as one pickled bytes; ``(UNSENT,)`` when it does not pickle."""
     try:
         answer = pickle.dumps(outcome, protocol=pickle.HIGHEST_PROTOCOL)
     except Exception:
-        answer = pickle.dumps((outcome[0], [(m, UserWarning) for m, _ in outcome[1]]))
-    outbox.write(answer)
+        answer = pickle.dumps((UNSENT,))
+    pickle.dump(answer, outbox, protocol=pickle.HIGHEST_PROTOCOL)
     outbox.flush()
 
 

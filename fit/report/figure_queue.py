@@ -11,7 +11,8 @@ figures come; a helper still starting when the figures are done is stopped.
 
 A figure is a call ``function(*args, **kwargs)`` that writes its file and returns
 nothing. It reaches a helper by pickle: give it what it shows (the frames of a view), not
-the whole take. A call that does not pickle is drawn by the caller. The caller's
+the whole take. A call that does not pickle is drawn by the caller, and so is one whose
+outcome (its error, its warnings) does not come back from the helper intact. The caller's
 rcParams go with every figure, so a figure is the same bytes whoever draws it.
 """
 
@@ -35,6 +36,8 @@ __all__ = ["FigureQueue", "MAX_HELPERS", "default_helpers"]
 MAX_HELPERS = 3
 #: What a helper sends once its imports are done.
 READY = "ready"
+#: A helper's answer that did not pickle (the figure is drawn again by the caller).
+UNSENT = "unsent"
 #: A helper's program: the caller's ``sys.path`` comes first on its stdin.
 _BOOT = ("import pickle, sys; sys.path[:] = pickle.load(sys.stdin.buffer); "
          "from fit.report._figure_helper import main; main()")
@@ -89,17 +92,27 @@ class _Helper:
         """Block until the helper has started; False if it died or was stopped first."""
         if not self.ready:
             try:
-                self.ready = pickle.load(self.process.stdout) == READY
+                self.ready = pickle.loads(self._read()) == READY
             except (EOFError, OSError, ValueError, pickle.UnpicklingError):
                 return False
         return self.ready
 
-    def draw(self, task: bytes) -> tuple:
-        """Send one pickled figure and return the helper's outcome (see `_figure_helper`).
+    def draw(self, task: bytes):
+        """Send one pickled figure and return the helper's outcome (see `_figure_helper`),
+        None when it does not load here (an error whose constructor unpickling cannot call).
 
         Raises EOFError or OSError when the helper dies."""
         pickle.dump(task, self.process.stdin)
         self.process.stdin.flush()
+        answer = self._read()
+        try:
+            outcome = pickle.loads(answer)
+        except Exception:
+            return None
+        return None if outcome[0] == UNSENT else outcome
+
+    def _read(self) -> bytes:
+        """The helper's next answer, read whole (one pickled bytes), not yet loaded."""
         return pickle.load(self.process.stdout)
 
     def exit_code(self):
@@ -241,6 +254,9 @@ class FigureQueue:
                 self._lost.append((figure, helper.process.pid, helper.exit_code()))
                 self._give_back(index)
                 return
+            if outcome is None:                     # an answer that does not load here
+                self._give_back(index)
+                continue
             if outcome[0] == "error":
                 error, trace = outcome[1], outcome[2]
                 error.add_note(f"raised in figure helper pid {helper.process.pid} drawing "
