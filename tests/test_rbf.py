@@ -26,7 +26,7 @@ from tolerances import (
 from mocap import InputError
 from mocap.mesh.regions import painted_region_weights, region_weights
 from mocap.retarget._kernels import COMPACT_KERNELS, KERNELS, MIN_DEGREE, evaluate
-from mocap.retarget.rbf import build_rbf_operator
+from mocap.retarget.rbf import _interleave, build_rbf_operator
 
 SCIPY_KERNELS = tuple(k for k in KERNELS if k not in COMPACT_KERNELS)
 RNG = np.random.default_rng(11)
@@ -377,3 +377,14 @@ def test_geodesic_thin_plate_spline_on_the_ict_face(ict_neutral_path):
     affine = np.random.default_rng(1).normal(size=(3, 3))
     field = op.apply((vertices[idx] @ affine)[None], dtype=np.float64)[0]
     np.testing.assert_allclose(field, vertices @ affine, atol=RBF_AFFINE_ICT_CM)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_interleave_writes_planes_into_a_strided_view(dtype):
+    # a tile of frames and points of a larger output, written in place: against numpy
+    planes = RNG.normal(size=(3, 7, 11)).astype(dtype)
+    whole = np.zeros((9, 20, 3), dtype)
+    _interleave(planes, whole[1:8, 4:15])
+    np.testing.assert_array_equal(whole[1:8, 4:15], np.stack(list(planes), axis=-1))
+    whole[1:8, 4:15] = 0
+    assert not whole.any()                          # nothing written outside the tile

@@ -12,6 +12,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
@@ -273,11 +274,13 @@ def _sparse_product(matrix):
 
 
 def _interleave(planes: np.ndarray, block: np.ndarray) -> None:
-    """Copy coordinate planes (3, c, n) into `block` (c, n, 3): one strided copy per
-    axis, each with a long inner loop over the vertices (a single transposed copy
-    would loop over the 3 coordinates innermost, several times slower)."""
-    for axis in range(3):
-        block[:, :, axis] = planes[axis]
+    """Copy coordinate planes (3, c, n) into `block` (c, n, 3), a view whose rows may
+    be strided but whose points and coordinates are adjacent (a slice of a
+    C-contiguous array). OpenCV's channel merge does it in one pass that writes each
+    output cache line whole; numpy's per-axis strided copies would write every line
+    three times, a third each time, and cost the apply a third more than the bare
+    GEMM on a take larger than the caches."""
+    cv2.merge(list(planes), dst=block)
 
 
 def build_rbf_operator(centers, points, *, kernel: str = "thin_plate_spline",
