@@ -195,6 +195,41 @@ def test_smooth_start_changes_the_work_not_the_result(start):
         assert sol.n_iter.max() == 1
 
 
+def test_kept_factor_is_used_only_for_its_own_system(monkeypatch):
+    """In a reuse_factors block, a solve that starts in the state the last one ended in
+    reuses its factor; solves of other systems (another λ, basis or take length) in that
+    state must not: every result is bit for bit the one solved outside the block."""
+    rng = np.random.default_rng(8)
+    T, n, K = 120, 5, 12
+    basis, data = _smooth_problem(rng, T, n, K, collinear=True)
+    answer = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0).weights
+    own = (basis, data, 2.0)                    # starts at its answer: one global solve
+    # each other system starts in the state the last solve (of `own`) ended in
+    problems = [own, (basis, data, 7.0), own,
+                (basis + 0.3 * rng.standard_normal(basis.shape), data, 2.0), own,
+                (basis, data[:-1], 2.0), own, own]
+    factors = []
+    real = fit.solve._smooth.scipy.linalg.cholesky_banded
+
+    def counted(*args, **kwargs):
+        factors.append(1)
+        return real(*args, **kwargs)
+    monkeypatch.setattr(fit.solve._smooth.scipy.linalg, "cholesky_banded", counted)
+
+    def solve_all():
+        return [solve_weights(b, d, lower=0, upper=1, smoothness=lam, start=answer[:len(d)])
+                for b, d, lam in problems]
+    alone = solve_all()
+    alone_factors, factors[:] = len(factors), []
+    with fit.solve._smooth.reuse_factors():
+        kept = solve_all()
+    for one, other in zip(alone, kept):
+        assert other.status == 0
+        np.testing.assert_array_equal(other.weights, one.weights)
+    assert alone[0].n_iter.max() == 1
+    assert len(factors) == alone_factors - 1    # the last solve reused the one before's
+
+
 def test_smoothness_reduces_frame_to_frame_change():
     rng = np.random.default_rng(11)
     basis = rng.standard_normal((15, 4))

@@ -33,6 +33,8 @@ proposes the next state.
 
 from __future__ import annotations
 
+import contextvars
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -152,6 +154,7 @@ class _Band:
         n = len(G)
         self.G, self.lam, self.n, self.ridge = G, lam, n, ridge
         self.fill = float(np.mean(np.diag(G))) or 1.0
+        self.key = (G.tobytes(), lam, ridge)
         cols = np.arange(n)
         self.bands = [np.where(cols >= k, G[(cols - k) % n, cols], 0.0) for k in range(n)]
 
@@ -176,19 +179,64 @@ def _reduced(qp: BoxQP, band: _Band, c, state, w, frames):
     """Weights of ``frames`` (sorted) for their state, the other frames held at ``w``.
 
     Bound weights sit at their bound, free ones are stationary: one banded
-    solve over the frames. Returns (F, n).
+    solve over the frames (for the whole sequence, through its Cholesky factor,
+    :func:`_whole_factor`). Returns (F, n).
     """
     T, n = c.shape
-    lam = band.lam
     sub = state[frames]
     free = sub == 0
     fixed_part = qp.bound_values(sub)
     held = w.copy()
     held[frames] = fixed_part
-    rhs = np.where(free, -gradient(qp.G, c, lam, held, frames)[0], 0.0).ravel()
-    ab = band.matrix(free, degree(T)[frames], np.diff(frames) == 1)
-    step = scipy.linalg.solveh_banded(ab, rhs, overwrite_ab=True, check_finite=False)
+    rhs = np.where(free, -gradient(qp.G, c, band.lam, held, frames)[0], 0.0).ravel()
+    if len(frames) == T:
+        step = scipy.linalg.cho_solve_banded((_whole_factor(band, sub), False), rhs,
+                                             check_finite=False)
+    else:
+        ab = band.matrix(free, degree(T)[frames], np.diff(frames) == 1)
+        step = scipy.linalg.solveh_banded(ab, rhs, overwrite_ab=True, check_finite=False)
     return fixed_part + np.where(free, step.reshape(len(frames), n), 0.0)
+
+
+class _KeptFactor:
+    """The last whole-sequence factor of a :func:`reuse_factors` block and its system."""
+
+    key = factor = None
+
+
+_KEPT = contextvars.ContextVar("kept_factor", default=None)
+
+
+@contextmanager
+def reuse_factors():
+    """Within the block, keep the last whole-sequence factor for the next bounded solve.
+
+    Solves of one sequence problem with new linear terms (the chord steps of the
+    exact-centre fit) often start in the state the previous one ended in: its
+    upper banded Cholesky factor is then reused, a pair of triangular solves
+    instead of a factorization. Holds one factor, (n + 1) · T · n floats, until
+    the block ends; solves in other threads keep none.
+    """
+    token = _KEPT.set(_KeptFactor())
+    try:
+        yield
+    finally:
+        _KEPT.reset(token)
+
+
+def _whole_factor(band: _Band, state):
+    """Upper banded Cholesky factor of the reduced Hessian of the whole sequence in
+    ``state`` (T, n): the one kept by :func:`reuse_factors` if it is of this system."""
+    kept = _KEPT.get()
+    key = (band.key, state.tobytes())
+    if kept is not None and kept.key == key:
+        return kept.factor
+    T = len(state)
+    ab = band.matrix(state == 0, degree(T), np.ones(max(T - 1, 0), bool))
+    factor = scipy.linalg.cholesky_banded(ab, overwrite_ab=True, check_finite=False)
+    if kept is not None:
+        kept.key, kept.factor = key, factor
+    return factor
 
 
 def _step(qp: BoxQP, state, w, grad):

@@ -27,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fit.solve._smooth import reuse_factors
 from fit.solve.gcv import SMOOTHNESS_RULES, gcv_smoothness
 from fit.solve.weights import WeightSolution, as_smoothness, solve_weights
 from mocap.errors import InputError
@@ -128,7 +129,8 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
         start = solve_at_marker_centres(
             layout, neutral, displacements, basis, data, lower=lower, upper=upper, tol=tol,
             max_steps=max_steps).solution.weights
-        steps = _chord_steps(model, data, start, smoothness, tol, max_steps)
+        with reuse_factors():       # a step often starts in the state the last one ended in
+            steps = _chord_steps(model, data, start, smoothness, tol, max_steps)
     else:
         # frames are independent: pieces of them step on the BLAS's threads
         pieces = map_on_blas_threads(
@@ -193,7 +195,9 @@ class _ChordSteps(NamedTuple):
 
 def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps) -> _ChordSteps:
     """The chord steps of `data` (T, M, 3) from weights `start` (None: zero weights, whose
-    first step is the linear model's solve); with `smoothness` > 0 the frames step together."""
+    first step is the linear model's solve); with `smoothness` > 0 the frames step
+    together, the first step from the smooth solve's own start (`start`, the frames' own
+    optima, is an active set far from the smooth one), later ones from the last iterate."""
     basis, lower, upper = model.basis, model.lower, model.upper
     T, n = len(data), len(basis)
     coupled = smoothness > 0
@@ -209,8 +213,7 @@ def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps) -
         nonlinear = 0.0 if first and start is None else \
             model.centres(xt) - np.tensordot(xt, basis, axes=1)
         sol = solve_weights(basis, data[todo] - nonlinear, lower=lower, upper=upper,
-                            smoothness=smoothness, start=None if first and start is None
-                            else xt)
+                            smoothness=smoothness, start=None if first else xt)
         g = sol.weights - xt
         step[todo] = np.abs(g).max(axis=1)
         w[todo], n_steps[todo], n_iter[todo] = sol.weights, n_steps[todo] + 1, \
