@@ -230,6 +230,38 @@ def test_kept_factor_is_used_only_for_its_own_system(monkeypatch):
     assert len(factors) == alone_factors - 1    # the last solve reused the one before's
 
 
+@pytest.mark.parametrize("n, T", [(1, 6), (4, 1), (5, 300)])
+def test_band_matrix_is_the_reduced_hessian(n, T, monkeypatch):
+    """The banded storage holds the reduced Hessian of the dense oracle (I ⊗ G + λ L ⊗ I,
+    bound weights' rows and columns replaced by the fill on the diagonal, a frame not
+    linked to the next one decoupled from it), in LAPACK's upper form, Fortran-ordered;
+    written in small pieces and into a given array alike."""
+    monkeypatch.setattr(fit.solve._smooth, "_PIECE_BYTES", 8 * n * (n + 1) * 7)  # 7 frames
+    rng = np.random.default_rng(n * T)
+    a = rng.standard_normal((2 * n, n))
+    G, lam, ridge = a.T @ a, 0.7, 0.01
+    free = rng.random((T, n)) > 0.3
+    link = rng.random(max(T - 1, 0)) > 0.1
+    deg = np.r_[0, link] + np.r_[link, 0] if T > 1 else np.zeros(1)
+    band = fit.solve._smooth._Band(G, lam, ridge)
+    got = band.matrix(free, deg.astype(float), link)
+    lap = np.diag(deg.astype(float)) - np.diag(link.astype(float), 1) \
+        - np.diag(link.astype(float), -1)
+    dense = np.kron(np.eye(T), G) + lam * np.kron(lap, np.eye(n)) + ridge * np.eye(T * n)
+    keep = free.ravel()
+    dense = np.where(np.outer(keep, keep), dense, 0.0)
+    dense[~keep, ~keep] = band.fill
+    expected = np.zeros((n + 1, T * n))
+    for i, j in zip(*np.triu_indices(T * n)):
+        if j - i <= n:
+            expected[n + i - j, j] = dense[i, j]
+    np.testing.assert_allclose(got, expected, rtol=0, atol=EXACT_FLOAT64 * np.abs(dense).max())
+    assert got.flags.f_contiguous
+    out = np.full((n + 1, T * n), np.nan, order="F")
+    assert band.matrix(free, deg.astype(float), link, out=out) is out
+    np.testing.assert_array_equal(out, got)
+
+
 def test_smoothness_reduces_frame_to_frame_change():
     rng = np.random.default_rng(11)
     basis = rng.standard_normal((15, 4))

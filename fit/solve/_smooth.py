@@ -142,6 +142,11 @@ def gradient(G, c, lam, w, frames=None):
     return grad, scale
 
 
+#: Bytes of the C-ordered piece of the banded matrix formed at a time (it stays in
+#: cache while it is copied into the Fortran-ordered matrix LAPACK factors in place).
+_PIECE_BYTES = 1 << 21
+
+
 class _Band:
     """Upper banded storage (n + 1, F·n) of the reduced Hessian of any run of frames.
 
@@ -156,22 +161,43 @@ class _Band:
         self.fill = float(np.mean(np.diag(G))) or 1.0
         self.key = (G.tobytes(), lam, ridge)
         cols = np.arange(n)
-        self.bands = [np.where(cols >= k, G[(cols - k) % n, cols], 0.0) for k in range(n)]
+        # [c, r − 1]: the entry of storage row r (band n − r) in a frame's column c
+        self.bands = np.array([np.where(cols >= k, G[(cols - k) % n, cols], 0.0)
+                               for k in range(n - 1, 0, -1)]).T.copy()       # (n, n − 1)
 
-    def matrix(self, free, deg, link):
+    def matrix(self, free, deg, link, out=None):
         """Banded matrix of frames with free mask ``free`` (F, n), degrees (F,),
-        ``link`` (F − 1,) True where a frame is coupled to the next one."""
+        ``link`` (F − 1,) True where a frame is coupled to the next one.
+
+        Fortran-ordered, so that LAPACK factors it in place (a C-ordered one it
+        would copy whole first), written column by column (each the n + 1
+        entries of one variable, contiguous) by pieces of frames; into `out`
+        (its shape, Fortran-ordered) when given.
+        """
         n, F = self.n, len(free)
-        flat = free.ravel()
-        ab = np.zeros((n + 1, flat.size))
-        pair = np.zeros(flat.size, bool)
-        for k in range(1, n):
-            np.logical_and(flat[k:], flat[:-k], out=pair[k:])
-            np.multiply(pair.reshape(F, n), self.bands[k], out=ab[n - k].reshape(F, n))
+        mask = free.ravel().astype(np.float64)
         diag = (np.diag(self.G)[None, :] + self.ridge + self.lam * deg[:, None]).ravel()
-        ab[n] = np.where(flat, diag, self.fill)
+        coupled = np.zeros(mask.size)
         if F > 1:
-            ab[0, n:] = -self.lam * (flat[n:] & flat[:-n] & np.repeat(link, n))
+            coupled[n:] = mask[n:] * mask[:-n] * np.repeat(link, n)
+        # [j, r − 1]: the mask of variable j − (n − r), 0 before the first frame (where
+        # the bands are 0 too): a sliding window, no copy
+        behind = np.lib.stride_tricks.sliding_window_view(np.r_[np.zeros(n), mask], n - 1)
+        ab = np.empty((n + 1, mask.size), order="F") if out is None else out
+        if ab.shape != (n + 1, mask.size) or not ab.flags.f_contiguous:
+            raise ValueError(f"out must be a Fortran-ordered {(n + 1, mask.size)} array")
+        columns = ab.T                                                    # (F·n, n + 1), C
+        per_piece = max(1, _PIECE_BYTES // (8 * n * (n + 1)))
+        for first in range(0, F, per_piece):
+            cols = slice(first * n, min(first + per_piece, F) * n)
+            count = (cols.stop - cols.start) // n
+            piece = columns[cols].reshape(count, n, n + 1)
+            bands = piece[:, :, 1:n]
+            np.multiply(behind[cols.start + 1:cols.stop + 1].reshape(count, n, n - 1),
+                        self.bands, out=bands)
+            bands *= mask[cols].reshape(count, n, 1)
+            piece[:, :, 0] = (-self.lam * coupled[cols]).reshape(count, n)
+            piece[:, :, n] = np.where(mask[cols] > 0, diag[cols], self.fill).reshape(count, n)
         return ab
 
 
@@ -232,7 +258,13 @@ def _whole_factor(band: _Band, state):
     if kept is not None and kept.key == key:
         return kept.factor
     T = len(state)
-    ab = band.matrix(state == 0, degree(T), np.ones(max(T - 1, 0), bool))
+    # a kept factor of another system is overwritten: no second matrix of its size
+    reuse = kept is not None and kept.factor is not None and \
+        kept.factor.shape == (band.n + 1, state.size)
+    if reuse:
+        kept.key = None                 # its factor is no longer one from here on
+    ab = band.matrix(state == 0, degree(T), np.ones(max(T - 1, 0), bool),
+                     out=kept.factor if reuse else None)
     factor = scipy.linalg.cholesky_banded(ab, overwrite_ab=True, check_finite=False)
     if kept is not None:
         kept.key, kept.factor = key, factor
