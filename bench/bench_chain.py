@@ -217,16 +217,21 @@ def main() -> None:
         fitted = timed("fit (H, QE, PCA)", lambda: fit_stage(take, bound, retargeted, bases))
 
         def exports():
+            # as `mocap2mesh run` does: the CSVs (text) queued first, for the figure helpers
+            for name, b in bases.bases.items():
+                figures.submit(write_weights_csv, out / f"weights-{name}.csv",
+                               fitted.weights[name], b.names, rate=take.rate)
             for name, b in bases.bases.items():
                 w = fitted.weights[name]
                 save_basis(ArtistBasis(b.names, mesh, b.displacements), out / f"basis-{name}.npz",
                            dtype="float32")
-                write_weights_csv(out / f"weights-{name}.csv", w, b.names, rate=take.rate)
                 write_mesh_sequence(out / f"mesh-{name}.npz", mesh, b.displacements, w,
                                     names=b.names, rate=take.rate)
                 write_gltf(out / f"face-{name}.glb", mesh, b.displacements, b.names, weights=w,
                            rate=take.rate)
-        # as `mocap2mesh run` does: the report's figure helpers start while the exports run
+            figures.run()
+        # as `mocap2mesh run` does: the figure helpers start with the exports, write the
+        # weights CSVs, then draw the figures
         with FigureQueue() as figures:
             timed("exports", exports)
             face = take.select(retargeted.labels)

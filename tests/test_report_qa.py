@@ -16,6 +16,7 @@ from fit.pipeline.holdout import held_out_fits, time_blocked_splits
 from fit.pipeline.reconstruction import Reconstruction
 from fit.report import build_report
 from fit.report.extremes import take_extremes
+from fit.report.figure_queue import FigureQueue
 from fit.report.grades import GRADES, grade
 from fit.report.html import Section, Table
 from mocap.errors import InputError
@@ -36,6 +37,30 @@ def demo(tmp_path_factory):
     files = result.report(root / "report", inputs={"capture": p["capture"],
                                                    "mesh": p["neutral"]})
     return dict(result=result, files=files, root=root, paths=p)
+
+
+def test_exports_written_with_a_helper_are_the_same_files(demo, tmp_path):
+    """The weights CSVs written by a figure helper while this process writes the rest are
+    the bytes written here, and every export is there when save returns; an error of a
+    queued CSV is raised by save."""
+    result = demo["result"]
+    alone = result.save(tmp_path / "alone")
+    with FigureQueue(helpers=1) as figures:
+        shared = result.save(tmp_path / "shared", figures=figures)
+        assert figures.helpers == 1
+    assert [p.relative_to(tmp_path / "shared") for p in shared] == \
+        [p.relative_to(tmp_path / "alone") for p in alone]
+    assert all(p.is_file() for p in shared)
+    csvs = [p for p in alone if p.suffix == ".csv"]
+    assert len(csvs) == len(result.bases.bases)
+    for path in csvs:
+        assert (tmp_path / "shared" / path.name).read_bytes() == path.read_bytes()
+    first = next(iter(result.bases.bases))
+    (tmp_path / "taken" / f"weights-{first}.csv").mkdir(parents=True)   # not a file
+    with FigureQueue(helpers=1) as figures, pytest.raises(InputError) as raised:
+        result.save(tmp_path / "taken", figures=figures)
+    assert f"weights-{first}.csv" in str(raised.value)
+    assert (tmp_path / "taken" / f"face-{first}.glb").is_file()   # the others written
 
 
 # ---------------------------------------------------------------- out of sample

@@ -20,6 +20,7 @@ The README's Python section is a complete script (run as a test).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 import warnings
@@ -383,7 +384,7 @@ class ReconstructionResult:
                             first_frame=self.take.first_frame, rotation=self.head_motion[0],
                             translation=self.head_motion[1])
 
-    def save(self, directory, *, inputs=()) -> list:
+    def save(self, directory, *, inputs=(), figures: FigureQueue | None = None) -> list:
         """Write the take's exports into `directory` (created); returns the paths.
 
         ``take.c3d`` (cleaned, head-stabilized), ``head_motion.npz``,
@@ -391,16 +392,37 @@ class ReconstructionResult:
         ``mesh-B.npz`` (compact sequence with the head motion), ``face-B.glb``
         (morph targets, weight animation at the take's rate keyed on the
         capture's frame numbers, the head motion as the node's rotation and
-        translation). Every file atomically; none over one of `inputs`.
+        translation). Every file atomically; none over one of `inputs`. With
+        `figures` (:class:`~fit.report.figure_queue.FigureQueue`), the weights
+        CSVs (text, the slowest to write) are queued first, for its helpers to
+        write while this process writes the other files; all are written when
+        this returns, and the first error is raised here.
         """
         out = Path(directory)
         out.mkdir(parents=True, exist_ok=True)
-        mesh, take = self.reconstruction.mesh, self.take
+        timing = dict(rate=self.take.rate, first_frame=self.take.first_frame)
+        queue = figures.submit if figures is not None else _call
+        for name, basis in self.bases.bases.items():
+            queue(write_weights_csv, out / f"weights-{name}.csv", self.fitted.weights[name],
+                  basis.names, inputs=inputs, **timing)
+        try:
+            files = self._save_binary(out, inputs, timing)
+        except BaseException:
+            if figures is not None:     # no helper still writing when the caller cleans up
+                with contextlib.suppress(Exception):
+                    figures.run()
+            raise
+        if figures is not None:
+            figures.run()
+        return files
+
+    def _save_binary(self, out: Path, inputs, timing) -> list:
+        """The exports of :meth:`save` but the weights CSVs, written here; all the paths."""
+        mesh = self.reconstruction.mesh
         files = [out / "take.c3d", out / "head_motion.npz", out / "binding.json"]
-        mocap.write(take, files[0], inputs=inputs)
+        mocap.write(self.take, files[0], inputs=inputs)
         save_head_motion(self.ingested.head_frame, files[1], inputs=inputs)
         self.binding.save(files[2])
-        timing = dict(rate=take.rate, first_frame=take.first_frame)
         rotation, translation = self.head_motion
         for name, basis in self.bases.bases.items():
             weights = self.fitted.weights[name]
@@ -408,7 +430,6 @@ class ReconstructionResult:
                      out / f"mesh-{name}.npz", out / f"face-{name}.glb"]
             save_basis(ArtistBasis(basis.names, mesh, basis.displacements), paths[0],
                        dtype="float32", inputs=inputs)
-            write_weights_csv(paths[1], weights, basis.names, inputs=inputs, **timing)
             write_mesh_sequence(paths[2], mesh, basis.displacements, weights,
                                 names=basis.names, rotation=rotation, translation=translation,
                                 inputs=inputs, **timing)
@@ -546,3 +567,8 @@ class ReconstructionResult:
                                             + errors.summary()["worst_frame"],
                                             "smoothness": self.fitted.solutions[name].smoothness})
                             for name, errors in self.errors.items()}}
+
+
+def _call(function, /, *args, **kwargs) -> None:
+    """``function(*args, **kwargs)`` now: :meth:`Reconstruction.save` without a queue."""
+    function(*args, **kwargs)

@@ -114,7 +114,7 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
     provenance : Provenance, optional
         What the outputs are made from (default: computed from `config`).
     figure_helpers : int, optional
-        Helper processes drawing the report's figures
+        Helper processes writing the weights CSVs and drawing the report's figures
         (:class:`~fit.report.figure_queue.FigureQueue`; default one per spare core);
         0 when other takes share the machine's cores.
     """
@@ -129,10 +129,11 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
                 result = dataclasses.replace(Reconstruction.from_config(config).process(
                     capture, session_basis=session_basis), name=name)
             stages = dict(result.stage_seconds)
-            # the figure helpers start while the exports are written
+            # the helpers start with the exports (a core of a helper's start would slow the
+            # chain's threaded stages), write the weights CSVs, then draw the figures
             with FigureQueue(figure_helpers) as figures:
                 tic = time.perf_counter()
-                result.save(stage, inputs=[capture])
+                result.save(stage, inputs=[capture], figures=figures)
                 stages["exports"] = time.perf_counter() - tic
                 tic = time.perf_counter()
                 result.report(stage / "report", warnings=caught, figures=figures,
