@@ -196,10 +196,11 @@ class _ChordSteps(NamedTuple):
 def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps) -> _ChordSteps:
     """The chord steps of `data` (T, M, 3) from weights `start` (None: zero weights, whose
     first step is the linear model's solve); with `smoothness` > 0 the frames step
-    together. Each solve starts from the active set of the last step's solution (that of
-    its kept factor, :func:`fit.solve._smooth.reuse_factors`), not of the mixed iterate;
-    the first smooth one from the smooth solve's own start (`start`, the frames' own
-    optima, is an active set far from the smooth one)."""
+    together. A frame's solve starts from the active set of its mixed iterate, which
+    extrapolates the last two; a smooth solve from that of the last step's solution
+    instead (the state of its kept factor, :func:`fit.solve._smooth.reuse_factors`), the
+    first one from the smooth solve's own start (`start`, the frames' own optima, is an
+    active set far from the smooth one)."""
     basis, lower, upper = model.basis, model.lower, model.upper
     T, n = len(data), len(basis)
     coupled = smoothness > 0
@@ -215,7 +216,8 @@ def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps) -
         nonlinear = 0.0 if first and start is None else \
             model.centres(xt) - np.tensordot(xt, basis, axes=1)
         sol = solve_weights(basis, data[todo] - nonlinear, lower=lower, upper=upper,
-                            smoothness=smoothness, start=None if first else w[todo])
+                            smoothness=smoothness,
+                            start=None if first else w[todo] if coupled else xt)
         g = sol.weights - xt
         step[todo] = np.abs(g).max(axis=1)
         w[todo], n_steps[todo], n_iter[todo] = sol.weights, n_steps[todo] + 1, \
