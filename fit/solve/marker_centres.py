@@ -125,10 +125,9 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     rest = layout.positions_under_weights(neutral, displacements, np.zeros((1, n)))[0]
     model = _CentreModel(layout, neutral, displacements, basis, rest, lower, upper)
     if smoothness > 0:
-        # the frames are one problem and step together, from their own fixed points
-        start = solve_at_marker_centres(
-            layout, neutral, displacements, basis, data, lower=lower, upper=upper, tol=tol,
-            max_steps=max_steps).solution.weights
+        # the frames are one problem and step together, from the linear model's optima of
+        # the frames (solving their own fixed points first costs more than the steps it saves)
+        start = solve_weights(basis, data, lower=lower, upper=upper).weights
         with reuse_factors():       # a step often starts in the state the last one ended in
             steps = _chord_steps(model, data, start, smoothness, tol, max_steps)
     else:
