@@ -121,25 +121,30 @@ def degree(n_frames: int) -> np.ndarray:
     return deg
 
 
-def gradient(G, c, lam, w, frames=None):
+def gradient(G, c, lam, w, frames=None, *, scale: bool = True):
     """Gradient of the sequence objective at rows ``frames`` of ``w`` (all when None).
 
-    Returns the gradient and the magnitude of its terms, (F, n) each, F the
-    number of frames.
+    Returns the gradient and the magnitude of its terms (None without ``scale``),
+    (F, n) each, F the number of frames.
     """
     T = len(w)
     frames = np.arange(T) if frames is None else frames
     wf = w[frames]
     prev, nxt = frames - 1, frames + 1
     has_prev, has_next = prev >= 0, nxt < T
-    near, near_abs = np.zeros_like(wf), np.zeros_like(wf)
+    near = np.zeros_like(wf)
     for rows, there in ((has_prev, prev), (has_next, nxt)):
         near[rows] += w[there[rows]]
-        near_abs[rows] += np.abs(w[there[rows]])
     deg = degree(T)[frames][:, None]
     grad = wf @ G - c[frames] + lam * (deg * wf - near)
-    scale = np.abs(wf) @ np.abs(G) + np.abs(c[frames]) + lam * (deg * np.abs(wf) + near_abs)
-    return grad, scale
+    if not scale:
+        return grad, None
+    near_abs = np.zeros_like(wf)
+    for rows, there in ((has_prev, prev), (has_next, nxt)):
+        near_abs[rows] += np.abs(w[there[rows]])
+    magnitude = np.abs(wf) @ np.abs(G) + np.abs(c[frames]) \
+        + lam * (deg * np.abs(wf) + near_abs)
+    return grad, magnitude
 
 
 #: Bytes of the C-ordered piece of the banded matrix formed at a time (it stays in
@@ -214,7 +219,8 @@ def _reduced(qp: BoxQP, band: _Band, c, state, w, frames):
     fixed_part = qp.bound_values(sub)
     held = w.copy()
     held[frames] = fixed_part
-    rhs = np.where(free, -gradient(qp.G, c, band.lam, held, frames)[0], 0.0).ravel()
+    rhs = np.where(free, -gradient(qp.G, c, band.lam, held, frames, scale=False)[0],
+                   0.0).ravel()
     if len(frames) == T:
         step = scipy.linalg.cho_solve_banded((_whole_factor(band, sub), False), rhs,
                                              check_finite=False)
@@ -307,7 +313,7 @@ def _settle(qp, band, c, state, w, changed, n_iter):
         frames = np.flatnonzero(near)
         w[frames] = _reduced(qp, band, c, state, w, frames)
         n_iter[frames] += 1
-        grad = gradient(qp.G, c, band.lam, w, frames)[0]
+        grad = gradient(qp.G, c, band.lam, w, frames, scale=False)[0]
         new = _step(qp, state[frames], w[frames], grad)
         changed = np.zeros(len(c), bool)
         changed[frames] = (new != state[frames]).any(axis=1)
