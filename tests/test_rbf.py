@@ -169,6 +169,13 @@ def test_wendland_is_sparse_positive_definite_and_interpolates():
     far = np.min(cdist(POINTS, CENTERS), axis=1) >= 1 / epsilon
     assert far.any()
     assert op.matrix[len(CENTERS):][far].nnz == 0
+    # the sparse product applied to frames, against the dense matrix frame by frame
+    frames = RNG.normal(size=(11, len(CENTERS), 3))
+    expected = np.stack([_dense(op.matrix) @ frame for frame in frames])
+    for dtype, atol in ((np.float64, EXACT_FLOAT64), (np.float32, RBF_APPLY_FLOAT32)):
+        got = op.apply(frames, chunk_frames=4, dtype=dtype)
+        assert got.dtype == dtype
+        np.testing.assert_allclose(got, expected, atol=atol * max(1.0, np.abs(expected).max()))
 
 
 def test_wendland_formula_is_c2_at_the_support_edge():
