@@ -20,7 +20,6 @@ The README's Python section is a complete script (run as a test).
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 import warnings
@@ -398,22 +397,21 @@ class ReconstructionResult:
         write while this process writes the other files; all are written when
         this returns, and the first error is raised here.
         """
+        if figures is None:
+            with FigureQueue(helpers=0) as figures:
+                return self.save(directory, inputs=inputs, figures=figures)
         out = Path(directory)
         out.mkdir(parents=True, exist_ok=True)
         timing = dict(rate=self.take.rate, first_frame=self.take.first_frame)
-        queue = figures.submit if figures is not None else _call
         for name, basis in self.bases.bases.items():
-            queue(write_weights_csv, out / f"weights-{name}.csv", self.fitted.weights[name],
-                  basis.names, inputs=inputs, **timing)
+            figures.submit(write_weights_csv, out / f"weights-{name}.csv",
+                           self.fitted.weights[name], basis.names, inputs=inputs, **timing)
         try:
             files = self._save_binary(out, inputs, timing)
         except BaseException:
-            if figures is not None:     # no helper still writing when the caller cleans up
-                with contextlib.suppress(Exception):
-                    figures.run()
+            figures.close()     # a CSV a helper is writing is finished, the others dropped
             raise
-        if figures is not None:
-            figures.run()
+        figures.run()
         return files
 
     def _save_binary(self, out: Path, inputs, timing) -> list:
@@ -567,8 +565,3 @@ class ReconstructionResult:
                                             + errors.summary()["worst_frame"],
                                             "smoothness": self.fitted.solutions[name].smoothness})
                             for name, errors in self.errors.items()}}
-
-
-def _call(function, /, *args, **kwargs) -> None:
-    """``function(*args, **kwargs)`` now: :meth:`Reconstruction.save` without a queue."""
-    function(*args, **kwargs)

@@ -147,8 +147,8 @@ def gradient(G, c, lam, w, frames=None, *, scale: bool = True):
     return grad, magnitude
 
 
-#: Bytes of the C-ordered piece of the banded matrix formed at a time (it stays in
-#: cache while it is copied into the Fortran-ordered matrix LAPACK factors in place).
+#: Bytes of the piece of frames of the banded matrix formed at a time (its masks and
+#: products stay in cache).
 _PIECE_BYTES = 1 << 21
 
 

@@ -216,7 +216,7 @@ def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps) -
             model.centres(xt) - np.tensordot(xt, basis, axes=1)
         sol = solve_weights(basis, data[todo] - nonlinear, lower=lower, upper=upper,
                             smoothness=smoothness,
-                            start=None if first else w[todo] if coupled else xt)
+                            start=None if first else (w[todo] if coupled else xt))
         g = sol.weights - xt
         step[todo] = np.abs(g).max(axis=1)
         w[todo], n_steps[todo], n_iter[todo] = sol.weights, n_steps[todo] + 1, \
