@@ -478,3 +478,23 @@ def test_solve_weights_leaves_its_arguments_alone():
                                      n_neighbors=10)
         np.testing.assert_array_equal(basis, kept[0])
         np.testing.assert_array_equal(data, kept[1])
+
+
+@pytest.mark.parametrize("lower", [True, False], ids=["lower-triangle", "whole"])
+def test_principal_submatrices_match_indexing_each_frame(lower):
+    """The gathered systems against ``mat[np.ix_(sel, sel)]`` frame by frame, padded
+    entries (index n) selecting the identity's row and column."""
+    from fit.solve._reduced import _principal
+
+    rng = np.random.default_rng(17)
+    n, m, frames = 9, 5, 40
+    mat = rng.standard_normal((n, n))
+    ext = np.eye(n + 1)
+    ext[:n, :n] = mat
+    sel = np.stack([np.sort(rng.choice(n + 1, m, replace=False)) for _ in range(frames)], 1)
+    out = _principal(mat, sel, lower=lower)
+    assert out.shape == (m + 1, m, frames)
+    rows, cols = np.tril_indices(m) if lower else np.indices((m, m)).reshape(2, -1)
+    for t in range(frames):
+        expected = ext[np.ix_(sel[:, t], sel[:, t])]
+        np.testing.assert_array_equal(out[rows, cols, t], expected[rows, cols])

@@ -24,7 +24,7 @@ as views, in-place updates).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property, lru_cache
+from functools import cached_property
 
 import numpy as np
 
@@ -382,18 +382,16 @@ def _principal(mat, sel, *, lower: bool = False):
     n, m = len(mat), len(sel)
     ext = np.zeros((n + 1, n + 1))
     ext[:n, :n] = mat
-    i, j = _pairs(m, lower)
+    flat, starts = ext.ravel(), sel * (n + 1)
     out = np.empty((m + 1, m, sel.shape[1]))
-    out[i, j] = np.take(ext.ravel(), (sel * (n + 1))[i] + sel[j])
+    # row by row, each one gather into its place: the (entries, frames) index array of
+    # all rows at once costs several times the gather itself
+    for k in range(m):
+        cols = sel[:k + 1] if lower else sel
+        np.take(flat, starts[k] + cols, out=out[k, :len(cols)], mode="clip")
     diag = np.arange(m)
     out[diag, diag] += sel == n
     return out
-
-
-@lru_cache(maxsize=None)
-def _pairs(m: int, lower: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Row and column indices of the lower triangle (or all entries) of an m × m matrix."""
-    return np.tril_indices(m) if lower else tuple(np.indices((m, m)).reshape(2, -1))
 
 
 def _factor(qp, mats):
