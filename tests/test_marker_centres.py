@@ -14,6 +14,7 @@ from tolerances import (
 )
 
 import fit.solve.marker_centres
+import mocap.mesh.layout
 from fit.solve.gcv import gcv_smoothness
 from fit.solve.marker_centres import solve_at_marker_centres
 from fit.solve.weights import solve_weights
@@ -47,8 +48,12 @@ def centres_case(ict_basis, ict_layout, arkit_performance):
     return basis, layout, truth, data, tangent
 
 
-def test_positions_under_weights_are_the_positions_on_the_deformed_mesh(centres_case):
+@pytest.mark.parametrize("per_pass", [None, 50], ids=["one-pass", "passes-and-a-remainder"])
+def test_positions_under_weights_are_the_positions_on_the_deformed_mesh(centres_case,
+                                                                         per_pass, monkeypatch):
     basis, layout, truth, data, _ = centres_case
+    if per_pass is not None:
+        monkeypatch.setattr(mocap.mesh.layout, "_FRAMES_PER_PASS", per_pass)
     got = layout.positions_under_weights(basis.neutral.vertices, basis.displacements, truth)
     np.testing.assert_allclose(got - layout.positions(basis.neutral.vertices), data,
                                rtol=0, atol=EXACT_FLOAT64)
