@@ -5,7 +5,11 @@ for a threaded BLAS to split: its threads meet at each of thousands of small cal
 which on a loaded 2-core machine made such paths several times slower than on one
 thread. They run on one BLAS thread and share their work among as many Python threads
 as the BLAS had (:func:`map_on_blas_threads`; numpy releases the GIL in its products and
-loops); large single products keep the BLAS's threads.
+loops); large single products keep the BLAS's threads. What a second thread gains
+depends on how big the calls are: the RBF tiles and the marker-centre evaluation (big
+products and passes) share well, the batched box-QP solve hardly at all (its calls are
+small enough that taking and handing back the GIL is much of their time; separate
+processes would share it).
 """
 
 from __future__ import annotations
