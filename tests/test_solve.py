@@ -406,23 +406,47 @@ def test_fixed_weights_against_bvls_on_the_rest():
                                rtol=SOLVE_OBJECTIVE_REL)
 
 
-@pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
-def test_many_real_frames_against_bvls(ict_neutral_path, ict_expressions_dir):
-    """The 53 ICT shapes at 66 vertices, 300 noisy frames of sparse weights: most
-    frames go through the monotone phase (factored and updated systems)."""
+def real_sparse_frames(neutral_path, expressions_dir):
+    """The 53 ICT shapes at 66 vertices (mm, K = 198 rows) and 300 noisy frames of
+    sparse weights in [0, 1] (many at a bound)."""
     import trimesh
-    paths = sorted(ict_expressions_dir.glob("*.obj"))
-    neutral = trimesh.load(ict_neutral_path, process=False).vertices
+    paths = sorted(expressions_dir.glob("*.obj"))
+    neutral = trimesh.load(neutral_path, process=False).vertices
     rng = np.random.default_rng(18)
     picked = rng.choice(len(neutral), 66, replace=False)
     flat = 10.0 * np.stack([(trimesh.load(p, process=False).vertices[picked]
                              - neutral[picked]).ravel() for p in paths], axis=1)
     weights = np.clip(rng.normal(0.15, 0.3, (300, len(paths))), 0, 1)
-    data = weights @ flat.T + 0.2 * rng.standard_normal((300, flat.shape[0]))
+    return flat, weights @ flat.T + 0.2 * rng.standard_normal((300, flat.shape[0]))
+
+
+@pytest.mark.filterwarnings("ignore:the basis has rank:RuntimeWarning")
+def test_many_real_frames_against_bvls(ict_neutral_path, ict_expressions_dir):
+    """Most of these frames go through the monotone phase (factored and updated systems)."""
+    flat, data = real_sparse_frames(ict_neutral_path, ict_expressions_dir)
     sol = solve_weights(flat, data, lower=0, upper=1)
     assert sol.status == 0
     assert np.mean(sol.n_iter > 2) > 0.5
-    lo, hi = np.zeros(len(paths)), np.ones(len(paths))
+    lo, hi = np.zeros(flat.shape[1]), np.ones(flat.shape[1])
+    np.testing.assert_allclose(sol.cost, oracle_cost(flat, data, lo, hi), rtol=SOLVE_OBJECTIVE_REL)
+    assert_kkt(flat, data, sol.weights, lo, hi)
+
+
+def test_converging_frames_go_on_with_primal_dual_steps(ict_neutral_path, ict_expressions_dir,
+                                                        monkeypatch):
+    """Frames whose primal-dual steps still change many variables, fewer each step,
+    take more of them instead of the monotone phase's one change an iteration: fewer
+    iterations, the same optimum (against lsq_linear)."""
+    import fit.solve._active_set as active_set
+
+    flat, data = real_sparse_frames(ict_neutral_path, ict_expressions_dir)
+    sol = solve_weights(flat, data, lower=0, upper=1)
+    monkeypatch.setattr(active_set, "_PDAS_MANY", flat.shape[1] + 1)     # none goes on
+    monotone = solve_weights(flat, data, lower=0, upper=1)
+    assert sol.status == monotone.status == 0
+    assert np.count_nonzero(sol.n_iter != monotone.n_iter) > 0
+    assert sol.n_iter.sum() < monotone.n_iter.sum()
+    lo, hi = np.zeros(flat.shape[1]), np.ones(flat.shape[1])
     np.testing.assert_allclose(sol.cost, oracle_cost(flat, data, lo, hi), rtol=SOLVE_OBJECTIVE_REL)
     assert_kkt(flat, data, sol.weights, lo, hi)
 

@@ -45,10 +45,19 @@ __all__ = ["RANK_RTOL", "BoxQP", "kkt_residual", "reduced_solve", "residual", "s
 #: Frames solved together (working set of the iterations); the blocks are shared among
 #: Python threads (:func:`mocap.util.blas.map_on_blas_threads`).
 _BLOCK = 4096
-#: Iterations of the primal-dual phase before the monotone fallback takes over:
-#: most frames settle in two; the rest cycle or creep, and the monotone phase
-#: finishes them with a guarantee of progress.
+#: Iterations of the primal-dual phase every frame takes before the monotone fallback
+#: may take it over: many frames settle in two; the rest cycle or creep, and the
+#: monotone phase finishes them with a guarantee of progress.
 _PDAS_ITER = 2
+#: ... except that a frame whose last primal-dual step still changed at least
+#: ``_PDAS_MANY`` variables, fewer than the step before, goes on (up to
+#: ``_PDAS_MAX_ITER`` steps): a shrinking change is the iteration converging, and with
+#: that many variables left it changes them together where the monotone phase would
+#: take one iteration each (bases with many weights at a bound, such as the ICT
+#: expressions fitted to markers). A frame whose change does not shrink (a cycle) or
+#: has few variables left goes to the monotone phase.
+_PDAS_MANY = 8
+_PDAS_MAX_ITER = 8
 
 
 def kkt_residual(w, g, scale, lo, hi, *, atol=None, feasible: bool = False) -> np.ndarray:
@@ -106,13 +115,17 @@ def start_state(qp: BoxQP, c: np.ndarray, unconstrained=None) -> np.ndarray:
 def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
     """Primal-dual active-set iterations; returns weights and the converged mask.
 
-    ``kkt`` (T,) gets the KKT residual of the frames that converge.
+    Every frame takes ``min(_PDAS_ITER, max_iter)`` of them, and one still
+    converging with many variables to change more (see ``_PDAS_MANY``), up to
+    ``min(_PDAS_MAX_ITER, max_iter)``. ``kkt`` (T,) gets the KKT residual of the
+    frames that converge.
     """
     T = len(c)
     w = np.empty_like(c)
     done = np.zeros(T, bool)
     todo = np.arange(T)
-    for _ in range(max_iter):
+    changed = np.full(T, qp.n + 1)      # variables each frame's last step changed
+    for step in range(min(_PDAS_MAX_ITER, max_iter)):
         if len(todo) == T:  # views, no copies
             s, ct, ut = state, c, u
         else:
@@ -133,13 +146,18 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
             new[redo] = _next_state(qp, s[redo], wt[redo], g[redo])
         ok = res <= tol
         kkt[todo[ok]] = res[ok]
+        changes = np.count_nonzero(new != s, axis=1)
         if len(todo) == T:
             w = wt
         else:
             w[todo] = wt
         state[todo[~ok]] = new[~ok]
         done[todo[ok]] = True
-        todo = todo[~ok]
+        keep = ~ok
+        if step + 1 >= min(_PDAS_ITER, max_iter):
+            keep &= (changes >= _PDAS_MANY) & (changes < changed[todo])
+        changed[todo] = changes
+        todo = todo[keep]
         if not todo.size:
             break
     return w, done
@@ -356,7 +374,7 @@ def _solve_from(qp, c, u, state, tol, max_iter):
     computed anew for the others.
     """
     n_iter, kkt = np.zeros(len(c), np.int64), np.full(len(c), np.inf)
-    w, done = _pdas(qp, c, u, state, min(_PDAS_ITER, max_iter), tol, n_iter, kkt)
+    w, done = _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt)
     rest = np.nonzero(~done)[0]
     if rest.size:
         # PDAS's next state binds the weights outside the box, which the clip
