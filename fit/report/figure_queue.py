@@ -10,11 +10,12 @@ it starts, so a queue made before other work (the exports) has its helpers ready
 figures come; a helper still starting when the figures are done is stopped.
 
 A figure is a call ``function(*args, **kwargs)`` that writes its file and returns
-nothing (the exports' weights CSVs go the same way: :meth:`Reconstruction.save
-<fit.pipeline.reconstruction.Reconstruction.save>`). It reaches a helper by pickle: give it what it shows (the frames of a view), not
-the whole take. A call that does not pickle is drawn by the caller, and so is one whose
-outcome (its error, its warnings) does not come back from the helper intact. The caller's
-rcParams go with every figure, so a figure is the same bytes whoever draws it.
+nothing (the exports' weights CSVs go the same way:
+:meth:`fit.pipeline.reconstruction.ReconstructionResult.save`). It reaches a helper by
+pickle: give it what it shows (the frames of a view), not the whole take. A call that does
+not pickle is drawn by the caller, and so is one whose outcome (its error, its warnings)
+does not come back from the helper intact. The caller's rcParams go with every figure, so
+a figure is the same bytes whoever draws it.
 """
 
 from __future__ import annotations

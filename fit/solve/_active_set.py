@@ -125,6 +125,7 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
     done = np.zeros(T, bool)
     todo = np.arange(T)
     changed = np.full(T, qp.n + 1)      # variables each frame's last step changed
+    every = min(_PDAS_ITER, max_iter)   # steps every frame takes
     for step in range(min(_PDAS_MAX_ITER, max_iter)):
         if len(todo) == T:  # views, no copies
             s, ct, ut = state, c, u
@@ -154,7 +155,7 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
         state[todo[~ok]] = new[~ok]
         done[todo[ok]] = True
         keep = ~ok
-        if step + 1 >= min(_PDAS_ITER, max_iter):
+        if step + 1 >= every:
             keep &= (changes >= _PDAS_MANY) & (changes < changed[todo])
         changed[todo] = changes
         todo = todo[keep]

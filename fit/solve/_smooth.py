@@ -131,19 +131,21 @@ def gradient(G, c, lam, w, frames=None, *, scale: bool = True):
     frames = np.arange(T) if frames is None else frames
     wf = w[frames]
     prev, nxt = frames - 1, frames + 1
-    has_prev, has_next = prev >= 0, nxt < T
-    near = np.zeros_like(wf)
-    for rows, there in ((has_prev, prev), (has_next, nxt)):
-        near[rows] += w[there[rows]]
+    sides = [(prev >= 0, prev), (nxt < T, nxt)]
+
+    def neighbours(values):
+        """Sum over each frame's neighbours in the path of ``values`` of their weights, (F, n)."""
+        out = np.zeros_like(wf)
+        for rows, there in sides:
+            out[rows] += values(w[there[rows]])
+        return out
+
     deg = degree(T)[frames][:, None]
-    grad = wf @ G - c[frames] + lam * (deg * wf - near)
+    grad = wf @ G - c[frames] + lam * (deg * wf - neighbours(lambda v: v))
     if not scale:
         return grad, None
-    near_abs = np.zeros_like(wf)
-    for rows, there in ((has_prev, prev), (has_next, nxt)):
-        near_abs[rows] += np.abs(w[there[rows]])
     magnitude = np.abs(wf) @ np.abs(G) + np.abs(c[frames]) \
-        + lam * (deg * np.abs(wf) + near_abs)
+        + lam * (deg * np.abs(wf) + neighbours(np.abs))
     return grad, magnitude
 
 
