@@ -22,8 +22,7 @@ differs from the least-squares fit of c by the second order of the offset.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import NamedTuple
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -124,28 +123,29 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
         smoothness = gcv_smoothness(basis.reshape(n, -1).T, data.reshape(T, -1))
     rest = layout.positions_under_weights(neutral, displacements, np.zeros((1, n)))[0]
     model = _CentreModel(layout, neutral, displacements, basis, rest, lower, upper)
+    steps = _ChordSteps.empty(T, n, layout.n_markers)
     if smoothness > 0:
         # the frames are one problem and step together, from the linear model's optima of
         # the frames (solving their own fixed points first costs more than the steps it saves)
         start = solve_weights(basis, data, lower=lower, upper=upper).weights
         with reuse_factors():       # a step often starts in the state the last one ended in
-            steps = _chord_steps(model, data, start, smoothness, tol, max_steps)
+            ranks = [_chord_steps(model, data, start, smoothness, tol, max_steps, steps)]
     else:
-        # frames are independent: pieces of them step on the BLAS's threads
-        pieces = map_on_blas_threads(
-            lambda first: _chord_steps(model, data[first:first + _FRAMES_PER_TASK], None, 0.0,
-                                       tol, max_steps),
-            range(0, T, _FRAMES_PER_TASK))
-        steps = _ChordSteps.joined(pieces)
-    w, moved, step, n_steps = steps.weights, steps.moved, steps.step, steps.n_steps
+        # frames are independent: pieces of them step on the BLAS's threads, each writing
+        # its rows of the result (no copy of the pieces' results in one thread after)
+        def piece(first):
+            rows = slice(first, first + _FRAMES_PER_TASK)
+            return _chord_steps(model, data[rows], None, 0.0, tol, max_steps, steps.rows(rows))
+        ranks = map_on_blas_threads(piece, range(0, T, _FRAMES_PER_TASK))
+    step, n_steps = steps.step, steps.n_steps
     settled = step <= tol
     ok = steps.converged & settled
     solution = WeightSolution(
-        weights=w, cost=0.5 * np.sum((moved - data) ** 2, axis=(1, 2)), n_iter=steps.n_iter,
-        converged=ok, kkt_residual=steps.kkt, rank=steps.rank, status=int(not ok.all()),
+        weights=steps.weights, cost=steps.cost, n_iter=steps.n_iter, converged=ok,
+        kkt_residual=steps.kkt, rank=min(ranks), status=int(not ok.all()),
         message=_message(ok, settled, step, n_steps, tol), smoothness=smoothness)
-    return MarkerCentreFit(solution=solution, displacements=moved, n_steps=n_steps, step=step,
-                           tol=tol)
+    return MarkerCentreFit(solution=solution, displacements=steps.moved, n_steps=n_steps,
+                           step=step, tol=tol)
 
 
 #: Frames that step together in one piece of an independent-frame fit (pieces of a
@@ -171,31 +171,38 @@ class _CentreModel:
             - self.rest
 
 
-class _ChordSteps(NamedTuple):
-    """Per frame: weights, centres, KKT residual and convergence of the last solve, chord
-    steps, solver iterations, last step; and the basis' rank."""
+@dataclass(frozen=True)
+class _ChordSteps:
+    """Per frame: weights, centres, cost, KKT residual and convergence of the last solve,
+    chord steps, solver iterations and the last step (arrays over the same frames)."""
 
     weights: np.ndarray
     moved: np.ndarray
+    cost: np.ndarray
     kkt: np.ndarray
     converged: np.ndarray
     n_steps: np.ndarray
     n_iter: np.ndarray
     step: np.ndarray
-    rank: int
 
     @classmethod
-    def joined(cls, pieces) -> "_ChordSteps":
-        """The steps of consecutive pieces of the frames as one."""
-        arrays = [np.concatenate([getattr(p, name) for p in pieces])
-                  for name in cls._fields[:-1]]
-        return cls(*arrays, rank=min(p.rank for p in pieces))
+    def empty(cls, n_frames: int, n_shapes: int, n_markers: int) -> "_ChordSteps":
+        """Arrays for `n_frames` frames, to be filled by :func:`_chord_steps`."""
+        T = n_frames
+        return cls(np.empty((T, n_shapes)), np.empty((T, n_markers, 3)), np.empty(T),
+                   np.empty(T), np.empty(T, bool), np.empty(T, np.int64),
+                   np.empty(T, np.int64), np.empty(T))
+
+    def rows(self, rows: slice) -> "_ChordSteps":
+        """Views of the frames `rows`, writing into these arrays."""
+        return _ChordSteps(*(getattr(self, f.name)[rows] for f in fields(self)))
 
 
-def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps) -> _ChordSteps:
+def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps,
+                 out: _ChordSteps) -> int:
     """The chord steps of `data` (T, M, 3) from weights `start` (None: zero weights, whose
-    first step is the linear model's solve); with `smoothness` > 0 the frames step
-    together. A frame's solve starts from the active set of its mixed iterate, which
+    first step is the linear model's solve), written into `out` (T frames); return the
+    basis' rank. With `smoothness` > 0 the frames step together. A frame's solve starts from the active set of its mixed iterate, which
     extrapolates the last two; a smooth solve from that of the last step's solution
     instead (the state of its kept factor, :func:`fit.solve._smooth.reuse_factors`), the
     first one from the smooth solve's own start (`start`, the frames' own optima, is an
@@ -204,8 +211,9 @@ def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps) -
     T, n = len(data), len(basis)
     coupled = smoothness > 0
     x = np.zeros((T, n)) if start is None else start.copy()
-    w, kkt, converged = np.empty((T, n)), np.empty(T), np.zeros(T, bool)
-    n_steps, n_iter, step = np.zeros(T, np.int64), np.zeros(T, np.int64), np.full(T, np.inf)
+    w, kkt, converged, n_steps, n_iter, step = \
+        out.weights, out.kkt, out.converged, out.n_steps, out.n_iter, out.step
+    n_steps[:], n_iter[:], step[:] = 0, 0, np.inf
     rank = n
     last_x = last_g = None              # the previous iterate and its chord step, for Anderson
     todo = np.arange(T)
@@ -232,7 +240,10 @@ def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps) -
             break
         if not coupled:
             todo = todo[moving]
-    return _ChordSteps(w, model.centres(w), kkt, converged, n_steps, n_iter, step, rank)
+    out.moved[:] = model.centres(w)
+    residual = out.moved - data
+    out.cost[:] = 0.5 * np.einsum("tmc,tmc->t", residual, residual)
+    return rank
 
 
 def _anderson(fx, g, last_fx, last_g, lower, upper):
