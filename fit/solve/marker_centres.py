@@ -202,11 +202,11 @@ def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps,
                  out: _ChordSteps) -> int:
     """The chord steps of `data` (T, M, 3) from weights `start` (None: zero weights, whose
     first step is the linear model's solve), written into `out` (T frames); return the
-    basis' rank. With `smoothness` > 0 the frames step together. A frame's solve starts from the active set of its mixed iterate, which
-    extrapolates the last two; a smooth solve from that of the last step's solution
-    instead (the state of its kept factor, :func:`fit.solve._smooth.reuse_factors`), the
-    first one from the smooth solve's own start (`start`, the frames' own optima, is an
-    active set far from the smooth one)."""
+    basis' rank. With `smoothness` > 0 the frames step together. A frame's solve starts
+    from the active set of its mixed iterate, which extrapolates the last two; a smooth
+    solve from that of the last step's solution instead (the state of its kept factor,
+    :func:`fit.solve._smooth.reuse_factors`), the first one from the smooth solve's own
+    start (`start`, the frames' own optima, is an active set far from the smooth one)."""
     basis, lower, upper = model.basis, model.lower, model.upper
     T, n = len(data), len(basis)
     coupled = smoothness > 0
