@@ -34,9 +34,12 @@ units is written unscaled, with a warning.
 from __future__ import annotations
 
 import base64
+import io
 import json
+import math
 import struct
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,7 +51,8 @@ from basis.basis_io import as_shape_names
 from mocap.errors import InputError
 from mocap.mesh.mesh import Mesh, vertex_normals
 from mocap.units import mm_per_unit
-from mocap.util.atomic import atomic_path
+from mocap.util.atomic import atomic_path, preallocate
+from mocap.util.extremes import column_extremes
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["GLTF_FORMATS", "NEGATIVE_SUFFIX", "MorphTargets", "morph_targets", "write_gltf"]
@@ -75,30 +79,66 @@ class _Buffer:
     def __init__(self):
         self.chunks, self.views, self.accessors, self.length = [], [], [], 0
 
-    def add(self, arr: np.ndarray, kind: str, *, target: int | None = None) -> int:
-        """Append `arr` (count, k) or (count,) as one view and accessor; return its index."""
-        component = pygltflib.UNSIGNED_INT if arr.dtype == np.uint32 else pygltflib.FLOAT
-        data = np.ascontiguousarray(arr, dtype="<u4" if component == pygltflib.UNSIGNED_INT
-                                    else "<f4")
+    def add(self, arr, kind: str, *, target: int | None = None, extremes=None) -> int:
+        """Append `arr` (count, k) or (count,), or a :class:`_Rows`, as one view and
+        accessor; return its index. `extremes`: the (2, k) min and max of its stored
+        values, when known without reading them (a :class:`_Rows` needs them)."""
+        if isinstance(arr, _Rows):
+            data, component = arr, pygltflib.FLOAT
+        else:
+            component = pygltflib.UNSIGNED_INT if arr.dtype == np.uint32 else pygltflib.FLOAT
+            data = np.ascontiguousarray(arr, dtype="<u4" if component == pygltflib.UNSIGNED_INT
+                                        else "<f4")
+        count, width = data.shape[0], math.prod(data.shape[1:])
         view = {"buffer": 0, "byteOffset": self.length, "byteLength": data.nbytes}
         if target == _ARRAY_BUFFER:     # every element is 4 bytes: views stay 4-byte aligned
-            view["byteStride"] = data.itemsize * data.shape[1]
+            view["byteStride"] = 4 * width
         if target is not None:
             view["target"] = target
         self.views.append(view)
-        # the components as contiguous rows, reduced along them (an axis-0 reduction of a
-        # (count, 3) array loops over the 3 components innermost, ~20 times slower)
-        columns = np.ascontiguousarray(data.reshape(len(data), -1).T)
+        low, high = extremes if extremes is not None else \
+            column_extremes(data.reshape(count, width))
         self.accessors.append({
             "bufferView": len(self.views) - 1, "byteOffset": 0, "componentType": component,
-            "normalized": False, "count": len(data), "type": kind,
-            "max": columns.max(axis=1).tolist(), "min": columns.min(axis=1).tolist()})
+            "normalized": False, "count": count, "type": kind,
+            "max": np.ravel(high).tolist(), "min": np.ravel(low).tolist()})
         self.chunks.append(data)
         self.length += data.nbytes
         return len(self.accessors) - 1
 
+    def write(self, fh) -> None:
+        """Write the buffer's bytes to the binary file `fh`, each array from its own memory."""
+        for chunk in self.chunks:
+            if isinstance(chunk, _Rows):
+                chunk.write(fh)
+            else:
+                fh.write(memoryview(chunk).cast("B"))
+
     def blob(self) -> bytes:
-        return b"".join(chunk.tobytes() for chunk in self.chunks)
+        out = io.BytesIO()
+        self.write(out)
+        return out.getvalue()
+
+
+@dataclass(frozen=True, eq=False)
+class _Rows:
+    """An accessor's float32 values (`shape`) made from the caller's arrays as they are
+    written: ``make(rows)`` forms those of a slice of the `n_rows` source rows, one
+    cache-sized block of `rows_per_block` at a time (no copy of the whole)."""
+
+    shape: tuple
+    make: Callable[[slice], np.ndarray]
+    n_rows: int
+    rows_per_block: int
+
+    @property
+    def nbytes(self) -> int:
+        return 4 * math.prod(self.shape)
+
+    def write(self, fh) -> None:
+        for first in range(0, self.n_rows, self.rows_per_block):
+            block = self.make(slice(first, first + self.rows_per_block))
+            fh.write(memoryview(np.ascontiguousarray(block, dtype="<f4")).cast("B"))
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,9 +212,16 @@ def morph_targets(names, weights=None) -> MorphTargets:
     if weights is None:
         return MorphTargets(names, np.arange(len(names)), np.ones(len(names)))
     weights = np.asarray(weights, dtype=float)
+    if not len(weights):
+        return _targets_of_range(names, np.zeros(len(names)), np.zeros(len(names)))
+    return _targets_of_range(names, *column_extremes(weights))
+
+
+def _targets_of_range(names: tuple, lowest, highest) -> MorphTargets:
+    """:func:`morph_targets` of weights whose columns span `lowest` to `highest`, (n,) each."""
     low, high = PLAYBACK_RANGE
-    top = np.maximum(weights.max(axis=0, initial=0.0), high)
-    bottom = weights.min(axis=0, initial=0.0)
+    top = np.maximum(highest, high)
+    bottom = np.minimum(lowest, 0.0)
     shape, factor, out = [], [], []
     for i, name in enumerate(names):
         shape.append(i)
@@ -265,8 +312,13 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
     names = as_shape_names(names, len(displacements))
     times, weights, motion = _animation(weights, rotation, translation, rate, len(names),
                                         first_frame)
-    targets = morph_targets(names, weights)
+    # the stored values are the inputs rounded monotonically, so every large accessor's
+    # min and max are those of its input's extremes, rounded the same way
+    weight_range = None if weights is None else column_extremes(weights)
+    targets = morph_targets(names) if weights is None else _targets_of_range(names,
+                                                                             *weight_range)
     scale = _to_metres(neutral)
+    shape_range = np.stack(column_extremes(displacements), axis=1)           # (n, 2, 3)
 
     normals = vertex_normals(neutral.vertices, neutral.faces)
     normals[np.linalg.norm(normals, axis=1) == 0] = (0.0, 0.0, 1.0)
@@ -275,8 +327,9 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
                       target=_ELEMENT_ARRAY_BUFFER)
     position = buf.add(_scaled(neutral.vertices, scale), pygltflib.VEC3, target=_ARRAY_BUFFER)
     normal = buf.add(normals, pygltflib.VEC3, target=_ARRAY_BUFFER)
-    morphs = [{"POSITION": buf.add(_scaled(displacements[i], f * scale), pygltflib.VEC3,
-                                   target=_ARRAY_BUFFER)}
+    morphs = [{"POSITION": buf.add(_scaled_rows(displacements[i], f * scale), pygltflib.VEC3,
+                                   target=_ARRAY_BUFFER,
+                                   extremes=_sorted(_scaled(shape_range[i], f * scale)))}
               for i, f in zip(targets.shape, targets.factor)]
     record = {"shapes": list(names), "target_shape": targets.shape.tolist(),
               "target_factor": targets.factor.tolist()}
@@ -289,8 +342,9 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
     if times is not None:
         time = buf.add(times, pygltflib.SCALAR)
         outputs = [] if weights is None else [
-            ("weights", buf.add(targets.weights(weights, np.float32).reshape(-1),
-                                pygltflib.SCALAR))]
+            ("weights", buf.add(_target_weight_rows(targets, weights), pygltflib.SCALAR,
+                                extremes=_sorted(targets.weights(np.stack(weight_range),
+                                                                 np.float32).reshape(-1, 1))))]
         if motion is not None:
             outputs += [("rotation", buf.add(motion[0], pygltflib.VEC4)),
                         ("translation", buf.add(_scaled(motion[1], scale), pygltflib.VEC3))]
@@ -359,6 +413,29 @@ def _scaled(values: np.ndarray, factor: float) -> np.ndarray:
     return np.multiply(values, factor, out=out, casting="same_kind")
 
 
+def _scaled_rows(values: np.ndarray, factor: float) -> _Rows:
+    """:func:`_scaled` of `values` (count, 3), formed as it is written."""
+    return _Rows(values.shape, lambda rows: _scaled(values[rows], factor), len(values),
+                 len(values))
+
+
+def _target_weight_rows(targets: MorphTargets, weights: np.ndarray) -> _Rows:
+    """The target weights (T, K) of `weights` (T, n) as one (T K,) accessor, formed as it
+    is written, :data:`_WEIGHT_ROWS` frames at a time."""
+    return _Rows((len(weights) * len(targets.shape),),
+                 lambda rows: targets.weights(weights[rows], np.float32), len(weights),
+                 _WEIGHT_ROWS)
+
+
+#: Frames of target weights formed at a time: (T, K) float32 blocks of ~0.4 MB for 53 shapes.
+_WEIGHT_ROWS = 1024
+
+
+def _sorted(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Min and max over the rows of `values` (rows, k): the extremes of rounded values."""
+    return values.min(axis=0), values.max(axis=0)
+
+
 def _json(gltf: dict, **layout) -> str:
     """The glTF JSON text, as ``pygltflib.GLTF2.gltf_to_json`` writes it."""
     return json.dumps(gltf, allow_nan=False, **layout)
@@ -385,8 +462,8 @@ def _save_glb(gltf: dict, buf: _Buffer, path: Path) -> None:
                          _GLB_HEADER + 2 * _CHUNK_HEADER + len(text) + buf.length,
                          len(text), pygltflib.JSON.encode("ascii"))
     with open(path, "wb") as fh:
+        preallocate(fh, _GLB_HEADER + 2 * _CHUNK_HEADER + len(text) + buf.length)
         fh.write(header)
         fh.write(text)
         fh.write(struct.pack("<I4s", buf.length, pygltflib.BIN.encode("ascii")))
-        for chunk in buf.chunks:
-            fh.write(memoryview(chunk).cast("B"))
+        buf.write(fh)

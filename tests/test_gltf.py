@@ -14,6 +14,7 @@ import trimesh
 from helpers import play_gltf, read_gltf_accessor
 from tolerances import FLOAT32_FACE_CM, FLOAT32_REL
 
+import basis.gltf as gltf_module
 from basis.artist import load_artist_basis
 from basis.gltf import GLTF_FORMATS, morph_targets, write_gltf
 from mocap.errors import InputError
@@ -108,10 +109,14 @@ def test_ict_face_as_animated_morph_targets(ict_subset, tmp_path):
     assert len(geometry.faces) == ict_subset.neutral.n_faces
 
 
-def test_signed_weights_play_back_inside_the_slider_range(ict_subset, tmp_path):
+def test_signed_weights_play_back_inside_the_slider_range(ict_subset, tmp_path, monkeypatch):
     """QE and PCA weights leave [0, 1] (here -40..60): a viewer that clamps every morph
     weight to [0, 1], as Blender's shape-key sliders do, still shows neutral + Σ w e at
-    every key and between keys; the basis reads back unscaled."""
+    every key and between keys; the basis reads back unscaled. The target weights are
+    written a few frames at a time (here 7, with a remainder), the same values as formed
+    all at once, and every accessor's min/max (derived from the inputs' extremes for the
+    targets and the weights) is numpy's on the values stored."""
+    monkeypatch.setattr(gltf_module, "_WEIGHT_ROWS", 7)
     rng = np.random.default_rng(3)
     weights = rng.normal(0.0, 20.0, (30, ict_subset.n_shapes))
     weights[:, 1] = rng.uniform(0.0, 0.7, 30)            # already inside: left as it is
@@ -119,6 +124,9 @@ def test_signed_weights_play_back_inside_the_slider_range(ict_subset, tmp_path):
     path = tmp_path / "signed.glb"
     write_gltf(path, ict_subset.neutral, ict_subset.displacements, ict_subset.names,
                weights=weights, rate=30.0, first_frame=7)
+    _check_accessors(pygltflib.GLTF2().load(str(path)))
+    stored = morph_targets(ict_subset.names, weights).weights(weights, np.float32)
+    np.testing.assert_array_equal(play_gltf(path, clamp=None)["weights"], stored)
     played = play_gltf(path)
     assert played["weights"].min() >= 0 and played["weights"].max() <= 1
     np.testing.assert_array_equal(played["vertices"], play_gltf(path, clamp=None)["vertices"])

