@@ -29,7 +29,7 @@ from basis.artist import ArtistBasis, load_artist_basis
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh, save_obj
 from mocap.util.atomic import atomic_path
-from mocap.util.npz import read_npz
+from mocap.util.npz import read_npz, write_npz
 from mocap.util.validation import as_choice
 
 __all__ = ["BASIS_DTYPES", "save_basis", "load_basis", "load_any_basis", "shape_file_stems"]
@@ -150,9 +150,9 @@ def _save_npz(basis: ArtistBasis, path: Path, dtype: str, inputs) -> None:
                   units=np.array(mesh.units or ""), neutral_vertices=mesh.vertices,
                   faces=mesh.faces, face_polygon=mesh.face_polygon,
                   polygon_sizes=mesh.polygon_sizes,
-                  displacements=basis.displacements.astype(dtype))
+                  displacements=basis.displacements)
     with atomic_path(path, inputs=inputs) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
+        write_npz(fh, arrays, store_as={"displacements": dtype})
 
 
 def _save_dir(basis: ArtistBasis, path: Path, inputs) -> None:

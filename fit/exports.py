@@ -21,7 +21,7 @@ from fit.solve.weights import WeightSolution
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh
 from mocap.util.atomic import atomic_path
-from mocap.util.npz import read_npz
+from mocap.util.npz import read_npz, write_npz
 from mocap.util.validation import as_float_array, as_int, as_positive_float, surely_finite
 
 __all__ = ["weights_frame", "write_weights_csv", "read_weights_csv", "MeshSequence",
@@ -289,6 +289,7 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
                   units=np.array(neutral.units or ""), rate=np.float64(rate),
                   first_frame=np.int64(as_int(first_frame, "first_frame")),
                   names=np.array(names, dtype=str))
+    store_as = {}       # members stored rounded to float32, as they are written
     if (rotation is None) != (translation is None):
         raise InputError("rotation and translation go together (the head motion)")
     if rotation is not None:
@@ -306,11 +307,10 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
                    out=out[start:start + _CHUNK_FRAMES])              # rounded once, on store
         arrays["vertices"] = out
     else:
-        arrays.update(neutral=neutral.vertices.astype(np.float32),
-                      displacements=displacements.astype(np.float32),
-                      weights=weights.astype(np.float32))
+        arrays.update(neutral=neutral.vertices, displacements=displacements, weights=weights)
+        store_as.update(neutral=np.float32, displacements=np.float32, weights=np.float32)
     with atomic_path(path, inputs=[*inputs, neutral.path]) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
+        write_npz(fh, arrays, store_as=store_as)
 
 
 def read_mesh_sequence(path) -> MeshSequence:

@@ -1,13 +1,15 @@
-"""Helpers of the binary writers: column extremes by halving, and preallocated files."""
+"""Helpers of the binary writers: column extremes by halving, preallocated files, npz."""
 
 from __future__ import annotations
 
 import errno
 import os
+import zipfile
 
 import numpy as np
 import pytest
 
+from mocap.util import npz
 from mocap.util.atomic import preallocate
 from mocap.util.extremes import column_extremes
 
@@ -68,3 +70,36 @@ def test_preallocation_that_the_file_system_refuses_is_skipped(tmp_path, monkeyp
     monkeypatch.setattr(os, "posix_fallocate", full)
     with open(tmp_path / "c.bin", "wb") as fh, pytest.raises(OSError, match="No space"):
         preallocate(fh, 10)
+
+
+def test_npz_holds_what_np_savez_writes(tmp_path, monkeypatch):
+    """Member by member the bytes of ``np.savez`` of the arrays as stored (C order, the
+    stored dtype by ``astype``), converted in blocks of a few rows (with a remainder);
+    a Fortran-ordered array reads back the same; the file ends where the archive does."""
+    monkeypatch.setattr(npz, "_BLOCK_BYTES", 100)
+    rng = np.random.default_rng(0)
+    arrays = dict(weights=rng.normal(size=(101, 7)), faces=np.arange(30).reshape(10, 3),
+                  names=np.array(["jawOpen", "eyeBlink_L"]), units=np.array("cm"),
+                  rate=np.float64(276.0), empty=np.zeros((0, 3)),
+                  fortran=np.asfortranarray(rng.normal(size=(6, 5))),
+                  displacements=rng.normal(size=(3, 11, 3)))
+    store_as = {"weights": np.float32, "displacements": np.float32, "fortran": np.float32}
+    with open(tmp_path / "ours.npz", "wb") as fh:
+        npz.write_npz(fh, arrays, store_as=store_as)
+    stored = {name: np.array(arr, dtype=store_as.get(name, arr.dtype), order="C")
+              for name, arr in arrays.items()}
+    np.savez(tmp_path / "numpy.npz", **stored)
+    ours, theirs = zipfile.ZipFile(tmp_path / "ours.npz"), zipfile.ZipFile(tmp_path / "numpy.npz")
+    assert ours.testzip() is None and ours.namelist() == theirs.namelist()
+    for name in ours.namelist():
+        assert ours.read(name) == theirs.read(name), name
+    with np.load(tmp_path / "ours.npz") as back:
+        for name, arr in stored.items():
+            assert back[name].dtype == arr.dtype
+            np.testing.assert_array_equal(back[name], arr)
+    assert os.path.getsize(tmp_path / "ours.npz") == os.path.getsize(tmp_path / "numpy.npz")
+
+
+def test_npz_refuses_python_objects(tmp_path):
+    with open(tmp_path / "o.npz", "wb") as fh, pytest.raises(ValueError, match="objects"):
+        npz.write_npz(fh, {"o": np.array([{}, None], dtype=object)})

@@ -1,4 +1,10 @@
-"""Reading the project's own ``.npz`` archives: every array, checked to be one of ours.
+"""The project's own ``.npz`` archives: written from the arrays' own memory, and read
+back with every array checked to be one of ours.
+
+:func:`write_npz` writes what ``np.savez`` writes (stored members, zip64 headers, .npy
+1.0 headers) without its copy of every array's bytes, converting an array to the dtype
+it is stored in block by block as it goes (no whole converted copy), into a file whose
+size is reserved first.
 
 One reader for takes, bases, masks, mesh sequences, gesture clips and capture
 truths, so that each refuses a foreign or damaged file the same way: the
@@ -19,16 +25,81 @@ import zlib
 import numpy as np
 
 from mocap.errors import FileFormatError
+from mocap.util.atomic import preallocate
 from mocap.util.budget import check_allocation
 from mocap.util.files import open_input
 
-__all__ = ["read_npz", "read_npz_with_meta"]
+__all__ = ["read_npz", "read_npz_with_meta", "write_npz"]
 
 #: Deflate never expands data more than this (RFC 1951: 258 bytes per 2 bits, ~1032:1).
 _DEFLATE_RATIO = 1032
 _COMPRESSIONS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate"}
 _HEADERS = {(1, 0): np.lib.format.read_array_header_1_0,
             (2, 0): np.lib.format.read_array_header_2_0}
+
+
+#: Bytes of one block of an array converted as it is written (a few fit in the L2 cache).
+_BLOCK_BYTES = 1 << 18
+#: Bytes a stored member takes besides its .npy file, at most: the local header with its
+#: zip64 extra field and the central directory entry (each 46 bytes + name + 28 extra),
+#: and the end records; the file is cut to what was written.
+_MEMBER_OVERHEAD, _END_OVERHEAD = 2 * (46 + 28), 22 + 56 + 20
+
+
+def write_npz(fh, arrays: dict, *, store_as: dict | None = None) -> None:
+    """Write `arrays` as an ``.npz`` archive to the binary file `fh`, as ``np.savez``.
+
+    Parameters
+    ----------
+    fh : file object
+        Open for writing, seekable, empty (a new temporary file).
+    arrays : dict of str to array_like
+        Member names (without ``.npy``) to arrays; no object arrays.
+    store_as : dict of str to dtype, optional
+        Members stored in another dtype than their array's (e.g. float64 weights as
+        float32), converted as NumPy's ``astype`` does.
+
+    Notes
+    -----
+    Read back by ``np.load`` and :func:`read_npz` as ``np.savez``'s archive; arrays
+    are stored in C order.
+    """
+    store_as = store_as or {}
+    arrays = {name: np.asarray(arr) for name, arr in arrays.items()}
+    headers = {name: {"descr": np.lib.format.dtype_to_descr(np.dtype(store_as.get(
+        name, arr.dtype))), "fortran_order": False, "shape": arr.shape}
+        for name, arr in arrays.items()}
+    total = _END_OVERHEAD + sum(      # .npy headers: magic and length, text padded to 64
+        _MEMBER_OVERHEAD + 2 * len(name.encode()) + 10 + len(repr(headers[name])) + 64
+        + arr.size * np.dtype(headers[name]["descr"]).itemsize
+        for name, arr in arrays.items())
+    preallocate(fh, total)
+    with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as archive:
+        for name, arr in arrays.items():
+            with archive.open(name + ".npy", "w", force_zip64=True) as member:
+                _write_member(member, arr, headers[name])
+    fh.truncate()                   # to what was written, less than the size reserved
+
+
+def _write_member(member, arr: np.ndarray, header: dict) -> None:
+    """The .npy file of `arr` with `header`: the header, then the data in C order, in the
+    header's dtype by blocks of rows converted into one reused buffer when it differs."""
+    if arr.dtype.hasobject:
+        raise ValueError("write_npz stores no Python objects")
+    np.lib.format.write_array_header_1_0(member, header)
+    dtype = np.dtype(header["descr"])
+    if arr.size == 0:
+        return
+    if arr.dtype == dtype and arr.flags.c_contiguous:
+        member.write(memoryview(arr.reshape(-1).view(np.uint8)))
+        return
+    rows = arr.reshape(len(arr), -1) if arr.ndim else arr.reshape(1, 1)
+    per_block = max(1, _BLOCK_BYTES // max(1, rows.shape[1] * dtype.itemsize))
+    block = np.empty((min(per_block, len(rows)), rows.shape[1]), dtype)
+    for first in range(0, len(rows), per_block):
+        part = block[:len(rows) - first] if first + per_block > len(rows) else block
+        np.copyto(part, rows[first:first + len(part)], casting="unsafe")
+        member.write(memoryview(part.reshape(-1).view(np.uint8)))
 
 
 def _capacity(info: zipfile.ZipInfo) -> int:
