@@ -77,19 +77,28 @@ def pick_neutral_frame(positions, *, method: str = "median", rate: float | None 
     the first run of still windows is sure to be the hold: a slow, small blend
     out of it can keep the windows still on into the performance.
     """
-    positions = as_float_array(positions, "positions", shape=(None, None, 3))
+    positions = as_float_array(positions, "positions", shape=(None, None, 3), copy=False)
     if method not in NEUTRAL_METHODS:
         raise InputError(f"method must be one of {NEUTRAL_METHODS}, got {method!r}")
-    complete = np.flatnonzero(~np.isnan(positions).any(axis=(1, 2)))
-    if len(complete) == 0:
+    blocks = [slice(first, first + _FRAMES_PER_BLOCK)        # cache-sized, no (T, M, 3) temp
+              for first in range(0, len(positions), _FRAMES_PER_BLOCK)]
+    complete = np.concatenate([~np.isnan(positions[b]).any(axis=(1, 2)) for b in blocks]) \
+        if blocks else np.zeros(0, bool)
+    if not complete.any():
         raise InputError("no frame has every marker visible; fill gaps first or select "
                          "markers")
     if method == "hold":
         return _first_hold(positions, rate)
     rest = np.nanmedian(positions, axis=0)
-    frames = positions[complete]
-    rms = np.sqrt(np.mean(np.sum((frames - rest) ** 2, axis=-1), axis=-1))
-    return int(complete[np.argmin(rms)])
+    squared = np.empty(len(positions))          # NaN where a marker is missing
+    for b in blocks:
+        offset = positions[b] - rest
+        squared[b] = np.einsum("tmc,tmc->t", offset, offset)
+    return int(np.argmin(np.where(complete, squared, np.inf)))
+
+
+#: Frames read at a time when looking for the rest frame (~0.4 MB for 60 markers).
+_FRAMES_PER_BLOCK = 256
 
 
 def resolve_neutral_frame(positions, frame, *, rate: float | None = None) -> int:
