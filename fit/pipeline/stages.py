@@ -317,7 +317,7 @@ def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: Basi
         k, centres = basis.n_fixed, None
         at_markers = marker_basis(binding, basis.displacements, labels,
                                   mesh=retargeted.mesh if basis.on_skin else None)
-        data = D - at_markers[:k].sum(axis=0)
+        data = D - at_markers[:k].sum(axis=0) if k else D     # (no copy of D without one)
         lower, upper = (b + sign * options.h_epsilon if np.isfinite(b) else b
                         for b, sign in ((basis.lower, -1), (basis.upper, 1)))
         with warnings.catch_warnings():
@@ -344,7 +344,11 @@ def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: Basi
         full = np.concatenate([np.ones((len(D), k)), sol.weights], axis=1)
         disp = centres.displacements if centres else np.tensordot(full, at_markers, axes=1)
         solutions[name], weights[name] = sol, full
-        reconstructed[name] = neutral + disp @ binding.rotation / binding.scale
+        # neutral + disp Rᵀ⁻¹ / s, in place on the one (T, M, 3) product
+        markers = disp @ binding.rotation
+        markers /= binding.scale
+        markers += neutral
+        reconstructed[name] = markers
     return FitResult(solutions=solutions, weights=weights, reconstructed=reconstructed,
                      space=options.space)
 
