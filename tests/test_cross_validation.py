@@ -160,6 +160,17 @@ def test_sum_squares_from_the_gram_matrix_equals_the_residuals(geometry):
                                np.sum(residuals ** 2, axis=(0, 2)), rtol=1e-10)
 
 
+def test_gram_matrix_sums_every_frame_and_coordinate():
+    """Against the sum of outer products frame by frame, coordinate by coordinate, for a
+    C-ordered take and a view that is not one."""
+    d = RNG.normal(size=(50, N_MARKERS, 3))
+    brute = sum(np.outer(d[t, :, c], d[t, :, c]) for t in range(len(d)) for c in range(3))
+    np.testing.assert_allclose(gram_matrix(d), brute, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(gram_matrix(d[::2]), sum(
+        np.outer(d[t, :, c], d[t, :, c]) for t in range(0, len(d), 2) for c in range(3)),
+        rtol=1e-12, atol=0)
+
+
 def test_cross_validate_scores_in_mm_per_marker_and_region(geometry):
     d = RNG.normal(size=(25, N_MARKERS, 3))
     cv = cross_validate(geometry, d, mm_per_unit=10.0, variant="gaussian",

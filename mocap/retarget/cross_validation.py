@@ -178,10 +178,17 @@ class LeaveOneOut:
 
 
 def gram_matrix(displacements) -> np.ndarray:
-    """``G = Σ_t Σ_c f_c(t) f_c(t)^T`` (M, M) of displacements (T, M, 3), no NaN."""
-    d = as_float_array(displacements, "displacements", shape=(None, None, 3), allow_nan=False)
-    flat = d.transpose(1, 0, 2).reshape(d.shape[1], -1)
-    return flat @ flat.T
+    """``G = Σ_t Σ_c f_c(t) f_c(t)^T`` (M, M) of displacements (T, M, 3), no NaN.
+
+    From the (3M, 3M) Gram matrix of the frames as rows (one symmetric product of the
+    array as it is, no transposed copy of it), summed over the coordinate pairs
+    ``(3i + c, 3j + c)``.
+    """
+    d = as_float_array(displacements, "displacements", shape=(None, None, 3), allow_nan=False,
+                       copy=False)
+    flat = np.ascontiguousarray(d).reshape(len(d), -1)
+    m = d.shape[1]
+    return np.einsum("icjc->ij", (flat.T @ flat).reshape(m, 3, m, 3))
 
 
 def _held_out_region_weights(to_corners, members, width) -> np.ndarray:
