@@ -329,7 +329,7 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
     normal = buf.add(normals, pygltflib.VEC3, target=_ARRAY_BUFFER)
     morphs = [{"POSITION": buf.add(_scaled_rows(displacements[i], f * scale), pygltflib.VEC3,
                                    target=_ARRAY_BUFFER,
-                                   extremes=_sorted(_scaled(shape_range[i], f * scale)))}
+                                   extremes=_min_max(_scaled(shape_range[i], f * scale)))}
               for i, f in zip(targets.shape, targets.factor)]
     record = {"shapes": list(names), "target_shape": targets.shape.tolist(),
               "target_factor": targets.factor.tolist()}
@@ -343,7 +343,7 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
         time = buf.add(times, pygltflib.SCALAR)
         outputs = [] if weights is None else [
             ("weights", buf.add(_target_weight_rows(targets, weights), pygltflib.SCALAR,
-                                extremes=_sorted(targets.weights(np.stack(weight_range),
+                                extremes=_min_max(targets.weights(np.stack(weight_range),
                                                                  np.float32).reshape(-1, 1))))]
         if motion is not None:
             outputs += [("rotation", buf.add(motion[0], pygltflib.VEC4)),
@@ -431,8 +431,9 @@ def _target_weight_rows(targets: MorphTargets, weights: np.ndarray) -> _Rows:
 _WEIGHT_ROWS = 1024
 
 
-def _sorted(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Min and max over the rows of `values` (rows, k): the extremes of rounded values."""
+def _min_max(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Min and max over the rows of `values` (rows, k), e.g. of an input's extremes rounded
+    as its stored values are."""
     return values.min(axis=0), values.max(axis=0)
 
 
@@ -458,11 +459,11 @@ def _save_glb(gltf: dict, buf: _Buffer, path: Path) -> None:
     memory instead of being copied into one blob and re-sliced per view."""
     text = _json(gltf, separators=(",", ":")).encode("ascii")
     text += b" " * (-(_GLB_HEADER + len(text)) % 4)
-    header = struct.pack("<4sIII4s", pygltflib.MAGIC, pygltflib.GLTF_VERSION,
-                         _GLB_HEADER + 2 * _CHUNK_HEADER + len(text) + buf.length,
+    size = _GLB_HEADER + 2 * _CHUNK_HEADER + len(text) + buf.length
+    header = struct.pack("<4sIII4s", pygltflib.MAGIC, pygltflib.GLTF_VERSION, size,
                          len(text), pygltflib.JSON.encode("ascii"))
     with open(path, "wb") as fh:
-        preallocate(fh, _GLB_HEADER + 2 * _CHUNK_HEADER + len(text) + buf.length)
+        preallocate(fh, size)
         fh.write(header)
         fh.write(text)
         fh.write(struct.pack("<I4s", buf.length, pygltflib.BIN.encode("ascii")))

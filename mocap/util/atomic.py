@@ -112,8 +112,9 @@ def preallocate(fh, n_bytes: int) -> None:
 
     The file system then allocates its blocks in one go instead of page by page as
     they are written (writing 27 MB: 1.5x faster on ext4, the same as ``tofile``, which
-    reserves them too). Write exactly `n_bytes` after it: the reserved size is the
-    file's size. Does nothing where the file system cannot reserve space.
+    reserves them too). The reserved size is the file's size: write exactly `n_bytes`
+    after it, or cut the file where the writing ended (``fh.truncate()``). Does nothing
+    where the file system cannot reserve space.
 
     Raises
     ------

@@ -59,6 +59,11 @@ def write_npz(fh, arrays: dict, *, store_as: dict | None = None) -> None:
         Members stored in another dtype than their array's (e.g. float64 weights as
         float32), converted as NumPy's ``astype`` does.
 
+    Raises
+    ------
+    ValueError
+        An object array (nothing is written).
+
     Notes
     -----
     Read back by ``np.load`` and :func:`read_npz` as ``np.savez``'s archive; arrays
@@ -66,6 +71,8 @@ def write_npz(fh, arrays: dict, *, store_as: dict | None = None) -> None:
     """
     store_as = store_as or {}
     arrays = {name: np.asarray(arr) for name, arr in arrays.items()}
+    if any(arr.dtype.hasobject for arr in arrays.values()):
+        raise ValueError("write_npz stores no Python objects")
     headers = {name: {"descr": np.lib.format.dtype_to_descr(np.dtype(store_as.get(
         name, arr.dtype))), "fortran_order": False, "shape": arr.shape}
         for name, arr in arrays.items()}
@@ -84,8 +91,6 @@ def write_npz(fh, arrays: dict, *, store_as: dict | None = None) -> None:
 def _write_member(member, arr: np.ndarray, header: dict) -> None:
     """The .npy file of `arr` with `header`: the header, then the data in C order, in the
     header's dtype by blocks of rows converted into one reused buffer when it differs."""
-    if arr.dtype.hasobject:
-        raise ValueError("write_npz stores no Python objects")
     np.lib.format.write_array_header_1_0(member, header)
     dtype = np.dtype(header["descr"])
     if arr.size == 0:
