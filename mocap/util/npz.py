@@ -73,26 +73,26 @@ def write_npz(fh, arrays: dict, *, store_as: dict | None = None) -> None:
     arrays = {name: np.asarray(arr) for name, arr in arrays.items()}
     if any(arr.dtype.hasobject for arr in arrays.values()):
         raise ValueError("write_npz stores no Python objects")
-    headers = {name: {"descr": np.lib.format.dtype_to_descr(np.dtype(store_as.get(
-        name, arr.dtype))), "fortran_order": False, "shape": arr.shape}
-        for name, arr in arrays.items()}
+    dtypes = {name: np.dtype(store_as.get(name, arr.dtype)) for name, arr in arrays.items()}
+    headers = {name: {"descr": np.lib.format.dtype_to_descr(dtypes[name]),
+                      "fortran_order": False, "shape": arr.shape}
+               for name, arr in arrays.items()}
     total = _END_OVERHEAD + sum(      # .npy headers: magic and length, text padded to 64
         _MEMBER_OVERHEAD + 2 * len(name.encode()) + 10 + len(repr(headers[name])) + 64
-        + arr.size * np.dtype(headers[name]["descr"]).itemsize
+        + arr.size * dtypes[name].itemsize
         for name, arr in arrays.items())
     preallocate(fh, total)
     with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as archive:
         for name, arr in arrays.items():
             with archive.open(name + ".npy", "w", force_zip64=True) as member:
-                _write_member(member, arr, headers[name])
+                _write_member(member, arr, headers[name], dtypes[name])
     fh.truncate()                   # to what was written, less than the size reserved
 
 
-def _write_member(member, arr: np.ndarray, header: dict) -> None:
-    """The .npy file of `arr` with `header`: the header, then the data in C order, in the
-    header's dtype by blocks of rows converted into one reused buffer when it differs."""
+def _write_member(member, arr: np.ndarray, header: dict, dtype: np.dtype) -> None:
+    """The .npy file of `arr` with `header`: the header, then the data in C order, as
+    `dtype` by blocks of rows converted into one reused buffer when it differs."""
     np.lib.format.write_array_header_1_0(member, header)
-    dtype = np.dtype(header["descr"])
     if arr.size == 0:
         return
     if arr.dtype == dtype and arr.flags.c_contiguous:
@@ -102,7 +102,7 @@ def _write_member(member, arr: np.ndarray, header: dict) -> None:
     per_block = max(1, _BLOCK_BYTES // max(1, rows.shape[1] * dtype.itemsize))
     block = np.empty((min(per_block, len(rows)), rows.shape[1]), dtype)
     for first in range(0, len(rows), per_block):
-        part = block[:len(rows) - first] if first + per_block > len(rows) else block
+        part = block[:len(rows) - first]
         np.copyto(part, rows[first:first + len(part)], casting="unsafe")
         member.write(memoryview(part.reshape(-1).view(np.uint8)))
 
