@@ -21,7 +21,7 @@ from fit.solve.weights import WeightSolution
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh
 from mocap.util.atomic import atomic_path
-from mocap.util.npz import read_npz, write_npz
+from mocap.util.npz import NotFiniteError, read_npz, write_npz
 from mocap.util.validation import as_float_array, as_int, as_positive_float, surely_finite
 
 __all__ = ["weights_frame", "write_weights_csv", "read_weights_csv", "MeshSequence",
@@ -36,17 +36,22 @@ _SEQ_VERSION = 1
 _COLUMNS = ("frame", "time")
 
 
-def _weights(weights, n_names: int | None = None, *, copy: bool = True) -> np.ndarray:
+def _weights(weights, n_names: int | None = None, *, copy: bool = True,
+             check_finite: bool = True) -> np.ndarray:
     """Weights (T, n) float64 from an array or a WeightSolution (a float64 array is not
-    copied with ``copy=False``); NaN rejected."""
+    copied with ``copy=False``); NaN and infinite values rejected (unless not
+    `check_finite`, for a caller that checks them as it writes them)."""
     if isinstance(weights, WeightSolution):
         weights = weights.weights
-    weights = as_float_array(weights, "weights", shape=(None, n_names), copy=copy)
-    bad = () if surely_finite(weights) else np.argwhere(np.isnan(weights))
-    if len(bad):
-        raise InputError(f"weights contain NaN ({len(np.unique(bad[:, 0]))} frames, first at "
-                         f"frame index {bad[0, 0]}, shape {bad[0, 1]}): an export needs "
-                         "every frame solved")
+    weights = as_float_array(weights, "weights", shape=(None, n_names), copy=copy,
+                             check_finite=False)
+    if check_finite and not surely_finite(weights):     # one pass when all are finite
+        as_float_array(weights, "weights", copy=False)  # refuses infinite values
+        bad = np.argwhere(np.isnan(weights))
+        if len(bad):
+            raise InputError(f"weights contain NaN ({len(np.unique(bad[:, 0]))} frames, first "
+                             f"at frame index {bad[0, 0]}, shape {bad[0, 1]}): an export "
+                             "needs every frame solved")
     return weights
 
 
@@ -279,10 +284,11 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
     """
     if not isinstance(neutral, Mesh):
         raise InputError(f"neutral must be a Mesh, got {type(neutral).__name__}")
-    # checked where they are (no float64 copy): only their float32 values are stored
+    # not copied; the compact form's values are checked as they are written (as float32)
     displacements = as_float_array(displacements, "displacements", copy=False,
-                                   shape=(None, neutral.n_vertices, 3), allow_nan=False)
-    weights = _weights(weights, len(displacements), copy=False)
+                                   shape=(None, neutral.n_vertices, 3), allow_nan=False,
+                                   check_finite=materialize)
+    weights = _weights(weights, len(displacements), copy=False, check_finite=materialize)
     names = () if names is None else as_shape_names(names, len(displacements))
     rate = np.nan if rate is None else as_positive_float(rate, "rate")
     arrays = dict(format_version=np.int64(_SEQ_VERSION), faces=neutral.faces,
@@ -309,8 +315,14 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
     else:
         arrays.update(neutral=neutral.vertices, displacements=displacements, weights=weights)
         store_as.update(neutral=np.float32, displacements=np.float32, weights=np.float32)
-    with atomic_path(path, inputs=[*inputs, neutral.path]) as tmp, open(tmp, "wb") as fh:
-        write_npz(fh, arrays, store_as=store_as)
+    try:
+        with atomic_path(path, inputs=[*inputs, neutral.path]) as tmp, open(tmp, "wb") as fh:
+            write_npz(fh, arrays, store_as=store_as, finite=("displacements", "weights"))
+    except NotFiniteError as exc:     # the exact checks name the first bad value
+        as_float_array(displacements, "displacements", copy=False, allow_nan=False)
+        _weights(weights, copy=False)
+        raise InputError(f"{exc.member} hold values beyond the range of float32 (±3.4e38), "
+                         "in which the sequence stores them") from None
 
 
 def read_mesh_sequence(path) -> MeshSequence:

@@ -215,3 +215,22 @@ def test_weights_csv_is_the_text_pandas_writes(tmp_path):
     expected = weights_frame(w, names, rate=59.94, first_frame=-3).to_csv(lineterminator="\n")
     assert path.read_text(encoding="utf-8") == expected
     np.testing.assert_array_equal(read_weights_csv(path)[names].to_numpy(), w)
+
+
+@pytest.mark.parametrize("member, bad, message", [
+    ("weights", np.nan, r"weights contain NaN \(1 frames, first at frame index 2, shape 1\)"),
+    ("weights", np.inf, "weights contains infinite values"),
+    ("weights", 1e39, r"weights hold values beyond the range of float32"),
+    ("displacements", np.nan, r"displacements contains NaN \(first at index \(1, 4, 2\)\)"),
+    ("displacements", -np.inf, "displacements contains infinite values"),
+    ("displacements", -1e39, r"displacements hold values beyond the range of float32"),
+])
+def test_mesh_sequence_refuses_values_it_cannot_store(neutral, displacements, weights,
+                                                     tmp_path, member, bad, message):
+    """The compact form's values are checked as they are written: the error still names
+    the first bad value, and nothing is left behind."""
+    data = dict(displacements=displacements.copy(), weights=weights.copy())
+    data[member][(2, 1) if member == "weights" else (1, 4, 2)] = bad
+    with pytest.raises(InputError, match=message):
+        write_mesh_sequence(tmp_path / "seq.npz", neutral, **data)
+    assert list(tmp_path.iterdir()) == []

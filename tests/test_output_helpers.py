@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
+import struct
+import subprocess
 import zipfile
+import zlib
 
 import numpy as np
 import pytest
@@ -72,18 +76,24 @@ def test_preallocation_that_the_file_system_refuses_is_skipped(tmp_path, monkeyp
         preallocate(fh, 10)
 
 
-def test_npz_holds_what_np_savez_writes(tmp_path, monkeypatch):
+@pytest.mark.parametrize("chunk_bytes", [100, npz._CHUNK_BYTES])
+def test_npz_holds_what_np_savez_writes(tmp_path, monkeypatch, chunk_bytes):
     """Member by member the bytes of ``np.savez`` of the arrays as stored (C order, the
-    stored dtype by ``astype``), converted in blocks of a few rows (with a remainder);
-    a Fortran-ordered array reads back the same; the file ends where the archive does."""
-    monkeypatch.setattr(npz, "_BLOCK_BYTES", 100)
+    stored dtype by ``astype``): summed where they are written (small members) or on
+    the helper thread, converted in chunks of a few rows (with a remainder) or, rows
+    longer than a chunk, of elements; a Fortran-ordered array reads back the same; the
+    CRC-32 set in each local header; the file ends where the archive does."""
+    monkeypatch.setattr(npz, "_CHUNK_BYTES", chunk_bytes)
     rng = np.random.default_rng(0)
     arrays = dict(weights=rng.normal(size=(101, 7)), faces=np.arange(30).reshape(10, 3),
                   names=np.array(["jawOpen", "eyeBlink_L"]), units=np.array("cm"),
                   rate=np.float64(276.0), empty=np.zeros((0, 3)),
                   fortran=np.asfortranarray(rng.normal(size=(6, 5))),
-                  displacements=rng.normal(size=(3, 11, 3)))
-    store_as = {"weights": np.float32, "displacements": np.float32, "fortran": np.float32}
+                  displacements=rng.normal(size=(3, 11, 3)), größe=np.arange(3),
+                  wide=rng.normal(size=(2, 40)), wide_fortran=np.asfortranarray(
+                      rng.normal(size=(3, 2, 40))))
+    store_as = {"weights": np.float32, "displacements": np.float32, "fortran": np.float32,
+                "wide": np.float32, "wide_fortran": np.float32}
     with open(tmp_path / "ours.npz", "wb") as fh:
         npz.write_npz(fh, arrays, store_as=store_as)
     stored = {name: np.array(arr, dtype=store_as.get(name, arr.dtype), order="C")
@@ -97,9 +107,56 @@ def test_npz_holds_what_np_savez_writes(tmp_path, monkeypatch):
         for name, arr in stored.items():
             assert back[name].dtype == arr.dtype
             np.testing.assert_array_equal(back[name], arr)
-    assert os.path.getsize(tmp_path / "ours.npz") == os.path.getsize(tmp_path / "numpy.npz")
+    raw = (tmp_path / "ours.npz").read_bytes()
+    for info in ours.infolist():     # the CRC set in each local header after its data
+        assert raw[info.header_offset + 14:info.header_offset + 18] == struct.pack(
+            "<I", zlib.crc32(ours.read(info.filename)))
+    assert raw[-22:-18] == b"PK\x05\x06" and raw[-2:] == b"\0\0"     # nothing after
+    reserved = []
+    monkeypatch.setattr(npz, "preallocate", lambda fh, n_bytes: reserved.append(n_bytes))
+    with open(tmp_path / "again.npz", "wb") as fh:
+        npz.write_npz(fh, arrays, store_as=store_as)
+    assert reserved == [len(raw)]    # the size reserved is the archive's
+    assert (tmp_path / "again.npz").read_bytes() == raw     # no date: the same bytes
+    if shutil.which("unzip"):        # an independent reader of zip64
+        subprocess.run(["unzip", "-tq", tmp_path / "ours.npz"], check=True,
+                       capture_output=True)
 
 
 def test_npz_refuses_python_objects(tmp_path):
     with open(tmp_path / "o.npz", "wb") as fh, pytest.raises(ValueError, match="objects"):
         npz.write_npz(fh, {"o": np.array([{}, None], dtype=object)})
+
+
+@pytest.mark.parametrize("chunk_bytes", [100, npz._CHUNK_BYTES])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, 1e39])
+@pytest.mark.parametrize("where", [0, 57, 100])
+def test_npz_checks_members_finite_as_stored(tmp_path, monkeypatch, bad, where, chunk_bytes):
+    """A NaN, an infinite value or a float64 beyond float32's range, in the first, a
+    middle or the last chunk of rows (or in a member summed where it is written),
+    refused in a member stored finite; the same values written where they are not
+    asked to be finite (1e39 as float32's inf)."""
+    monkeypatch.setattr(npz, "_CHUNK_BYTES", chunk_bytes)
+    weights = np.random.default_rng(where).normal(size=(101, 7))
+    weights[where, 3] = bad
+    with np.errstate(over="ignore"):
+        arrays = dict(weights=weights, raw=weights.astype(np.float32))
+    store_as = {"weights": np.float32}
+    for member in arrays:
+        with open(tmp_path / "a.npz", "wb") as fh, \
+                pytest.raises(npz.NotFiniteError, match=repr(member)) as caught:
+            npz.write_npz(fh, arrays, store_as=store_as, finite=[member])
+        assert caught.value.member == member
+    with open(tmp_path / "b.npz", "wb") as fh:
+        npz.write_npz(fh, arrays, store_as=store_as, finite=["other"])
+    with np.load(tmp_path / "b.npz") as back:
+        np.testing.assert_array_equal(back["weights"], arrays["raw"])
+
+
+def test_npz_finite_members_with_large_sums(tmp_path):
+    """Finite values whose sum overflows (the fast check's doubt) are exactly checked."""
+    arrays = dict(big=np.full((1000, 3), 3e38, dtype=np.float32))
+    with open(tmp_path / "a.npz", "wb") as fh:
+        npz.write_npz(fh, arrays, finite=["big"])
+    with np.load(tmp_path / "a.npz") as back:
+        np.testing.assert_array_equal(back["big"], arrays["big"])

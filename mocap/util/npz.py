@@ -1,10 +1,11 @@
 """The project's own ``.npz`` archives: written from the arrays' own memory, and read
 back with every array checked to be one of ours.
 
-:func:`write_npz` writes what ``np.savez`` writes (stored members, zip64 headers, .npy
-1.0 headers) without its copy of every array's bytes, converting an array to the dtype
-it is stored in block by block as it goes (no whole converted copy), into a file whose
-size is reserved first.
+:func:`write_npz` writes the archive ``np.savez`` writes (stored members, .npy 1.0
+headers) without its copy of every array's bytes, converting an array to the dtype it
+is stored in chunk by chunk as it goes (no whole converted copy), into a file whose
+size is reserved first. A second thread sums each member's CRC-32 while its bytes are
+written, and checks them finite where asked (the caller then needs no pass of its own).
 
 One reader for takes, bases, masks, mesh sequences, gesture clips and capture
 truths, so that each refuses a foreign or damaged file the same way: the
@@ -16,11 +17,15 @@ bytes for deflate) and against ``MOCAP2MESH_MAX_BYTES``.
 
 from __future__ import annotations
 
+import io
 import json
 import math
+import struct
+import threading
 import tokenize
 import zipfile
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -28,8 +33,9 @@ from mocap.errors import FileFormatError
 from mocap.util.atomic import preallocate
 from mocap.util.budget import check_allocation
 from mocap.util.files import open_input
+from mocap.util.validation import surely_finite
 
-__all__ = ["read_npz", "read_npz_with_meta", "write_npz"]
+__all__ = ["read_npz", "read_npz_with_meta", "write_npz", "NotFiniteError"]
 
 #: Deflate never expands data more than this (RFC 1951: 258 bytes per 2 bits, ~1032:1).
 _DEFLATE_RATIO = 1032
@@ -38,15 +44,34 @@ _HEADERS = {(1, 0): np.lib.format.read_array_header_1_0,
             (2, 0): np.lib.format.read_array_header_2_0}
 
 
-#: Bytes of one block of an array converted as it is written (a few fit in the L2 cache).
-_BLOCK_BYTES = 1 << 18
-#: Bytes a stored member takes besides its .npy file, at most: the local header with its
-#: zip64 extra field and the central directory entry (each 46 bytes + name + 28 extra),
-#: and the end records; the file is cut to what was written.
-_MEMBER_OVERHEAD, _END_OVERHEAD = 2 * (46 + 28), 22 + 56 + 20
+#: Bytes of one chunk of an array handed to the helper thread (each hand-over costs a
+#: thread's wake-up; smaller members are summed where they are written), and of each of
+#: the two conversion buffers a writing thread keeps.
+_CHUNK_BYTES = 1 << 22
+#: Bytes a member takes besides its .npy file: its local header and central directory
+#: entry (30 and 46 bytes, the name each, zip64 fields 20 and 28), and the archive's end
+#: records (zip64 end record 56, its locator 20, end record 22).
+_MEMBER_OVERHEAD, _END_OVERHEAD = 30 + 20 + 46 + 28, 56 + 20 + 22
+#: Zip records (APPNOTE 6.3): signatures, "version needed" 4.5 (zip64), made on Unix,
+#: names in UTF-8, member files -rw-------, and the DOS time 1980-01-01 00:00 (the
+#: same archive for the same arrays).
+_LOCAL, _CENTRAL, _END64, _LOCATOR64, _END = (
+    b"PK\x03\x04", b"PK\x01\x02", b"PK\x06\x06", b"PK\x06\x07", b"PK\x05\x06")
+_VERSION, _MADE_BY, _UTF8_NAMES = 45, (3 << 8) | 45, 1 << 11
+_ATTRIBUTES, _DOS_DATE = 0o600 << 16, (1 << 5) | 1
+_UNKNOWN32, _UNKNOWN16 = 0xFFFF_FFFF, 0xFFFF
 
 
-def write_npz(fh, arrays: dict, *, store_as: dict | None = None) -> None:
+class NotFiniteError(ValueError):
+    """A member :func:`write_npz` was to store finite holds a NaN or an infinite value
+    as it is stored (e.g. a float64 beyond float32's range)."""
+
+    def __init__(self, member: str):
+        super().__init__(f"member {member!r} holds NaN or infinite values as stored")
+        self.member = member
+
+
+def write_npz(fh, arrays: dict, *, store_as: dict | None = None, finite=()) -> None:
     """Write `arrays` as an ``.npz`` archive to the binary file `fh`, as ``np.savez``.
 
     Parameters
@@ -58,53 +83,183 @@ def write_npz(fh, arrays: dict, *, store_as: dict | None = None) -> None:
     store_as : dict of str to dtype, optional
         Members stored in another dtype than their array's (e.g. float64 weights as
         float32), converted as NumPy's ``astype`` does.
+    finite : iterable of str, optional
+        Members whose stored values must all be finite, checked as they are written
+        (no pass over the arrays of its own).
 
     Raises
     ------
     ValueError
         An object array (nothing is written).
+    NotFiniteError
+        A member of `finite` is not (the file is left incomplete: write it to a
+        temporary file).
 
     Notes
     -----
-    Read back by ``np.load`` and :func:`read_npz` as ``np.savez``'s archive; arrays
-    are stored in C order.
+    Read back by ``np.load`` and :func:`read_npz` as ``np.savez``'s archive: the
+    members hold the same bytes (arrays in C order). Every size and offset is a zip64
+    field, so that one layout holds members of any size. The CRC-32 of each member is
+    computed on a second thread while its bytes are written (both release the GIL),
+    and set in its local header after them.
     """
-    store_as = store_as or {}
+    store_as, finite = store_as or {}, set(finite)
     arrays = {name: np.asarray(arr) for name, arr in arrays.items()}
     if any(arr.dtype.hasobject for arr in arrays.values()):
         raise ValueError("write_npz stores no Python objects")
     dtypes = {name: np.dtype(store_as.get(name, arr.dtype)) for name, arr in arrays.items()}
-    headers = {name: {"descr": np.lib.format.dtype_to_descr(dtypes[name]),
-                      "fortran_order": False, "shape": arr.shape}
-               for name, arr in arrays.items()}
-    total = _END_OVERHEAD + sum(      # .npy headers: magic and length, text padded to 64
-        _MEMBER_OVERHEAD + 2 * len(name.encode()) + 10 + len(repr(headers[name])) + 64
-        + arr.size * dtypes[name].itemsize
-        for name, arr in arrays.items())
+    headers = {name: _npy_header(arr.shape, dtypes[name]) for name, arr in arrays.items()}
+    total = _END_OVERHEAD + sum(
+        _MEMBER_OVERHEAD + 2 * len((name + ".npy").encode()) + len(headers[name])
+        + arr.size * dtypes[name].itemsize for name, arr in arrays.items())
     preallocate(fh, total)
-    with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as archive:
+    with ThreadPoolExecutor(1, thread_name_prefix="npz-crc32") as helper:
+        archive = _Archive(fh, helper)
         for name, arr in arrays.items():
-            with archive.open(name + ".npy", "w", force_zip64=True) as member:
-                _write_member(member, arr, headers[name], dtypes[name])
-    fh.truncate()                   # to what was written, less than the size reserved
+            archive.add(name, arr, headers[name], dtypes[name], finite=name in finite)
+        archive.finish()
+    fh.truncate()                   # where the archive ends (the size reserved)
 
 
-def _write_member(member, arr: np.ndarray, header: dict, dtype: np.dtype) -> None:
-    """The .npy file of `arr` with `header`: the header, then the data in C order, as
-    `dtype` by blocks of rows converted into one reused buffer when it differs."""
-    np.lib.format.write_array_header_1_0(member, header)
-    if arr.size == 0:
-        return
-    if arr.dtype == dtype and arr.flags.c_contiguous:
-        member.write(memoryview(arr.reshape(-1).view(np.uint8)))
-        return
-    rows = arr.reshape(len(arr), -1) if arr.ndim else arr.reshape(1, 1)
-    per_block = max(1, _BLOCK_BYTES // max(1, rows.shape[1] * dtype.itemsize))
-    block = np.empty((min(per_block, len(rows)), rows.shape[1]), dtype)
-    for first in range(0, len(rows), per_block):
-        part = block[:len(rows) - first]
-        np.copyto(part, rows[first:first + len(part)], casting="unsafe")
-        member.write(memoryview(part.reshape(-1).view(np.uint8)))
+def _npy_header(shape: tuple, dtype: np.dtype) -> bytes:
+    """The .npy 1.0 header (magic, length, padded text) of an array in C order."""
+    text = io.BytesIO()
+    np.lib.format.write_array_header_1_0(text, {
+        "descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
+        "shape": shape})
+    return text.getvalue()
+
+
+class _Archive:
+    """The members of an archive being written to `fh`: the bytes of each go to the file
+    while the `helper` thread sums their CRC-32 (and checks them finite if asked); the
+    CRCs are set in the local headers at the end, then the central directory written.
+
+    An array stored in another dtype is converted by chunks of rows into two buffers
+    in turn, each refilled once the helper has summed it.
+    """
+
+    def __init__(self, fh, helper):
+        self.fh, self.helper, self.members = fh, helper, []
+        self.summing = []                   # futures, in the order handed over
+        self.buffers, self.in_buffer = _thread_buffers(), [None, None]
+
+    def add(self, name: str, arr: np.ndarray, header: bytes, dtype: np.dtype, *,
+            finite: bool) -> None:
+        """Write the member `name`: its local header, the .npy `header`, then `arr` as
+        `dtype` in C order."""
+        file_name, offset = (name + ".npy").encode(), self.fh.tell()
+        size = len(header) + arr.size * dtype.itemsize
+        crc = _RunningCrc(zlib.crc32(header), check=finite and dtype.kind in "fc")
+        self.members.append((name, file_name, offset, size, crc))
+        self.fh.write(_local_header(file_name, size, 0))
+        self.fh.write(header)
+        if size <= _CHUNK_BYTES:            # summed here: a hand-over would cost more
+            with np.errstate(over="ignore"):    # to inf, as astype (checked if asked)
+                chunk = np.ascontiguousarray(arr, dtype).reshape(-1)
+            crc.update(chunk)
+            self.fh.write(_raw(chunk))
+        elif arr.dtype == dtype and arr.flags.c_contiguous:
+            self.summing.append(self.helper.submit(crc.update, arr.reshape(-1)))
+            self.fh.write(_raw(arr.reshape(-1)))
+        else:
+            for slot, chunk in self._converted(arr, dtype):
+                self.in_buffer[slot] = self.helper.submit(crc.update, chunk)
+                self.summing.append(self.in_buffer[slot])
+                self.fh.write(_raw(chunk))
+
+    def _converted(self, arr: np.ndarray, dtype: np.dtype):
+        """(buffer index, chunk) of `arr` as `dtype` in C order, flat, chunk by chunk."""
+        rows = arr.reshape(-1, arr.shape[-1])
+        if rows.shape[1] * dtype.itemsize > _CHUNK_BYTES:  # rows longer than a chunk
+            rows = np.ascontiguousarray(arr).reshape(-1, 1)
+        per_chunk = max(1, _CHUNK_BYTES // max(1, rows.shape[1] * dtype.itemsize))
+        for first in range(0, len(rows), per_chunk):
+            slot = len(self.summing) % 2
+            if self.in_buffer[slot] is not None:
+                self.in_buffer[slot].result()
+            part = rows[first:first + per_chunk]
+            chunk = self.buffers[slot][:part.size * dtype.itemsize].view(dtype)
+            with np.errstate(over="ignore"):
+                np.copyto(chunk.reshape(part.shape), part, casting="unsafe")
+            yield slot, chunk
+
+    def finish(self) -> None:
+        """Set each member's CRC-32 in its local header and write the central directory.
+
+        Raises
+        ------
+        NotFiniteError
+            A member checked finite is not.
+        """
+        for future in self.summing:
+            future.result()
+        for name, _, offset, _, crc in self.members:
+            if crc.value is None:
+                raise NotFiniteError(name)
+        end = self.fh.tell()
+        for _, _, offset, _, crc in self.members:
+            self.fh.seek(offset + 14)       # the CRC-32 field of the local header
+            self.fh.write(struct.pack("<I", crc.value))
+        self.fh.seek(end)
+        _write_directory(self.fh, [(file_name, offset, size, crc.value)
+                                   for _, file_name, offset, size, crc in self.members])
+
+
+_kept = threading.local()
+
+
+def _thread_buffers() -> list:
+    """The calling thread's two conversion buffers of `_CHUNK_BYTES`, kept between
+    archives (their pages are touched once, not by every archive)."""
+    if getattr(_kept, "buffers", None) is None or len(_kept.buffers[0]) < _CHUNK_BYTES:
+        _kept.buffers = [np.empty(_CHUNK_BYTES, np.uint8) for _ in range(2)]
+    return _kept.buffers
+
+
+def _raw(chunk: np.ndarray) -> memoryview:
+    """The bytes of a flat contiguous array, without a copy."""
+    return memoryview(chunk.view(np.uint8))
+
+
+class _RunningCrc:
+    """CRC-32 of a member's chunks, summed in order; None once a chunk checked finite
+    holds a NaN or an infinite value (told by its sum, exactly checked if it overflows)."""
+
+    def __init__(self, crc: int, *, check: bool):
+        self.value, self.check = crc, check
+
+    def update(self, chunk: np.ndarray) -> None:
+        if self.value is None:
+            return
+        if self.check and not (surely_finite(chunk) or np.isfinite(chunk).all()):
+            self.value = None
+            return
+        self.value = zlib.crc32(_raw(chunk), self.value)
+
+
+def _local_header(name: bytes, size: int, crc: int) -> bytes:
+    """A stored member's local header, its sizes in the zip64 extra field."""
+    return (_LOCAL + struct.pack("<HHHHHIIIHH", _VERSION, _UTF8_NAMES, zipfile.ZIP_STORED, 0,
+                                 _DOS_DATE, crc, _UNKNOWN32, _UNKNOWN32, len(name), 20)
+            + name + struct.pack("<HHQQ", 1, 16, size, size))
+
+
+def _write_directory(fh, entries: list) -> None:
+    """The central directory of `entries` (sizes and offsets in zip64 extra fields)
+    and the zip64 and classic end records."""
+    start = fh.tell()
+    for name, offset, size, crc in entries:
+        fh.write(_CENTRAL + struct.pack(
+            "<HHHHHHIIIHHHHHII", _MADE_BY, _VERSION, _UTF8_NAMES, zipfile.ZIP_STORED, 0, _DOS_DATE,
+            crc, _UNKNOWN32, _UNKNOWN32, len(name), 28, 0, 0, 0, _ATTRIBUTES, _UNKNOWN32)
+            + name + struct.pack("<HHQQQ", 1, 24, size, size, offset))
+    end = fh.tell()
+    fh.write(_END64 + struct.pack("<QHHIIQQQQ", 44, _MADE_BY, _VERSION, 0, 0, len(entries),
+                                  len(entries), end - start, start))
+    fh.write(_LOCATOR64 + struct.pack("<IQI", 0, end, 1))
+    fh.write(_END + struct.pack("<HHHHIIH", 0, 0, _UNKNOWN16, _UNKNOWN16, _UNKNOWN32,
+                                _UNKNOWN32, 0))
 
 
 def _capacity(info: zipfile.ZipInfo) -> int:

@@ -27,11 +27,13 @@ def surely_finite(arr: np.ndarray) -> bool:
 
 def as_float_array(value, name: str, *, ndim: int | None = None,
                    shape: tuple | None = None, allow_nan: bool = True,
-                   copy: bool = True) -> np.ndarray:
+                   copy: bool = True, check_finite: bool = True) -> np.ndarray:
     """Convert `value` to a float64 array and check its dimensions.
 
     ``shape`` may hold ``None`` for axes of any length. With ``copy=False`` a
-    float64 array is returned as it is (not copied).
+    float64 array is returned as it is (not copied). Infinite values, and NaN unless
+    `allow_nan`, are refused; ``check_finite=False`` leaves the values to a caller
+    that checks them as it uses them (one pass over the data instead of two).
     """
     try:
         arr = np.array(value, dtype=np.float64, copy=True if copy else None)
@@ -46,7 +48,7 @@ def as_float_array(value, name: str, *, ndim: int | None = None,
             raise InputError(f"{name} must have shape {want}, got {arr.shape}")
     # only an array that may not be finite needs the exact checks, by the extremes (NaN
     # ignored, no temporary the size of arr) and np.isnan
-    if surely_finite(arr):
+    if not check_finite or surely_finite(arr):
         return arr
     extremes = [np.fmax.reduce(arr, axis=None), np.fmin.reduce(arr, axis=None)] if arr.size else []
     if np.isinf(extremes).any():
