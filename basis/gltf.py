@@ -307,18 +307,24 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
     if not isinstance(neutral, Mesh):
         raise InputError(f"neutral must be a Mesh, got {type(neutral).__name__}")
     n_vertices = neutral.n_vertices
+    # values checked by their extremes below (no pass of their own)
     displacements = as_float_array(displacements, "displacements", shape=(None, n_vertices, 3),
-                                   allow_nan=False, copy=False)
+                                   copy=False, check_finite=False)
     names = as_shape_names(names, len(displacements))
     times, weights, motion = _animation(weights, rotation, translation, rate, len(names),
                                         first_frame)
     # the stored values are the inputs rounded monotonically, so every large accessor's
     # min and max are those of its input's extremes, rounded the same way
+    shape_range = np.stack(column_extremes(displacements), axis=1)           # (n, 2, 3)
     weight_range = None if weights is None else column_extremes(weights)
+    # extremes are NaN or infinite exactly where a value is: the exact checks name it
+    for values, what, extremes in ((displacements, "displacements", shape_range),
+                                   (weights, "weights", weight_range)):
+        if extremes is not None and not np.isfinite(extremes).all():
+            as_float_array(values, what, allow_nan=False, copy=False)
     targets = morph_targets(names) if weights is None else _targets_of_range(names,
                                                                              *weight_range)
     scale = _to_metres(neutral)
-    shape_range = np.stack(column_extremes(displacements), axis=1)           # (n, 2, 3)
 
     normals = vertex_normals(neutral.vertices, neutral.faces)
     normals[np.linalg.norm(normals, axis=1) == 0] = (0.0, 0.0, 1.0)
@@ -374,8 +380,8 @@ def _animation(weights, rotation, translation, rate, n: int, first_frame):
     rate = as_positive_float(rate, "rate")
     counts = []
     if weights is not None:
-        weights = as_float_array(weights, "weights", shape=(None, n), allow_nan=False,
-                                 copy=False)
+        weights = as_float_array(weights, "weights", shape=(None, n), copy=False,
+                                 check_finite=False)     # checked by the caller
         counts.append(len(weights))
     motion = None
     if rotation is not None:

@@ -311,6 +311,13 @@ def test_output_never_replaces_the_neutral(tmp_path):
         write_gltf(src, loaded, np.zeros((1, 9, 3)), ["a"])
 
 
+def _one(shape: tuple, index: tuple, value: float) -> np.ndarray:
+    """Zeros of `shape` but `value` at `index`."""
+    arr = np.zeros(shape)
+    arr[index] = value
+    return arr
+
+
 @pytest.mark.parametrize("kwargs, message", [
     (dict(names=["a"]), "names has 1 entries but displacements has 2 shapes"),
     (dict(names=["a", "a"]), "names must be unique: 'a' appears twice"),
@@ -320,6 +327,14 @@ def test_output_never_replaces_the_neutral(tmp_path):
     (dict(displacements=np.zeros((2, 8, 3))), r"displacements must have shape \(any, 9, 3\)"),
     (dict(displacements=np.full((2, 9, 3), np.nan)), "displacements contains NaN"),
     (dict(weights=np.array([[0.0, np.nan]]), rate=30), r"weights contains NaN"),
+    (dict(displacements=_one((2, 9, 3), (0, 8, 2), np.nan)),
+     r"displacements contains NaN \(first at index \(0, 8, 2\)\)"),
+    (dict(displacements=_one((2, 9, 3), (1, 4, 0), -np.inf)),
+     "displacements contains infinite values"),
+    (dict(weights=np.array([[0.0, 0.5], [0.3, np.nan], [0.1, 0.2]]), rate=30),
+     r"weights contains NaN \(first at index \(1, 1\)\)"),
+    (dict(weights=np.array([[0.0, 0.5], [np.inf, 0.2]]), rate=30),
+     "weights contains infinite values"),
     (dict(weights=np.zeros((4, 3)), rate=30), r"weights must have shape \(any, 2\)"),
     (dict(weights=np.zeros((0, 2)), rate=30), "the animation has no frames"),
     (dict(weights=np.zeros((4, 2))), "an animation needs the take's rate"),
