@@ -194,7 +194,7 @@ class _Archive:
         """
         for future in self.summing:
             future.result()
-        for name, _, offset, _, crc in self.members:
+        for name, *_, crc in self.members:
             if crc.value is None:
                 raise NotFiniteError(name)
         end = self.fh.tell()
