@@ -152,7 +152,7 @@ class _Archive:
         size = len(header) + arr.size * dtype.itemsize
         crc = _RunningCrc(zlib.crc32(header), check=finite and dtype.kind in "fc")
         self.members.append((name, file_name, offset, size, crc))
-        self.fh.write(_local_header(file_name, size, 0))
+        self.fh.write(_local_header(file_name, size))
         self.fh.write(header)
         if size <= _CHUNK_BYTES:            # summed here: a hand-over would cost more
             with np.errstate(over="ignore"):    # to inf, as astype (checked if asked)
@@ -238,10 +238,11 @@ class _RunningCrc:
         self.value = zlib.crc32(_raw(chunk), self.value)
 
 
-def _local_header(name: bytes, size: int, crc: int) -> bytes:
-    """A stored member's local header, its sizes in the zip64 extra field."""
+def _local_header(name: bytes, size: int) -> bytes:
+    """A stored member's local header, its sizes in the zip64 extra field, its CRC-32 zero
+    (set once the data is summed: :meth:`_Archive.finish`)."""
     return (_LOCAL + struct.pack("<HHHHHIIIHH", _VERSION, _UTF8_NAMES, zipfile.ZIP_STORED, 0,
-                                 _DOS_DATE, crc, _UNKNOWN32, _UNKNOWN32, len(name), 20)
+                                 _DOS_DATE, 0, _UNKNOWN32, _UNKNOWN32, len(name), 20)
             + name + struct.pack("<HHQQ", 1, 16, size, size))
 
 
