@@ -195,19 +195,87 @@ def test_smooth_start_changes_the_work_not_the_result(start):
         assert sol.n_iter.max() == 1
 
 
-def test_kept_factor_is_used_only_for_its_own_system(monkeypatch):
-    """In a reuse_factors block, a solve that starts in the state the last one ended in
-    reuses its factor; solves of other systems (another λ, basis or take length) in that
-    state must not: every result is bit for bit the one solved outside the block."""
+class _Moves:
+    """A ``follow`` of solve_weights that walks through `datas`, one per global step, then
+    holds the last data until the solve is optimal; records what it was called with."""
+
+    def __init__(self, datas):
+        self.datas, self.calls = list(datas), []
+
+    def __call__(self, w, optimal):
+        self.calls.append((w.copy(), optimal))
+        if len(self.calls) < len(self.datas):
+            return self.datas[len(self.calls)]
+        return None if optimal else self.datas[-1]
+
+
+@pytest.mark.parametrize("bounds", [(0.0, 1.0), (-np.inf, np.inf)])
+def test_followed_problem_ends_at_the_minimizer_of_its_last_data(bounds):
+    """Data that move after every global step (far at first, active set and all): the
+    result is the smooth minimizer of the last data, solved on its own, with the cost and
+    KKT residual of those data; every step was seen with its weights."""
+    rng = np.random.default_rng(31)
+    T, n, K = 200, 5, 12
+    basis, data = _smooth_problem(rng, T, n, K, collinear=True)
+    datas = [data + 0.5 * 0.3 ** j * rng.standard_normal(data.shape) for j in range(6)]
+    moves = _Moves(datas)
+    sol = solve_weights(basis, datas[0], lower=bounds[0], upper=bounds[1], smoothness=2.0,
+                        follow=moves)
+    alone = solve_weights(basis, datas[-1], lower=bounds[0], upper=bounds[1], smoothness=2.0)
+    assert sol.status == 0, sol.message
+    np.testing.assert_allclose(sol.weights, alone.weights, rtol=0, atol=SOLVE_SAME_MINIMIZER)
+    np.testing.assert_allclose(sol.cost, 0.5 * np.sum((sol.weights @ basis.T - datas[-1]) ** 2,
+                                                      axis=1))
+    assert sol.kkt_residual.max() <= SOLVE_KKT_REL
+    assert len(moves.calls) >= len(datas) and moves.calls[-1][1]
+    assert np.isinf(bounds[0]) or not moves.calls[0][1]  # moved while not yet optimal
+    assert np.all(sol.n_iter >= len(moves.calls))        # a global solve per call at least
+    np.testing.assert_allclose(np.clip(moves.calls[-1][0], *bounds), sol.weights,
+                               rtol=0, atol=EXACT_FLOAT64)
+
+
+def test_a_cycle_while_the_data_move_holds_them_and_ends_optimal(monkeypatch):
+    """Global steps that go back and forth between two states (forced) while the data
+    move: the first repeat turns the local phase off, the second holds the data (no
+    calls of follow until the state is optimal) instead of stopping; the solve then
+    ends at the minimizer of the last data."""
+    rng = np.random.default_rng(12)
+    T, n, K = 150, 5, 12
+    basis, data = _smooth_problem(rng, T, n, K, collinear=True)
+    real = fit.solve._smooth._step
+    forced = []
+
+    def back_and_forth(qp, state, w, grad):
+        if len(state) == T and len(forced) < 4:
+            forced.append(1)
+            return np.full_like(state, 0 if len(forced) % 2 else -1)
+        return real(qp, state, w, grad)
+    monkeypatch.setattr(fit.solve._smooth, "_step", back_and_forth)
+    solve, global_solves = fit.solve._smooth._reduced, []
+
+    def counted(qp, band, c, state, w, frames, whole):
+        global_solves.append(len(frames) == T)
+        return solve(qp, band, c, state, w, frames, whole)
+    monkeypatch.setattr(fit.solve._smooth, "_reduced", counted)
+    datas = [data + 0.3 ** j * rng.standard_normal(data.shape) for j in range(12)]
+    moves = _Moves(datas)
+    sol = solve_weights(basis, datas[0], lower=0, upper=1, smoothness=2.0,
+                        start=np.zeros((T, n)), follow=moves)
+    n_global = sum(global_solves)
+    alone = solve_weights(basis, moves.datas[min(len(moves.calls), len(datas)) - 1],
+                          lower=0, upper=1, smoothness=2.0)
+    assert len(forced) == 4 and sol.status == 0, sol.message
+    np.testing.assert_allclose(sol.weights, alone.weights, rtol=0, atol=SOLVE_SAME_MINIMIZER)
+    assert n_global > len(moves.calls)                   # global solves without a call
+
+
+def test_a_step_in_the_same_state_reuses_the_factor(monkeypatch):
+    """Data moved by far less than any weight's distance to its bound keep the optimal
+    active set: one factorization serves every step, two triangular solves each."""
     rng = np.random.default_rng(8)
     T, n, K = 120, 5, 12
     basis, data = _smooth_problem(rng, T, n, K, collinear=True)
     answer = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0).weights
-    own = (basis, data, 2.0)                    # starts at its answer: one global solve
-    # each other system starts in the state the last solve (of `own`) ended in
-    problems = [own, (basis, data, 7.0), own,
-                (basis + 0.3 * rng.standard_normal(basis.shape), data, 2.0), own,
-                (basis, data[:-1], 2.0), own, own]
     factors = []
     real = fit.solve._smooth.scipy.linalg.cholesky_banded
 
@@ -215,19 +283,21 @@ def test_kept_factor_is_used_only_for_its_own_system(monkeypatch):
         factors.append(1)
         return real(*args, **kwargs)
     monkeypatch.setattr(fit.solve._smooth.scipy.linalg, "cholesky_banded", counted)
+    moves = _Moves([data + 1e-12 * j for j in range(5)])
+    sol = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0, start=answer,
+                        follow=moves)
+    assert sol.status == 0
+    assert [optimal for _, optimal in moves.calls] == [True] * 5
+    assert len(factors) == 1 and np.all(sol.n_iter == 5)
 
-    def solve_all():
-        return [solve_weights(b, d, lower=0, upper=1, smoothness=lam, start=answer[:len(d)])
-                for b, d, lam in problems]
-    alone = solve_all()
-    alone_factors, factors[:] = len(factors), []
-    with fit.solve._smooth.reuse_factors():
-        kept = solve_all()
-    for one, other in zip(alone, kept):
-        assert other.status == 0
-        np.testing.assert_array_equal(other.weights, one.weights)
-    assert alone[0].n_iter.max() == 1
-    assert len(factors) == alone_factors - 1    # the last solve reused the one before's
+
+def test_follow_is_refused_without_smoothness_or_with_the_wrong_size():
+    basis, data = np.eye(3), np.zeros((4, 3))
+    with pytest.raises(InputError, match="follow needs smoothness"):
+        solve_weights(basis, data, follow=lambda w, optimal: None)
+    with pytest.raises(InputError, match=r"follow must return data of \(4, 3\) values"):
+        solve_weights(basis, data, lower=0, upper=1, smoothness=1.0,
+                      follow=lambda w, optimal: np.zeros((4, 2)))
 
 
 @pytest.mark.parametrize("n, T", [(1, 6), (4, 1), (5, 300)])

@@ -29,12 +29,17 @@ them nearly flat (``bench/bench_smooth.py`` counts both).
 Only the global solve of a state decides convergence: the KKT conditions of
 every frame of the whole sequence objective, to ``tol``. The local phase only
 proposes the next state.
+
+The linear terms may move while the iteration runs (``bounded(..., follow=)``):
+the chord steps of the exact marker-centre fit change them after every global
+solve, so that the steps and the active-set iteration converge together
+instead of one full iteration per step. The whole sequence's factor is kept
+while the state stays, so a step that keeps it costs two triangular solves.
 """
 
 from __future__ import annotations
 
-import contextvars
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -166,7 +171,6 @@ class _Band:
         n = len(G)
         self.G, self.lam, self.n, self.ridge = G, lam, n, ridge
         self.fill = float(np.mean(np.diag(G))) or 1.0
-        self.key = (G.tobytes(), lam, ridge)
         cols = np.arange(n)
         # [c, r − 1]: the entry of storage row r (band n − r) in a frame's column c
         self.bands = np.array([np.where(cols >= k, G[(cols - k) % n, cols], 0.0)
@@ -208,12 +212,12 @@ class _Band:
         return ab
 
 
-def _reduced(qp: BoxQP, band: _Band, c, state, w, frames):
+def _reduced(qp: BoxQP, band: _Band, c, state, w, frames, whole: "_WholeFactor"):
     """Weights of ``frames`` (sorted) for their state, the other frames held at ``w``.
 
     Bound weights sit at their bound, free ones are stationary: one banded
-    solve over the frames (for the whole sequence, through its Cholesky factor,
-    :func:`_whole_factor`). Returns (F, n).
+    solve over the frames (for the whole sequence, through the factor
+    ``whole`` keeps). Returns (F, n).
     """
     T, n = c.shape
     sub = state[frames]
@@ -224,59 +228,33 @@ def _reduced(qp: BoxQP, band: _Band, c, state, w, frames):
     rhs = np.where(free, -gradient(qp.G, c, band.lam, held, frames, scale=False)[0],
                    0.0).ravel()
     if len(frames) == T:
-        step = scipy.linalg.cho_solve_banded((_whole_factor(band, sub), False), rhs,
-                                             check_finite=False)
+        step = scipy.linalg.cho_solve_banded((whole.of(sub), False), rhs, check_finite=False)
     else:
         ab = band.matrix(free, degree(T)[frames], np.diff(frames) == 1)
         step = scipy.linalg.solveh_banded(ab, rhs, overwrite_ab=True, check_finite=False)
     return fixed_part + np.where(free, step.reshape(len(frames), n), 0.0)
 
 
-class _KeptFactor:
-    """The last whole-sequence factor of a :func:`reuse_factors` block and its system."""
+class _WholeFactor:
+    """Upper banded Cholesky factor of the whole sequence's reduced Hessian in the last
+    state asked for, kept until another state is (one (n + 1, T·n) array, rewritten in
+    place for the next state)."""
 
-    key = factor = None
+    def __init__(self, band: _Band):
+        self.band, self.key, self.factor = band, None, None
 
-
-_KEPT = contextvars.ContextVar("kept_factor", default=None)
-
-
-@contextmanager
-def reuse_factors():
-    """Within the block, keep the last whole-sequence factor for the next bounded solve.
-
-    Solves of one sequence problem with new linear terms (the chord steps of the
-    exact-centre fit) often start in the state the previous one ended in: its
-    upper banded Cholesky factor is then reused, a pair of triangular solves
-    instead of a factorization. Holds one factor, (n + 1) · T · n floats, until
-    the block ends; solves in other threads keep none.
-    """
-    token = _KEPT.set(_KeptFactor())
-    try:
-        yield
-    finally:
-        _KEPT.reset(token)
-
-
-def _whole_factor(band: _Band, state):
-    """Upper banded Cholesky factor of the reduced Hessian of the whole sequence in
-    ``state`` (T, n): the one kept by :func:`reuse_factors` if it is of this system."""
-    kept = _KEPT.get()
-    key = (band.key, state.tobytes())
-    if kept is not None and kept.key == key:
-        return kept.factor
-    T = len(state)
-    # a kept factor of another system is overwritten: no second matrix of its size
-    reuse = kept is not None and kept.factor is not None and \
-        kept.factor.shape == (band.n + 1, state.size)
-    if reuse:
-        kept.key = None                 # its factor is no longer one from here on
-    ab = band.matrix(state == 0, degree(T), np.ones(max(T - 1, 0), bool),
-                     out=kept.factor if reuse else None)
-    factor = scipy.linalg.cholesky_banded(ab, overwrite_ab=True, check_finite=False)
-    if kept is not None:
-        kept.key, kept.factor = key, factor
-    return factor
+    def of(self, state):
+        """The factor for ``state`` (T, n): the kept one when the state is the same."""
+        key = state.tobytes()
+        if key != self.key:
+            T = len(state)
+            self.key = None                 # the buffer is about to hold another factor
+            ab = self.band.matrix(state == 0, degree(T), np.ones(max(T - 1, 0), bool),
+                                  out=self.factor)
+            self.factor = scipy.linalg.cholesky_banded(ab, overwrite_ab=True,
+                                                       check_finite=False)
+            self.key = key
+        return self.factor
 
 
 def _step(qp: BoxQP, state, w, grad):
@@ -299,7 +277,7 @@ def _near(changed, width):
     return np.cumsum(edges[:-1]) > 0
 
 
-def _settle(qp, band, c, state, w, changed, n_iter):
+def _settle(qp, band, c, state, w, changed, n_iter, whole):
     """Local phase: iterate the windows around ``changed`` frames (``state`` in place).
 
     Each step solves the windows' reduced system with the frames outside held
@@ -313,7 +291,7 @@ def _settle(qp, band, c, state, w, changed, n_iter):
         if not changed.any() or near.sum() > _LOCAL_SHARE * len(c):
             return
         frames = np.flatnonzero(near)
-        w[frames] = _reduced(qp, band, c, state, w, frames)
+        w[frames] = _reduced(qp, band, c, state, w, frames, whole)
         n_iter[frames] += 1
         grad = gradient(qp.G, c, band.lam, w, frames, scale=False)[0]
         new = _step(qp, state[frames], w[frames], grad)
@@ -322,8 +300,17 @@ def _settle(qp, band, c, state, w, changed, n_iter):
         state[frames] = new
 
 
-def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None):
-    """Exact minimizer of the sequence problem in the box; returns (w (T, n), n_iter (T,)).
+#: Linear terms for the next global step, from the weights of the last one and
+#: whether they are optimal; None to stop (see :func:`bounded`).
+Follow = Callable[[np.ndarray, bool], "np.ndarray | None"]
+
+
+def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None,
+            follow: Follow | None = None):
+    """Exact minimizer of the sequence problem in the box.
+
+    Returns w (T, n), n_iter (T,) and the linear terms (T, n) w solves: `c`,
+    or the last ones `follow` returned.
 
     The first state is the active set of `start` (T, n) when given (weights
     at or beyond a bound are bound), else of :func:`rough`.
@@ -334,10 +321,20 @@ def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None):
     the plain iteration cycles too, or ``max_iter`` global steps pass, the
     last iterate is returned clipped to the box (the caller's KKT check
     reports it unconverged).
+
+    ``follow(w, optimal)``, when given, is called after every global solve
+    with its weights and whether every frame meets the KKT conditions, and
+    returns the linear terms of the next one (the problem moves; the same
+    terms hold it) or None to stop: the iteration then ends where `follow`
+    says, optimal or not (w always solves the last terms it returned). A
+    cycle of the plain iteration while the terms move holds them until the
+    state is optimal again (the iteration of a fixed problem, which stops on
+    a second cycle).
     """
     T, n = c.shape
     ridge = RANK_RTOL * spectrum.eig[-1] if qp.singular else 0.0
     band = _Band(qp.G, lam, ridge)
+    whole = _WholeFactor(band)
     if start is None:
         start = rough(spectrum, spectrum.transform(c), lam, qp.lo, qp.hi, _ADMM_ITER)
     state = qp.state_of(start)
@@ -345,21 +342,35 @@ def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None):
     n_iter = np.zeros(T, np.int64)
     w = np.zeros_like(c)
     seen = {state.tobytes()}
-    local = True
-    for _ in range(max_iter):
-        w = _reduced(qp, band, c, state, w, every)
+    local, hold = True, False
+    for iteration in range(max_iter):
+        w = _reduced(qp, band, c, state, w, every, whole)
         n_iter += 1
         grad, scale = gradient(qp.G, c, lam, w)
-        if (kkt_residual(w, grad, scale, qp.lo, qp.hi) <= tol).all():
-            break
-        new = _step(qp, state, w, grad)
-        if local:
-            _settle(qp, band, c, new, w, (new != state).any(axis=1), n_iter)
-        key = new.tobytes()
-        if key in seen:
-            if not local:
+        optimal = bool((kkt_residual(w, grad, scale, qp.lo, qp.hi) <= tol).all())
+        if not optimal:
+            new = _step(qp, state, w, grad)
+            if local:
+                _settle(qp, band, c, new, w, (new != state).any(axis=1), n_iter, whole)
+            key = new.tobytes()
+            if key in seen:
+                if not local and (follow is None or hold):
+                    break
+                # a cycle: plain primal-dual steps from here on, of a held problem
+                # if it cycles again
+                hold, local, seen = not local, False, set()
+            seen.add(key)
+            state = new
+        if follow is None or (hold and not optimal):
+            if optimal:
                 break
-            local, seen = False, set()     # a cycle: go on with plain primal-dual steps
-        seen.add(key)
-        state = new
-    return np.clip(w, qp.lo, qp.hi), n_iter
+            continue
+        if iteration == max_iter - 1:
+            break                       # (the last terms are the ones w solves)
+        following = follow(w, optimal)
+        if following is None:
+            break
+        c = following
+        if optimal:                     # a new problem from an optimal state
+            hold, local, seen = False, True, {state.tobytes()}
+    return np.clip(w, qp.lo, qp.hi), n_iter, c

@@ -14,7 +14,10 @@ same B (one BᵀB, all frames batched) against the data less the current
 ``r(x_k)``, ``F(x_k) = argmin ½‖B w − (d − r(x_k))‖²``; the next iterate
 mixes the last two steps (Anderson acceleration with one memory, clipped to
 the bounds), and frames whose step has settled (``max |F(x) − x| ≤ tol``)
-leave with ``F(x)``. The fixed point fits the exact model: ``c(w) − c(0) = d``
+leave with ``F(x)``. With temporal smoothness the frames are one problem: its
+chord steps ride on the smooth solve's active-set iteration (every global solve
+of it moves the data to the current iterate), so that the steps and the active
+set converge together. The fixed point fits the exact model: ``c(w) − c(0) = d``
 where the data allow it (noise-free data are recovered exactly); with noise
 its residual is orthogonal to B instead of to the Jacobian of c, which
 differs from the least-squares fit of c by the second order of the offset.
@@ -26,7 +29,6 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from fit.solve._smooth import reuse_factors
 from fit.solve.gcv import SMOOTHNESS_RULES, gcv_smoothness
 from fit.solve.weights import WeightSolution, as_smoothness, solve_weights
 from mocap.errors import InputError
@@ -125,17 +127,13 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     model = _CentreModel(layout, neutral, displacements, basis, rest, lower, upper)
     steps = _ChordSteps.empty(T, n, layout.n_markers)
     if smoothness > 0:
-        # the frames are one problem and step together, from the linear model's optima of
-        # the frames (solving their own fixed points first costs more than the steps it saves)
-        start = solve_weights(basis, data, lower=lower, upper=upper).weights
-        with reuse_factors():       # a step often starts in the state the last one ended in
-            ranks = [_chord_steps(model, data, start, smoothness, tol, max_steps, steps)]
+        ranks = [_smooth_chord_steps(model, data, smoothness, tol, max_steps, steps)]
     else:
         # frames are independent: pieces of them step on the BLAS's threads, each writing
         # its rows of the result (no copy of the pieces' results in one thread after)
         def piece(first):
             rows = slice(first, first + _FRAMES_PER_TASK)
-            return _chord_steps(model, data[rows], None, 0.0, tol, max_steps, steps.rows(rows))
+            return _chord_steps(model, data[rows], tol, max_steps, steps.rows(rows))
         ranks = map_on_blas_threads(piece, range(0, T, _FRAMES_PER_TASK))
     step, n_steps = steps.step, steps.n_steps
     settled = step <= tol
@@ -170,6 +168,16 @@ class _CentreModel:
         return self.layout.positions_under_weights(self.neutral, self.displacements, w) \
             - self.rest
 
+    def nonlinear(self, w: np.ndarray) -> np.ndarray:
+        """``r(w) = c(w) − c(0) − B w`` of the weights `w` (T, n), (T, M, 3)."""
+        return self.centres(w) - np.tensordot(w, self.basis, axes=1)
+
+    def finish(self, w: np.ndarray, data, out: "_ChordSteps") -> None:
+        """Write the centres of the final weights `w` and their cost against `data`."""
+        out.moved[:] = self.centres(w)
+        residual = out.moved - data
+        out.cost[:] = 0.5 * np.einsum("tmc,tmc->t", residual, residual)
+
 
 @dataclass(frozen=True)
 class _ChordSteps:
@@ -198,19 +206,14 @@ class _ChordSteps:
         return _ChordSteps(*(getattr(self, f.name)[rows] for f in fields(self)))
 
 
-def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps,
-                 out: _ChordSteps) -> int:
-    """The chord steps of `data` (T, M, 3) from weights `start` (None: zero weights, whose
+def _chord_steps(model: _CentreModel, data, tol, max_steps, out: _ChordSteps) -> int:
+    """The chord steps of independent frames `data` (T, M, 3) from zero weights (whose
     first step is the linear model's solve), written into `out` (T frames); return the
-    basis' rank. With `smoothness` > 0 the frames step together. A frame's solve starts
-    from the active set of its mixed iterate, which extrapolates the last two; a smooth
-    solve from that of the last step's solution instead (the state of its kept factor,
-    :func:`fit.solve._smooth.reuse_factors`), the first one from the smooth solve's own
-    start (`start`, the frames' own optima, is an active set far from the smooth one)."""
+    basis' rank. A frame's solve starts from the active set of its mixed iterate, which
+    extrapolates the last two; a frame leaves once its step has settled."""
     basis, lower, upper = model.basis, model.lower, model.upper
     T, n = len(data), len(basis)
-    coupled = smoothness > 0
-    x = np.zeros((T, n)) if start is None else start.copy()
+    x = np.zeros((T, n))
     w, kkt, converged, n_steps, n_iter, step = \
         out.weights, out.kkt, out.converged, out.n_steps, out.n_iter, out.step
     n_steps[:], n_iter[:], step[:] = 0, 0, np.inf
@@ -220,11 +223,9 @@ def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps,
     for first in (True, *[False] * (max_steps - 1)):
         xt = x[todo]
         # r(0) = 0 exactly: a first step from zero weights needs no evaluation
-        nonlinear = 0.0 if first and start is None else \
-            model.centres(xt) - np.tensordot(xt, basis, axes=1)
+        nonlinear = 0.0 if first else model.nonlinear(xt)
         sol = solve_weights(basis, data[todo] - nonlinear, lower=lower, upper=upper,
-                            smoothness=smoothness,
-                            start=None if first else (w[todo] if coupled else xt))
+                            start=None if first else xt)
         g = sol.weights - xt
         step[todo] = np.abs(g).max(axis=1)
         w[todo], n_steps[todo], n_iter[todo] = sol.weights, n_steps[todo] + 1, \
@@ -238,12 +239,80 @@ def _chord_steps(model: _CentreModel, data, start, smoothness, tol, max_steps,
         moving = step[todo] > tol
         if not moving.any():
             break
-        if not coupled:
-            todo = todo[moving]
-    out.moved[:] = model.centres(w)
-    residual = out.moved - data
-    out.cost[:] = 0.5 * np.einsum("tmc,tmc->t", residual, residual)
+        todo = todo[moving]
+    model.finish(w, data, out)
     return rank
+
+
+def _smooth_chord_steps(model: _CentreModel, data, smoothness, tol, max_steps,
+                        out: _ChordSteps) -> int:
+    """The chord steps of `data` (T, M, 3) as one smooth problem, written into `out`;
+    return the basis' rank.
+
+    The first iterate is the linear model's optima of the frames (solving their own
+    fixed points first costs more than the steps it saves). Every global solve of the
+    smooth active-set iteration is a chord step (:class:`_SmoothChord`): while the active
+    set is still wrong the step is inexact and the next iterate is its weights; once a
+    solve is optimal, iterates mix the last two steps as :func:`_chord_steps` does. The
+    result solves the data of its own last iterate exactly.
+    """
+    basis, lower, upper = model.basis, model.lower, model.upper
+    start = solve_weights(basis, data, lower=lower, upper=upper).weights
+    chord = _SmoothChord(model, data, start, tol, max_steps, out)
+    sol = solve_weights(basis, chord.moved_data, lower=lower, upper=upper,
+                        smoothness=smoothness, follow=chord)
+    out.weights[:], out.n_iter[:] = sol.weights, sol.n_iter
+    out.kkt[:], out.converged[:] = sol.kkt_residual, sol.converged
+    model.finish(sol.weights, data, out)
+    return sol.rank
+
+
+#: A frame whose iterate moved by at most this share of the chord's `tol` keeps its
+#: last r(x) (the data it moves is that of an iterate within the share of `tol`).
+_REEVALUATE_SHARE = 1e-3
+
+
+class _SmoothChord:
+    """The ``follow`` of the smooth solve that makes its global steps chord steps.
+
+    Keeps the iterate x (T, n), ``moved_data`` = d − r(x) and the steps in `out`
+    (``n_steps``, ``step``). Frames whose iterate moved by no more than
+    ``_REEVALUATE_SHARE · tol`` since r was evaluated keep their r: late steps move
+    few frames by more.
+    """
+
+    def __init__(self, model: _CentreModel, data, start, tol, max_steps, out: _ChordSteps):
+        self.model, self.data, self.tol, self.max_steps, self.out = \
+            model, data, tol, max_steps, out
+        self.x, self.evaluated = start.copy(), start.copy()
+        self.moved_data = data - model.nonlinear(start)
+        self.last_x = self.last_g = None
+        out.n_steps[:], out.step[:] = 0, np.inf
+
+    def __call__(self, w, optimal):
+        out, lower, upper = self.out, self.model.lower, self.model.upper
+        g = w - self.x
+        out.step[:] = np.abs(g).max(axis=1)
+        if out.n_steps[0] < self.max_steps:
+            out.n_steps[:] += 1
+        if optimal and (out.step.max() <= self.tol or out.n_steps[0] >= self.max_steps):
+            return None
+        if out.n_steps[0] >= self.max_steps:
+            return self.moved_data          # no more steps: the active set finishes the last
+        if not optimal:                     # an inexact step: no secant through it
+            x, self.last_g = np.clip(w, lower, upper), None
+        else:
+            x = w if self.last_g is None else _anderson(
+                w, g, self.last_x + self.last_g, self.last_g, lower, upper)
+            self.last_x, self.last_g = self.x, g
+        self.x = x
+        rows = np.flatnonzero(np.abs(x - self.evaluated).max(axis=1)
+                              > _REEVALUATE_SHARE * self.tol)
+        self.evaluated[rows] = x[rows]
+        # a new array: the solve keeps the data it was given
+        self.moved_data = self.moved_data.copy()
+        self.moved_data[rows] = self.data[rows] - self.model.nonlinear(x[rows])
+        return self.moved_data
 
 
 def _anderson(fx, g, last_fx, last_g, lower, upper):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from fit.solve._active_set import BoxQP, kkt_residual
-from fit.solve._smooth import Spectrum, bounded, gradient, unbounded
+from fit.solve._smooth import Follow, Spectrum, bounded, gradient, unbounded
 from mocap.errors import InputError
 from mocap.util.validation import as_choice, as_float_array, as_int
 
@@ -77,7 +77,8 @@ def _window_sums(values: np.ndarray, window: int) -> np.ndarray:
 
 
 def solve_smooth(qp: BoxQP, c: np.ndarray, smoothness: float, *, tol: float,
-                 max_iter: int, start: np.ndarray | None = None):
+                 max_iter: int, start: np.ndarray | None = None,
+                 follow: Follow | None = None):
     """Minimize Σ_t ½ w_tᵀG w_t − c_tᵀw_t + ½ λ Σ_t ‖w_t − w_{t−1}‖² in the box.
 
     Parameters
@@ -93,11 +94,19 @@ def solve_smooth(qp: BoxQP, c: np.ndarray, smoothness: float, *, tol: float,
     start : ndarray, shape (T, n), optional
         Weights whose active set starts the bounded iteration (e.g. the
         solution of a nearby problem); default: a rough ADMM solution.
+    follow : callable, optional
+        ``follow(w, optimal) -> c or None``: after every global solve, the
+        linear terms of the next one, from its weights (T, n) and whether every
+        frame meets the KKT conditions; None stops. The problem moves while it
+        is solved (the chord steps of the exact marker-centre fit), see
+        :func:`fit.solve._smooth.bounded`. Without bounds every solve is optimal.
 
     Returns
     -------
     weights (T, n), n_iter (T,), kkt (T,), converged (T,)
-        ``n_iter`` counts the reduced solves each frame took part in.
+        ``n_iter`` counts the reduced solves each frame took part in; ``kkt``
+        and ``converged`` are of the last linear terms (`c`, or the last ones
+        `follow` returned).
 
     Notes
     -----
@@ -118,10 +127,17 @@ def solve_smooth(qp: BoxQP, c: np.ndarray, smoothness: float, *, tol: float,
     """
     spectrum = Spectrum.build(qp.G, len(c))
     if not (np.isfinite(qp.lo).any() or np.isfinite(qp.hi).any()):
-        w = unbounded(spectrum, spectrum.transform(c), smoothness)
-        n_iter = np.ones(len(c), np.int64)
+        n_iter = np.zeros(len(c), np.int64)
+        for iteration in range(max_iter):
+            w = unbounded(spectrum, spectrum.transform(c), smoothness)
+            n_iter += 1
+            following = None if follow is None or iteration == max_iter - 1 \
+                else follow(w, True)
+            if following is None:
+                break
+            c = following
     else:
-        w, n_iter = bounded(qp, spectrum, c, smoothness, tol, max_iter, start)
+        w, n_iter, c = bounded(qp, spectrum, c, smoothness, tol, max_iter, start, follow)
     g, scale = gradient(qp.G, c, smoothness, w)
     kkt = kkt_residual(w, g, scale, qp.lo, qp.hi)
     return w, n_iter, kkt, kkt <= tol

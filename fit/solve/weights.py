@@ -70,7 +70,7 @@ class WeightSolution:
 def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
                   warm_start: bool = True, smoothness: float | str = 0.0,
                   tol: float = 1e-9, max_iter: int | None = None,
-                  start=None) -> WeightSolution:
+                  start=None, follow=None) -> WeightSolution:
     """Solve ``min ½‖B w − d_t‖²`` with ``lower ≤ w ≤ upper`` for every frame.
 
     Parameters
@@ -114,6 +114,15 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
         previous step), instead of `warm_start`'s or, with ``smoothness`` > 0,
         a rough estimate of the solution. Does not change the result, only
         the work.
+    follow : callable, optional
+        With `smoothness` > 0 only: ``follow(weights, optimal) -> data or
+        None``, called after every global step of the smooth solve with its
+        weights (n_frames, n_shapes) and whether every frame meets the KKT
+        conditions; returns the data of the next step (the layout of `data`,
+        no NaN) or None to stop. The problem moves while it is solved (the
+        chord steps of :func:`fit.solve.marker_centres.solve_at_marker_centres`);
+        the result solves the last data returned (its ``cost`` and
+        ``kkt_residual`` are of them).
 
     Returns
     -------
@@ -166,6 +175,8 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
     if smoothness != 0 and valid is not None:
         raise InputError("smoothness cannot be combined with mask: the smooth "
                          "solve needs one BᵀB for all frames")
+    if follow is not None and smoothness == 0:
+        raise InputError("follow needs smoothness: independent frames have no global step")
     if not (isinstance(tol, float | int) and np.isfinite(tol) and tol > 0):
         raise InputError(f"tol must be a positive number, got {tol!r}")
     max_iter = 20 * n + 20 if max_iter is None else as_int(max_iter, "max_iter", minimum=1)
@@ -192,8 +203,10 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
                 + ": weights along its null space are the minimum-norm reduced solution",
                 RuntimeWarning, stacklevel=2)
         if smoothness > 0:
+            moving = None if follow is None else _Moving(follow, B, D)
             w, it, res, _ = solve_smooth(qp, C, smoothness, tol=tol, max_iter=max_iter,
-                                         start=start)
+                                         start=start, follow=moving)
+            D = D if moving is None else moving.data
         else:
             w, it, res, _ = solve_box_qp(
                 qp, C[frames], tol=tol, max_iter=max_iter, warm_start=warm_start,
@@ -207,6 +220,25 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
     return WeightSolution(weights=weights, cost=cost, n_iter=n_iter, converged=converged,
                           kkt_residual=kkt, rank=min(ranks), status=status, message=message,
                           smoothness=smoothness)
+
+
+class _Moving:
+    """A data-space ``follow`` of :func:`solve_weights` as the smooth solve's: new data
+    (either layout of the first data D (T, K)) to linear terms D B, keeping the last."""
+
+    def __init__(self, follow, B, D):
+        self.follow, self.B, self.data = follow, B, D
+
+    def __call__(self, w, optimal):
+        data = self.follow(w, optimal)
+        if data is None:
+            return None
+        data = as_float_array(data, "data returned by follow", allow_nan=False, copy=False)
+        if data.size != self.data.size:
+            raise InputError(f"follow must return data of {self.data.shape} values, "
+                             f"got shape {data.shape}")
+        self.data = data.reshape(self.data.shape)
+        return self.data @ self.B
 
 
 def as_smoothness(value, name: str = "smoothness") -> float | str:
