@@ -41,10 +41,11 @@ _BARY_TOL = 1e-6
 
 
 #: Frames whose marker positions :meth:`MarkerLayout.positions_under_weights`
-#: forms together: few enough that their edge and normal arrays stay in the core's
-#: cache, enough that the pieces evaluated on two Python threads (the marker-centre
-#: fit) are not held up by each other's NumPy calls, a dozen a pass, under the GIL.
-_FRAMES_PER_PASS = 256
+#: forms together: few enough that their vertex, edge and normal arrays stay in the
+#: core's cache (on one thread, passes four times larger take three times longer), and
+#: enough that pieces evaluated on two Python threads (the marker-centre fit) are not
+#: held up by each other's NumPy calls, a dozen a pass, under the GIL.
+_FRAMES_PER_PASS = 64
 
 
 @dataclass(frozen=True, eq=False)
