@@ -11,6 +11,7 @@ from tolerances import (
     MARKER_CENTRES_COST,
     MARKER_CENTRES_FIXED_POINT,
     MARKER_CENTRES_WEIGHTS,
+    SOLVE_SAME_MINIMIZER,
 )
 
 import fit.solve.marker_centres
@@ -133,6 +134,26 @@ def test_an_unsettled_frame_is_reported(centres_case):
                                   data, lower=0.0, upper=1.0, max_steps=1)
     assert fit.solution.status == 1 and not fit.settled.any()
     assert f"{N_FRAMES} frames had not settled after 1 steps" in fit.solution.message
+
+
+def test_one_smooth_step_is_the_smooth_solve_at_the_frames_linear_optima(centres_case):
+    """With smoothness the first chord step is the smooth solve of the data less r at the
+    frames' own linear optima; stopped there (max_steps=1), the result is that solve,
+    finished exactly even though the active set was not yet optimal when the step was
+    taken, and the frames are reported unsettled."""
+    basis, layout, _, data, tangent = centres_case
+    noisy = data + 0.02 * np.random.default_rng(6).standard_normal(data.shape)
+    V0, E = basis.neutral.vertices, basis.displacements
+    fit = solve_at_marker_centres(layout, V0, E, tangent, noisy, lower=0.0, upper=1.0,
+                                  smoothness=0.5, max_steps=1)
+    start = solve_weights(tangent, noisy, lower=0.0, upper=1.0).weights
+    moved = layout.positions_under_weights(V0, E, start) - layout.positions(V0)
+    expected = solve_weights(tangent, noisy - (moved - np.tensordot(start, tangent, axes=1)),
+                             lower=0.0, upper=1.0, smoothness=0.5)
+    assert fit.solution.kkt_residual.max() <= 1e-9 and not fit.settled.all()
+    assert fit.n_steps.tolist() == [1] * N_FRAMES
+    np.testing.assert_allclose(fit.solution.weights, expected.weights, rtol=0,
+                               atol=SOLVE_SAME_MINIMIZER)
 
 
 def test_mismatched_inputs_are_named(centres_case):
