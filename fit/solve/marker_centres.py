@@ -52,7 +52,8 @@ class MarkerCentreFit:
     displacements : ndarray of shape (T, M, 3), data units
         ``c(w) − c(0)``: the marker centres the weights reconstruct.
     n_steps : ndarray of int, shape (T,)
-        Chord steps each frame took (1: the linear model's solve only).
+        Chord steps each frame took (1: the linear model's solve only; with
+        smoothness, the same for every frame).
     step : ndarray of shape (T,)
         Largest weight change of each frame's last step, dimensionless.
     tol : float
@@ -98,7 +99,11 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
         A frame has settled when its step changes no weight by more than this.
     max_steps : int, default 50
         Most chord steps (each one solve; the first one, from zero weights, is
-        the linear model's).
+        the linear model's). With `smoothness`, every global solve of the
+        smooth active-set iteration is a step, the first one from the frames'
+        linear optima; after the last step the iteration still finishes the
+        active set of its data, so the weights always solve the data of their
+        last step exactly.
 
     Returns
     -------
