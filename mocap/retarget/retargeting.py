@@ -34,7 +34,7 @@ from mocap.rigid import fit_rigid
 from mocap.take import Take, as_take
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
 
-__all__ = ["RetargetOptions", "Retargeting", "marker_displacements", "neutral_pose",
+__all__ = ["RetargetOptions", "Retargeting", "marker_displacements",
            "align_head_frame", "build_retarget_operator", "describe_options", "retarget",
            "KERNELS", "RETARGET_KERNELS", "DISTANCES"]
 
