@@ -205,8 +205,9 @@ def _primal(qp, c, u, w, state, max_iter, tol, n_iter, kkt):
     done = np.zeros(len(c), bool)
     todo = np.arange(len(c))
     s, wt, ct, ut = state.copy(), w, c, u
-    # the last factored systems, and each working frame's row in them
-    systems, rows = None, None
+    # the last factored systems, each working frame's row in them and the variable it
+    # changed since (set by every iteration before the next one reads it)
+    systems, rows, change = None, None, None
     for _ in range(max_iter):
         if systems is None:
             systems, rows = ReducedSystems(qp, s), np.arange(len(todo))
