@@ -76,22 +76,27 @@ def test_noise_free_centres_give_back_the_true_weights(centres_case):
     assert np.all(fit.solution.cost < MARKER_CENTRES_COST)
 
 
-def test_noisy_centres_reach_a_fixed_point_of_the_chord_step(centres_case):
-    """With noise the result solves the linear problem of its own nonlinear residual."""
+@pytest.mark.parametrize("smoothness, bounds", [(0.0, (0.0, 1.0)), (0.5, (0.0, 1.0)),
+                                                (0.5, (-np.inf, np.inf)), (0.5, (0.0, np.inf))],
+                         ids=["frames", "smooth", "smooth-unbounded", "smooth-one-sided"])
+def test_noisy_centres_reach_a_fixed_point_of_the_chord_step(centres_case, smoothness, bounds):
+    """With noise the result solves the linear problem of its own nonlinear residual (the
+    smooth one without bounds steps through the spectral solve, one-sided through the
+    active set)."""
     basis, layout, truth, data, tangent = centres_case
     noisy = data + 0.02 * np.random.default_rng(3).standard_normal(data.shape)   # 0.2 mm
-    for smoothness in (0.0, 0.5):
-        fit = solve_at_marker_centres(layout, basis.neutral.vertices, basis.displacements,
-                                      tangent, noisy, lower=0.0, upper=1.0,
-                                      smoothness=smoothness, tol=1e-9, max_steps=200)
-        w = fit.solution.weights
-        moved = layout.positions_under_weights(basis.neutral.vertices, basis.displacements, w) \
-            - layout.positions(basis.neutral.vertices)
-        again = solve_weights(tangent, noisy - (moved - np.tensordot(w, tangent, axes=1)),
-                              lower=0.0, upper=1.0, smoothness=smoothness).weights
-        assert fit.settled.all(), fit.solution.message
-        np.testing.assert_allclose(again, w, rtol=0, atol=MARKER_CENTRES_FIXED_POINT)
-        np.testing.assert_allclose(fit.displacements, moved, rtol=0, atol=EXACT_FLOAT64)
+    lower, upper = bounds
+    fit = solve_at_marker_centres(layout, basis.neutral.vertices, basis.displacements,
+                                  tangent, noisy, lower=lower, upper=upper,
+                                  smoothness=smoothness, tol=1e-9, max_steps=200)
+    w = fit.solution.weights
+    moved = layout.positions_under_weights(basis.neutral.vertices, basis.displacements, w) \
+        - layout.positions(basis.neutral.vertices)
+    again = solve_weights(tangent, noisy - (moved - np.tensordot(w, tangent, axes=1)),
+                          lower=lower, upper=upper, smoothness=smoothness).weights
+    assert fit.settled.all() and fit.solution.status == 0, fit.solution.message
+    np.testing.assert_allclose(again, w, rtol=0, atol=MARKER_CENTRES_FIXED_POINT)
+    np.testing.assert_allclose(fit.displacements, moved, rtol=0, atol=EXACT_FLOAT64)
 
 
 def test_gcv_smoothness_is_chosen_once_on_the_tangent_model(centres_case):
