@@ -295,7 +295,8 @@ def test_follow_is_refused_without_smoothness_or_with_the_wrong_size():
     basis, data = np.eye(3), np.zeros((4, 3))
     with pytest.raises(InputError, match="follow needs smoothness"):
         solve_weights(basis, data, follow=lambda w, optimal: None)
-    with pytest.raises(InputError, match=r"follow must return data of \(4, 3\) values"):
+    with pytest.raises(InputError,
+                       match=r"follow must return data of shape \(4, 3\).*got shape \(4, 2\)"):
         solve_weights(basis, data, lower=0, upper=1, smoothness=1.0,
                       follow=lambda w, optimal: np.zeros((4, 2)))
 

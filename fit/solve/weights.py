@@ -235,8 +235,8 @@ class _Moving:
             return None
         data = as_float_array(data, "data returned by follow", allow_nan=False, copy=False)
         if data.size != self.data.size:
-            raise InputError(f"follow must return data of {self.data.shape} values, "
-                             f"got shape {data.shape}")
+            raise InputError(f"follow must return data of shape {self.data.shape} (or the "
+                             f"(frames, markers, 3) layout of it), got shape {data.shape}")
         self.data = data.reshape(self.data.shape)
         return self.data @ self.B
 
