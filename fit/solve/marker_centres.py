@@ -273,7 +273,7 @@ def _smooth_chord_steps(model: _CentreModel, data, smoothness, tol, max_steps,
 
 
 #: A frame whose iterate moved by at most this share of the chord's `tol` keeps its
-#: last r(x) (the data it moves is that of an iterate within the share of `tol`).
+#: last r(x): its data are then those of an iterate at most that far from the current one.
 _REEVALUATE_SHARE = 1e-3
 
 
