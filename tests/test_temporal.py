@@ -253,7 +253,7 @@ def test_a_cycle_while_the_data_move_holds_them_and_ends_optimal(monkeypatch):
     monkeypatch.setattr(fit.solve._smooth, "_step", back_and_forth)
     solve, global_solves = fit.solve._smooth._reduced, []
 
-    def counted(qp, band, c, state, w, frames, whole):
+    def counted(qp, band, c, state, w, frames, whole=None):
         global_solves.append(len(frames) == T)
         return solve(qp, band, c, state, w, frames, whole)
     monkeypatch.setattr(fit.solve._smooth, "_reduced", counted)

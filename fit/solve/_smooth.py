@@ -212,12 +212,12 @@ class _Band:
         return ab
 
 
-def _reduced(qp: BoxQP, band: _Band, c, state, w, frames, whole: "_WholeFactor"):
+def _reduced(qp: BoxQP, band: _Band, c, state, w, frames, whole: "_WholeFactor | None" = None):
     """Weights of ``frames`` (sorted) for their state, the other frames held at ``w``.
 
     Bound weights sit at their bound, free ones are stationary: one banded
     solve over the frames (for the whole sequence, through the factor
-    ``whole`` keeps). Returns (F, n).
+    ``whole`` keeps, which such a solve needs). Returns (F, n).
     """
     T, n = c.shape
     sub = state[frames]
@@ -277,7 +277,7 @@ def _near(changed, width):
     return np.cumsum(edges[:-1]) > 0
 
 
-def _settle(qp, band, c, state, w, changed, n_iter, whole):
+def _settle(qp, band, c, state, w, changed, n_iter):
     """Local phase: iterate the windows around ``changed`` frames (``state`` in place).
 
     Each step solves the windows' reduced system with the frames outside held
@@ -291,7 +291,7 @@ def _settle(qp, band, c, state, w, changed, n_iter, whole):
         if not changed.any() or near.sum() > _LOCAL_SHARE * len(c):
             return
         frames = np.flatnonzero(near)
-        w[frames] = _reduced(qp, band, c, state, w, frames, whole)
+        w[frames] = _reduced(qp, band, c, state, w, frames)
         n_iter[frames] += 1
         grad = gradient(qp.G, c, band.lam, w, frames, scale=False)[0]
         new = _step(qp, state[frames], w[frames], grad)
@@ -351,7 +351,7 @@ def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None,
         if not optimal:
             new = _step(qp, state, w, grad)
             if local:
-                _settle(qp, band, c, new, w, (new != state).any(axis=1), n_iter, whole)
+                _settle(qp, band, c, new, w, (new != state).any(axis=1), n_iter)
             key = new.tobytes()
             if key in seen:
                 if not local and (follow is None or hold):
