@@ -177,12 +177,6 @@ class _CentreModel:
         """``r(w) = c(w) − c(0) − B w`` of the weights `w` (T, n), (T, M, 3)."""
         return self.centres(w) - np.tensordot(w, self.basis, axes=1)
 
-    def finish(self, w: np.ndarray, data, out: "_ChordSteps") -> None:
-        """Write the centres of the final weights `w` and their cost against `data`."""
-        out.moved[:] = self.centres(w)
-        residual = out.moved - data
-        out.cost[:] = 0.5 * np.einsum("tmc,tmc->t", residual, residual)
-
 
 @dataclass(frozen=True)
 class _ChordSteps:
@@ -209,6 +203,12 @@ class _ChordSteps:
     def rows(self, rows: slice) -> "_ChordSteps":
         """Views of the frames `rows`, writing into these arrays."""
         return _ChordSteps(*(getattr(self, f.name)[rows] for f in fields(self)))
+
+    def finish(self, model: _CentreModel, weights: np.ndarray, data) -> None:
+        """Write the centres of the final `weights` and their cost against `data`."""
+        self.moved[:] = model.centres(weights)
+        residual = self.moved - data
+        self.cost[:] = 0.5 * np.einsum("tmc,tmc->t", residual, residual)
 
 
 def _chord_steps(model: _CentreModel, data, tol, max_steps, out: _ChordSteps) -> int:
@@ -245,7 +245,7 @@ def _chord_steps(model: _CentreModel, data, tol, max_steps, out: _ChordSteps) ->
         if not moving.any():
             break
         todo = todo[moving]
-    model.finish(w, data, out)
+    out.finish(model, w, data)
     return rank
 
 
@@ -268,7 +268,7 @@ def _smooth_chord_steps(model: _CentreModel, data, smoothness, tol, max_steps,
                         smoothness=smoothness, follow=chord)
     out.weights[:], out.n_iter[:] = sol.weights, sol.n_iter
     out.kkt[:], out.converged[:] = sol.kkt_residual, sol.converged
-    model.finish(sol.weights, data, out)
+    out.finish(model, sol.weights, data)
     return sol.rank
 
 
