@@ -280,7 +280,8 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
     Raises
     ------
     InputError
-        Inconsistent shapes, NaN, names count, the file cannot be written.
+        Inconsistent shapes, NaN, names count, values (or materialized
+        vertices) beyond the range of float32, the file cannot be written.
     """
     if not isinstance(neutral, Mesh):
         raise InputError(f"neutral must be a Mesh, got {type(neutral).__name__}")
@@ -307,17 +308,21 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
     if materialize:
         flat = displacements.reshape(len(displacements), -1)
         out = np.empty((len(weights), neutral.n_vertices, 3), dtype=np.float32)
-        for start in range(0, len(weights), _CHUNK_FRAMES):  # chunks, not frames
-            chunk = weights[start:start + _CHUNK_FRAMES] @ flat
-            np.add(chunk.reshape(-1, neutral.n_vertices, 3), neutral.vertices,
-                   out=out[start:start + _CHUNK_FRAMES])              # rounded once, on store
+        # rounded once, on store; beyond float32's range they become inf, which the
+        # writer's finite check refuses
+        with np.errstate(over="ignore"):
+            for start in range(0, len(weights), _CHUNK_FRAMES):  # chunks, not frames
+                chunk = weights[start:start + _CHUNK_FRAMES] @ flat
+                np.add(chunk.reshape(-1, neutral.n_vertices, 3), neutral.vertices,
+                       out=out[start:start + _CHUNK_FRAMES])
         arrays["vertices"] = out
     else:
         arrays.update(neutral=neutral.vertices, displacements=displacements, weights=weights)
         store_as.update(neutral=np.float32, displacements=np.float32, weights=np.float32)
     try:
         with atomic_path(path, inputs=[*inputs, neutral.path]) as tmp, open(tmp, "wb") as fh:
-            write_npz(fh, arrays, store_as=store_as, finite=("displacements", "weights"))
+            write_npz(fh, arrays, store_as=store_as,
+                      finite=("displacements", "weights", "vertices"))
     except NotFiniteError as exc:     # the exact checks name the first bad value
         as_float_array(displacements, "displacements", copy=False, allow_nan=False)
         _weights(weights, copy=False)

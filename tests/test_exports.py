@@ -234,3 +234,20 @@ def test_mesh_sequence_refuses_values_it_cannot_store(neutral, displacements, we
     with pytest.raises(InputError, match=message):
         write_mesh_sequence(tmp_path / "seq.npz", neutral, **data)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("scale", [1e39, 1e20])
+def test_materialized_sequence_refuses_vertices_beyond_float32(neutral, displacements, weights,
+                                                               tmp_path, scale):
+    """Finite float64 inputs whose vertices leave float32's range (a displacement
+    beyond it, or finite factors whose product overflows) are refused, not stored as
+    inf, and nothing is left behind."""
+    big_d, big_w = displacements.copy(), weights.copy()
+    big_d[1, 4, 2] = scale
+    big_w[2, 1] = scale if scale < 1e38 else 1.0
+    assert np.isfinite(big_d).all() and np.isfinite(big_w).all()
+    with np.errstate(over="ignore"):
+        assert np.isinf(np.float32(big_w[2] @ big_d.reshape(len(big_d), -1))).any()
+    with pytest.raises(InputError, match="vertices hold values beyond the range of float32"):
+        write_mesh_sequence(tmp_path / "seq.npz", neutral, big_d, big_w, materialize=True)
+    assert list(tmp_path.iterdir()) == []
