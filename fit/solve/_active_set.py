@@ -43,8 +43,10 @@ __all__ = ["RANK_RTOL", "BoxQP", "kkt_residual", "reduced_solve", "residual", "s
            "start_state"]
 
 #: Frames solved together (working set of the iterations); the blocks are shared among
-#: Python threads (:func:`mocap.util.blas.map_on_blas_threads`).
-_BLOCK = 4096
+#: Python threads (:func:`mocap.util.blas.map_on_blas_threads`). The last iterations of a
+#: block hold few frames, and cost about what their calls cost: fewer, bigger blocks
+#: pay that tail less often.
+_BLOCK = 8192
 #: Iterations of the primal-dual phase every frame takes before the monotone fallback
 #: may take it over: many frames settle in two; the rest cycle or creep, and the
 #: monotone phase finishes them with a guarantee of progress.
