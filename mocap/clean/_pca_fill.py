@@ -50,8 +50,15 @@ def _n_components(s: np.ndarray, limit: int) -> int:
 def _distance_weights(x: np.ndarray, vis: np.ndarray) -> np.ndarray:
     """exp(-d²/2σ²) per donor; d = mean distance to the target, σ = median d."""
     both = vis[:, 1:] & vis[:, :1]
-    gap = x[:, 1:] - x[:, :1]                       # NaN where either is missing
-    length = np.sqrt(np.einsum("tdc,tdc->td", gap, gap))
+    # one coordinate at a time, so that every operation runs along the donors (not
+    # along the 3 coordinates of each frame's donor); NaN where either is missing
+    flat = x.reshape(len(x), -1)
+    length = np.zeros(both.shape)
+    for c in range(3):
+        gap = flat[:, 3 + c::3] - flat[:, c:c + 1]
+        gap *= gap
+        length += gap
+    np.sqrt(length, out=length)
     n = both.sum(axis=0)
     dist = np.where(both, length, 0.0).sum(axis=0) / np.maximum(n, 1)
     sigma = np.median(dist[n > 0]) if (n > 0).any() else 0.0
@@ -60,15 +67,27 @@ def _distance_weights(x: np.ndarray, vis: np.ndarray) -> np.ndarray:
     return np.where(n > 0, np.exp(-0.5 * (dist / sigma) ** 2), 0.0)
 
 
-def _moments(flat: np.ndarray, mask: np.ndarray | None = None):
-    """Column mean and standard deviation over the entries where `mask` (None: all)."""
-    if mask is None:
-        mean, std = flat.mean(axis=0), flat.std(axis=0)
-    else:
-        n = mask.sum(axis=0)
-        mean = np.where(mask, flat, 0.0).sum(axis=0) / n
-        std = np.sqrt((np.where(mask, flat - mean, 0.0) ** 2).sum(axis=0) / n)
-    return mean, np.where(std > 1e-12 * np.maximum(np.abs(mean), 1.0), std, 1.0)
+def _moments(flat: np.ndarray, mask: np.ndarray):
+    """Column mean and scale (:func:`_scale`) over the entries where `mask`."""
+    n = mask.sum(axis=0)
+    mean = np.where(mask, flat, 0.0).sum(axis=0) / n
+    std = np.sqrt((np.where(mask, flat - mean, 0.0) ** 2).sum(axis=0) / n)
+    return mean, _scale(std, mean)
+
+
+def _standardized(seen: np.ndarray, weight: np.ndarray):
+    """Column mean and scale (:func:`_scale`) of the complete rows `seen` (frames, cols),
+    and the rows centred, divided by the scale and times `weight`, in `seen`'s memory."""
+    mean = seen.mean(axis=0)
+    seen -= mean
+    scale = _scale(np.sqrt(np.einsum("ij,ij->j", seen, seen) / len(seen)), mean)
+    seen *= weight / scale
+    return mean, scale, seen
+
+
+def _scale(std: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """The standard deviation, or 1 for a column that does not vary (relative to its mean)."""
+    return np.where(std > 1e-12 * np.maximum(np.abs(mean), 1.0), std, 1.0)
 
 
 def _principal_axes(centred: np.ndarray):
@@ -187,9 +206,7 @@ def fill_pca(positions: np.ndarray, visible: np.ndarray, target: int, start: int
     limit = 3 * len(donors)
     complete = vis.all(axis=1)
     if complete.sum() >= 3 * len(cols):
-        seen = flat[complete]
-        mean, scale = _moments(seen)
-        z = (seen - mean) / scale * weight
+        mean, scale, z = _standardized(flat[complete], weight)
         mu = np.zeros(flat.shape[1])
         sv, axes = _principal_axes(z)
         axes = axes[:, :_n_components(sv, limit)].T
