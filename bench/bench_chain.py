@@ -14,9 +14,11 @@ Floors, timed in the same run on the same arrays: what each stage cannot go
 under.
 
 * read: reading the file's bytes (``numpy.fromfile``);
-* ingest: one pass over the take and one 3 × 3 SVD a frame (the rigid fit
-  of head stabilization), not a tight floor: the gap fill's regressions
-  and the stabilization's robust weights read the take a few times more;
+* ingest: one pass over the take, one 3 × 3 SVD a frame (the rigid fit of
+  head stabilization) and, for every gap the PCA fill fills, the principal
+  axes of its window (one GEMM of the window's rows of the target and its
+  donors, and its eigh); not a tight floor: the fill's distance weights and
+  the stabilization's robust weights read the take a few times more;
 * bind: one pass over the take's positions (a copy), not a tight floor: the
   neutral-frame search, the landmark fit and the projection onto the mesh
   each read the take or the mesh once more;
@@ -78,6 +80,7 @@ from fit.report.figure_queue import FigureQueue
 from fit.solve.marker_basis import marker_basis
 from fit.solve.marker_centres import solve_at_marker_centres
 from fit.solve.weights import solve_weights
+from mocap.clean._pca_fill import WINDOW_FRAMES, pca_donors
 from mocap.clean.ingest import IngestOptions
 from mocap.markerset import load_markerset
 from mocap.mesh.landmarks import load_mesh_landmarks
@@ -124,15 +127,38 @@ def _peak_rss_gb(pid: int) -> float:
     return 0.0
 
 
-def measure_floors(out: Path, take, bound, retargeted, bases) -> dict:
+def pca_fill_windows(fill) -> list:
+    """The matrix whose principal axes the PCA fill needs, of every gap it filled: the
+    window's frames (``WINDOW_FRAMES`` either side) where the target and every marker
+    visible throughout the gap are visible, (frames, 3 (1 + donors)) each."""
+    if fill is None:
+        return []
+    positions, missing = fill.take.positions, fill.take.filled != 0
+    visible = ~np.isnan(positions[..., 0]) & ~missing
+    labels = list(fill.take.labels)
+    windows = []
+    for gap in fill.gaps[fill.gaps["method"] == "pca"].itertuples():
+        target = labels.index(gap.marker)
+        cols = np.r_[target, pca_donors(visible, target, gap.start, gap.stop)]
+        rows = slice(max(0, gap.start - WINDOW_FRAMES), gap.stop + WINDOW_FRAMES)
+        complete = visible[rows][:, cols].all(axis=1)
+        windows.append(positions[rows][complete][:, cols].reshape(int(complete.sum()), -1))
+    return windows
+
+
+def measure_floors(out: Path, take, bound, retargeted, bases, fill) -> dict:
     """Each stage's floor (see the module docstring): stage name to (seconds, what it is)."""
     floors = {}
     path = out / "take.c3d"
     floors["read"] = (best_time(lambda: np.fromfile(path, np.uint8)),
                       f"reading the file's {path.stat().st_size / 1e6:.0f} MB")
     rotations = np.broadcast_to(np.eye(3), (take.n_frames, 3, 3))
-    floors["ingest"] = (best_time(lambda: (take.positions.copy(), np.linalg.svd(rotations))),
-                        "one pass over the take, a 3x3 SVD a frame (not tight)")
+    windows = pca_fill_windows(fill)
+    floors["ingest"] = (
+        best_time(lambda: (take.positions.copy(), np.linalg.svd(rotations),
+                           [np.linalg.eigh(z.T @ z) for z in windows])),
+        f"one pass over the take, a 3x3 SVD a frame, a GEMM and eigh per PCA-filled gap "
+        f"({len(windows)}) (not tight)")
     floors["bind"] = (best_time(lambda: take.positions.copy()),
                       "one pass over the take (not tight)")
     M = len(retargeted.labels)
@@ -250,7 +276,7 @@ def main() -> None:
                 figures=figures))
             helpers = [_peak_rss_gb(pid) for pid in figures.pids]
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
-    floors = measure_floors(out, take, bound, retargeted, bases)
+    floors = measure_floors(out, take, bound, retargeted, bases, ingested.fill)
     total = sum(times.values())
     T = take.n_frames
     print(f"\n{'stage':<20} {'seconds':>8} {'floor s':>8} {'ratio':>7}   floor")
