@@ -31,7 +31,10 @@ under.
   the linear (tangent) model that the exact marker centres refine; H's fit at
   the exact centres is timed again beside that linear fit, and their ratio
   printed (the issue's aim: at most 2×);
-* exports: the same number of bytes written by one ``ndarray.tofile``;
+* exports: the same number of bytes written by one ``ndarray.tofile``, and the
+  weights CSVs' floats formatted by ``repr`` (what they hold: the shortest text
+  that reads back exactly; ``mocap2mesh run`` writes them in a figure helper,
+  alongside the binary exports);
 * QA figures + HTML: the figures' pixels encoded once more by the report's PNG
   encoder and the page's bytes written (:func:`_common.report_floor`).
 
@@ -146,7 +149,7 @@ def pca_fill_windows(fill) -> list:
     return windows
 
 
-def measure_floors(out: Path, take, bound, retargeted, bases, fill) -> dict:
+def measure_floors(out: Path, take, bound, retargeted, bases, fill, weights) -> dict:
     """Each stage's floor (see the module docstring): stage name to (seconds, what it is)."""
     floors = {}
     path = out / "take.c3d"
@@ -209,7 +212,12 @@ def measure_floors(out: Path, take, bound, retargeted, bases, fill) -> dict:
     def write_bytes():
         blob.tofile(target)
         os.unlink(target)
-    floors["exports"] = (best_time(write_bytes), f"tofile of the same {size / 1e6:.0f} MB")
+    cells = [np.column_stack([np.arange(take.n_frames) / take.rate, w]).ravel().tolist()
+             for w in weights.values()]
+    n_cells = sum(len(c) for c in cells)
+    floors["exports"] = (best_time(write_bytes) + best_time(
+        lambda: [",".join(map(repr, c)) for c in cells]),
+        f"tofile of the same {size / 1e6:.0f} MB, repr of the CSVs' {n_cells / 1e6:.1f}M floats")
     report = out / "report"
     floors["QA figures + HTML"] = (
         min(report_floor(report.rglob("*"), out / "floor")[0] for _ in range(3)),
@@ -276,7 +284,8 @@ def main() -> None:
                 figures=figures))
             helpers = [_peak_rss_gb(pid) for pid in figures.pids]
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
-    floors = measure_floors(out, take, bound, retargeted, bases, ingested.fill)
+    floors = measure_floors(out, take, bound, retargeted, bases, ingested.fill,
+                            fitted.weights)
     total = sum(times.values())
     T = take.n_frames
     print(f"\n{'stage':<20} {'seconds':>8} {'floor s':>8} {'ratio':>7}   floor")
