@@ -305,8 +305,12 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
         Fraction of markers (closest to their target) each ICP step fits.
     max_iterations : int, default 200
     tolerance : float, default 1e-6
-        ICP stops when the relative change of its (trimmed) RMS is below this,
-        or the RMS is at rounding level.
+        ICP has converged when its (trimmed) RMS has not fallen below its
+        lowest by more than this fraction in ``_ICP_PATIENCE`` steps, or is at
+        rounding level; it returns the transform of the lowest. (The skin
+        offset's targets jump where the closest face changes and the trimming
+        changes the pairs, so ICP's descent ends in a cycle at the markers'
+        noise level rather than at a fixed point.)
     max_distance_warn : float, default 3, mm
         Warn about markers whose distance to the surface differs from
         `skin_offset` by more than this.
@@ -372,7 +376,7 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
 
     surface = _Surface(mesh)
     n_keep = max(3, int(np.ceil(icp_keep * len(points))))
-    n_iter, converged, previous = 0, not icp, np.inf
+    n_iter, converged, best, since_best = 0, not icp, np.inf, 0
     floor = 1e-12 * float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))  # rounding level
     while icp and n_iter < max_iterations:
         moved = scale * points @ rotation.T + translation
@@ -380,10 +384,12 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
         target = closest + skin_offset * scale * surface.normals[local]
         resid = np.linalg.norm(moved - target, axis=1)
         rms = float(np.sqrt(np.mean(np.sort(resid)[:n_keep] ** 2)))
-        if abs(previous - rms) <= tolerance * rms + floor:
+        if best - rms > tolerance * rms + floor:
+            best, kept, since_best = rms, (scale, rotation, translation), 0
+        elif rms <= floor or since_best >= _ICP_PATIENCE:
             converged = True
             break
-        previous = rms
+        since_best += 1
         weights = np.zeros(len(points))
         weights[np.argsort(resid, kind="stable")[:n_keep]] = 1.0
         if icp_scale:
@@ -396,6 +402,8 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
         if icp_scale:
             scale = float(step.scale)
         n_iter += 1
+    if icp and n_iter:
+        scale, rotation, translation = kept
 
     moved = scale * points @ rotation.T + translation
     dist, local, closest = surface.closest(moved)
@@ -420,6 +428,10 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
                    distances=distances, rms=float(np.sqrt(np.mean(excess ** 2))),
                    skin_offset=skin_offset, n_landmarks=len(names), n_iterations=n_iter,
                    converged=converged, message=message)
+
+
+#: ICP steps without a new lowest RMS after which :func:`bind_markers` has converged.
+_ICP_PATIENCE = 10
 
 
 #: How :func:`bind_take` finds the head frame of a take: its marker set's head
