@@ -264,7 +264,8 @@ class Take:
         return self.positions[:, self.index(label)].copy()
 
     def select(self, labels) -> "Take":
-        """A new take with only `labels`, in that order.
+        """The take with only `labels`, in that order (itself when they are all its
+        markers in its order: a take is immutable).
 
         The columns of a valid take are valid: they are gathered, not checked
         or copied again.
@@ -274,6 +275,8 @@ class Take:
         if len(set(labels)) != len(labels):
             dup = next(x for x in labels if labels.count(x) > 1)
             raise MarkerError(dup, "label appears more than once in the take")
+        if labels == self.labels:
+            return self
         selected = copy.copy(self)
         # np.take, not positions[:, idx]: a gather of whole rows, several times faster
         for name, value in (("labels", labels),
