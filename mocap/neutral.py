@@ -17,6 +17,7 @@ import numpy as np
 from mocap.errors import InputError, MarkerError
 from mocap.take import Take, as_take
 from mocap.util.arrays import read_only
+from mocap.util.medians import nan_column_medians
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["Neutral", "find_neutral", "neutral_pose", "pick_neutral_frame",
@@ -89,7 +90,7 @@ def pick_neutral_frame(positions, *, method: str = "median", rate: float | None 
                          "markers")
     if method == "hold":
         return _first_hold(positions, rate)
-    rest = np.nanmedian(positions, axis=0)
+    rest = nan_column_medians(positions)
     squared = np.empty(len(positions))          # NaN where a marker is missing
     for b in blocks:
         offset = positions[b] - rest
@@ -165,7 +166,7 @@ def _first_hold(positions, rate) -> int:
     # spread of every coordinate over the window centred on each frame, by
     # cumulative sums (about the median pose, for accuracy); windows with an
     # incomplete frame in them do not count
-    flat = (positions - np.nanmedian(positions, axis=0)).reshape(len(positions), -1)
+    flat = (positions - nan_column_medians(positions)).reshape(len(positions), -1)
     flat = np.nan_to_num(flat)
     first = np.cumsum(np.r_[np.zeros((1, flat.shape[1])), flat], axis=0)
     second = np.cumsum(np.r_[np.zeros((1, flat.shape[1])), flat ** 2], axis=0)

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from mocap.gaps import find_gaps
+from mocap.util.medians import nan_column_medians
 
-__all__ = ["MIN_STEP_MM", "last_visible", "typical_step", "nanmedian_or_nan", "median_pose",
-           "long_gap_starts"]
+__all__ = ["MIN_STEP_MM", "last_visible", "typical_step", "median_pose", "long_gap_starts"]
 
 #: Floor of a marker's typical frame-to-frame motion, mm: below any optical
 #: capture noise, so that noise-free data does not make every jump significant.
@@ -38,21 +38,13 @@ def last_visible(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def typical_step(positions: np.ndarray) -> np.ndarray:
     """Median frame-to-frame motion of each marker over visible pairs, mm, shape (M,)."""
     step = np.linalg.norm(np.diff(positions, axis=0), axis=2)
-    typical = nanmedian_or_nan(step)
+    typical = nan_column_medians(step)
     return np.fmax(np.nan_to_num(typical, nan=MIN_STEP_MM), MIN_STEP_MM)
-
-
-def nanmedian_or_nan(values: np.ndarray) -> np.ndarray:
-    """Column medians ignoring NaN; NaN for an all-NaN column, without a warning."""
-    out = np.full(values.shape[1], np.nan)
-    ok = np.isfinite(values).any(axis=0)
-    out[ok] = np.nanmedian(values[:, ok], axis=0)
-    return out
 
 
 def median_pose(positions: np.ndarray) -> np.ndarray:
     """Per-marker median of each coordinate over the visible frames, (M, 3); NaN if never seen."""
-    return np.stack([nanmedian_or_nan(positions[:, :, c]) for c in range(3)], axis=1)
+    return nan_column_medians(positions)
 
 
 def long_gap_starts(missing: np.ndarray, max_gap: int) -> list[np.ndarray]:

@@ -20,7 +20,6 @@ from mocap.clean._tracks import (
     last_visible,
     long_gap_starts,
     median_pose,
-    nanmedian_or_nan,
     typical_step,
 )
 from mocap.errors import InputError
@@ -28,6 +27,7 @@ from mocap.gaps import find_gaps
 from mocap.stabilize import stabilize
 from mocap.take import Take, as_take
 from mocap.util.arrays import read_only
+from mocap.util.medians import nan_column_medians
 from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["REASONS", "ImplausibleRun", "ImplausibleSamples",
@@ -160,7 +160,7 @@ def _ghost_slides(pos, typical, anchored, *, speed, linear, min_frames):
     step = np.diff(pos, axis=0)
     vel = np.linalg.norm(step, axis=2)
     acc = np.linalg.norm(np.diff(step, axis=0), axis=2)
-    noise = 3.0 * np.nan_to_num(nanmedian_or_nan(acc), nan=0.0)
+    noise = 3.0 * np.nan_to_num(nan_column_medians(acc), nan=0.0)
     v_in, v_out = vel[:-1], vel[1:]
     with np.errstate(invalid="ignore"):
         line = ((np.fmin(v_in, v_out) > speed * typical)
@@ -286,7 +286,7 @@ def find_implausible_samples(take: Take, *, head=None, off_rest: float = 25.0,
     if n_frames >= 3:
         rest = median_pose(pos)
         dist = np.linalg.norm(pos - rest, axis=2)
-        spread = np.fmax(np.nan_to_num(nanmedian_or_nan(dist), nan=0.0), _MIN_SPREAD_MM)
+        spread = np.fmax(np.nan_to_num(nan_column_medians(dist), nan=0.0), _MIN_SPREAD_MM)
         z = dist / spread
         typical = typical_step(pos)
         with np.errstate(invalid="ignore"):

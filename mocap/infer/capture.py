@@ -39,6 +39,7 @@ from mocap.stable_markers import (
     find_stable_markers,
 )
 from mocap.take import Take, as_take
+from mocap.util.medians import nan_column_medians
 
 __all__ = ["OpenQuestion", "Inference", "infer_capture", "OFF_FACE_MM", "RIGID_HEAD_MM",
            "UP_DECISIVE"]
@@ -367,7 +368,7 @@ def _rest_pose(take: Take, face, head) -> tuple:
         frame = find_head_frame(take, method="head" if head else "auto",
                                 candidates=face + head, markerset=_head_set(head))
     in_head = frame.take.select(face + head).positions
-    pose = np.nanmedian(in_head, axis=0)
+    pose = nan_column_medians(in_head)
     motion = np.sqrt(np.nanmean(np.sum((in_head - pose) ** 2, axis=-1), axis=0))
     return pose, motion, in_head
 
