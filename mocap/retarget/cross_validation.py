@@ -448,7 +448,7 @@ def cross_validate(geometry: MarkerGeometry, displacements, *, mm_per_unit: floa
     0.0
     """
     d = as_float_array(displacements, "displacements", shape=(None, geometry.n_markers, 3),
-                       allow_nan=False)
+                       allow_nan=False, copy=False)         # only read
     loo = leave_one_out(geometry, **options)
     gram = gram_matrix(d)
     n = max(len(d), 1)
