@@ -19,11 +19,15 @@ under.
   axes of its window (one GEMM of the window's rows of the target and its
   donors, and its eigh); not a tight floor: the fill's distance weights and
   the stabilization's robust weights read the take a few times more;
-* bind: one pass over the take's positions (a copy), not a tight floor: the
-  neutral-frame search, the landmark fit and the projection onto the mesh
-  each read the take or the mesh once more;
-* retarget: one LU factorization of the (M + 4)² kernel system per variant
-  that ``kernel = "auto"`` scores, and one kernel evaluation at the N vertices;
+* bind: one pass over the face markers' positions that selects each
+  coordinate's middle sample (``np.partition``: the median of the neutral
+  frame's rest pose), and the AABB tree of the mesh that the closest-point
+  queries of ICP search;
+* retarget: the heat method's geodesic fields from the corners of the
+  markers' faces (its three factorizations and three back-substitutions per
+  corner, all corners at once: :func:`heat_method_floor`), one LU
+  factorization of the (M + 4)² kernel system per variant that
+  ``kernel = "auto"`` scores, and one kernel evaluation at the N vertices;
 * bases: one GEMM of the centred marker displacements (T × 3M)ᵀ(T × 3M) and
   its eigendecomposition;
 * fit: per basis, the unconstrained least-squares fit of every frame (one
@@ -58,8 +62,10 @@ import time
 import warnings
 from pathlib import Path
 
+import igl
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 from _common import REPO, best_time, report_floor, shared_data
 from scipy.interpolate import RBFInterpolator
 from scipy.optimize import least_squares, lsq_linear
@@ -149,6 +155,34 @@ def pca_fill_windows(fill) -> list:
     return windows
 
 
+def heat_method_floor(vertices, faces, sources) -> float:
+    """Seconds of the heat method's own work for geodesic fields from `sources` (S,), as
+    libigl discretizes it: its three factorizations (the heat step with Neumann and with
+    Dirichlet boundary values, the Poisson step) and three solves for every source, all
+    sources at once (one multi-column back-substitution per factor)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    boundary = np.unique(igl.boundary_facets(faces)[0])
+    unit = np.zeros((len(vertices), len(sources)))
+    unit[sources, np.arange(len(sources))] = 1.0
+    none = np.zeros(0, np.int64)
+
+    def run():
+        L = igl.cotmatrix(vertices, faces)
+        M = igl.massmatrix(vertices, faces, igl.MASSMATRIX_TYPE_VORONOI)
+        edges = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        t = np.mean(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)) ** 2
+        heat = (M - t * L).tocsc()
+        mean = scipy.sparse.csc_matrix(M.diagonal()[None, :])
+        for A, known, Aeq in ((heat, none, scipy.sparse.csc_matrix((0, len(vertices)))),
+                              (heat, boundary, scipy.sparse.csc_matrix((0, len(vertices)))),
+                              ((-0.5 * L).tocsc(), none, mean)):
+            data = igl.min_quad_with_fixed_data()
+            igl.min_quad_with_fixed_precompute(A, known, Aeq, True, data)
+            igl.min_quad_with_fixed_solve(data, unit, np.zeros((len(known), len(sources))),
+                                          np.zeros((Aeq.shape[0], len(sources))))
+    return best_time(run)
+
+
 def measure_floors(out: Path, take, bound, retargeted, bases, fill, weights) -> dict:
     """Each stage's floor (see the module docstring): stage name to (seconds, what it is)."""
     floors = {}
@@ -162,18 +196,30 @@ def measure_floors(out: Path, take, bound, retargeted, bases, fill, weights) -> 
                            [np.linalg.eigh(z.T @ z) for z in windows])),
         f"one pass over the take, a 3x3 SVD a frame, a GEMM and eigh per PCA-filled gap "
         f"({len(windows)}) (not tight)")
-    floors["bind"] = (best_time(lambda: take.positions.copy()),
-                      "one pass over the take (not tight)")
+    face = take.select(retargeted.labels).positions
+    tree = igl.AABB()
+    floors["bind"] = (
+        best_time(lambda: np.partition(face.reshape(take.n_frames, -1).T.copy(),
+                                       take.n_frames // 2, axis=1))
+        + best_time(lambda: tree.init(retargeted.mesh.vertices, retargeted.mesh.faces)),
+        "one pass over the face markers, each coordinate's middle sample selected (the rest "
+        "pose's median), the mesh's AABB tree")
     M = len(retargeted.labels)
     selection = retargeted.selection
     n_variants = len(selection.candidates) if selection else 1
     rng = np.random.default_rng(0)
     system = rng.standard_normal((M + 4, M + 4)) + (M + 4) * np.eye(M + 4)
     vertices, centres = retargeted.mesh.vertices, rng.standard_normal((M, 3))
+    binding = bound.binding
+    corners = np.unique(binding.vertex_ids[[binding.labels.index(x) for x in
+                                            retargeted.labels]])
     floors["retarget (W)"] = (
-        best_time(lambda: [scipy.linalg.lu_factor(system) for _ in range(n_variants)])
+        heat_method_floor(retargeted.mesh.vertices, retargeted.mesh.faces, corners)
+        + best_time(lambda: [scipy.linalg.lu_factor(system) for _ in range(n_variants)])
         + best_time(lambda: np.sqrt(((vertices[:, None] - centres) ** 2).sum(axis=2))),
-        f"{n_variants} factorizations of the {M + 4}² system, one kernel at the vertices")
+        f"the heat method's 3 factorizations and 3 solves for each of the {len(corners)} "
+        f"corners of the markers' faces, {n_variants} factorizations of the {M + 4}² system, "
+        "one kernel at the vertices")
     D = retargeted.displacements.reshape(take.n_frames, -1)
 
     def pca_floor():
@@ -181,7 +227,6 @@ def measure_floors(out: Path, take, bound, retargeted, bases, fill, weights) -> 
         np.linalg.eigh(centred.T @ centred)
     floors["bases (PCA, QE)"] = (best_time(pca_floor), f"one GEMM ({D.shape[1]}² of "
                                  f"{take.n_frames} frames) and its eigh")
-    binding = bound.binding
 
     sampled = [marker_basis(binding, b.displacements, retargeted.labels)[b.n_fixed:]
                for b in bases.bases.values()]
