@@ -3,8 +3,8 @@
 ``np.nanmedian(a, axis=0)`` of a long (T, C) table copies and partitions one
 strided column at a time, and a median of an even count asks ``np.partition``
 for two order statistics, which it does several times slower than one. Here
-the columns are copied once, contiguously, and each is partitioned at its upper
-middle only; the lower middle is the largest value below it.
+the columns are copied contiguously, a few at a time, and each is partitioned at
+its upper middle only; the lower middle is the largest value below it.
 """
 
 from __future__ import annotations
@@ -33,14 +33,29 @@ def nan_column_medians(values) -> np.ndarray:
         raise ValueError(f"nan_column_medians needs rows of values, got shape {values.shape}")
     table = values.reshape(len(values), math.prod(values.shape[1:]))
     out = np.full(table.shape[1], np.nan)
-    columns = np.ascontiguousarray(table.T)         # (C, T), partitioned in place
-    # np.partition orders NaN last: a column's n values are its first n entries after it
-    counts = len(table) - np.count_nonzero(np.isnan(columns), axis=1)
-    for n in np.unique(counts[counts > 0]):
-        rows = np.flatnonzero(counts == n)
-        block = columns if len(rows) == len(columns) else columns[rows]
-        upper = n // 2
-        block.partition(upper, axis=1)
-        high = block[:, upper]
-        out[rows] = high if n % 2 else (block[:, :upper].max(axis=1) + high) / 2
+    # a few columns at a time: the transposed copy of a block stays in the cache
+    width = max(1, _BLOCK_BYTES // (8 * max(len(table), 1)))
+    for first in range(0, table.shape[1], width):
+        block = slice(first, first + width)
+        out[block] = _medians_of_rows(np.ascontiguousarray(table[:, block].T))
     return out.reshape(values.shape[1:])
+
+
+#: Bytes of the transposed columns partitioned at a time.
+_BLOCK_BYTES = 1 << 21
+
+
+def _medians_of_rows(rows: np.ndarray) -> np.ndarray:
+    """Median of each row of `rows` (C, T) over its non-NaN entries (NaN if none), (C,);
+    `rows` is partitioned in place."""
+    out = np.full(len(rows), np.nan)
+    # np.partition orders NaN last: a row's n values are its first n entries after it
+    counts = rows.shape[1] - np.count_nonzero(np.isnan(rows), axis=1)
+    for n in np.unique(counts[counts > 0]):
+        which = np.flatnonzero(counts == n)
+        part = rows if len(which) == len(rows) else rows[which]
+        upper = n // 2
+        part.partition(upper, axis=1)
+        high = part[:, upper]
+        out[which] = high if n % 2 else (part[:, :upper].max(axis=1) + high) / 2
+    return out
