@@ -1,18 +1,17 @@
 """The talking face as a video with its speech: frames from the project's renderer, VP9 + Opus WebM.
 
-Frames are rendered by :func:`mocap.viz.render.render_mesh` and encoded by
-OpenCV (a core dependency) as VP9 in WebM, which browsers play. OpenCV writes
-no audio, so the speech is muxed in with PyAV, the Python binding of FFmpeg
-(the field's standard for audio/video streams; its wheels bundle FFmpeg with
-libopus and libvpx, nothing to install beside it): the VP9 packets are copied
-as they are and the WAV is encoded as Opus, the audio codec of WebM. PyAV's
-FFmpeg build is GPL, so it lives in the optional extra ``mocap2mesh[speech]``;
-without it the video is written silent, with a warning.
+Frames are rendered by :func:`mocap.viz.render.render_mesh` and encoded as VP9
+in WebM, which browsers play (:class:`mocap.viz.webm.WebmWriter`: by PyAV when it
+is installed, else by OpenCV, a core dependency). The speech is muxed in with
+PyAV, the Python binding of FFmpeg (the field's standard for audio/video streams;
+its wheels bundle FFmpeg with libopus and libvpx, nothing to install beside it):
+the VP9 packets are copied as they are and the WAV is encoded as Opus, the audio
+codec of WebM. PyAV's FFmpeg build is GPL, so it lives in the optional extra
+``mocap2mesh[speech]``; without it the video is written silent, with a warning.
 """
 
 from __future__ import annotations
 
-import contextlib
 import os
 import warnings
 from fractions import Fraction
@@ -30,6 +29,7 @@ from mocap.util.atomic import atomic_path
 from mocap.util.optional import available, require
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 from mocap.viz.render import Camera, render_mesh
+from mocap.viz.webm import WebmWriter
 
 __all__ = ["write_talking_video", "AUDIO_RATE"]
 
@@ -76,8 +76,8 @@ def write_talking_video(path, neutral: Mesh, displacements, weights, *, rate: fl
     Raises
     ------
     InputError
-        Bad sizes, motion of another frame count, OpenCV without a VP9 writer,
-        the file cannot be written.
+        Bad sizes, motion of another frame count, no VP9 (WebM) encoder, the
+        file cannot be written.
     FileFormatError
         An unreadable WAV.
 
@@ -126,27 +126,9 @@ def write_talking_video(path, neutral: Mesh, displacements, weights, *, rate: fl
     return n
 
 
-@contextlib.contextmanager
-def _quiet_stderr():
-    """Silence file descriptor 2 while OpenCV opens the writer: its FFmpeg backend prints
-    a line about the VP9 tag it then replaces by WebM's own (harmless, not an error)."""
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 2)
-            yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
 def _write_frames(path: Path, neutral, displacements, weights, camera, rate, rotation,
                   translation) -> None:
-    with _quiet_stderr():
-        writer = cv2.VideoWriter(os.fspath(path), cv2.VideoWriter_fourcc(*"VP90"), rate,
-                                 camera.size)
-    if not writer.isOpened():
-        raise InputError(f"{path}: cannot write: OpenCV has no VP9 (WebM) writer")
+    writer = WebmWriter(path, rate, camera.size)
     progress = tqdm(total=len(weights), unit="frame", desc="talking video", disable=None,
                     leave=False)
     try:
@@ -164,7 +146,7 @@ def _write_frames(path: Path, neutral, displacements, weights, camera, rate, rot
             progress.update(len(chunk))
     finally:
         progress.close()
-        writer.release()
+        writer.close()
 
 
 def _mux(video: Path, samples: np.ndarray, rate: float, out: Path) -> None:

@@ -1,13 +1,11 @@
 """Overlay video of captured (red) vs reconstructed (blue) markers over a take,
-front view with error vectors, drawn and encoded with OpenCV: VP9 in WebM, which
-browsers play (Chromium, Firefox; the report embeds it in a ``<video>``)."""
+front view with error vectors, drawn with OpenCV and encoded as VP9 in WebM
+(:class:`mocap.viz.webm.WebmWriter`), which browsers play (Chromium, Firefox; the
+report embeds it in a ``<video>``)."""
 
 from __future__ import annotations
 
-import contextlib
 import os
-import sys
-import tempfile
 from typing import Mapping
 
 import cv2
@@ -18,13 +16,13 @@ from mocap.errors import InputError
 from mocap.util.atomic import atomic_path
 from mocap.util.validation import as_int, as_positions, as_positive_float
 from mocap.viz.figures import plottable
+from mocap.viz.webm import WebmWriter
 
 __all__ = ["VIDEO_SUFFIX", "VIDEO_MIME", "write_overlay_video"]
 
 #: The container of the overlay videos, and its MIME type with the codec.
 VIDEO_SUFFIX = ".webm"
 VIDEO_MIME = 'video/webm; codecs="vp9"'
-_FOURCC = "VP90"
 
 # BGR colours.
 _RED = (40, 39, 214)
@@ -38,28 +36,6 @@ def _project(points: np.ndarray, axes: np.ndarray, scale: float, shift: np.ndarr
     screen = points @ axes[:2].T
     px = (screen * [scale, -scale] + shift) * 16
     return np.nan_to_num(px, nan=-1e6).round().astype(np.int32)
-
-
-@contextlib.contextmanager
-def _stderr_captured():
-    """Capture what C code writes to file descriptor 2 (a list, filled on exit).
-
-    OpenCV's FFmpeg writer prints that the 'VP90' tag "is not supported with
-    codec id 167 and format webm" and then writes VP9 all the same (the tag is
-    only the container's codec label); that notice must not reach the user.
-    """
-    said: list = []
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as sink:
-        os.dup2(sink.fileno(), 2)
-        try:
-            yield said
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            sink.seek(0)
-            said.append(sink.read().decode("utf-8", "replace"))
 
 
 def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
@@ -108,8 +84,8 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     Raises
     ------
     InputError
-        Bad shapes or options, a suffix other than ``.webm``, or OpenCV cannot
-        open a VP9 writer for `path`.
+        Bad shapes or options, a suffix other than ``.webm``, or no VP9 (WebM)
+        encoder can write `path`.
     """
     if os.path.splitext(os.fspath(path))[1].lower() != VIDEO_SUFFIX:
         raise InputError(f"{path}: the overlay video is VP9 in WebM: name it *{VIDEO_SUFFIX}")
@@ -181,40 +157,22 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     img = np.empty_like(background)
     index = np.arange(captured.shape[0])[::step]
     heads = [f"frame {i + first_frame}  t = {i / rate:.2f} s" for i in index]
-    with atomic_path(path) as tmp:
-        video_tmp = tmp.with_name(tmp.name + VIDEO_SUFFIX)   # OpenCV: container by suffix
-        try:
-            with _stderr_captured() as said:
-                writer = cv2.VideoWriter(os.fspath(video_tmp), cv2.VideoWriter_fourcc(*_FOURCC),
-                                         fps, background.shape[1::-1])
-            if not writer.isOpened():
-                raise InputError(f"{path}: cannot write: OpenCV has no VP9 (WebM) writer"
-                                 + (f" ({said[0].strip()})" if said and said[0].strip() else ""))
-            try:
-                for k in range(len(cap)):
-                    np.copyto(img, background)
-                    for n, px in rec_px.items():
-                        shift16, seen = offsets[n], seen_cap[k] & seen_rec[n][k]
-                        lines = np.stack([cap_px[k] + shift16, px[k] + shift16], axis=1)[seen]
-                        cv2.polylines(img, list(lines), False, _BLACK, 1, cv2.LINE_AA, 4)
-                        for p in cap_px[k][seen_cap[k]] + shift16:
-                            cv2.circle(img, (int(p[0]), int(p[1])), r16, _RED, -1,
-                                       cv2.LINE_AA, 4)
-                        for p in px[k][seen_rec[n][k]] + shift16:
-                            cv2.circle(img, (int(p[0]), int(p[1])), r16_rec, _BLUE, -1,
-                                       cv2.LINE_AA, 4)
-                        x0 = offsets[n][0] // 16 + 10
-                        title = f"{n}: RMS {rms[n][k]:.2f} mm" if n else \
-                            f"RMS {rms[n][k]:.2f} mm"
-                        cv2.putText(img, title, (x0, 38), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
-                                    _BLACK, 1, cv2.LINE_AA)
-                    cv2.putText(img, heads[k], (10, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _BLACK,
-                                1, cv2.LINE_AA)
-                    writer.write(img)
-            finally:
-                writer.release()
-            os.replace(video_tmp, tmp)
-        finally:
-            if video_tmp.exists():
-                video_tmp.unlink()
+    with atomic_path(path) as tmp, WebmWriter(tmp, fps, background.shape[1::-1]) as video:
+        for k in range(len(cap)):
+            np.copyto(img, background)
+            for n, px in rec_px.items():
+                shift16, seen = offsets[n], seen_cap[k] & seen_rec[n][k]
+                lines = np.stack([cap_px[k] + shift16, px[k] + shift16], axis=1)[seen]
+                cv2.polylines(img, list(lines), False, _BLACK, 1, cv2.LINE_AA, 4)
+                for p in cap_px[k][seen_cap[k]] + shift16:
+                    cv2.circle(img, (int(p[0]), int(p[1])), r16, _RED, -1, cv2.LINE_AA, 4)
+                for p in px[k][seen_rec[n][k]] + shift16:
+                    cv2.circle(img, (int(p[0]), int(p[1])), r16_rec, _BLUE, -1, cv2.LINE_AA, 4)
+                x0 = offsets[n][0] // 16 + 10
+                title = f"{n}: RMS {rms[n][k]:.2f} mm" if n else f"RMS {rms[n][k]:.2f} mm"
+                cv2.putText(img, title, (x0, 38), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _BLACK, 1,
+                            cv2.LINE_AA)
+            cv2.putText(img, heads[k], (10, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _BLACK, 1,
+                        cv2.LINE_AA)
+            video.write(img)
     return len(cap)

@@ -1,0 +1,71 @@
+"""VP9 WebM writing by PyAV and by OpenCV: what a browser plays, read back by both decoders."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from mocap.errors import InputError
+from mocap.viz.webm import ENCODERS, WebmWriter
+
+av = pytest.importorskip("av", reason="PyAV comes with the speech extra")
+
+
+def _frames(n: int, width: int, height: int) -> np.ndarray:
+    """A red disc moving right on white, a blue bar growing down: (n, height, width, 3) BGR."""
+    frames = np.full((n, height, width, 3), 255, np.uint8)
+    for k, frame in enumerate(frames):
+        cv2.circle(frame, (10 + 4 * k, height // 2), 8, (40, 39, 214), -1, cv2.LINE_AA)
+        frame[: 5 + 2 * k, -12:] = (214, 95, 31)
+    return frames
+
+
+@pytest.mark.parametrize("encoder", ENCODERS)
+@pytest.mark.parametrize("fps", [30.0, 69.0, 29.97])
+def test_both_encoders_write_vp9_webm_at_the_rate(tmp_path, encoder, fps):
+    frames = _frames(24, 160, 96)
+    path = tmp_path / "clip.webm"
+    with WebmWriter(path, fps, (160, 96), encoder=encoder) as video:
+        for frame in frames:
+            video.write(frame)
+    assert video.n_frames == len(frames)
+    assert [p.name for p in tmp_path.iterdir()] == ["clip.webm"]          # no temporary left
+    with av.open(str(path)) as container:                                # FFmpeg's reading
+        stream = container.streams.video[0]
+        assert container.format.name.startswith("matroska,webm")
+        assert stream.codec_context.name == "vp9"
+        decoded = [f.to_ndarray(format="bgr24") for f in container.decode(stream)]
+        assert float(stream.average_rate) == pytest.approx(fps, rel=1e-3)
+    assert len(decoded) == len(frames)
+    for shown, drawn in zip(decoded, frames):
+        # lossy, but the picture is the one drawn: where the disc and the bar are
+        assert np.abs(shown.astype(int) - drawn).mean() < 6
+        red = (shown[..., 2] > 150) & (shown[..., 1] < 110)
+        assert abs(np.argwhere(red)[:, 1].mean() - np.argwhere(
+            (drawn[..., 2] > 150) & (drawn[..., 1] < 110))[:, 1].mean()) < 1.5
+    video = cv2.VideoCapture(str(path))                                  # OpenCV's reading
+    try:
+        assert int(video.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little") == b"VP90"
+        assert video.get(cv2.CAP_PROP_FPS) == pytest.approx(fps, rel=1e-3)
+    finally:
+        video.release()
+
+
+def test_pyav_is_the_default_when_installed(tmp_path):
+    with WebmWriter(tmp_path / "a.webm", 25.0, (32, 32)) as video:
+        video.write(np.zeros((32, 32, 3), np.uint8))
+    assert video.encoder == "pyav"
+
+
+@pytest.mark.parametrize("encoder", ENCODERS)
+def test_bad_frames_and_paths_are_named(tmp_path, encoder):
+    with WebmWriter(tmp_path / "a.webm", 25.0, (32, 32), encoder=encoder) as video:
+        with pytest.raises(InputError, match=r"a\.webm: frame 0 is uint8 of shape \(32, 48, 3\)"):
+            video.write(np.zeros((32, 48, 3), np.uint8))
+        with pytest.raises(InputError, match="frame 0 is float64"):
+            video.write(np.zeros((32, 32, 3)))
+    with pytest.raises(InputError, match="cannot write"):
+        WebmWriter(tmp_path / "missing" / "a.webm", 25.0, (32, 32), encoder=encoder)
+    with pytest.raises(InputError, match="encoder must be one of"):
+        WebmWriter(tmp_path / "b.webm", 25.0, (32, 32), encoder="x264")
