@@ -5,7 +5,10 @@ play); it now writes one VP9 WebM with a panel per basis (3 × 288 × 320). Time
 side by side on the demo take (20 s at 120 Hz, every 4th frame as the demo's
 run.toml draws it, reconstructions = the capture plus 0.3 mm noise):
 
-* ours: :func:`fit.report.video.write_overlay_video` with three panels;
+* ours: :func:`fit.report.video.write_overlay_video` with three panels, encoded by
+  PyAV's libvpx-vp9 in real-time mode (:class:`mocap.viz.webm.WebmWriter`);
+* the same video encoded by OpenCV's VP9 writer (libvpx's default mode, which
+  OpenCV does not let one change: the encoder without PyAV);
 * baseline: the same number of frames encoded with OpenCV's mp4v at the old
   size, three times (the old per-basis videos), frames drawn the same way;
 * VP9 one panel per video, three times (what per-basis WebM videos would cost).
@@ -18,7 +21,9 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
+from unittest import mock
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -27,9 +32,11 @@ import numpy as np  # noqa: E402
 
 import mocap  # noqa: E402
 from fit.demo import make_demo_session  # noqa: E402
+from fit.report import video  # noqa: E402
 from fit.report.video import write_overlay_video  # noqa: E402
 from mocap.markerset import load_markerset  # noqa: E402
 from mocap.stabilize import stabilize  # noqa: E402
+from mocap.viz.webm import WebmWriter  # noqa: E402
 
 STEP = 4
 
@@ -67,6 +74,10 @@ def main() -> None:
     write_overlay_video(positions, recs, work / "all.webm", **common)
     ours = time.perf_counter() - tic
     tic = time.perf_counter()
+    with mock.patch.object(video, "WebmWriter", partial(WebmWriter, encoder="opencv")):
+        write_overlay_video(positions, recs, work / "opencv.webm", **common)
+    opencv = time.perf_counter() - tic
+    tic = time.perf_counter()
     for b in recs:
         mp4v_baseline(n, (512, 512), work / f"{b}.mp4")
     old = time.perf_counter() - tic
@@ -78,11 +89,13 @@ def main() -> None:
     old_size = sum((work / f"{b}.mp4").stat().st_size for b in recs) / 1e6
     print(f"{n} video frames, {len(recs)} bases (machine load {os.getloadavg()[0]:.1f})")
     print(f"  ours: one VP9 WebM, 3 panels 288x320: {ours:6.1f} s, {size:5.1f} MB")
+    print(f"  the same by OpenCV's VP9 writer:      {opencv:6.1f} s, "
+          f"{(work / 'opencv.webm').stat().st_size / 1e6:5.1f} MB")
     print(f"  baseline: 3 mp4v MP4 512x512:         {old:6.1f} s, {old_size:5.1f} MB "
           f"(not playable in Chromium)")
     print(f"  3 VP9 WebM 512x512:                   {per_basis:6.1f} s")
-    print(f"  ratio ours / mp4v baseline: {ours / old:.2f}; ours / per-basis VP9: "
-          f"{ours / per_basis:.2f}")
+    print(f"  ratio ours / OpenCV's VP9: {ours / opencv:.2f}; ours / mp4v baseline: "
+          f"{ours / old:.2f}; ours / per-basis VP9: {ours / per_basis:.2f}")
 
 
 if __name__ == "__main__":
