@@ -28,6 +28,7 @@ from mocap.stabilize import ROBUST_GUARD_DEG, Stabilization, stabilize
 from mocap.stable_markers import StableMarkers, find_stable_markers
 from mocap.take import Take, as_take
 from mocap.util.arrays import read_only
+from mocap.util.medians import nan_column_medians
 from mocap.util.validation import as_choice
 
 __all__ = ["STABILIZATIONS", "HeadFrame", "FaceMotion", "find_head_frame", "face_motion",
@@ -150,9 +151,7 @@ class HeadFrame:
         lines = [f"head frame: {what} {', '.join(st.head_markers)}; {st.message}"]
         if self.stable is not None:
             lines.append(f"  choice: {self.stable.message}")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)     # a marker never fitted
-            median = np.nanmedian(st.head_residuals, axis=0)
+        median = nan_column_medians(st.head_residuals)     # NaN: a marker never fitted
         for j, label in enumerate(st.head_markers):
             runs = [s for s in st.slips if s.marker == label]
             held = ("holds the head frame throughout" if not runs else

@@ -68,6 +68,7 @@ from mocap.retarget.lip_seal import LipSealCheck
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
 from mocap.units import mm_per_unit
+from mocap.util.medians import nan_column_medians
 
 __all__ = ["Reconstruction", "PreparedTake", "ReconstructionResult"]
 
@@ -518,7 +519,7 @@ class ReconstructionResult:
         st = head.stabilization
         residuals = {label: (None if np.isnan(r) else float(r))
                      for label, r in zip(st.head_markers,
-                                         np.nanmedian(st.head_residuals, axis=0)
+                                         nan_column_medians(st.head_residuals)
                                          if st.head_markers else [])}
         out = {"method": head.method, "markers": list(st.head_markers),
                "median_residual_mm": residuals, "slips": len(st.slips),
