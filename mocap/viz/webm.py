@@ -1,9 +1,9 @@
 """VP9 video in WebM (what browsers play) from BGR frames, one frame at a time.
 
 With PyAV (the ``speech`` extra: a GPL build of FFmpeg) the frames go to
-libvpx-vp9 in its real-time mode, about 10 times faster than OpenCV's
-``VideoWriter``, which leaves libvpx in its slow default mode (2.5 ms against
-21 ms an 864 × 320 frame); without PyAV, through OpenCV's FFmpeg backend.
+libvpx-vp9 in its real-time mode; without PyAV, through OpenCV's FFmpeg backend,
+which leaves libvpx in its slow default mode and takes no encoder options (the
+demo's overlay video: 10.7 s against 1.4 s, ``bench/bench_report_video.py``).
 Either way the file is VP9 in WebM at the frame rate asked for.
 """
 
@@ -82,9 +82,14 @@ class WebmWriter:
         with self._writing():
             self._container = av.open(os.fspath(self.path), mode="w", format="webm")
         width, height = self.size
-        self._stream = self._container.add_stream(
-            "libvpx-vp9", rate=rate,
-            options={"deadline": "realtime", "cpu-used": "8", "row-mt": "1"})
+        try:
+            self._stream = self._container.add_stream(
+                "libvpx-vp9", rate=rate,
+                options={"deadline": "realtime", "cpu-used": "8", "row-mt": "1"})
+        except (ValueError, av.FFmpegError) as exc:     # a build without libvpx
+            self._container.close()
+            raise InputError(f"{self.path}: cannot write: PyAV's FFmpeg has no VP9 encoder "
+                             f"({exc})") from None
         self._stream.width, self._stream.height = width, height
         self._stream.pix_fmt = "yuv420p"
         self._stream.bit_rate = int(_BITS_PER_PIXEL * width * height * fps)
