@@ -344,10 +344,9 @@ MARKER_CENTRES_COST = 1e-12
 #: reached to tol 1e-9).
 MARKER_CENTRES_FIXED_POINT = 1e-7
 #: The chain's exact-centre fit: reported cost against its recomputation (rel); its cost as
-#: a factor (x) of scipy's least_squares optimum, and of the linear model's weights'.
+#: a factor (x) of scipy's least_squares optimum.
 MARKER_CENTRES_COST_REL = 1e-9
 MARKER_CENTRES_VS_OPTIMUM = 1.01
-MARKER_CENTRES_VS_LINEAR = 0.5
 #: Marker-basis fields at offset centres (lifted along normals that turn) against the layout
 #: lifted by hand: mesh units (divided by the binding's scale in capture mm).
 MARKER_BASIS_LIFTED = 1e-7
