@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
+import av                 # the speech extra, which the tests install
 import cv2
 import numpy as np
 import pytest
 
 from mocap.errors import InputError
 from mocap.viz.webm import ENCODERS, WebmWriter
-
-av = pytest.importorskip("av", reason="PyAV comes with the speech extra")
 
 
 def _frames(n: int, width: int, height: int) -> np.ndarray:
