@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import av                 # the speech extra, which the tests install
+import av  # the speech extra, which the tests install
 import cv2
 import numpy as np
 import pytest
