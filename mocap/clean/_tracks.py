@@ -12,7 +12,7 @@ import numpy as np
 from mocap.gaps import find_gaps
 from mocap.util.medians import nan_column_medians
 
-__all__ = ["MIN_STEP_MM", "last_visible", "typical_step", "median_pose", "long_gap_starts"]
+__all__ = ["MIN_STEP_MM", "last_visible", "typical_step", "long_gap_starts"]
 
 #: Floor of a marker's typical frame-to-frame motion, mm: below any optical
 #: capture noise, so that noise-free data does not make every jump significant.
@@ -40,11 +40,6 @@ def typical_step(positions: np.ndarray) -> np.ndarray:
     step = np.linalg.norm(np.diff(positions, axis=0), axis=2)
     typical = nan_column_medians(step)
     return np.fmax(np.nan_to_num(typical, nan=MIN_STEP_MM), MIN_STEP_MM)
-
-
-def median_pose(positions: np.ndarray) -> np.ndarray:
-    """Per-marker median of each coordinate over the visible frames, (M, 3); NaN if never seen."""
-    return nan_column_medians(positions)
 
 
 def long_gap_starts(missing: np.ndarray, max_gap: int) -> list[np.ndarray]:

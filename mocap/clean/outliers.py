@@ -19,7 +19,6 @@ import numpy as np
 from mocap.clean._tracks import (
     last_visible,
     long_gap_starts,
-    median_pose,
     typical_step,
 )
 from mocap.errors import InputError
@@ -284,7 +283,7 @@ def find_implausible_samples(take: Take, *, head=None, off_rest: float = 25.0,
     n_frames, n_markers = pos.shape[:2]
     codes = np.zeros((n_frames, n_markers), dtype=np.int8)
     if n_frames >= 3:
-        rest = median_pose(pos)
+        rest = nan_column_medians(pos)
         dist = np.linalg.norm(pos - rest, axis=2)
         spread = np.fmax(np.nan_to_num(nan_column_medians(dist), nan=0.0), _MIN_SPREAD_MM)
         z = dist / spread

@@ -12,9 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.clean._tracks import last_visible, long_gap_starts, median_pose, typical_step
+from mocap.clean._tracks import last_visible, long_gap_starts, typical_step
 from mocap.errors import InputError, MarkerError
 from mocap.take import Take, as_take
+from mocap.util.medians import nan_column_medians
 from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["LabelSwap", "find_label_swaps", "fix_label_swaps"]
@@ -57,7 +58,7 @@ def _candidate_pairs(positions: np.ndarray, neighbours: int) -> np.ndarray:
     """Pairs (i < j) where one marker is among the other's `neighbours` nearest
     in the median pose; shape (n_pairs, 2)."""
     n_markers = positions.shape[1]
-    median = median_pose(positions)
+    median = nan_column_medians(positions)
     dist = np.linalg.norm(median[:, None] - median[None], axis=2)
     dist[np.isnan(dist)] = np.inf
     np.fill_diagonal(dist, np.inf)
