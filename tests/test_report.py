@@ -20,7 +20,7 @@ from fit.report.drawing import IMAGE_WIDTH_PX, plain_log_axis, report_figure
 from fit.report.figure_queue import FigureQueue
 from fit.report.html import render_report
 from fit.report.plots import HEATMAP_COLUMNS, bar_collection, plot_error_heatmap, region_groups
-from fit.report.video import write_overlay_video
+from fit.report.video import MAX_AUTO_FPS, write_overlay_video
 from fit.report.views import CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_views, view_axes
 from mocap.errors import InputError
 from mocap.stabilize import stabilize
@@ -180,7 +180,7 @@ def test_html_errors(report):
         render_report(results, {"bad": b"GIF89a"}, title="x")
 
 
-@pytest.mark.parametrize("step,fps", [(1, None), (3, 24.0)])
+@pytest.mark.parametrize("step,fps", [(1, None), (3, 24.0), ("auto", None)])
 def test_video_round_trip(sing_case, tmp_path, step, fps):
     ms, face, recs, neutral = sing_case
     n = 150
@@ -188,6 +188,8 @@ def test_video_round_trip(sing_case, tmp_path, step, fps):
     written = write_overlay_video(face.positions[:n], recs["H"][:n], path, neutral=neutral,
                                   rate=face.rate, labels=face.labels, markerset=ms,
                                   step=step, fps=fps, size=(320, 240))
+    if step == "auto":              # the fewest frames dropped for at most 60 a second
+        step = next(k for k in range(1, 100) if face.rate / k <= MAX_AUTO_FPS)
     assert written == len(range(0, n, step))
     video = cv2.VideoCapture(str(path))
     try:

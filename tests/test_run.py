@@ -236,6 +236,8 @@ def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     (lambda t: t.replace("landmarks.toml", "nope.toml"), r"inputs\.landmarks: .* does not exist"),
     (lambda t: t.replace("video_step = 12", "video_step = 0"),
      r"report\.video_step: video_step must be at least 1"),
+    (lambda t: t.replace("video_step = 12", 'video_step = "fast"'),
+     r"report\.video_step: video_step must be 'auto' or an integer >= 1, got 'fast'"),
     (lambda t: t.replace('frame = "auto"', "frame = -2"), r"bind\.frame: frame must be at least"),
     (lambda t: t.replace("lowpass_hz = 15.0", 'lowpass_hz = "x"'), r"ingest\.lowpass_hz"),
     (lambda t: t.replace('directory = "results"', 'directory = "results"\nworkers = 0'),

@@ -184,8 +184,10 @@ class ReportOptions:
     ----------
     video : bool
         Write the overlay video (one VP9 WebM, a panel per basis) into the report.
-    video_step : int
-        Draw every n-th frame in the video.
+    video_step : int or "auto"
+        Draw every n-th frame in the video; "auto": every frame of a take up to
+        60 Hz, the smallest step that keeps the real-time video at most 60 frames
+        a second above (:func:`fit.report.video.video_step`).
     n_worst : int
         Worst frames shown and listed.
     exaggerate : float
@@ -201,7 +203,7 @@ class ReportOptions:
     """
 
     video: bool = True
-    video_step: int = 1
+    video_step: int | str = "auto"
     n_worst: int = 5
     exaggerate: float = 1.0
     held_out_folds: int = 5
@@ -211,7 +213,12 @@ class ReportOptions:
     def __post_init__(self):
         if not isinstance(self.video, bool):
             raise InputError(f"video must be true or false, got {self.video!r}")
-        as_int(self.video_step, "video_step", minimum=1)
+        if isinstance(self.video_step, str):
+            if self.video_step != "auto":
+                raise InputError(f"video_step must be 'auto' or an integer >= 1, got "
+                                 f"{self.video_step!r}")
+        else:
+            as_int(self.video_step, "video_step", minimum=1)
         as_int(self.n_worst, "n_worst", minimum=1)
         as_positive_float(self.exaggerate, "exaggerate")
         folds = as_int(self.held_out_folds, "held_out_folds", minimum=0)

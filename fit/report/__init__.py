@@ -52,7 +52,7 @@ def _shared_scales(results) -> tuple[float, float]:
 
 def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=None,
                  origin=None, pca=None, ingest=None, pictures=None, video: bool = False,
-                 video_step: int = 1, n_worst: int = 5, exaggerate: float = 1.0,
+                 video_step: int | str = "auto", n_worst: int = 5, exaggerate: float = 1.0,
                  name: str | None = None, warnings=(), provenance: Mapping | None = None,
                  grades=(), held_out=None, mesh_space=None, sections=(), cross_validation=None,
                  selection=None, lip_seal=None, figures: FigureQueue | None = None) -> dict:
@@ -84,8 +84,9 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         under their captions (a caption may be a Figure with how to read it).
     video : bool
         Also write the overlay video, a panel per basis (VP9 WebM, embedded).
-    video_step : int
-        Draw every n-th frame in the video.
+    video_step : int or "auto"
+        Draw every n-th frame in the video; "auto" (default): every frame up to
+        60 Hz, fewer above (:func:`fit.report.video.video_step`).
     n_worst : int
         Worst frames shown and listed (of each basis, by RMS).
     exaggerate : float

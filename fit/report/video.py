@@ -5,6 +5,7 @@ report embeds it in a ``<video>``)."""
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Mapping
 
@@ -18,11 +19,29 @@ from mocap.util.validation import as_int, as_positions, as_positive_float
 from mocap.viz.figures import plottable
 from mocap.viz.webm import WebmWriter
 
-__all__ = ["VIDEO_SUFFIX", "VIDEO_MIME", "write_overlay_video"]
+__all__ = ["VIDEO_SUFFIX", "VIDEO_MIME", "MAX_AUTO_FPS", "video_step", "write_overlay_video"]
 
 #: The container of the overlay videos, and its MIME type with the codec.
 VIDEO_SUFFIX = ".webm"
 VIDEO_MIME = 'video/webm; codecs="vp9"'
+#: Frames a second of a real-time video that ``step = "auto"`` stays under: what a
+#: display shows (a browser plays a faster video by skipping frames).
+MAX_AUTO_FPS = 60.0
+
+
+def video_step(step, rate: float) -> int:
+    """Frames of a take per video frame: `step` (int >= 1), or for ``"auto"`` the
+    smallest that keeps a real-time video of a take at `rate` Hz at most
+    :data:`MAX_AUTO_FPS` frames a second (1 up to 60 Hz, 5 at 276 Hz).
+
+    Examples
+    --------
+    >>> video_step("auto", 276.0), video_step("auto", 60.0), video_step(3, 276.0)
+    (5, 1, 3)
+    """
+    if step == "auto":
+        return max(1, math.ceil(as_positive_float(rate, "rate") / MAX_AUTO_FPS - 1e-9))
+    return as_int(step, "step", minimum=1)
 
 # BGR colours.
 _RED = (40, 39, 214)
@@ -64,8 +83,8 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
         Landmarks orient the view: the subject's left on the viewer's right.
     fps : float, optional
         Frame rate of the video; default ``rate / step`` (real time).
-    step : int
-        Draw every `step`-th frame.
+    step : int or "auto"
+        Draw every `step`-th frame; "auto": :func:`video_step`.
     size : (int, int)
         Width and height of one panel, pixels (VP9 encoding time grows with them).
     exaggerate : float
@@ -102,7 +121,7 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
             raise InputError(f"reconstructed must have the shape of captured {captured.shape}, "
                              f"got {panels[name].shape}")
     rate = as_positive_float(rate, "rate")
-    step = as_int(step, "step", minimum=1)
+    step = video_step(step, rate)
     fps = rate / step if fps is None else as_positive_float(fps, "fps")
     width, height = (as_int(v, "size", minimum=64) for v in size)
     labels = tuple(str(i) for i in range(captured.shape[1])) if labels is None else labels
