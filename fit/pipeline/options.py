@@ -185,9 +185,10 @@ class ReportOptions:
     video : bool
         Write the overlay video (one VP9 WebM, a panel per basis) into the report.
     video_step : int or "auto"
-        Draw every n-th frame in the video; "auto": every frame of a take up to
-        60 Hz, the smallest step that keeps the real-time video at most 60 frames
-        a second above (:func:`fit.report.video.video_step`).
+        Draw every n-th frame in the video ("auto": at most 60 a second). With
+        "auto", every frame of a take up to 60 Hz, above it the smallest step
+        that keeps the real-time video at most 60 frames a second
+        (:func:`fit.report.video.video_step`).
     n_worst : int
         Worst frames shown and listed.
     exaggerate : float
