@@ -28,6 +28,12 @@ VIDEO_MIME = 'video/webm; codecs="vp9"'
 #: display shows (a browser plays a faster video by skipping frames).
 MAX_AUTO_FPS = 60.0
 
+# BGR colours.
+_RED = (40, 39, 214)
+_BLUE = (214, 95, 31)
+_GREY = (205, 205, 205)
+_BLACK = (0, 0, 0)
+
 
 def video_step(step, rate: float) -> int:
     """Frames of a take per video frame: `step` (int >= 1), or for ``"auto"`` the
@@ -39,15 +45,9 @@ def video_step(step, rate: float) -> int:
     >>> video_step("auto", 276.0), video_step("auto", 60.0), video_step(3, 276.0)
     (5, 1, 3)
     """
-    if step == "auto":
+    if step == "auto":      # a rate a rounding above a multiple of 60 Hz counts as it
         return max(1, math.ceil(as_positive_float(rate, "rate") / MAX_AUTO_FPS - 1e-9))
     return as_int(step, "step", minimum=1)
-
-# BGR colours.
-_RED = (40, 39, 214)
-_BLUE = (214, 95, 31)
-_GREY = (205, 205, 205)
-_BLACK = (0, 0, 0)
 
 
 def _project(points: np.ndarray, axes: np.ndarray, scale: float, shift: np.ndarray) -> np.ndarray:
