@@ -182,6 +182,8 @@ def test_inputs_are_not_mutated():
 
 BAD_INPUTS = [
     ({"data": "nan"}, r"data is NaN in frame 3 \(row 4, marker 1\)"),
+    ({"data": "inf"}, r"data contains infinite values"),
+    ({"data": "inf", "mask": "all but inf"}, r"data contains infinite values"),
     ({"data": "short"}, r"data must be \(n_frames, 30\)"),
     ({"basis": "4d"}, r"basis must be \(K, n_shapes\) or \(n_shapes, n_markers, 3\)"),
     ({"lower": 1.0, "upper": 0.0}, r"bounds of shape 0 are empty"),
@@ -204,9 +206,10 @@ def test_bad_input_raises(change, message):
     basis = make_basis("random", rng)
     data = make_data(basis, rng, n_frames=5)
     kwargs = dict(change)
-    if kwargs.pop("data", None) == "nan":
-        data[3, 4] = np.nan
-    elif change.get("data") == "short":
+    bad = kwargs.pop("data", None)
+    if bad in ("nan", "inf"):
+        data[3, 4] = np.nan if bad == "nan" else np.inf
+    elif bad == "short":
         data = data[:, :-1]
     if kwargs.pop("basis", None) == "4d":
         basis = basis[None, None]
@@ -216,6 +219,8 @@ def test_bad_input_raises(change, message):
         kwargs["mask"] = np.ones((5, 2), bool)
     if kwargs.get("start") == "wrong":
         kwargs["start"] = np.zeros((5, 3))
+    if str(kwargs.get("mask")).startswith("all but"):
+        kwargs["mask"] = np.isfinite(data)
     with pytest.raises(InputError, match=message):
         solve_weights(basis, data, **kwargs)
 

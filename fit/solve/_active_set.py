@@ -146,8 +146,9 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
         wt, g = reduced_solve(qp, s, ct, unconstrained=ut)
         n_iter[todo] += 1
         new = _next_state(qp, s, wt, g)
+        changes = np.count_nonzero(new != s, axis=1)
         # Only a state that reproduces itself is optimal (up to accuracy).
-        check = np.nonzero((new == s).all(axis=1))[0]
+        check = np.flatnonzero(changes == 0)
         res = np.full(len(todo), np.inf)
         # (a state that reproduces itself has free weights inside the bounds)
         res[check] = residual(qp, wt[check], ct[check], feasible=True)
@@ -157,9 +158,9 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
                                               unconstrained=_rows_of(ut, redo))
             res[redo] = residual(qp, wt[redo], ct[redo], g[redo])
             new[redo] = _next_state(qp, s[redo], wt[redo], g[redo])
+            changes[redo] = np.count_nonzero(new[redo] != s[redo], axis=1)
         ok = res <= tol
         kkt[todo[ok]] = res[ok]
-        changes = np.count_nonzero(new != s, axis=1)
         if len(todo) == T:
             w = wt
         else:

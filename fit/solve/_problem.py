@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocap.errors import InputError
-from mocap.util.validation import as_float_array
+from mocap.util.validation import as_float_array, surely_finite
 
 __all__ = ["as_problem", "as_bounds"]
 
@@ -21,7 +21,8 @@ def as_problem(basis, data, mask):
     B and D are only read: a float64 argument is used as it is, not copied.
     """
     basis = as_float_array(basis, "basis", allow_nan=False, copy=False)
-    data = as_float_array(data, "data", copy=False)
+    # checked below, NaN by frame (one sum when the data are finite)
+    data = as_float_array(data, "data", copy=False, check_finite=False)
     if basis.ndim == 3:
         if basis.shape[2] != 3 or data.ndim != 3 or data.shape[1:] != basis.shape[1:]:
             raise InputError(f"with basis of shape (n_shapes, n_markers, 3) = {basis.shape}, "
@@ -46,6 +47,10 @@ def as_problem(basis, data, mask):
             valid = np.repeat(valid, 3, axis=1)
         if valid.shape != D.shape:
             raise InputError(f"mask must have shape {data.shape[:2]}, got {np.shape(mask)}")
+    if surely_finite(D):
+        return B, D, valid
+    if np.isinf(D).any():
+        raise InputError("data contains infinite values")
     bad = np.isnan(D) if valid is None else np.isnan(D) & valid
     if bad.any():
         frame, row = (int(i) for i in np.argwhere(bad)[0])
