@@ -17,8 +17,8 @@ followed by lsq_linear on the slice's share of an evenly spaced subset
 (``N_BVLS`` frames in all). Ours is the sum over the slices, i.e. all frames
 (the "ours s(T)" column), each slice passed as a view of the data (a copy,
 11 MB of fresh pages, would be timed as the solver's work); lsq_linear's
-per-frame time is extrapolated to all frames ("bvls s(T)"). The ratio is of the totals; "ratio range" gives the
-slices' lowest and highest ratio. Environment: BENCH_T and BENCH_BVLS
+per-frame time is extrapolated to all frames ("bvls s(T)"). The ratio is of
+the totals; "ratio range" gives the slices' lowest and highest ratio. Environment: BENCH_T and BENCH_BVLS
 override the two sizes for a quick run.
 
 Both solvers run on one BLAS thread (``OPENBLAS_NUM_THREADS=1`` unless set):
