@@ -9,17 +9,17 @@ ICT shape names, clipped to [0, 1]), concatenated and linearly resampled to
 coherence: the warm start cannot help). Bounds [0, 1].
 
 Each solver is called once, untimed, before the timed runs (a warm-up: a
-process's first large arrays fault their memory pages in, ~26,000 page
-faults on the first 7,000-frame solve). The machine may be shared, so the
-two are timed interleaved: the frames are
-cut into ``N_SLICES`` consecutive slices and each slice's solve by ours is
-followed by lsq_linear on the slice's share of an evenly spaced subset
-(``N_BVLS`` frames in all). Ours is the sum over the slices, i.e. all frames
-(the "ours s(T)" column), each slice passed as a view of the data (a copy,
-11 MB of fresh pages, would be timed as the solver's work); lsq_linear's
-per-frame time is extrapolated to all frames ("bvls s(T)"). The ratio is of
-the totals; "ratio range" gives the slices' lowest and highest ratio. Environment: BENCH_T and BENCH_BVLS
-override the two sizes for a quick run.
+process's first large arrays fault their memory pages in, ~26,000 page faults
+on the first 7,000-frame solve). The machine may be shared, so the two are
+timed interleaved: the frames are cut into ``N_SLICES`` consecutive slices and
+each slice's solve by ours is followed by lsq_linear on the slice's share of an
+evenly spaced subset (``N_BVLS`` frames in all). Ours is the sum over the
+slices, i.e. all frames (the "ours s(T)" column), each slice passed as a view
+of the data (a copy, 11 MB of fresh pages, would be timed as the solver's
+work); lsq_linear's per-frame time is extrapolated to all frames ("bvls s(T)").
+The ratio is of the totals; "ratio range" gives the slices' lowest and highest
+ratio. Environment: BENCH_T and BENCH_BVLS override the two sizes for a quick
+run.
 
 Both solvers run on one BLAS thread (``OPENBLAS_NUM_THREADS=1`` unless set):
 per-frame work is products of 53-wide matrices, and on a shared 2-core
