@@ -12,10 +12,12 @@ library no longer has it): primal-dual active set over the whole sequence
 from the frames' own optima (the exact per-frame solve, timed with it), one
 full banded factorization per iteration until every frame meets KKT. New:
 :func:`fit.solve.temporal.solve_smooth` (ADMM start, local settling of sparse
-state changes, global banded solves; :mod:`fit.solve._smooth`). Both are timed in
-the same run, λ by λ, so the ratio holds under load; "global" counts the
-whole-sequence factorizations, "solves/frame" the reduced solves a frame
-took part in (global and local). Δ objective: the new sequence objective
+state changes, global banded solves, the last ones through the previous factor;
+:mod:`fit.solve._smooth`). Both are timed in the same run, λ by λ, so the ratio
+holds under load; "global" counts the whole-sequence solves (for the old one a
+factorization each; for the new one a factorization, or a low-rank correction
+of the last one), "solves/frame" the reduced solves a frame took part in
+(global and local). Δ objective: the new sequence objective
 minus the old, relative to |old|; KKT: the worst residual of each.
 
 Usage: ``python bench/bench_smooth.py`` (one BLAS thread unless set).

@@ -269,13 +269,8 @@ def test_a_cycle_while_the_data_move_holds_them_and_ends_optimal(monkeypatch):
     assert n_global > len(moves.calls)                   # global solves without a call
 
 
-def test_a_step_in_the_same_state_reuses_the_factor(monkeypatch):
-    """Data moved by far less than any weight's distance to its bound keep the optimal
-    active set: one factorization serves every step, two triangular solves each."""
-    rng = np.random.default_rng(8)
-    T, n, K = 120, 5, 12
-    basis, data = _smooth_problem(rng, T, n, K, collinear=True)
-    answer = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0).weights
+def _counted_factorizations(monkeypatch) -> list:
+    """A list that gets one item per factorization of the whole sequence from now on."""
     factors = []
     real = fit.solve._smooth.scipy.linalg.cholesky_banded
 
@@ -283,6 +278,17 @@ def test_a_step_in_the_same_state_reuses_the_factor(monkeypatch):
         factors.append(1)
         return real(*args, **kwargs)
     monkeypatch.setattr(fit.solve._smooth.scipy.linalg, "cholesky_banded", counted)
+    return factors
+
+
+def test_a_step_in_the_same_state_reuses_the_factor(monkeypatch):
+    """Data moved by far less than any weight's distance to its bound keep the optimal
+    active set: one factorization serves every step, two triangular solves each."""
+    rng = np.random.default_rng(8)
+    T, n, K = 120, 5, 12
+    basis, data = _smooth_problem(rng, T, n, K, collinear=True)
+    answer = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0).weights
+    factors = _counted_factorizations(monkeypatch)
     moves = _Moves([data + 1e-12 * j for j in range(5)])
     sol = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0, start=answer,
                         follow=moves)
@@ -331,6 +337,65 @@ def test_band_matrix_is_the_reduced_hessian(n, T, monkeypatch):
     out = np.full((n + 1, T * n), np.nan, order="F")
     assert band.matrix(free, deg.astype(float), link, out=out) is out
     np.testing.assert_array_equal(out, got)
+
+
+def _dense_reduced_hessian(band, state):
+    """The whole sequence's reduced Hessian of ``state`` (T, n), dense: the oracle."""
+    T, n = state.shape
+    lap = np.diag(fit.solve._smooth.degree(T)) - np.eye(T, k=1) - np.eye(T, k=-1)
+    dense = np.kron(np.eye(T), band.G) + band.lam * np.kron(lap, np.eye(n)) \
+        + band.ridge * np.eye(T * n)
+    keep = (state == 0).ravel()
+    dense = np.where(np.outer(keep, keep), dense, 0.0)
+    dense[~keep, ~keep] = band.fill
+    return dense
+
+
+@pytest.mark.parametrize("ridge", [0.0, 0.01])
+def test_whole_sequence_solves_nearby_states_through_one_factor(ridge, monkeypatch):
+    """States a few variables from the factored one (bound, freed, both, at the take's
+    ends, a bound weight moving to its other bound) are solved through its factor, as
+    the dense reduced system solves them; more changes, or a residual above the limit,
+    factor the whole sequence anew, with the same answers."""
+    rng = np.random.default_rng(12)
+    T, n = 40, 5
+    a = rng.standard_normal((2 * n, n))
+    band = fit.solve._smooth._Band(a.T @ a, 0.7, ridge)
+    whole = fit.solve._smooth._WholeFactor(band, T)
+    factors = _counted_factorizations(monkeypatch)
+
+    def check(state):
+        rhs = np.where(state == 0, rng.standard_normal(state.shape), 0.0).ravel()
+        expected = np.linalg.solve(_dense_reduced_hessian(band, state), rhs)
+        np.testing.assert_allclose(whole.solve(state, rhs), expected, rtol=0,
+                                   atol=SOLVE_SAME_MINIMIZER * np.abs(expected).max())
+
+    state = rng.choice(np.array([-1, 0, 0, 0, 1], np.int8), size=(T, n))
+    check(state)
+    free_at = np.argwhere(state == 0)
+    bound_at = np.argwhere(state != 0)
+    changes = [
+        [(tuple(free_at[0]), -1)],                                    # one bound
+        [(tuple(bound_at[1]), 0), (tuple(bound_at[2]), 0)],           # two freed
+        [((0, 0), 1 - abs(int(state[0, 0]))), ((T - 1, n - 1), 0),    # the take's ends,
+         (tuple(free_at[5]), 1), (tuple(bound_at[6]), 0)],            # bound and freed
+        [(tuple(bound_at[7]), -int(state[tuple(bound_at[7])]))],      # other bound
+    ]
+    for step in changes:
+        for at, value in step:
+            state[at] = value
+        check(state)
+    assert len(factors) == 1
+    limit = fit.solve._smooth._LOW_RANK_MAX
+    far = state.copy()
+    far.ravel()[rng.choice(T * n, limit + 1, replace=False)] ^= 1   # 0 <-> 1, -1 <-> -2
+    far[far == -2] = 0
+    check(far)
+    assert len(factors) == 2
+    monkeypatch.setattr(fit.solve._smooth, "_LOW_RANK_RESIDUAL", 0.0)
+    far[tuple(np.argwhere(far == 0)[0])] = 1
+    check(far)
+    assert len(factors) == 3
 
 
 def test_smoothness_reduces_frame_to_frame_change():
