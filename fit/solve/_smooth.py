@@ -190,14 +190,15 @@ class _Band:
         (its shape, Fortran-ordered) when given.
         """
         n, F = self.n, len(free)
-        mask = free.ravel().astype(np.float64)
+        mask = free.ravel()
         diag = (np.diag(self.G)[None, :] + self.ridge + self.lam * deg[:, None]).ravel()
         coupled = np.zeros(mask.size)
         if F > 1:
-            coupled[n:] = mask[n:] * mask[:-n] * np.repeat(link, n)
-        # [j, r − 1]: the mask of variable j − (n − r), 0 before the first frame (where
-        # the bands are 0 too): a sliding window, no copy
-        behind = np.lib.stride_tricks.sliding_window_view(np.r_[np.zeros(n), mask], n - 1)
+            coupled[n:] = mask[n:] & mask[:-n] & np.repeat(link, n)
+        # [j, r − 1]: whether variable j − (n − r) is free, False before the first frame
+        # (where the bands are 0 too): a sliding window, no copy
+        behind = np.lib.stride_tricks.sliding_window_view(np.r_[np.zeros(n, bool), mask],
+                                                          n - 1)
         ab = np.empty((n + 1, mask.size), order="F") if out is None else out
         if ab.shape != (n + 1, mask.size) or not ab.flags.f_contiguous:
             raise ValueError(f"out must be a Fortran-ordered {(n + 1, mask.size)} array")
@@ -207,12 +208,13 @@ class _Band:
             cols = slice(first * n, min(first + per_piece, F) * n)
             count = (cols.stop - cols.start) // n
             piece = columns[cols].reshape(count, n, n + 1)
-            bands = piece[:, :, 1:n]
-            np.multiply(behind[cols.start + 1:cols.stop + 1].reshape(count, n, n - 1),
-                        self.bands, out=bands)
-            bands *= mask[cols].reshape(count, n, 1)
+            # the bands where both variables of an entry are free (one pass over the
+            # floats; the masks are bytes)
+            both = behind[cols.start + 1:cols.stop + 1].reshape(count, n, n - 1) \
+                & mask[cols].reshape(count, n, 1)
+            np.multiply(self.bands, both, out=piece[:, :, 1:n])
             piece[:, :, 0] = (-self.lam * coupled[cols]).reshape(count, n)
-            piece[:, :, n] = np.where(mask[cols] > 0, diag[cols], self.fill).reshape(count, n)
+            piece[:, :, n] = np.where(mask[cols], diag[cols], self.fill).reshape(count, n)
         return ab
 
 
