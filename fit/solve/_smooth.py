@@ -280,15 +280,16 @@ class _WholeFactor:
                 x = self._bordered(free, changed, rhs)
                 if x is not None:
                     return x
-        self._factor(state)
+        self._factor(free)
         return self._solve(rhs)
 
-    def _factor(self, state):
+    def _factor(self, free):
+        """Factor the state with the flat free mask ``free`` (T·n,), in the kept buffer."""
         self.free, self.columns = None, {}  # the buffer is about to hold another factor
-        ab = self.band.matrix(state == 0, degree(self.n_frames),
+        ab = self.band.matrix(free.reshape(self.n_frames, -1), degree(self.n_frames),
                               np.ones(max(self.n_frames - 1, 0), bool), out=self.factor)
         self.factor = scipy.linalg.cholesky_banded(ab, overwrite_ab=True, check_finite=False)
-        self.free = (state == 0).ravel()
+        self.free = free
 
     def _solve(self, rhs):
         return scipy.linalg.cho_solve_banded((self.factor, False), rhs, check_finite=False)
