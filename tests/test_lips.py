@@ -49,6 +49,21 @@ def test_the_gap_is_the_smallest_distance_between_the_lips(demo_face):
     assert mouth.gap(crossed) == 0.0
 
 
+def test_the_gap_of_many_frames_block_by_block_is_each_frames_own(demo_face, monkeypatch):
+    """Frames go through in blocks of pair distances; blocks of 3 frames, the last one short."""
+    import mocap.mesh.mouth as mouth_module
+    mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
+    n_up, n_low = len(mouth.upper), len(mouth.lower)
+    monkeypatch.setattr(mouth_module, "_CHUNK_BYTES", 3 * 8 * n_up * n_low)
+    rng = np.random.default_rng(7)
+    lips = demo_face.mesh.vertices[mouth.vertex_ids]
+    frames = lips + rng.normal(0.0, 2.0, (11,) + lips.shape)           # mm: lips part and cross
+    brute = [cdist(f[:n_up], f[n_up:]).min() for f in frames]
+    np.testing.assert_allclose(mouth.gap(frames), brute, rtol=0, atol=EXACT_FLOAT64)
+    np.testing.assert_allclose(mouth.gap(frames.reshape(11, 1, -1, 3))[:, 0], brute, rtol=0,
+                               atol=EXACT_FLOAT64)
+
+
 def test_the_ict_lips_touch_at_rest_and_part_with_the_jaw(ict_basis, ict_landmarks):
     """The ICT mouth loop curls into the mouth (11 mm open at rest): the gap is the lips'."""
     mesh = ict_basis.neutral
