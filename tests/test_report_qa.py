@@ -4,6 +4,7 @@ provenance, grades, sections and the embedded video, on a short demo take."""
 from __future__ import annotations
 
 import base64
+import dataclasses
 import hashlib
 import html
 import re
@@ -14,6 +15,7 @@ import pytest
 from fit.demo import DEMO_MAX_GAP, make_demo_session
 from fit.pipeline.holdout import held_out_fits, time_blocked_splits
 from fit.pipeline.reconstruction import Reconstruction
+from fit.pipeline.stages import basis_stage, fit_stage
 from fit.report import build_report
 from fit.report.extremes import take_extremes
 from fit.report.figure_queue import FigureQueue
@@ -97,6 +99,27 @@ def test_other_takes_plug_in_as_bases_built_elsewhere(demo):
                          make_bases=lambda train: r.bases)
     for name in ("QE", "PCA"):
         np.testing.assert_array_equal(held.reconstructed[name], r.fitted.reconstructed[name])
+
+
+def test_held_out_frames_fit_alone_as_in_the_whole_take(demo):
+    """Frames fit independently are fit on the test frames alone: the same as fitting the
+    whole take with the split's bases and keeping the test frames."""
+    r = demo["result"]
+    splits = time_blocked_splits(r.take.n_frames, 3, guard=2)
+    made = []
+
+    def make_bases(train):
+        made.append(basis_stage(dataclasses.replace(
+            r.retargeted, displacements=r.retargeted.displacements[train]),
+            r.reconstruction.basis))
+        return made[-1]
+    held = held_out_fits(r.take, r.bound, r.retargeted, r.reconstruction.basis,
+                         splits=splits, label="", make_bases=make_bases)
+    for bases, (_, test) in zip(made, splits):
+        whole = fit_stage(r.take, r.bound, r.retargeted, bases)
+        for name in ("QE", "PCA"):
+            np.testing.assert_allclose(held.reconstructed[name][test],
+                                       whole.reconstructed[name][test], rtol=0, atol=1e-9)
 
 
 def test_held_out_bases_score_worse_than_in_sample(demo):

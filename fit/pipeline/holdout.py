@@ -128,9 +128,10 @@ def held_out_fits(take, bound, retargeted, artist, *, splits, label: str,
 
     Notes
     -----
-    Each split fits the whole take (so temporal smoothness and GCV see
-    contiguous frames) and keeps its test frames: a frame's weights come from
-    its own markers, its basis from other frames.
+    With temporal smoothness (or GCV, or a moving average) each split fits the
+    whole take, so that they see contiguous frames, and keeps its test frames;
+    frames fit independently are fit on the test frames alone. Either way a
+    frame's weights come from its own markers, its basis from other frames.
     """
     if make_bases is None:
         def make_bases(train):
@@ -139,14 +140,19 @@ def held_out_fits(take, bound, retargeted, artist, *, splits, label: str,
     shape = (take.n_frames, len(retargeted.labels), 3)
     out = {name: np.full(shape, np.nan) for name in bases}
     sizes = []
+    # without smoothing over time each frame's fit is its own: only the test frames are fit
+    independent = fit_options.smoothness == 0 and fit_options.moving_average <= 1
     for train, test in splits:
         made = make_bases(train)
         if not isinstance(made, BasisResult):
             raise InputError(f"make_bases must return a BasisResult, got {type(made).__name__}")
         chosen = BasisResult(bases={n: made.bases[n] for n in bases}, pca=made.pca,
                              n_components=made.n_components, qe=made.qe)
-        fitted = fit_stage(take, bound, retargeted, chosen, options=fit_options)
+        fitted = fit_stage(take, bound, dataclasses.replace(
+            retargeted, displacements=retargeted.displacements[test]) if independent
+            else retargeted, chosen, options=fit_options)
         for name in bases:
-            out[name][test] = fitted.reconstructed[name][test]
+            out[name][test] = fitted.reconstructed[name] if independent \
+                else fitted.reconstructed[name][test]
         sizes.append(made.n_components)
     return HeldOut(reconstructed=out, label=label, n_components=sizes)

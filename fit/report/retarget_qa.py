@@ -88,20 +88,29 @@ def mesh_lip_gaps(mouth, neutral, *, mm_per_unit: float, bases: Mapping | None =
     return gaps
 
 
-def _operator_lips(rest, rows, displacements, frames):
-    return rest + np.matmul(rows, displacements[frames])
+def _operator_lips(rest, rows, displacements, frames, out):
+    """The lips' vertices ``rest + W_lips d_t`` of `frames`, into `out` (T, n, 3)."""
+    np.matmul(rows, displacements[frames], out=out)
+    out += rest
 
 
-def _basis_lips(rest, at_lips, weights, frames):
-    return rest + (weights[frames] @ at_lips).reshape(-1, *rest.shape)
+def _basis_lips(rest, at_lips, weights, frames, out):
+    """The lips' vertices ``rest + Σ_i w_ti e_i`` of `frames`, into `out` (T, n, 3)."""
+    np.matmul(weights[frames], at_lips, out=out.reshape(len(out), -1))
+    out += rest
 
 
 def _in_chunks(n_frames: int, positions, mouth, mm_per_unit: float) -> np.ndarray:
-    """``mm_per_unit * mouth.gap(positions(frames))`` for every frame, a block at a time."""
+    """``mm_per_unit * mouth.gap(positions(frames, out))`` for every frame, a block at a time,
+    each block's positions formed in the same memory (a new block would be mapped and its
+    pages faulted in afresh)."""
     out = np.empty(n_frames)
+    lips = np.empty((min(n_frames, _CHUNK_FRAMES), len(mouth.vertex_ids), 3))
     for start in range(0, n_frames, _CHUNK_FRAMES):
         frames = slice(start, min(start + _CHUNK_FRAMES, n_frames))
-        out[frames] = mm_per_unit * mouth.gap(positions(frames))
+        block = lips[:frames.stop - start]
+        positions(frames, block)
+        out[frames] = mm_per_unit * mouth.gap(block)
     return out
 
 
