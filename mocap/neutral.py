@@ -155,6 +155,10 @@ def hold_window(rate: float) -> int:
     return max(3, int(round(HOLD_S * as_positive_float(rate, "rate"))) | 1)
 
 
+#: Bytes of the coordinates' cumulative sums :func:`_first_hold` forms at a time.
+_HOLD_BLOCK_BYTES = 1 << 21
+
+
 def _first_hold(positions, rate) -> int:
     """The middle frame of the first still window (see :func:`pick_neutral_frame`)."""
     if rate is None:
@@ -164,15 +168,22 @@ def _first_hold(positions, rate) -> int:
         raise InputError(f"a neutral hold is {HOLD_S} s ({window} frames); the take has "
                          f"only {len(positions)}")
     # spread of every coordinate over the window centred on each frame, by
-    # cumulative sums (about the median pose, for accuracy); windows with an
+    # cumulative sums (about the median pose, for accuracy), summed over the
+    # coordinates a cache-sized block of them at a time; windows with an
     # incomplete frame in them do not count
-    flat = (positions - nan_column_medians(positions)).reshape(len(positions), -1)
-    flat = np.nan_to_num(flat)
-    first = np.cumsum(np.r_[np.zeros((1, flat.shape[1])), flat], axis=0)
-    second = np.cumsum(np.r_[np.zeros((1, flat.shape[1])), flat ** 2], axis=0)
-    mean = (first[window:] - first[:-window]) / window
-    var = (second[window:] - second[:-window]) / window - mean ** 2
-    stillness = np.sqrt(np.maximum(var, 0.0).reshape(len(var), -1, 3).sum(axis=-1).mean(axis=-1))
+    table = positions.reshape(len(positions), -1)
+    medians = nan_column_medians(table)
+    spread = np.zeros(len(table) - window + 1)
+    width = max(1, _HOLD_BLOCK_BYTES // (8 * (len(table) + 1)))
+    for first in range(0, table.shape[1], width):
+        block = np.nan_to_num(table[:, first:first + width] - medians[first:first + width])
+        sums, squares = (np.zeros((len(block) + 1, block.shape[1])) for _ in range(2))
+        np.cumsum(block, axis=0, out=sums[1:])
+        np.cumsum(block * block, axis=0, out=squares[1:])
+        mean = (sums[window:] - sums[:-window]) / window
+        var = (squares[window:] - squares[:-window]) / window - mean ** 2
+        spread += np.maximum(var, 0.0).sum(axis=1)
+    stillness = np.sqrt(spread / positions.shape[1])
     gaps = np.cumsum(np.r_[0, np.isnan(positions).any(axis=(1, 2))])
     stillness[gaps[window:] > gaps[:-window]] = np.nan
     centre = np.arange(window // 2, len(positions) - window // 2)

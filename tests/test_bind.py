@@ -23,7 +23,7 @@ from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.markerset import REQUIRED_REGIONS
 from mocap.mesh.layout import load_marker_layout, make_layout, save_marker_layout
 from mocap.mesh.mesh import boundary_loops, load_mesh
-from mocap.neutral import pick_neutral_frame, resolve_neutral_frame
+from mocap.neutral import hold_window, pick_neutral_frame, resolve_neutral_frame
 
 CM_PER_MM = 0.1
 
@@ -404,6 +404,29 @@ def test_hold_method_finds_the_neutral_hold_the_median_misses(rate):
     assert resolve_neutral_frame(positions, "hold", rate=rate) == hold
     assert resolve_neutral_frame(positions, "auto") == median
     assert resolve_neutral_frame(positions, 7) == 7
+
+
+@pytest.mark.parametrize("block_bytes", [None, 8 * 400])
+def test_hold_is_the_first_window_as_still_as_twice_the_stillest(block_bytes, monkeypatch):
+    """Against the definition window by window (np.var), the coordinates summed a block at a
+    time as well as all at once."""
+    import mocap.neutral as neutral_module
+    if block_bytes is not None:
+        monkeypatch.setattr(neutral_module, "_HOLD_BLOCK_BYTES", block_bytes)   # 1 coordinate
+    rng = np.random.default_rng(5)
+    rate, window = 30.0, hold_window(30.0)
+    positions = np.cumsum(rng.normal(0, 1.0, (300, 4, 3)), axis=0)            # always moving
+    positions[120:150] = positions[120] + rng.normal(0, 0.05, (30, 4, 3))    # a still stretch
+    positions[50:80, 0] = positions[50, 0]                    # a decoy: one marker still only
+    positions[40, 1, 2] = np.nan                                              # a gap
+    still = np.full(len(positions), np.nan)
+    for centre in range(window // 2, len(positions) - window // 2):
+        part = positions[centre - window // 2:centre + window // 2 + 1]
+        if not np.isnan(part).any():
+            still[centre] = np.sqrt(part.var(axis=0).sum(axis=1).mean())
+    expected = int(np.flatnonzero(still <= 2 * np.nanmin(still))[0])
+    assert pick_neutral_frame(positions, method="hold", rate=rate) == expected
+    assert 120 <= expected < 150
 
 
 def test_hold_method_errors():
