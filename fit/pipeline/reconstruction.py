@@ -246,7 +246,9 @@ class Reconstruction:
                            options=self.fit)
         warn_unconverged(fitted.solutions, first_frame=prepared.take.first_frame)
         seconds["fit"] = time.perf_counter() - tic
+        tic = time.perf_counter()
         lips = lip_seal_stage(prepared.take, prepared.bound, prepared.retargeted, bases, fitted)
+        seconds["lip seal"] = time.perf_counter() - tic
         for message in (lips.messages() if lips is not None else ()):
             warnings.warn(f"{prepared.ingested.raw.source.path or prepared.name}: {message}",
                           stacklevel=2)
