@@ -16,14 +16,16 @@ from basis.coverage import plot_coverage
 from basis.pca import pca_streaming
 from fit.metrics import reconstruction_errors
 from fit.report import build_report
-from fit.report.drawing import IMAGE_WIDTH_PX, plain_log_axis, report_figure
+from fit.report.drawing import IMAGE_WIDTH_PX, line_envelope, plain_log_axis, report_figure
 from fit.report.figure_queue import FigureQueue
 from fit.report.html import render_report
+from fit.report.ingest_plots import plot_gaps
 from fit.report.plots import HEATMAP_COLUMNS, bar_collection, plot_error_heatmap, region_groups
 from fit.report.video import MAX_AUTO_FPS, write_overlay_video
 from fit.report.views import CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_views, view_axes
 from mocap.errors import InputError
 from mocap.stabilize import stabilize
+from mocap.take import Take
 from mocap.viz.figures import new_figure, write_png
 
 N_FRAMES = 600
@@ -253,6 +255,53 @@ def test_a_one_frame_error_of_a_long_take_shows_in_the_heatmap(tmp_path, spike):
     without = saturated_pixels(captured)                         # the colour bar's top only
     captured[spike, 5, 0] = 50.0                                 # one marker, one frame
     assert saturated_pixels(captured) >= without + 3
+
+
+@pytest.mark.parametrize("gap", [1_234, 6_001, 8_765])
+def test_a_one_frame_gap_of_a_long_take_shows_in_the_gap_chart(tmp_path, gap):
+    """As the heatmap: 10,000 frames in about a thousand pixels, each column shows a gap
+    (missing, else filled) among its frames, so one missing frame is there to see: a
+    column of the chart in the missing colour (drawn as it was, none of these three was)."""
+    T, M = 10_000, 6
+
+    def missing_columns(positions):
+        """Pixel columns of the chart's middle half (no legend, title or axis labels) with
+        a run of 10 pixels of the missing colour."""
+        plot_gaps(Take(tuple("abcdef"), positions, rate=100.0), tmp_path / "g.png")
+        image = cv2.imread(str(tmp_path / "g.png"))[:, :, ::-1].astype(int)
+        image = image[len(image) // 4:3 * len(image) // 4]
+        dark = np.abs(image - 0x20).max(axis=2) <= 2                 # #202020
+        runs = np.lib.stride_tricks.sliding_window_view(dark, 10, axis=0).all(axis=-1)
+        return int(runs.any(axis=0).sum())
+
+    positions = np.zeros((T, M, 3))
+    assert missing_columns(positions) == 0
+    positions[gap, 3] = np.nan                                   # one marker, one frame
+    assert missing_columns(positions) >= 1
+
+
+def test_a_line_envelope_draws_the_pixels_of_the_whole_line(tmp_path):
+    """35,000 samples of four noisy lines drawn by their envelope (≤ 4 points a pixel
+    column): the same picture, to antialiasing where lines cross."""
+    rng = np.random.default_rng(0)
+    t = np.arange(35_000) / 276.0
+    lines = [np.abs(np.cumsum(rng.normal(0, 0.05, t.size))) + rng.normal(0, 0.3, t.size)
+             for _ in range(4)]
+    lines[1][1_000:1_200] = np.nan                                # a break in one line
+
+    def draw(name, envelope):
+        with report_figure(tmp_path / name, 11, 4.4) as fig:
+            ax = fig.add_subplot()
+            for y in lines:
+                ax.plot(*(line_envelope(t, y, 11 * 120) if envelope else (t, y)), lw=0.8)
+        return cv2.imread(str(tmp_path / name)).astype(int)
+
+    x, y = line_envelope(t, lines[1], 11 * 120)
+    assert len(x) < 4 * 11 * 120 + 200 and np.isnan(y).sum() == 200
+    assert np.all(np.diff(x) > 0)
+    full, drawn = draw("full.png", False), draw("envelope.png", True)
+    differ = np.abs(full - drawn).max(axis=2)
+    assert (differ > 0).mean() < 0.06 and (differ > 64).mean() < 0.01
 
 
 def test_the_heatmap_of_a_real_marker_set_has_a_pixel_per_column(ict_markerset, tmp_path):

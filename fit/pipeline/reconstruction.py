@@ -508,7 +508,7 @@ class ReconstructionResult:
                               exaggerate=options.exaggerate, name=self.name,
                               warnings=warnings,
                               provenance=take_provenance(self, inputs=inputs),
-                              grades=stage_grades(self), held_out=self.held_out(),
+                              grades=stage_grades(self), held_out=self.held_out,
                               mesh_space=self.mesh_space() if options.mesh_views else None,
                               cross_validation=self.retargeted.cross_validation,
                               selection=self.retargeted.selection,

@@ -100,9 +100,11 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
     grades : sequence of (what, grade key, value)
         Graded figures of the stages before (binding, head fit); the bases'
         own are added here.
-    held_out : fit.pipeline.holdout.HeldOut, optional
+    held_out : fit.pipeline.holdout.HeldOut or callable, optional
         Reconstructions by bases not built from the frames they reconstruct:
-        out-of-sample errors beside the in-sample ones.
+        out-of-sample errors beside the in-sample ones; or a function of no
+        arguments that makes them (or returns None), called once the figures
+        before them are queued, so that `figures`' helpers draw those meanwhile.
     mesh_space : fit.report.mesh_views.MeshSpace, optional
         Adds shaded renders of each basis's mesh and of W·D at the worst frames
         and at the take's extremes (needs `markerset` for the extremes).
@@ -163,10 +165,10 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
                 write_overlay_video, take.positions, reconstructions,
                 out("video", VIDEO_SUFFIX), neutral=neutral, rate=take.rate, labels=take.labels,
                 markerset=markerset, step=video_step, exaggerate=exaggerate, first_frame=number)
-        held, page = _figures(take, neutral, results, worst, reconstructions, out, files,
-                              number, queue.submit, markerset=markerset, pca=pca,
-                              pictures=pictures, video=video, exaggerate=exaggerate,
-                              held_out=held_out, mesh_space=mesh_space, origin=origin)
+        held_out, held, page = _figures(
+            take, neutral, results, worst, reconstructions, out, files, number, queue.submit,
+            markerset=markerset, pca=pca, pictures=pictures, video=video,
+            exaggerate=exaggerate, held_out=held_out, mesh_space=mesh_space, origin=origin)
         if cross_validation is not None:
             queue.submit(plot_cross_validation, cross_validation, out("cross-validation"),
                          markerset=markerset)
@@ -208,7 +210,7 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
 def _figures(take, neutral, results, worst, reconstructions, out, files, number, draw, *,
              markerset, pca, pictures, video, exaggerate, held_out, mesh_space, origin):
     """Every figure of the report, given to `draw` (``draw(function, *args, **kwargs)``)
-    with what it shows; returns (held-out errors, sections)."""
+    with what it shows; returns (held-out reconstructions, their errors, sections)."""
     page = []
     if pictures:
         page.append(Section("Ingestion and head stabilization", items=tuple(
@@ -244,6 +246,8 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
             "reconstructed (blue) markers joined by their error vectors, the capture's frame "
             "number and each basis's RMS of that frame. Plays in the page (VP9 WebM)."),)))
     held = {}
+    if callable(held_out):              # made while the figures queued so far are drawn
+        held_out = held_out()
     if held_out is not None:
         held = {b: reconstruction_errors(take.positions, rec, neutral, origin=origin,
                                          labels=take.labels, name=b)
@@ -267,7 +271,7 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
             files["coverage"], "PCA coverage",
             "The share of the take's mesh motion (variance of W·D) the first k components "
             "explain; the PCA and QE bases keep the k marked."),)))
-    return held, page
+    return held_out, held, page
 
 
 def _submit_views(draw, captured, reconstructed, frames, basis: str, path, *, neutral, labels,

@@ -6,7 +6,8 @@ import numpy as np
 from matplotlib.colors import ListedColormap
 from matplotlib.patches import Patch
 
-from fit.report.drawing import report_figure
+from fit.report.drawing import DPI, line_envelope, report_figure
+from fit.report.plots import HEATMAP_COLUMNS
 from mocap.take import FILL_METHODS, Take
 from mocap.viz.figures import distinct_colours
 
@@ -34,9 +35,23 @@ def plot_gaps(take: Take, path, *, title: str | None = None) -> None:
         NaN samples are still missing.
     path : str or os.PathLike
         Output PNG.
+
+    Notes
+    -----
+    A take of more than :data:`~fit.report.plots.HEATMAP_COLUMNS` frames is drawn with
+    that many columns, each showing what matters most among its frames: missing, else
+    the last fill method of :data:`mocap.take.FILL_METHODS` that filled one, else present
+    (so that drawing the chart at its size on the page hides no gap).
     """
     names = ["present", "missing", *FILL_METHODS]
     codes = _state_codes(take, None)
+    counts = {"present": int((codes == 0).sum()), "missing": int(take.missing.sum())}
+    counts.update({m: int((take.filled == i + 1).sum()) for i, m in enumerate(FILL_METHODS)})
+    if codes.shape[1] > HEATMAP_COLUMNS:
+        # rank: present < fills (in order) < missing; the highest rank of each column
+        rank = np.r_[0, len(names) - 1, np.arange(1, len(FILL_METHODS) + 1)]
+        starts = np.linspace(0, codes.shape[1], HEATMAP_COLUMNS, endpoint=False).astype(int)
+        codes = np.argsort(rank)[np.maximum.reduceat(rank[codes], starts, axis=1)]
     cmap = ListedColormap([_STATE_COLOURS[n] for n in names])
     height = min(max(3.0, 0.16 * take.n_markers + 1.6), 14.0)
     with report_figure(path, 11, height) as fig:
@@ -48,14 +63,10 @@ def plot_gaps(take: Take, path, *, title: str | None = None) -> None:
         ax.set_yticks(range(take.n_markers))
         ax.set_yticklabels(take.labels, fontsize=max(4, min(8, 400 // max(take.n_markers, 1))))
         ax.set_xlabel("time (s)")
-        n_missing = int(take.missing.sum())
-        n_filled = int((take.filled > 0).sum())
+        n_filled = sum(counts[m] for m in FILL_METHODS)
         ax.set_title(title or f"{take.n_markers} markers, {take.n_frames} frames at "
-                              f"{take.rate:g} Hz: {n_filled} samples filled, {n_missing} still "
-                              "missing")
-        counts = {"present": int((codes == 0).sum()), "missing": n_missing}
-        counts.update({m: int((take.filled == i + 1).sum())
-                       for i, m in enumerate(FILL_METHODS)})
+                              f"{take.rate:g} Hz: {n_filled} samples filled, "
+                              f"{counts['missing']} still missing")
         handles = [Patch(color=_STATE_COLOURS[n], label=f"{n} ({counts[n]})") for n in names]
         fig.legend(handles=handles, loc="outside upper center", ncol=len(names), frameon=False)
 
@@ -103,7 +114,8 @@ def plot_head_residuals(stabilization, path) -> None:
         else:
             ax = fig.add_subplot()
         for j, label in enumerate(markers):
-            ax.plot(t, res[:, j], lw=0.8, label=label, color=colours[label])
+            ax.plot(*line_envelope(t, res[:, j], int(11 * DPI)), lw=0.8, label=label,
+                    color=colours[label])
         for slip in stabilization.slips:
             ax.axvspan(t[slip.start], t[min(slip.stop, len(t)) - 1],
                        color=colours.get(slip.marker, "red"), alpha=0.12, lw=0)

@@ -15,7 +15,13 @@ from matplotlib.patches import Patch
 
 from fit._moved import PLOTS_NAMES
 from fit.metrics import ReconstructionErrors
-from fit.report.drawing import PAGE_WIDTH, plain_log_axis, report_figure
+from fit.report.drawing import (
+    IMAGE_WIDTH_PX,
+    PAGE_WIDTH,
+    line_envelope,
+    plain_log_axis,
+    report_figure,
+)
 from mocap.errors import InputError
 from mocap.util.deprecation import moved_names
 from mocap.viz.figures import distinct_colours
@@ -121,7 +127,7 @@ def plot_alpha(results, path, *, rate: float | None = None, worst: Mapping | Non
     with report_figure(path, PAGE_WIDTH, 4.8) as fig:
         ax = fig.add_subplot()
         for (name, res), colour in zip(results.items(), distinct_colours(len(results))):
-            ax.plot(x, res.alpha, lw=0.8, color=colour,
+            ax.plot(*line_envelope(x, res.alpha, IMAGE_WIDTH_PX), lw=0.8, color=colour,
                     label=f"{name}: α = {res.totals['alpha']:.3g} % over the take, "
                           f"max {res.totals['alpha_max']:.3g} %")
             frames = np.asarray(worst.get(name, ()), dtype=np.intp)

@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 from matplotlib.patches import Patch
 
-from fit.report.drawing import report_figure
+from fit.report.drawing import DPI, line_envelope, report_figure
 from fit.report.html import Figure, Section, Table
 from fit.report.plots import bar_collection, region_colours, region_groups
 from mocap.errors import InputError
@@ -131,10 +131,12 @@ def plot_lip_seal(check, path, *, title: str | None = None) -> None:
     colours = distinct_colours(len(names))
     with report_figure(path, 11, 5.2) as fig:
         ax = fig.add_subplot()
-        ax.plot(x, check.marker_opening, color="black", lw=1.4,
+        columns = int(11 * DPI)                     # the figure's pixel columns
+        ax.plot(*line_envelope(x, check.marker_opening, columns), color="black", lw=1.4,
                 label=f"lip markers ({check.witness})" if check.witness else "lip markers")
         for name, colour in zip(names, colours):
-            ax.plot(x, check.mesh_opening(name), color=colour, lw=0.9, label=f"{name} mesh")
+            ax.plot(*line_envelope(x, check.mesh_opening(name), columns), color=colour, lw=0.9,
+                    label=f"{name} mesh")
         ax.axhline(check.marker_open_mm, color="grey", lw=0.8, ls="--")
         ax.annotate(f"markers open: {check.marker_open_mm:.3g} mm", (x[0], check.marker_open_mm),
                     fontsize=7, color="grey", xytext=(2, 2), textcoords="offset points")
