@@ -22,6 +22,7 @@ from fit.report.drawing import DPI, line_envelope, report_figure
 from fit.report.html import Figure, Section, Table
 from fit.report.plots import bar_collection, region_colours, region_groups
 from mocap.errors import InputError
+from mocap.util.blas import map_on_blas_threads
 from mocap.viz.figures import distinct_colours
 
 __all__ = ["mesh_lip_gaps", "plot_lip_seal", "plot_cross_validation", "lip_seal_section",
@@ -65,7 +66,7 @@ def mesh_lip_gaps(mouth, neutral, *, mm_per_unit: float, bases: Mapping | None =
     ids = mouth.vertex_ids
     neutral = np.asarray(neutral, dtype=np.float64)
     rest = neutral[ids]
-    gaps = {}
+    sequences = {}                  # name: (frames, the lips' vertices of a slice of them)
     if operator is not None:
         rows = operator[ids] if not sp.issparse(operator) else sp.csr_array(operator)[ids]
         rows = rows.toarray() if sp.issparse(rows) else np.asarray(rows, dtype=np.float64)
@@ -73,8 +74,7 @@ def mesh_lip_gaps(mouth, neutral, *, mm_per_unit: float, bases: Mapping | None =
         if d.ndim != 3 or d.shape[1:] != (rows.shape[1], 3):
             raise InputError(f"displacements must have shape (T, {rows.shape[1]}, 3), got "
                              f"{d.shape}")
-        gaps["W·D"] = _in_chunks(len(d), partial(_operator_lips, rest, rows, d), mouth,
-                                 mm_per_unit)
+        sequences["W·D"] = (len(d), partial(_operator_lips, rest, rows, d))
     for name, (shapes, weights) in (bases or {}).items():
         shapes = np.asarray(shapes, dtype=np.float64)
         weights = np.asarray(weights, dtype=np.float64)
@@ -83,35 +83,32 @@ def mesh_lip_gaps(mouth, neutral, *, mm_per_unit: float, bases: Mapping | None =
             raise InputError(f"basis {name!r}: shapes (n, {len(neutral)}, 3) and weights "
                              f"(T, n) expected, got {shapes.shape} and {weights.shape}")
         at_lips = shapes[:, ids].reshape(len(shapes), -1)
-        gaps[name] = _in_chunks(len(weights), partial(_basis_lips, rest, at_lips, weights),
-                                mouth, mm_per_unit)
+        sequences[name] = (len(weights), partial(_basis_lips, rest, at_lips, weights))
+    gaps = {name: np.empty(n) for name, (n, _) in sequences.items()}
+
+    def measure(block):
+        name, frames = block
+        gaps[name][frames] = mm_per_unit * mouth.gap(sequences[name][1](frames))
+    # blocks of frames of every sequence, shared among the BLAS's threads (the products and
+    # reductions of a block run without the GIL)
+    map_on_blas_threads(measure, [(name, slice(first, first + _CHUNK_FRAMES))
+                                  for name, (n, _) in sequences.items()
+                                  for first in range(0, n, _CHUNK_FRAMES)])
     return gaps
 
 
-def _operator_lips(rest, rows, displacements, frames, out):
-    """The lips' vertices ``rest + W_lips d_t`` of `frames`, into `out` (T, n, 3)."""
-    np.matmul(rows, displacements[frames], out=out)
-    out += rest
+def _operator_lips(rest, rows, displacements, frames):
+    """The lips' vertices ``rest + W_lips d_t`` of `frames`, (T, n, 3)."""
+    lips = np.matmul(rows, displacements[frames])
+    lips += rest
+    return lips
 
 
-def _basis_lips(rest, at_lips, weights, frames, out):
-    """The lips' vertices ``rest + Σ_i w_ti e_i`` of `frames`, into `out` (T, n, 3)."""
-    np.matmul(weights[frames], at_lips, out=out.reshape(len(out), -1))
-    out += rest
-
-
-def _in_chunks(n_frames: int, positions, mouth, mm_per_unit: float) -> np.ndarray:
-    """``mm_per_unit * mouth.gap(positions(frames, out))`` for every frame, a block at a time,
-    each block's positions formed in the same memory (a new block would be mapped and its
-    pages faulted in afresh)."""
-    out = np.empty(n_frames)
-    lips = np.empty((min(n_frames, _CHUNK_FRAMES), len(mouth.vertex_ids), 3))
-    for start in range(0, n_frames, _CHUNK_FRAMES):
-        frames = slice(start, min(start + _CHUNK_FRAMES, n_frames))
-        block = lips[:frames.stop - start]
-        positions(frames, block)
-        out[frames] = mm_per_unit * mouth.gap(block)
-    return out
+def _basis_lips(rest, at_lips, weights, frames):
+    """The lips' vertices ``rest + Σ_i w_ti e_i`` of `frames`, (T, n, 3)."""
+    lips = (weights[frames] @ at_lips).reshape(-1, *rest.shape)
+    lips += rest
+    return lips
 
 
 def plot_lip_seal(check, path, *, title: str | None = None) -> None:
