@@ -9,6 +9,11 @@ bind (with the layout's 2 mm skin offset), retarget (W), bases (PCA of W·D
 without Ξ, quasi-eigen), fit (H at the exact marker centres, QE, PCA in marker
 space), exports (CSV, compact mesh npz, glb per basis) and the QA
 figures (no video). Peak memory: the process's maximum resident set size.
+Then the same take goes through ``mocap2mesh run`` in a fresh process, as a
+user runs it (2 mm skin offset, no video): its wall time (the issue's aim,
+20 s) and the stages its manifest records, which add to the ones above the
+lip-seal check, the report's held-out fits, mesh renders and further figures,
+and the cost of a fresh process's first touches of its memory.
 
 Floors, timed in the same run on the same arrays: what each stage cannot go
 under.
