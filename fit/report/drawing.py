@@ -77,10 +77,11 @@ def line_envelope(x, y, columns: int):
 
     The samples are cut into `columns` runs of consecutive samples (as many as the pixel
     columns the line spans, or more); each run keeps its first, lowest, highest and last
-    sample, in order. Drawn, the line covers the same pixels as all of its samples
-    (M4 aggregation, Jugel et al., VLDB 2014), in a fraction of the time. NaN samples
-    (breaks in the line) are kept, every one. A line of at most ``4 * columns`` samples
-    is returned as it is.
+    sample, in order (M4 aggregation, Jugel et al., VLDB 2014): drawn, the line reaches
+    the same extremes in every column as all of its samples, in a fraction of the time
+    (the antialiased pictures differ where lines cross, as the order of the strokes
+    within a column does). NaN samples (breaks in the line) are kept, every one. A line
+    of at most ``4 * columns`` samples is returned as it is.
 
     Parameters
     ----------
