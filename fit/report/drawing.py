@@ -17,7 +17,7 @@ from matplotlib.ticker import LogFormatter
 from mocap.viz.figures import draw_png, new_figure
 
 __all__ = ["DPI", "PAGE_WIDTH", "PAGE_WIDTH_PX", "FIGURE_MARGIN_PX", "IMAGE_WIDTH_PX",
-           "report_figure", "plain_log_axis", "line_envelope"]
+           "report_figure", "plain_log_axis", "column_starts", "line_envelope"]
 
 #: Widest the report page's body gets, CSS pixels.
 PAGE_WIDTH_PX = 1400
@@ -72,6 +72,12 @@ def plain_log_axis(axis) -> None:
     axis.set_minor_formatter(_PlainLogFormatter(labelOnlyBase=False))
 
 
+def column_starts(n: int, columns: int) -> np.ndarray:
+    """First sample of each of `columns` runs of consecutive samples, as even as `n` allows:
+    the samples one pixel column of a picture shows, ``(columns,)`` int."""
+    return np.linspace(0, n, columns, endpoint=False).astype(np.intp)
+
+
 def line_envelope(x, y, columns: int):
     """The points of a long line that its picture shows, at most 4 per column: (x, y).
 
@@ -98,7 +104,7 @@ def line_envelope(x, y, columns: int):
     n = len(y)
     if n <= 4 * columns:
         return x, y
-    starts = np.linspace(0, n, columns, endpoint=False).astype(np.intp)
+    starts = column_starts(n, columns)
     run = np.repeat(np.arange(columns), np.diff(np.r_[starts, n]))
     # the lowest and highest finite sample of each run (a run of NaN keeps its ends only)
     finite = np.isfinite(y)

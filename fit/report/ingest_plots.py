@@ -6,7 +6,7 @@ import numpy as np
 from matplotlib.colors import ListedColormap
 from matplotlib.patches import Patch
 
-from fit.report.drawing import DPI, line_envelope, report_figure
+from fit.report.drawing import DPI, column_starts, line_envelope, report_figure
 from fit.report.plots import HEATMAP_COLUMNS
 from mocap.take import FILL_METHODS, Take
 from mocap.viz.figures import distinct_colours
@@ -50,8 +50,8 @@ def plot_gaps(take: Take, path, *, title: str | None = None) -> None:
     if codes.shape[1] > HEATMAP_COLUMNS:
         # rank: present < fills (in order) < missing; the highest rank of each column
         rank = np.r_[0, len(names) - 1, np.arange(1, len(FILL_METHODS) + 1)]
-        starts = np.linspace(0, codes.shape[1], HEATMAP_COLUMNS, endpoint=False).astype(int)
-        codes = np.argsort(rank)[np.maximum.reduceat(rank[codes], starts, axis=1)]
+        columns = column_starts(codes.shape[1], HEATMAP_COLUMNS)
+        codes = np.argsort(rank)[np.maximum.reduceat(rank[codes], columns, axis=1)]
     cmap = ListedColormap([_STATE_COLOURS[n] for n in names])
     height = min(max(3.0, 0.16 * take.n_markers + 1.6), 14.0)
     with report_figure(path, 11, height) as fig:

@@ -18,6 +18,7 @@ from fit.metrics import ReconstructionErrors
 from fit.report.drawing import (
     IMAGE_WIDTH_PX,
     PAGE_WIDTH,
+    column_starts,
     line_envelope,
     plain_log_axis,
     report_figure,
@@ -193,8 +194,7 @@ def plot_error_heatmap(errors: ReconstructionErrors, path, *, markerset=None,
         finite = data[np.isfinite(data)]
         vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
     if data.shape[1] > HEATMAP_COLUMNS:         # more columns than pixels: max-pool
-        starts = np.linspace(0, data.shape[1], HEATMAP_COLUMNS, endpoint=False).astype(int)
-        data = np.fmax.reduceat(data, starts, axis=1)
+        data = np.fmax.reduceat(data, column_starts(data.shape[1], HEATMAP_COLUMNS), axis=1)
     x, xlabel = _time_axis(errors.n_frames, rate)
     step = x[1] - x[0] if len(x) > 1 else 1.0
     n = len(order)
