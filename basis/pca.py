@@ -33,7 +33,7 @@ from mocap.util.arrays import read_only
 from mocap.util.validation import as_choice, as_float_array, as_int
 
 __all__ = ["PCAModel", "PCA_METHODS", "MarkerMoments", "marker_moments", "pca_from_operator",
-           "pca_from_operators", "pca_streaming"]
+           "pca_from_operators", "pca_streaming", "pool_moments"]
 
 #: Methods of :func:`pca_streaming`.
 PCA_METHODS = ("randomized", "incremental")
@@ -315,6 +315,41 @@ def marker_moments(displacements) -> MarkerMoments:
                          f"{displacements.shape}")
     mean, cov = _moments(displacements)
     return MarkerMoments(len(displacements), mean, cov)
+
+
+def pool_moments(moments) -> MarkerMoments:
+    """The :class:`MarkerMoments` of the frames of several sets of the same markers pooled.
+
+    ``T = Σ T_k``, ``d̄ = Σ T_k d̄_k / T`` and ``C = Σ (T_k / T) [C_k + (d̄_k − d̄)(d̄_k − d̄)ᵀ]``
+    (Chan, Golub & LeVeque's pairwise update, all sets at once): the moments of the
+    concatenated frames, without the cancellation of sums of squares about zero.
+
+    Raises
+    ------
+    InputError
+        No moments, or moments of different marker counts.
+
+    Examples
+    --------
+    >>> d = np.arange(18.0).reshape(3, 2, 3)
+    >>> pooled = pool_moments([marker_moments(d[:1]), marker_moments(d[1:])])
+    >>> bool(np.allclose(pooled.covariance, marker_moments(d).covariance))
+    True
+    """
+    moments = list(moments)
+    if not moments:
+        raise InputError("no moments to pool")
+    sizes = {m.n_markers for m in moments}
+    if len(sizes) > 1:
+        raise InputError(f"moments of different marker counts {sorted(sizes)} do not pool")
+    counts = np.array([m.n_frames for m in moments], dtype=np.float64)
+    shares = counts / counts.sum()
+    means = np.stack([m.mean.ravel() for m in moments])                 # (K, 3M)
+    mean = shares @ means
+    spread = means - mean
+    cov = np.tensordot(shares, np.stack([m.covariance for m in moments]), axes=1)
+    cov += (spread.T * shares) @ spread
+    return MarkerMoments(int(counts.sum()), mean.reshape(-1, 3), cov)
 
 
 def pca_from_operators(operators, displacements, *, n_components: int | None = None,

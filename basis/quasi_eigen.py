@@ -131,7 +131,8 @@ def quasi_eigen(pca: PCAModel, artist, *, n_components: int | None = None,
     if len(artist) == 0:
         raise InputError("artist has no shape: quasi-eigen faces need at least one")
     names = _names(names, len(artist))
-    norms = np.linalg.norm(artist.reshape(len(artist), -1), axis=1)
+    flat = artist.reshape(len(artist), -1)
+    norms = np.sqrt(np.einsum("si,si->s", flat, flat))      # no (n, 3N) temporary of squares
     if not norms.all():
         raise InputError(f"artist shape {names[int(np.argmin(norms))]!r} is all zeros: "
                          "its relative move is undefined")
@@ -142,7 +143,8 @@ def quasi_eigen(pca: PCAModel, artist, *, n_components: int | None = None,
     column_sums = np.abs(weights).sum(axis=0)
     missing_axes = np.nonzero(column_sums < missing_eps * column_sums.max())[0]
 
-    moves = np.linalg.norm(qe - artist, axis=2)
+    moved = qe - artist
+    moves = np.sqrt(np.einsum("svc,svc->sv", moved, moved))
     displacements, all_names = qe, names
     if missing == "augment" and len(missing_axes):
         added = tuple(f"pca_axis_{j:02d}" for j in missing_axes)

@@ -122,6 +122,35 @@ def test_held_out_frames_fit_alone_as_in_the_whole_take(demo):
                                        whole.reconstructed[name][test], rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("scattered", [False, True])
+def test_held_out_bases_are_the_basis_stage_on_the_training_frames(demo, scattered):
+    """The default bases of a split, made from its training frames' pooled moments, are the
+    take's basis stage run on a copy of those frames: the same reconstructions. Time
+    blocks pool a few runs; scattered training frames take their moments directly."""
+    r = demo["result"]
+    n_frames = r.take.n_frames
+    if scattered:
+        order = np.random.default_rng(3).permutation(n_frames)
+        splits = [(np.sort(np.setdiff1d(order, part)), np.sort(part))
+                  for part in np.array_split(order, 3)]
+    else:
+        splits = time_blocked_splits(n_frames, 3, guard=2)
+
+    def on_a_copy(train):
+        return basis_stage(dataclasses.replace(
+            r.retargeted, displacements=r.retargeted.displacements[train]),
+            r.reconstruction.basis)
+    expected = held_out_fits(r.take, r.bound, r.retargeted, r.reconstruction.basis,
+                             splits=splits, label="", make_bases=on_a_copy)
+    held = held_out_fits(r.take, r.bound, r.retargeted, r.reconstruction.basis,
+                         splits=splits, label="")
+    assert held.n_components == expected.n_components
+    for name in ("QE", "PCA"):
+        assert np.isfinite(held.reconstructed[name]).all()
+        np.testing.assert_allclose(held.reconstructed[name], expected.reconstructed[name],
+                                   rtol=0, atol=1e-7)
+
+
 def test_held_out_bases_score_worse_than_in_sample(demo):
     """PCA is the best basis of its size on the frames it was built from: on frames it was not
     built from its error is larger, and the report says so."""

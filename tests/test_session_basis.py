@@ -23,7 +23,7 @@ from scipy.linalg import subspace_angles, svd
 from tolerances import EXACT_FLOAT64, PCA_ANGLE_RAD, PCA_IMPLICIT_RTOL
 
 from basis.basis_io import load_basis
-from basis.pca import PCAModel, marker_moments, pca_from_operator, pca_from_operators
+from basis.pca import PCAModel, marker_moments, pca_from_operator, pca_from_operators, pool_moments
 from fit.cli.main import main
 from fit.demo import demo_config_toml, make_demo_session
 from fit.pipeline import BasisOptions, Reconstruction
@@ -336,6 +336,23 @@ def test_unconverged_fits_are_warned_with_their_frame_numbers():
                                          r"\(frames counted from 0 at frame number 41\)$"):
         warn_unconverged({"H": Solution(0, "all converged"),
                           "QE": Solution(1, "2 of 9 frames did not converge")}, first_frame=41)
+
+
+def test_pooled_moments_are_the_moments_of_the_frames_together():
+    """Moments of pieces pooled are numpy's moments of the concatenated frames, also for
+    frames far from the origin (no cancellation of sums of squares about zero)."""
+    d = random_session(seed=4)[1][0] + 1e4
+    pieces = [d[:3], d[3:4], d[4:20], d[20:]]
+    pooled = pool_moments(marker_moments(p) for p in pieces)
+    flat = d.reshape(len(d), -1)
+    assert pooled.n_frames == len(d)
+    np.testing.assert_allclose(pooled.mean.ravel(), flat.mean(axis=0), rtol=EXACT_FLOAT64)
+    np.testing.assert_allclose(pooled.covariance, np.cov(flat.T, bias=True), rtol=1e-9,
+                               atol=1e-9 * np.abs(np.cov(flat.T)).max())
+    with pytest.raises(InputError, match="no moments to pool"):
+        pool_moments([])
+    with pytest.raises(InputError, match=r"different marker counts \[5, 6\]"):
+        pool_moments([marker_moments(d), marker_moments(d[:, :5])])
 
 
 def test_marker_moments_refuse_a_take_without_frames():

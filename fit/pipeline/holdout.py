@@ -22,6 +22,7 @@ from typing import Callable
 
 import numpy as np
 
+from basis.pca import marker_moments, pca_from_operators, pool_moments
 from fit.pipeline.options import BasisOptions, FitOptions
 from fit.pipeline.stages import BasisResult, basis_stage, fit_stage
 from mocap.errors import InputError
@@ -133,17 +134,18 @@ def held_out_fits(take, bound, retargeted, artist, *, splits, label: str,
     frames fit independently are fit on the test frames alone. Either way a
     frame's weights come from its own markers, its basis from other frames.
     """
-    if make_bases is None:
-        def make_bases(train):
-            part = dataclasses.replace(retargeted, displacements=retargeted.displacements[train])
-            return basis_stage(part, artist, options=basis_options)
+    splits = [(train, _as_slice(np.asarray(test))) for train, test in splits]
+    # the take's own basis stage on each training set: its PCA from the set's moments
+    moments = _training_moments(retargeted.displacements, splits) if make_bases is None \
+        else [None] * len(splits)
     shape = (take.n_frames, len(retargeted.labels), 3)
     out = {name: np.full(shape, np.nan) for name in bases}
     sizes = []
     # without smoothing over time each frame's fit is its own: only the test frames are fit
     independent = fit_options.smoothness == 0 and fit_options.moving_average <= 1
-    for train, test in splits:
-        made = make_bases(train)
+    for (train, test), training in zip(splits, moments):
+        made = make_bases(train) if training is None else \
+            _bases_from_moments(retargeted, artist, training, basis_options)
         if not isinstance(made, BasisResult):
             raise InputError(f"make_bases must return a BasisResult, got {type(made).__name__}")
         chosen = BasisResult(bases={n: made.bases[n] for n in bases}, pca=made.pca,
@@ -156,3 +158,47 @@ def held_out_fits(take, bound, retargeted, artist, *, splits, label: str,
                 else fitted.reconstructed[name][test]
         sizes.append(made.n_components)
     return HeldOut(reconstructed=out, label=label, n_components=sizes)
+
+
+#: Training sets cut into more runs than one per this many frames are scattered: their
+#: moments are taken from a copy of their frames instead of pooled from the runs.
+_MIN_MEAN_RUN = 32
+
+
+def _training_moments(displacements: np.ndarray, splits) -> list:
+    """Marker moments of each split's training frames, ``displacements`` (T, M, 3).
+
+    The frames are cut into the runs that every training set takes whole or leaves out
+    (the test blocks and guard bands of :func:`time_blocked_splits`); each run's moments
+    are taken once, on a view, and each training set's are pooled from its runs. With
+    training sets scattered over many short runs, each set's moments come from its
+    frames directly.
+    """
+    n_frames = len(displacements)
+    member = np.zeros((len(splits), n_frames), bool)
+    for row, (train, _) in zip(member, splits):
+        row[train] = True
+    starts = np.flatnonzero(np.r_[True, (member[:, 1:] != member[:, :-1]).any(axis=0)])
+    if len(starts) * _MIN_MEAN_RUN > n_frames:
+        return [marker_moments(displacements[train]) for train, _ in splits]
+    stops = np.r_[starts[1:], n_frames]
+    taken = member[:, starts]                                   # (splits, runs)
+    runs = {r: marker_moments(displacements[starts[r]:stops[r]])
+            for r in np.flatnonzero(taken.any(axis=0))}
+    return [pool_moments([runs[r] for r in np.flatnonzero(row)]) for row in taken]
+
+
+def _bases_from_moments(retargeted, artist, moments, options: BasisOptions) -> BasisResult:
+    """The basis stage of a take on the frames whose marker `moments` are given."""
+    pca = pca_from_operators([retargeted.operator.matrix], [moments],
+                             n_components=options.pca_components,
+                             coverage=None if options.pca_components else options.pca_coverage)
+    return basis_stage(retargeted, artist, options=options, pca=pca)
+
+
+def _as_slice(frames: np.ndarray):
+    """`frames` (int, ascending) as a slice when they are one run, so indexing gives a view."""
+    if np.issubdtype(frames.dtype, np.integer) and len(frames) \
+            and frames[-1] - frames[0] == len(frames) - 1 and np.all(np.diff(frames) == 1):
+        return slice(int(frames[0]), int(frames[-1]) + 1)
+    return frames

@@ -311,7 +311,8 @@ def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: Basi
     D = retargeted.displacements
     if options.moving_average > 1:
         D = moving_average(D, window=options.moving_average)
-    neutral = bound.neutral_pose(take.select(labels).positions)
+    # the rest pose of every marker (a few frames), then the fitted ones: no copy of the take
+    neutral = bound.neutral_pose(take.positions)[take.indices(labels)]
     solutions, weights, reconstructed = {}, {}, {}
     for name, basis in bases.bases.items():
         k, centres = basis.n_fixed, None
