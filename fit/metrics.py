@@ -91,7 +91,8 @@ class ReconstructionErrors:
 
     def per_frame(self) -> ReconstructionErrors:
         """These statistics without the per-sample errors (`errors` of shape (T, 0)): what a
-        chart of the per-frame series reads, cheap to send to another process."""
+        chart of the per-frame series or the per-marker figures reads, cheap to send to
+        another process."""
         return dataclasses.replace(self, errors=read_only(self.errors[:, :0].copy()))
 
     def summary(self) -> dict:

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import base64
+import os
+import time
 from html.parser import HTMLParser
 from pathlib import Path
 
 import igl
 import numpy as np
 import pygltflib
+import pytest
 from scipy.spatial.distance import cdist
 
 from mocap.bind import Binding
@@ -316,3 +319,12 @@ def stub_take(calls, bases=None, helpers=None):
                              summary={"status": "ok", "skipped": False, "error": None})
         return {**record.summary, "files": [f"{name}/{f}" for f in record.files]}
     return fake
+
+
+def wait_for_file(path, seconds: float = 60.0) -> None:
+    """Until `path` exists: a figure helper has drawn a figure submitted before `run`."""
+    deadline = time.monotonic() + seconds
+    while not os.path.exists(path):
+        if time.monotonic() > deadline:
+            pytest.fail(f"no helper drew {path} within {seconds} s")
+        time.sleep(0.05)

@@ -4,23 +4,14 @@ from __future__ import annotations
 
 import os
 import pickle
-import time
 
 import figure_tasks
 import matplotlib
 import pytest
+from helpers import wait_for_file
 
 from fit.report.figure_queue import FigureQueue
 from mocap.errors import FileFormatError, MarkerError, MissingDependencyError
-
-
-def _wait_for(path, seconds: float = 60.0) -> None:
-    """Until `path` exists: a helper has drawn a figure submitted before `run`."""
-    deadline = time.monotonic() + seconds
-    while not os.path.exists(path):
-        if time.monotonic() > deadline:
-            pytest.fail(f"no helper drew {path} within {seconds} s")
-        time.sleep(0.05)
 
 
 def _drawn_by(path) -> int:
@@ -31,7 +22,7 @@ def _drawn_by(path) -> int:
 def test_a_helper_draws_as_soon_as_a_figure_is_submitted(tmp_path):
     with FigureQueue(helpers=1) as figures:
         figures.submit(figure_tasks.pid, tmp_path / "early.txt")
-        _wait_for(tmp_path / "early.txt")
+        wait_for_file(tmp_path / "early.txt")
         figures.run()
     assert _drawn_by(tmp_path / "early.txt") != os.getpid()
 
@@ -42,9 +33,9 @@ def test_the_same_png_bytes_whoever_draws_it_under_the_callers_rcparams(tmp_path
         figure_tasks.lines(tmp_path / "direct.png", seed=3)
         with FigureQueue(helpers=1) as figures:
             figures.submit(figure_tasks.pid, tmp_path / "marker.txt")
-            _wait_for(tmp_path / "marker.txt")       # the helper is up and idle
+            wait_for_file(tmp_path / "marker.txt")       # the helper is up and idle
             figures.submit(figure_tasks.lines, tmp_path / "helper.png", seed=3)
-            _wait_for(tmp_path / "helper.png")
+            wait_for_file(tmp_path / "helper.png")
             figures.run()
     figure_tasks.lines(tmp_path / "default_rc.png", seed=3)
     direct = (tmp_path / "direct.png").read_bytes()
@@ -67,7 +58,7 @@ def test_a_helpers_error_arrives_as_itself_after_the_other_figures(tmp_path):
         figures.submit(figure_tasks.bad_file, tmp_path / "first.bin")
         figures.submit(figure_tasks.bad_file, tmp_path / "second.bin")
         figures.submit(figure_tasks.pid, tmp_path / "after.txt")
-        _wait_for(tmp_path / "after.txt")           # the helper drew all three
+        wait_for_file(tmp_path / "after.txt")           # the helper drew all three
         with pytest.raises(FileFormatError) as raised:
             figures.run()
     assert raised.value.path == os.fspath(tmp_path / "first.bin")
@@ -81,7 +72,7 @@ def test_a_helpers_error_arrives_as_itself_after_the_other_figures(tmp_path):
 def test_a_helpers_warnings_are_warned_by_run(tmp_path):
     with FigureQueue(helpers=1) as figures:
         figures.submit(figure_tasks.warned, tmp_path / "warned.txt")
-        _wait_for(tmp_path / "warned.txt")
+        wait_for_file(tmp_path / "warned.txt")
         with pytest.warns(UserWarning, match="careful with warned.txt"):
             figures.run()
 
@@ -89,7 +80,7 @@ def test_a_helpers_warnings_are_warned_by_run(tmp_path):
 def test_a_helper_that_dies_leaves_its_figure_to_the_caller(tmp_path):
     with FigureQueue(helpers=1) as figures:
         figures.submit(figure_tasks.pid, tmp_path / "marker.txt")
-        _wait_for(tmp_path / "marker.txt")
+        wait_for_file(tmp_path / "marker.txt")
         helper = figures._helpers[0].process
         figures.submit(figure_tasks.dies_in_helper, tmp_path / "survivor.txt", os.getpid())
         helper.wait(timeout=60)
@@ -104,7 +95,7 @@ def test_a_figure_that_does_not_pickle_is_drawn_by_the_caller(tmp_path):
 
     with FigureQueue(helpers=1) as figures:
         figures.submit(figure_tasks.pid, tmp_path / "marker.txt")
-        _wait_for(tmp_path / "marker.txt")
+        wait_for_file(tmp_path / "marker.txt")
         figures.submit(local_figure, tmp_path / "local.txt")
         figures.run()
     assert _drawn_by(tmp_path / "local.txt") == os.getpid()
@@ -118,7 +109,7 @@ def test_a_script_folder_shadowing_the_standard_library_does_not_break_helpers(
     monkeypatch.syspath_prepend(os.fspath(scripts))
     with FigureQueue(helpers=1) as figures:
         figures.submit(figure_tasks.pid, tmp_path / "drawn.txt")
-        _wait_for(tmp_path / "drawn.txt")
+        wait_for_file(tmp_path / "drawn.txt")
         figures.run()
     assert _drawn_by(tmp_path / "drawn.txt") != os.getpid()
 
@@ -145,6 +136,6 @@ def test_an_error_that_does_not_unpickle_is_raised_by_the_callers_own_draw(tmp_p
     with FigureQueue(helpers=1) as figures:
         figures.submit(figure_tasks.picky, tmp_path / "picky.png")
         figures.submit(figure_tasks.pid, tmp_path / "after.txt")
-        _wait_for(tmp_path / "after.txt")           # the helper drew both
+        wait_for_file(tmp_path / "after.txt")           # the helper drew both
         with pytest.raises(figure_tasks.PickyError, match="picky.png: no figure"):
             figures.run()

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import base64
+import pickle
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from helpers import ReportPage
+from helpers import ReportPage, wait_for_file
 from matplotlib import rc_context
 from tolerances import EXACT_FLOAT64
 
@@ -19,13 +20,13 @@ from fit.report import build_report
 from fit.report.drawing import IMAGE_WIDTH_PX, line_envelope, plain_log_axis, report_figure
 from fit.report.figure_queue import FigureQueue
 from fit.report.html import render_report
-from fit.report.ingest_plots import plot_gaps
+from fit.report.ingest_plots import GapChart, HeadResiduals, plot_gaps, plot_head_residuals
 from fit.report.plots import HEATMAP_COLUMNS, bar_collection, plot_error_heatmap, region_groups
 from fit.report.video import MAX_AUTO_FPS, write_overlay_video
 from fit.report.views import CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_views, view_axes
 from mocap.errors import InputError
 from mocap.stabilize import stabilize
-from mocap.take import Take
+from mocap.take import FILL_METHODS, Take
 from mocap.viz.figures import new_figure, write_png
 
 N_FRAMES = 600
@@ -278,6 +279,33 @@ def test_a_one_frame_gap_of_a_long_take_shows_in_the_gap_chart(tmp_path, gap):
     assert missing_columns(positions) == 0
     positions[gap, 3] = np.nan                                   # one marker, one frame
     assert missing_columns(positions) >= 1
+
+
+def test_ingestion_figures_drawn_by_a_helper_from_what_they_show(tmp_path, facial_sing_take,
+                                                                facial_sing_markerset):
+    """The gap chart and the head residuals a helper draws from GapChart and HeadResiduals
+    (a small part of the take) are the files drawn here from the take itself; the chart's
+    counts are the take's."""
+    take = facial_sing_take
+    stabilization = stabilize(take, facial_sing_markerset.head)
+    chart, residuals = GapChart.of(take), HeadResiduals.of(stabilization)
+    counts = {"present": int((~take.missing & (take.filled == 0)).sum()),
+              "missing": int(take.missing.sum())}
+    counts.update({m: int((take.filled == i + 1).sum()) for i, m in enumerate(FILL_METHODS)})
+    assert chart.counts == counts
+    assert chart.codes.shape == (take.n_markers, min(take.n_frames, HEATMAP_COLUMNS))
+    for small, whole in ((chart, take), (residuals, stabilization)):
+        assert len(pickle.dumps(small)) * 10 < len(pickle.dumps(whole))
+    plot_gaps(take, tmp_path / "gaps-here.png")
+    plot_head_residuals(stabilization, tmp_path / "head-here.png")
+    with FigureQueue(helpers=1) as figures:
+        figures.submit(plot_gaps, chart, tmp_path / "gaps-helper.png")
+        figures.submit(plot_head_residuals, residuals, tmp_path / "head-helper.png")
+        wait_for_file(tmp_path / "head-helper.png")         # both drawn by the helper
+        figures.run()
+    for name in ("gaps", "head"):
+        assert (tmp_path / f"{name}-helper.png").read_bytes() == \
+            (tmp_path / f"{name}-here.png").read_bytes()
 
 
 def test_a_line_envelope_draws_the_pixels_of_the_whole_line(tmp_path):

@@ -56,7 +56,7 @@ from fit.pipeline.take_warnings import warn_unconverged
 from fit.report import build_report
 from fit.report.figure_queue import FigureQueue
 from fit.report.html import Figure
-from fit.report.ingest_plots import plot_gaps, plot_head_residuals
+from fit.report.ingest_plots import GapChart, HeadResiduals, plot_gaps, plot_head_residuals
 from fit.report.mesh_views import MeshSpace
 from mocap.bind import Binding, BoundTake
 from mocap.clean.ingest import IngestOptions, IngestResult, save_head_motion
@@ -488,8 +488,9 @@ class ReconstructionResult:
         qa.mkdir(parents=True, exist_ok=True)
         options = self.reconstruction.report
         face = self.face
-        figures.submit(plot_gaps, self.ingested.cleaned, qa / "gaps.png")
-        figures.submit(plot_head_residuals, self.ingested.stabilization,
+        # the figures get what they show, not the take: a helper receives it by pickle
+        figures.submit(plot_gaps, GapChart.of(self.ingested.cleaned), qa / "gaps.png")
+        figures.submit(plot_head_residuals, HeadResiduals.of(self.ingested.stabilization),
                        qa / "head_residuals.png")
         files = [qa / "gaps.png", qa / "head_residuals.png"]
         pictures = {

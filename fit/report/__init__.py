@@ -226,7 +226,8 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
     for basis, res in results.items():
         draw(plot_error_heatmap, res, out(f"heatmap-{basis}"), markerset=markerset,
              rate=take.rate, vmax=vmax)
-        draw(plot_marker_errors, res, out(f"markers-{basis}"), markerset=markerset, ymax=ymax)
+        draw(plot_marker_errors, res.per_frame(), out(f"markers-{basis}"), markerset=markerset,
+             ymax=ymax)
         items = [
             Figure(files[f"heatmap-{basis}"], f"{basis}: error per marker and frame",
                    f"Rows are markers grouped by region, columns time; colour is the error "
@@ -252,7 +253,8 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
         held = {b: reconstruction_errors(take.positions, rec, neutral, origin=origin,
                                          labels=take.labels, name=b)
                 for b, rec in held_out.reconstructed.items() if b in results}
-        draw(plot_held_out, results, held, out("held-out"), label=held_out.label)
+        draw(plot_held_out, {b: r.per_frame() for b, r in results.items()},
+             {b: r.per_frame() for b, r in held.items()}, out("held-out"), label=held_out.label)
         page.append(Section(
             "Out-of-sample basis errors",
             text=f"QE and PCA are built from this take; in-sample they are scored on the very "
