@@ -9,8 +9,10 @@ import pytest
 import threadpoolctl
 
 import fit.solve._active_set
+from fit.report.figure_queue import FigureQueue
 from fit.solve.weights import solve_weights
 from mocap.util.blas import (
+    CoresTaken,
     blas_threads,
     map_on_blas_threads,
     on_one_blas_thread,
@@ -99,3 +101,32 @@ def test_many_blocks_of_frames_solve_to_the_same_bits_on_any_threads(monkeypatch
     assert one.status == 0, one.message
     np.testing.assert_array_equal(two.weights, one.weights)
     np.testing.assert_array_equal(two.n_iter, one.n_iter)
+
+
+def test_cores_taken_by_other_processes_are_left_to_them():
+    """With cores busy elsewhere the BLAS and the work shared among Python threads use the
+    rest, never fewer than one; closing gives them back, once."""
+    with threadpoolctl.threadpool_limits(4, user_api="blas"):
+        assert blas_threads() == 4, "the BLAS did not take a limit of four threads"
+        taken = CoresTaken(1)
+        assert blas_threads() == 3 and worker_threads() == 3
+        taken.close()
+        assert blas_threads() == 4
+        taken.close()
+        assert blas_threads() == 4
+        taken = CoresTaken(9)
+        assert blas_threads() == 1 and worker_threads() == 1
+        assert map_on_blas_threads(lambda k: threading.get_ident(), range(3)) == \
+            [threading.get_ident()] * 3
+        taken.close()
+        CoresTaken(0)
+        assert blas_threads() == 4
+
+
+def test_a_figure_queue_leaves_its_helpers_cores_to_them():
+    with _two_threads():
+        with FigureQueue(helpers=1) as figures:
+            assert blas_threads() == 2 - figures.helpers
+        assert blas_threads() == 2
+        with FigureQueue(helpers=0):
+            assert blas_threads() == 2

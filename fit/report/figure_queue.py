@@ -31,6 +31,8 @@ from typing import Callable
 
 import matplotlib
 
+from mocap.util.blas import CoresTaken
+
 __all__ = ["FigureQueue", "MAX_HELPERS", "default_helpers"]
 
 #: Most helpers by default: a report has about a dozen figures, and each helper costs an
@@ -141,7 +143,9 @@ class FigureQueue:
     """Figures to draw, shared by this process and `helpers` helper processes.
 
     A ready helper starts on a figure as soon as it is submitted; :meth:`run` has this
-    process draw the figures nobody has taken and waits for the others.
+    process draw the figures nobody has taken and waits for the others. Until the queue
+    closes, this process's BLAS leaves the helpers' cores to them
+    (:class:`mocap.util.blas.CoresTaken`).
 
     Parameters
     ----------
@@ -168,6 +172,7 @@ class FigureQueue:
         self._closing = False
         self._changed = threading.Condition()
         self._helpers = _start_helpers(count)
+        self._cores = CoresTaken(len(self._helpers))
         self._feeders = [threading.Thread(target=self._feed, args=(helper,), daemon=True)
                          for helper in self._helpers]
         for feeder in self._feeders:
@@ -284,6 +289,7 @@ class FigureQueue:
         for helper in self._helpers:
             helper.stop()
         self._helpers, self._feeders = [], []
+        self._cores.close()
 
     def __enter__(self) -> FigureQueue:
         return self

@@ -10,6 +10,11 @@ depends on how big the calls are: the RBF tiles and the marker-centre evaluation
 products and passes) share well, the batched box-QP solve hardly at all (its calls are
 small enough that taking and handing back the GIL is much of their time; separate
 processes would share it).
+
+Where processes of ours keep cores busy beside this one (the report's figure helpers), the
+BLAS leaves those cores to them (:class:`CoresTaken`): a BLAS thread that has to wait for
+a busy core holds up every product it shares, and on a 2-core machine with one helper
+drawing, the report's fits took two to seven times longer on two BLAS threads than on one.
 """
 
 from __future__ import annotations
@@ -23,8 +28,8 @@ from contextlib import contextmanager
 import scipy.linalg  # noqa: F401  (scipy's own BLAS is loaded before the controller looks)
 import threadpoolctl
 
-__all__ = ["blas_threads", "map_on_blas_threads", "on_one_blas_thread", "one_blas_thread",
-           "worker_threads"]
+__all__ = ["CoresTaken", "blas_threads", "map_on_blas_threads", "on_one_blas_thread",
+           "one_blas_thread", "worker_threads"]
 
 #: Per thread: the BLAS's threads outside this thread's outermost :func:`one_blas_thread`.
 _outside = threading.local()
@@ -90,3 +95,26 @@ def on_one_blas_thread(function):
         with one_blas_thread():
             return function(*args, **kwargs)
     return wrapper
+
+
+class CoresTaken:
+    """While open, the BLAS runs on the threads that `count` cores kept busy elsewhere
+    leave (at least one), and so does :func:`map_on_blas_threads`; :meth:`close` gives
+    them back. For processes of ours that work beside this one (figure helpers).
+
+    Parameters
+    ----------
+    count : int
+        Cores the other processes keep busy.
+    """
+
+    def __init__(self, count: int):
+        threads = blas_threads()
+        self._limiter = _blas().limit(limits=max(1, threads - count)) \
+            if count > 0 and threads > 1 else None
+
+    def close(self) -> None:
+        """Give the BLAS back the threads it had (again: nothing)."""
+        if self._limiter is not None:
+            self._limiter.restore_original_limits()
+            self._limiter = None
