@@ -21,3 +21,10 @@ def square(job, shared):
                 fh.write(str(os.getpid()))
         time.sleep(60)
     return job ** shared
+
+
+def blas_share(job, shared):
+    """The BLAS threads and the Python worker threads the job's process runs on."""
+    from mocap.util.blas import blas_threads, worker_threads
+
+    return blas_threads(), worker_threads()

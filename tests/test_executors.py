@@ -11,7 +11,7 @@ from concurrent.futures import ProcessPoolExecutor
 import distributed  # the test extra installs Dask and psutil (.[test])
 import psutil
 import pytest
-from executor_tasks import square
+from executor_tasks import blas_share, square
 
 from fit.pipeline.executors import (
     DASK_MISSING,
@@ -102,6 +102,17 @@ def test_a_killed_process_pool_worker_fails_its_tasks_with_the_reason():
 def test_serial_local_runs_in_this_process():
     outcomes = list(LocalExecutor(1).map_unordered(lambda job, shared: os.getpid(), [0]))
     assert outcomes[0].result == os.getpid()
+
+
+def test_local_workers_share_the_cores_out():
+    """Two workers on the machine's cores: each on half the BLAS's threads (at least one),
+    not all of them each (threads waiting for a core the other worker keeps busy)."""
+    outcomes = list(LocalExecutor(2).map_unordered(blas_share, [0, 1]))
+    share = max(1, (os.cpu_count() or 1) // 2)
+    for outcome in outcomes:
+        assert outcome.error is None, outcome.error
+        blas, workers = outcome.result
+        assert blas <= share and workers == blas
 
 
 def test_no_local_process_outlives_an_abandoned_run(tmp_path):
