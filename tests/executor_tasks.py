@@ -28,3 +28,14 @@ def blas_share(job, shared):
     from mocap.util.blas import blas_threads, worker_threads
 
     return blas_threads(), worker_threads()
+
+
+def worker_settings(job, shared):
+    """What the job's process runs with: glibc's trim threshold from the environment, Dask's
+    profiler switch, the BLAS threads."""
+    import dask
+
+    from mocap.util.blas import blas_threads
+
+    return (os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+            dask.config.get("distributed.worker.profile.enabled"), blas_threads())

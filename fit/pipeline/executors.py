@@ -54,19 +54,23 @@ from fit.pipeline._local_executor import LocalExecutor
 from mocap.errors import InputError
 from mocap.util.validation import as_choice, as_int
 
-__all__ = ["EXECUTORS", "DASK_MISSING", "DASK_WORKER_ENVIRONMENT", "TaskOutcome", "SessionExecutor", "LocalExecutor",
-           "FuturesExecutor", "DaskExecutor", "open_executor"]
+__all__ = ["EXECUTORS", "DASK_MISSING", "DASK_WORKER_CONFIG", "TaskOutcome", "SessionExecutor",
+           "LocalExecutor", "FuturesExecutor", "DaskExecutor", "open_executor"]
 
 #: The executors :func:`open_executor` builds from a name.
 EXECUTORS = ("local", "dask")
 #: The one line said when ``executor="dask"`` is asked for without Dask installed.
 DASK_MISSING = ("executor 'dask' needs dask.distributed: pip install 'mocap2mesh[dask]' "
                 "(or: pip install 'dask[distributed]')")
-#: Dask configuration for the workers of a cluster that runs takes: without the nanny's
-#: ``MALLOC_TRIM_THRESHOLD_`` (None unsets it), glibc keeps its dynamic mmap threshold and
-#: reuses the memory of a take's large arrays. Workers of your own get it from a Dask
-#: configuration file (``distributed: nanny: pre-spawn-environ: MALLOC_TRIM_THRESHOLD_: null``).
-DASK_WORKER_ENVIRONMENT = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+#: Dask configuration of the workers of the LocalCluster a run starts. Without the nanny's
+#: ``MALLOC_TRIM_THRESHOLD_`` (None unsets it), which also fixes glibc's mmap threshold,
+#: glibc reuses the memory of a take's large arrays instead of mapping each afresh (a take
+#: ran about 30% slower with it); without the profiler, which samples the task's thread
+#: every 10 ms, the report's figures (Python-heavy matplotlib) keep the GIL (a take's
+#: report ran 20% slower with it). Workers of your own take the same from a Dask
+#: configuration file.
+DASK_WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                      "distributed.worker.profile.enabled": False}
 _POLL = 0.05            # s between looks at Dask futures while timeouts run
 _RECHECK = 0.25         # s between looks for jobs that started, while timeouts run
 
@@ -289,10 +293,7 @@ class DaskExecutor(FuturesExecutor):
                                  f"{exc}") from None
         import dask
         workers = None if workers is None else as_int(workers, "workers", minimum=1)
-        # Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_ set, which also fixes
-        # glibc's mmap threshold: every large array of a take is then mapped and faulted
-        # in afresh, and a take ran 30% slower (:data:`DASK_WORKER_ENVIRONMENT`)
-        with dask.config.set(DASK_WORKER_ENVIRONMENT):
+        with dask.config.set(DASK_WORKER_CONFIG):     # the workers' glibc and GIL to the takes
             self.cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
                                         processes=True, dashboard_address=":0")
         return Client(self.cluster)
