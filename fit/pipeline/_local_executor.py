@@ -82,8 +82,9 @@ class LocalExecutor(SessionExecutor):
 
     A fresh process per job returns all of a job's memory to the system when it
     ends and lets a job past its timeout be killed without touching the
-    others. Each runs on its share of the BLAS's threads (at least one). Processes start from a fork server that has imported the task's
-    module, so a start costs milliseconds, not an import of the chain.
+    others; each runs on its share of the BLAS's threads (at least one).
+    Processes start from a fork server that has imported the task's module,
+    so a start costs milliseconds, not an import of the chain.
 
     Parameters
     ----------

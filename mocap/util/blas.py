@@ -11,8 +11,8 @@ products and passes) share well, the batched box-QP solve hardly at all (its cal
 small enough that taking and handing back the GIL is much of their time; separate
 processes would share it).
 
-Where processes of ours keep cores busy beside this one (the report's figure helpers), the
-BLAS leaves those cores to them (:class:`CoresTaken`): a BLAS thread that has to wait for
+Where processes of ours keep cores busy beside this one (the report's figure helpers, the
+other workers of a local pool), the BLAS leaves those cores to them (:class:`CoresTaken`): a BLAS thread that has to wait for
 a busy core holds up every product it shares, and on a 2-core machine with one helper
 drawing, the report's fits took two to seven times longer on two BLAS threads than on one.
 """
@@ -100,7 +100,8 @@ def on_one_blas_thread(function):
 class CoresTaken:
     """While open, the BLAS runs on the threads that `count` cores kept busy elsewhere
     leave (at least one), and so does :func:`map_on_blas_threads`; :meth:`close` gives
-    them back. For processes of ours that work beside this one (figure helpers).
+    them back. For processes of ours that work beside this one (figure helpers, the other
+    workers of a local pool).
 
     Parameters
     ----------
