@@ -307,7 +307,8 @@ def stub_take(calls, bases=None, helpers=None):
     `calls` (the session basis it was given to `bases`, its figure helpers to `helpers`)."""
     from fit.pipeline.completion import begin_take, commit_take
 
-    def fake(capture, config, name, provenance, session_basis=None, figure_helpers=None):
+    def fake(capture, config, name, provenance, session_basis=None, figure_helpers=None,
+             kept=None):
         calls.append(capture.name)
         if bases is not None:
             bases.append(session_basis)

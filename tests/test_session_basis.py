@@ -26,7 +26,7 @@ from basis.basis_io import load_basis
 from basis.pca import PCAModel, marker_moments, pca_from_operator, pca_from_operators, pool_moments
 from fit.cli.main import main
 from fit.demo import demo_config_toml, make_demo_session
-from fit.pipeline import BasisOptions, Reconstruction
+from fit.pipeline import BasisOptions, Reconstruction, kept_takes
 from fit.pipeline.config import load_run_config
 from fit.pipeline.session import run_takes
 from fit.pipeline.session_basis import TakeMoments, session_basis
@@ -237,7 +237,7 @@ def test_a_session_re_runs_every_take_when_one_capture_changes(session, monkeypa
     """The skip logic alone: the chain and the basis are stubs that record their calls."""
     calls, built = [], []
 
-    def fake_basis(config, *, executor, progress):
+    def fake_basis(config, *, executor, progress, keep):
         built.append(len(config.captures))
         return None, {}
 
@@ -259,6 +259,51 @@ def test_a_session_re_runs_every_take_when_one_capture_changes(session, monkeypa
     outcome = run_takes(config, workers=1, progress=False)
     assert sorted(calls[3:]) == ["a.c3d", "b.c3d", "c.c3d"]
     assert outcome.n_skipped == 0 and built == [3, 3]
+
+
+def test_takes_kept_prepared_run_as_takes_prepared_again(session, monkeypatch, tmp_path):
+    """The session basis keeps each take prepared for its run: ingest, bind and retarget run
+    once a take, and the outputs and warnings are those of a run that prepares every take
+    again (nothing kept: no room)."""
+    calls = []
+    prepare = Reconstruction.prepare
+
+    def counted(self, capture):
+        calls.append(capture)
+        return prepare(self, capture)
+    monkeypatch.setattr(Reconstruction, "prepare", counted)
+    runs = {}
+    for label, room in (("kept", kept_takes.KEPT_BYTES), ("again", 0)):
+        monkeypatch.setattr(kept_takes, "KEPT_BYTES", room)
+        calls.clear()
+        config = dataclasses.replace(load_run_config(session["path"]),
+                                     output=tmp_path / label)
+        outcome = run_takes(config, workers=1, progress=False)
+        assert outcome.n_failed == 0
+        runs[label] = (len(calls), json.loads(outcome.manifest.read_text()))
+        assert not (tmp_path / label / ".staging").exists()
+    assert runs["kept"][0] == len(TAKES) and runs["again"][0] == 2 * len(TAKES)
+    for take in TAKES:
+        assert runs["kept"][1]["takes"][take]["warnings"] == \
+            runs["again"][1]["takes"][take]["warnings"]
+        assert any("filled" in m for m in runs["kept"][1]["takes"][take]["warnings"])
+        for name in ("weights-H.csv", "weights-QE.csv", "mesh-PCA.npz"):
+            assert (tmp_path / "kept" / take / name).read_bytes() == \
+                (tmp_path / "again" / take / name).read_bytes()
+
+
+def test_a_kept_take_that_does_not_read_back_is_prepared_again(prepared, tmp_path):
+    recon, takes = prepared
+    files = kept_takes.kept_files(tmp_path, {"a.c3d": "a", "b.c3d": "b"})
+    assert kept_takes.keep_prepared(takes[0], [("a warning", UserWarning)], files["a.c3d"])
+    back, caught = kept_takes.take_kept(files["a.c3d"])
+    assert caught == [("a warning", UserWarning)] and not files["a.c3d"].exists()
+    np.testing.assert_array_equal(back.retargeted.displacements,
+                                  takes[0].retargeted.displacements)
+    assert kept_takes.take_kept(files["a.c3d"]) is None                   # taken already
+    assert kept_takes.keep_prepared(takes[0], [], files["b.c3d"])
+    files["b.c3d"].write_bytes(files["b.c3d"].read_bytes()[:1000])          # cut short
+    assert kept_takes.take_kept(files["b.c3d"]) is None and not files["b.c3d"].exists()
 
 
 def test_scope_take_keeps_each_take_its_own_basis(session, prepared):

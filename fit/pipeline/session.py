@@ -41,6 +41,7 @@ from fit.pipeline.completion import (
 )
 from fit.pipeline.config import RunConfig
 from fit.pipeline.executors import TaskOutcome, open_executor
+from fit.pipeline.kept_takes import kept_files, take_kept
 from fit.pipeline.manifest import (
     MANIFEST_NAME,
     load_manifest,
@@ -92,7 +93,7 @@ def _provenance(capture: Path, config: RunConfig, inputs: dict | None = None) ->
 
 def process_take(capture, config: RunConfig, session_basis=None, *, name: str | None = None,
                  provenance: Provenance | None = None,
-                 figure_helpers: int | None = None) -> dict:
+                 figure_helpers: int | None = None, kept=None) -> dict:
     """Run one take through the chain and commit its folder; returns its manifest record.
 
     Files (relative to ``config.output``): ``<name>/`` with the exports of
@@ -117,6 +118,10 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
         Helper processes writing the weights CSVs and drawing the report's figures
         (:class:`~fit.report.figure_queue.FigureQueue`; default one per spare core);
         0 when other takes share the machine's cores.
+    kept : path, optional
+        Where the session basis kept this take prepared (:mod:`fit.pipeline.kept_takes`):
+        read back (and removed) instead of running ingest, bind and retarget again, with
+        the warnings they raised; without a readable file there, they run.
     """
     capture = Path(capture)
     name = safe_stem(capture.stem) if name is None else name
@@ -126,8 +131,13 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
     try:
         with capture_warnings() as later:            # those of the exports and the report
             with capture_warnings() as caught:
+                source = capture
+                if kept is not None and (found := take_kept(kept)) is not None:
+                    source, raised = found
+                    for message, category in raised:      # as the stages raised them
+                        warnings.warn(message, category, stacklevel=2)
                 result = dataclasses.replace(Reconstruction.from_config(config).process(
-                    capture, session_basis=session_basis), name=name)
+                    source, session_basis=session_basis), name=name)
             stages = dict(result.stage_seconds)
             # the helpers start with the exports (a core of a helper's start would slow the
             # chain's threaded stages), write the weights CSVs, then draw the figures
@@ -165,6 +175,7 @@ class _TakeJob:
     name: str
     provenance: Provenance
     figure_helpers: int | None = None     # of its report: 0 when takes run side by side
+    kept: Path | None = None              # where the session basis kept it prepared
 
     @property
     def stem(self) -> str:
@@ -184,13 +195,14 @@ def _worker() -> dict:
 
 
 def _guarded(capture: Path, config: RunConfig, name: str, provenance: Provenance,
-             session_basis=None, figure_helpers: int | None = None) -> dict:
+             session_basis=None, figure_helpers: int | None = None, kept=None) -> dict:
     """:func:`process_take` that turns an exception into a failed record."""
     start = time.perf_counter()
     try:
         with capture_warnings(reemit=False) as caught:
             return process_take(capture, config, session_basis, name=name,
-                                provenance=provenance, figure_helpers=figure_helpers)
+                                provenance=provenance, figure_helpers=figure_helpers,
+                                kept=kept)
     except Exception as exc:  # noqa: BLE001 - one take's failure must not stop the others
         expected = isinstance(exc, Mocap2MeshError)
         return {"status": "failed", "skipped": False,
@@ -206,7 +218,7 @@ def _take_task(job: _TakeJob, shared) -> dict:
     """
     config, session_basis = shared
     record = _guarded(job.capture, config, job.name, job.provenance, session_basis,
-                      job.figure_helpers)
+                      job.figure_helpers, job.kept)
     return {**record, "worker": _worker()}
 
 
@@ -310,9 +322,11 @@ def run_takes(config: RunConfig, *, executor=None, workers: int | None = None,
 
 def _run_on(pool, todo, config, names, provenances, manifest, timeout, progress) -> None:
     """Build the session basis (when the takes share one) and run `todo` on `pool`."""
-    shared = None
+    shared, kept = None, {}
     if uses_session_basis(config):
-        shared, unprepared = build_session_basis(config, executor=pool, progress=progress)
+        kept = kept_files(config.output, {c: names[c] for c in todo})   # for their run
+        shared, unprepared = build_session_basis(config, executor=pool, progress=progress,
+                                                 keep=kept)
         manifest.session_basis = None if shared is None else shared.record()
         for capture in [c for c in todo if c.stem in unprepared]:
             todo.remove(capture)
@@ -321,7 +335,7 @@ def _run_on(pool, todo, config, names, provenances, manifest, timeout, progress)
         manifest.write()
     # one take at a time has the spare cores for the figures; side by side, the takes have them
     helpers = None if pool.slots() == 1 else 0
-    jobs = [_TakeJob(c, names[c], provenances[names[c]], helpers) for c in todo]
+    jobs = [_TakeJob(c, names[c], provenances[names[c]], helpers, kept.get(c)) for c in todo]
     with tqdm(total=len(config.captures), initial=len(config.captures) - len(jobs),
               desc="takes", unit="take", disable=None if progress is None else not progress,
               file=sys.stderr) as bar:

@@ -41,6 +41,7 @@ from tqdm import tqdm
 from basis.pca import MarkerMoments, PCAModel, marker_moments, pca_from_operators
 from fit.pipeline.config import RunConfig
 from fit.pipeline.executors import LocalExecutor
+from fit.pipeline.kept_takes import keep_prepared
 from fit.pipeline.options import BasisOptions
 from fit.pipeline.reconstruction import Reconstruction
 from mocap.errors import InputError, Mocap2MeshError
@@ -106,20 +107,23 @@ class SessionBasis:
                 "sha256": self.sha256, "seconds": round(self.seconds, 3)}
 
 
-def take_moments(capture, reconstruction: Reconstruction) -> TakeMoments:
+def take_moments(capture, reconstruction: Reconstruction, *, keep=None) -> TakeMoments:
     """One take through ingest, bind and retarget; its operator and marker moments.
 
-    The take's warnings are not passed on: the take is run again, with them,
-    when it is fitted.
+    The take's warnings are not passed on: its run raises them when it is
+    fitted. With `keep` (a file in a folder of kept takes), the prepared take
+    and its warnings are kept there for that run (:func:`fit.pipeline.kept_takes.keep_prepared`).
 
     Raises
     ------
     Mocap2MeshError
         Any stage's error (:meth:`Reconstruction.prepare`).
     """
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         prepared = reconstruction.prepare(capture)
+    if keep is not None:
+        keep_prepared(prepared, [(str(w.message), w.category) for w in caught], keep)
     retargeted = prepared.retargeted
     return TakeMoments(prepared.name, np.asarray(retargeted.operator.matrix, dtype=np.float64),
                        marker_moments(retargeted.displacements))
@@ -191,16 +195,29 @@ def session_input(digests) -> dict:
             "sha256": hashlib.sha256(lines.encode()).hexdigest()}
 
 
-def _moments_or_error(capture: Path, config: RunConfig):
+@dataclass(frozen=True)
+class _PrepareJob:
+    """One capture to prepare for the session basis, and where to keep it (or None)."""
+
+    capture: Path
+    keep: Path | None = None
+
+    @property
+    def stem(self) -> str:
+        """The name Dask shows the task by."""
+        return self.capture.stem
+
+
+def _moments_or_error(job: _PrepareJob, config: RunConfig):
     """:func:`take_moments` of a capture, or the message of the error it raised."""
     try:
-        return take_moments(capture, Reconstruction.from_config(config))
+        return take_moments(job.capture, Reconstruction.from_config(config), keep=job.keep)
     except Exception as exc:  # noqa: BLE001 - one take's failure must not stop the others
         return str(exc) if isinstance(exc, Mocap2MeshError) else f"{type(exc).__name__}: {exc}"
 
 
 def build_session_basis(config: RunConfig, *, executor=None,
-                        progress: bool | None = None) -> tuple:
+                        progress: bool | None = None, keep=None) -> tuple:
     """The session basis of a run's takes, and the takes that could not contribute.
 
     Parameters
@@ -212,6 +229,9 @@ def build_session_basis(config: RunConfig, *, executor=None,
         other in this process).
     progress : bool or None
         Show a progress bar (None: only on a terminal).
+    keep : mapping of Path to Path, optional
+        Captures whose prepared take is kept for their run: capture -> its file
+        (:mod:`fit.pipeline.kept_takes`).
 
     Returns
     -------
@@ -230,8 +250,9 @@ def build_session_basis(config: RunConfig, *, executor=None,
     done = {}
     with tqdm(total=len(captures), desc="session basis", unit="take", file=sys.stderr,
               disable=None if progress is None else not progress) as bar:
-        for outcome in executor.map_unordered(_moments_or_error, captures, shared=config):
-            done[outcome.job] = outcome.result if outcome.ok else outcome.error
+        jobs = [_PrepareJob(capture, (keep or {}).get(capture)) for capture in captures]
+        for outcome in executor.map_unordered(_moments_or_error, jobs, shared=config):
+            done[outcome.job.capture] = outcome.result if outcome.ok else outcome.error
             bar.update()
     outcomes = [done[c] for c in captures]          # pooled in the run's order
     failed = {c.stem: o for c, o in zip(captures, outcomes) if isinstance(o, str)}
