@@ -200,7 +200,8 @@ def test_a_capture_named_dots_writes_inside_the_output(session, monkeypatch):
                     .replace('directory = "results"', 'directory = "dots"'))
     calls = []
 
-    def fake(capture, config, name, provenance, session_basis=None, figure_helpers=None):
+    def fake(capture, config, name, provenance, session_basis=None, figure_helpers=None,
+             kept=None):
         calls.append(name)
         stage = begin_take(config.output, name)
         (stage / "x.txt").write_text("x")
