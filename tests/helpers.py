@@ -308,7 +308,7 @@ def stub_take(calls, bases=None, helpers=None):
     from fit.pipeline.completion import begin_take, commit_take
 
     def fake(capture, config, name, provenance, session_basis=None, figure_helpers=None,
-             kept=None):
+             kept=None, built=None):
         calls.append(capture.name)
         if bases is not None:
             bases.append(session_basis)

@@ -201,7 +201,7 @@ def test_a_capture_named_dots_writes_inside_the_output(session, monkeypatch):
     calls = []
 
     def fake(capture, config, name, provenance, session_basis=None, figure_helpers=None,
-             kept=None):
+             kept=None, built=None):
         calls.append(name)
         stage = begin_take(config.output, name)
         (stage / "x.txt").write_text("x")

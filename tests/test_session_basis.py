@@ -15,6 +15,7 @@ import io
 import json
 import re
 import shutil
+import warnings
 
 import numpy as np
 import pytest
@@ -235,10 +236,10 @@ def test_warnings_are_printed_recorded_and_reported(session):
 
 def test_a_session_re_runs_every_take_when_one_capture_changes(session, monkeypatch, tmp_path):
     """The skip logic alone: the chain and the basis are stubs that record their calls."""
-    calls, built = [], []
+    calls, pooled = [], []
 
-    def fake_basis(config, *, executor, progress, keep):
-        built.append(len(config.captures))
+    def fake_basis(config, *, executor, progress, keep, built):
+        pooled.append(len(config.captures))
         return None, {}
 
     monkeypatch.setattr("fit.pipeline.session._guarded", stub_take(calls))
@@ -248,9 +249,9 @@ def test_a_session_re_runs_every_take_when_one_capture_changes(session, monkeypa
     config = dataclasses.replace(load_run_config(session["path"]), output=tmp_path / "out",
                                  captures=tuple(tmp_path / f"{t}.c3d" for t in TAKES))
     run_takes(config, workers=1, progress=False)
-    assert len(calls) == 3 and built == [3]
+    assert len(calls) == 3 and pooled == [3]
     outcome = run_takes(config, workers=1, progress=False)
-    assert outcome.n_skipped == 3 and len(calls) == 3 and built == [3]   # nothing to do
+    assert outcome.n_skipped == 3 and len(calls) == 3 and pooled == [3]   # nothing to do
     session_input = json.loads(outcome.manifest.read_text())["inputs"]["session"]
     digests = [hashlib.sha256((tmp_path / f"{t}.c3d").read_bytes()).hexdigest() for t in TAKES]
     assert session_input == {"takes": list(TAKES), "sha256": hashlib.sha256("\n".join(
@@ -258,7 +259,7 @@ def test_a_session_re_runs_every_take_when_one_capture_changes(session, monkeypa
     (tmp_path / "c.c3d").write_bytes((tmp_path / "c.c3d").read_bytes() + b"\0")
     outcome = run_takes(config, workers=1, progress=False)
     assert sorted(calls[3:]) == ["a.c3d", "b.c3d", "c.c3d"]
-    assert outcome.n_skipped == 0 and built == [3, 3]
+    assert outcome.n_skipped == 0 and pooled == [3, 3]
 
 
 def test_takes_kept_prepared_run_as_takes_prepared_again(session, monkeypatch, tmp_path):
@@ -290,6 +291,28 @@ def test_takes_kept_prepared_run_as_takes_prepared_again(session, monkeypatch, t
         for name in ("weights-H.csv", "weights-QE.csv", "mesh-PCA.npz"):
             assert (tmp_path / "kept" / take / name).read_bytes() == \
                 (tmp_path / "again" / take / name).read_bytes()
+
+
+def test_the_run_builds_its_reconstruction_once_and_each_take_keeps_its_warnings(
+        session, monkeypatch, tmp_path):
+    """The mesh, marker set and basis are read once for the session basis and every take,
+    not once per task; a warning raised reading them is in every take's record, first."""
+    built = []
+    from_config = Reconstruction.from_config.__func__
+
+    def counted(cls, config):
+        built.append(config)
+        warnings.warn("a warning of the shared inputs", UserWarning, stacklevel=2)
+        return from_config(cls, config)
+    monkeypatch.setattr(Reconstruction, "from_config", classmethod(counted))
+    config = dataclasses.replace(load_run_config(session["path"]), output=tmp_path / "out")
+    outcome = run_takes(config, workers=1, progress=False)
+    assert outcome.n_failed == 0 and len(built) == 1
+    manifest = json.loads(outcome.manifest.read_text())
+    for take in TAKES:
+        recorded = manifest["takes"][take]["warnings"]
+        assert recorded[0] == "a warning of the shared inputs"
+        assert recorded.count("a warning of the shared inputs") == 1
 
 
 def test_a_kept_take_that_does_not_read_back_is_prepared_again(prepared, tmp_path):

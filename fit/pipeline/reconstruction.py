@@ -52,7 +52,7 @@ from fit.pipeline.stages import (
     lip_seal_stage,
     retarget_stage,
 )
-from fit.pipeline.take_warnings import warn_unconverged
+from fit.pipeline.take_warnings import recorded_warnings, warn_unconverged
 from fit.report import build_report
 from fit.report.figure_queue import FigureQueue
 from fit.report.html import Figure
@@ -70,7 +70,7 @@ from mocap.take import Take
 from mocap.units import mm_per_unit
 from mocap.util.medians import nan_column_medians
 
-__all__ = ["Reconstruction", "PreparedTake", "ReconstructionResult"]
+__all__ = ["Reconstruction", "SharedReconstruction", "PreparedTake", "ReconstructionResult"]
 
 
 def _options(name: str, value):
@@ -257,6 +257,37 @@ class Reconstruction:
                                     bound=prepared.bound, retargeted=prepared.retargeted,
                                     bases=bases, fitted=fitted, stage_seconds=seconds,
                                     session_basis=session_basis, lip_seal=lips)
+
+
+@dataclass(frozen=True, eq=False)
+class SharedReconstruction:
+    """A run's :class:`Reconstruction`, built once for all its takes, and the warnings its
+    building raised (the shared inputs': each take raises them again, as when it built
+    its own). Its mesh and basis are read and checked once: about 0.6 s a take for the ICT
+    face and its 53 shapes, against 13 MB sent to each worker.
+
+    Attributes
+    ----------
+    reconstruction : Reconstruction
+    warnings : tuple of (str, type)
+        Message and category, in the order raised.
+    """
+
+    reconstruction: Reconstruction
+    warnings: tuple
+
+    @classmethod
+    def build(cls, config) -> "SharedReconstruction":
+        """:meth:`Reconstruction.from_config` of `config`, with its warnings.
+
+        Raises
+        ------
+        Mocap2MeshError
+            As :meth:`Reconstruction.from_config`.
+        """
+        with recorded_warnings() as caught:
+            reconstruction = Reconstruction.from_config(config)
+        return cls(reconstruction, tuple(caught))
 
 
 @dataclass(frozen=True, eq=False)

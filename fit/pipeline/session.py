@@ -50,9 +50,9 @@ from fit.pipeline.manifest import (
     write_manifest,
 )
 from fit.pipeline.outdir import clean_stale, output_lock, safe_stem, take_names
-from fit.pipeline.reconstruction import Reconstruction
+from fit.pipeline.reconstruction import Reconstruction, SharedReconstruction
 from fit.pipeline.session_basis import build_session_basis, session_input, uses_session_basis
-from fit.pipeline.take_warnings import capture_warnings, print_warnings
+from fit.pipeline.take_warnings import capture_warnings, print_warnings, replay_warnings
 from fit.report.figure_queue import FigureQueue
 from mocap.errors import Mocap2MeshError
 from mocap.util.atomic import refuse_overwrite
@@ -93,7 +93,7 @@ def _provenance(capture: Path, config: RunConfig, inputs: dict | None = None) ->
 
 def process_take(capture, config: RunConfig, session_basis=None, *, name: str | None = None,
                  provenance: Provenance | None = None,
-                 figure_helpers: int | None = None, kept=None) -> dict:
+                 figure_helpers: int | None = None, kept=None, built=None) -> dict:
     """Run one take through the chain and commit its folder; returns its manifest record.
 
     Files (relative to ``config.output``): ``<name>/`` with the exports of
@@ -122,6 +122,9 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
         Where the session basis kept this take prepared (:mod:`fit.pipeline.kept_takes`):
         read back (and removed) instead of running ingest, bind and retarget again, with
         the warnings they raised; without a readable file there, they run.
+    built : SharedReconstruction, optional
+        The run's reconstruction, built once for its takes (default: built here from
+        `config`).
     """
     capture = Path(capture)
     name = safe_stem(capture.stem) if name is None else name
@@ -131,12 +134,16 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
     try:
         with capture_warnings() as later:            # those of the exports and the report
             with capture_warnings() as caught:
+                if built is None:
+                    reconstruction = Reconstruction.from_config(config)
+                else:
+                    reconstruction = built.reconstruction
+                    replay_warnings(built.warnings)
                 source = capture
                 if kept is not None and (found := take_kept(kept)) is not None:
                     source, raised = found
-                    for message, category in raised:      # as the stages raised them
-                        warnings.warn(message, category, stacklevel=2)
-                result = dataclasses.replace(Reconstruction.from_config(config).process(
+                    replay_warnings(raised)                # as its stages raised them
+                result = dataclasses.replace(reconstruction.process(
                     source, session_basis=session_basis), name=name)
             stages = dict(result.stage_seconds)
             # the helpers start with the exports (a core of a helper's start would slow the
@@ -195,14 +202,15 @@ def _worker() -> dict:
 
 
 def _guarded(capture: Path, config: RunConfig, name: str, provenance: Provenance,
-             session_basis=None, figure_helpers: int | None = None, kept=None) -> dict:
+             session_basis=None, figure_helpers: int | None = None, kept=None,
+             built=None) -> dict:
     """:func:`process_take` that turns an exception into a failed record."""
     start = time.perf_counter()
     try:
         with capture_warnings(reemit=False) as caught:
             return process_take(capture, config, session_basis, name=name,
                                 provenance=provenance, figure_helpers=figure_helpers,
-                                kept=kept)
+                                kept=kept, built=built)
     except Exception as exc:  # noqa: BLE001 - one take's failure must not stop the others
         expected = isinstance(exc, Mocap2MeshError)
         return {"status": "failed", "skipped": False,
@@ -212,13 +220,14 @@ def _guarded(capture: Path, config: RunConfig, name: str, provenance: Provenance
 
 
 def _take_task(job: _TakeJob, shared) -> dict:
-    """The task an executor runs for each take: ``shared`` is ``(config, session_basis)``.
+    """The task an executor runs for each take: ``shared`` is ``(config, session_basis,
+    built)`` (built: the :class:`SharedReconstruction`, or None).
 
     Returns the take's manifest record, with where it ran (``worker``).
     """
-    config, session_basis = shared
+    config, session_basis, built = shared
     record = _guarded(job.capture, config, job.name, job.provenance, session_basis,
-                      job.figure_helpers, job.kept)
+                      job.figure_helpers, job.kept, built=built)
     return {**record, "worker": _worker()}
 
 
@@ -323,10 +332,14 @@ def run_takes(config: RunConfig, *, executor=None, workers: int | None = None,
 def _run_on(pool, todo, config, names, provenances, manifest, timeout, progress) -> None:
     """Build the session basis (when the takes share one) and run `todo` on `pool`."""
     shared, kept = None, {}
+    try:                                 # once for every task, not in each
+        built = SharedReconstruction.build(config)
+    except Exception:  # noqa: BLE001 - then each take builds it, and fails, on its own
+        built = None
     if uses_session_basis(config):
         kept = kept_files(config.output, {c: names[c] for c in todo})   # for their run
         shared, unprepared = build_session_basis(config, executor=pool, progress=progress,
-                                                 keep=kept)
+                                                 keep=kept, built=built)
         manifest.session_basis = None if shared is None else shared.record()
         for capture in [c for c in todo if c.stem in unprepared]:
             todo.remove(capture)
@@ -341,7 +354,7 @@ def _run_on(pool, todo, config, names, provenances, manifest, timeout, progress)
               file=sys.stderr) as bar:
         if pool.dashboard_link:
             bar.set_postfix_str(f"dashboard {pool.dashboard_link}")
-        for outcome in pool.map_unordered(_take_task, jobs, shared=(config, shared),
+        for outcome in pool.map_unordered(_take_task, jobs, shared=(config, shared, built),
                                           timeout=timeout):
             record = outcome.result if outcome.ok else _failed(outcome)
             manifest.collect(outcome.job.name, outcome.job.capture, record)

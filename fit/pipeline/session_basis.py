@@ -31,7 +31,6 @@ from __future__ import annotations
 import hashlib
 import sys
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,6 +43,7 @@ from fit.pipeline.executors import LocalExecutor
 from fit.pipeline.kept_takes import keep_prepared
 from fit.pipeline.options import BasisOptions
 from fit.pipeline.reconstruction import Reconstruction
+from fit.pipeline.take_warnings import recorded_warnings
 from mocap.errors import InputError, Mocap2MeshError
 
 __all__ = ["TakeMoments", "SessionBasis", "take_moments", "session_basis",
@@ -119,11 +119,10 @@ def take_moments(capture, reconstruction: Reconstruction, *, keep=None) -> TakeM
     Mocap2MeshError
         Any stage's error (:meth:`Reconstruction.prepare`).
     """
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with recorded_warnings() as caught:
         prepared = reconstruction.prepare(capture)
     if keep is not None:
-        keep_prepared(prepared, [(str(w.message), w.category) for w in caught], keep)
+        keep_prepared(prepared, caught, keep)
     retargeted = prepared.retargeted
     return TakeMoments(prepared.name, np.asarray(retargeted.operator.matrix, dtype=np.float64),
                        marker_moments(retargeted.displacements))
@@ -208,16 +207,21 @@ class _PrepareJob:
         return self.capture.stem
 
 
-def _moments_or_error(job: _PrepareJob, config: RunConfig):
-    """:func:`take_moments` of a capture, or the message of the error it raised."""
+def _moments_or_error(job: _PrepareJob, shared: tuple):
+    """:func:`take_moments` of a capture, or the message of the error it raised; ``shared``
+    is the run's configuration and its
+    :class:`~fit.pipeline.reconstruction.SharedReconstruction` (or None: built here)."""
+    config, built = shared
     try:
-        return take_moments(job.capture, Reconstruction.from_config(config), keep=job.keep)
+        reconstruction = Reconstruction.from_config(config) if built is None \
+            else built.reconstruction
+        return take_moments(job.capture, reconstruction, keep=job.keep)
     except Exception as exc:  # noqa: BLE001 - one take's failure must not stop the others
         return str(exc) if isinstance(exc, Mocap2MeshError) else f"{type(exc).__name__}: {exc}"
 
 
 def build_session_basis(config: RunConfig, *, executor=None,
-                        progress: bool | None = None, keep=None) -> tuple:
+                        progress: bool | None = None, keep=None, built=None) -> tuple:
     """The session basis of a run's takes, and the takes that could not contribute.
 
     Parameters
@@ -232,6 +236,8 @@ def build_session_basis(config: RunConfig, *, executor=None,
     keep : mapping of Path to Path, optional
         Captures whose prepared take is kept for their run: capture -> its file
         (:mod:`fit.pipeline.kept_takes`).
+    built : fit.pipeline.reconstruction.SharedReconstruction, optional
+        The run's reconstruction, built once (default: each take builds it).
 
     Returns
     -------
@@ -251,7 +257,8 @@ def build_session_basis(config: RunConfig, *, executor=None,
     with tqdm(total=len(captures), desc="session basis", unit="take", file=sys.stderr,
               disable=None if progress is None else not progress) as bar:
         jobs = [_PrepareJob(capture, (keep or {}).get(capture)) for capture in captures]
-        for outcome in executor.map_unordered(_moments_or_error, jobs, shared=config):
+        for outcome in executor.map_unordered(_moments_or_error, jobs,
+                                              shared=(config, built)):
             done[outcome.job.capture] = outcome.result if outcome.ok else outcome.error
             bar.update()
     outcomes = [done[c] for c in captures]          # pooled in the run's order

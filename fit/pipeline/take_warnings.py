@@ -16,7 +16,8 @@ from contextlib import contextmanager
 
 from tqdm import tqdm
 
-__all__ = ["capture_warnings", "print_warnings", "warn_unconverged"]
+__all__ = ["capture_warnings", "print_warnings", "recorded_warnings", "replay_warnings",
+           "warn_unconverged"]
 
 
 @contextmanager
@@ -55,6 +56,26 @@ def capture_warnings(*, reemit: bool = True):
         if failed and reemit:
             for message, category in seen.items():
                 warnings.warn(message, category, stacklevel=3)
+
+
+@contextmanager
+def recorded_warnings():
+    """Catch every warning raised inside; yields a list of ``(message, category)``, filled
+    when the block ends: work done once for several takes raises them again in each
+    (:func:`replay_warnings`)."""
+    pairs = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            yield pairs
+        finally:
+            pairs.extend((str(w.message), w.category) for w in caught)
+
+
+def replay_warnings(pairs) -> None:
+    """Warn ``(message, category)`` pairs again, in order (:func:`recorded_warnings`)."""
+    for message, category in pairs:
+        warnings.warn(message, category, stacklevel=2)
 
 
 def print_warnings(take: str, messages) -> None:
