@@ -57,10 +57,12 @@ def keep_prepared(prepared: PreparedTake, caught: list, path) -> bool:
         :data:`KEPT_BYTES`, nor when writing fails.
     """
     path = Path(path)
-    data = pickle.dumps((prepared, caught), protocol=pickle.HIGHEST_PROTOCOL)
     try:
         held = sum(entry.stat().st_size for entry in os.scandir(path.parent)
                    if entry.is_file())
+        if held >= KEPT_BYTES:                   # full: not even pickled
+            return False
+        data = pickle.dumps((prepared, caught), protocol=pickle.HIGHEST_PROTOCOL)
         if held + len(data) > KEPT_BYTES:
             return False
         with atomic_path(path) as tmp:
