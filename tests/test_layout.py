@@ -177,3 +177,45 @@ def test_an_unknown_name_of_an_old_path_is_an_attribute_error(monkeypatch):
         old = importlib.import_module("fit.gcv")
     with pytest.raises(AttributeError, match="has no attribute 'nope'"):
         old.nope
+
+
+# ------------------------------------------------------------ what a command imports
+
+def _fresh_modules(code: str) -> set:
+    """The modules a fresh interpreter holds after running `code`."""
+    import subprocess
+
+    done = subprocess.run([sys.executable, "-c", code + "\nimport sys\nprint(*sys.modules)"],
+                          capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert done.returncode == 0, done.stderr
+    return set(done.stdout.split())
+
+
+def test_the_run_command_loads_without_the_speech_analysis_and_the_other_commands():
+    """``mocap2mesh run`` needs one function of fit.gestures: the package's other modules
+    (scipy.signal with them) and the other commands' modules stay unimported, also through
+    the command line's parser; the whole package still gives every name it lists."""
+    loaded = _fresh_modules("from fit.cli.main import build_parser\n"
+                            "build_parser(['run', 'x.toml'])\n"
+                            "import fit.pipeline.session")
+    assert "fit.gestures.transfer" in loaded
+    assert not {"scipy.signal", "fit.gestures.phones", "fit.gestures.mrf"} & loaded
+    assert not {m for m in loaded if m.startswith("fit.cli.commands.")} - {"fit.cli.commands.run"}
+    everything = _fresh_modules("from fit.cli.main import build_parser\nbuild_parser([])")
+    assert {f"fit.cli.commands.{name}" for name in ("demo", "gestures", "run")} <= everything
+
+
+def test_a_lazy_package_gives_its_modules_objects_and_keeps_its_moved_names():
+    import fit.gestures
+    from fit.gestures import phones, speech
+
+    assert fit.gestures.read_wav is speech.read_wav
+    assert fit.gestures.PhoneSegments is phones.PhoneSegments
+    assert set(fit.gestures.__all__) <= set(dir(fit.gestures))
+    with pytest.raises(AttributeError, match="has no attribute 'nope'"):
+        fit.gestures.nope
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fit.gestures.marker_basis
+    assert [Path(w.filename).name for w in caught] == [Path(__file__).name]
+    assert "moved to fit.solve.marker_basis" in str(caught[0].message)

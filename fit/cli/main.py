@@ -31,14 +31,17 @@ EXIT_OK, EXIT_BAD_INPUT, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_CLOSED_PIPE = 0, 1, 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every subcommand registered."""
+def build_parser(argv=None) -> argparse.ArgumentParser:
+    """The argument parser of `argv`: when its first word names a subcommand, with that one
+    registered alone (a command's module imports what it runs: the others' imports would
+    only slow its start), else with every subcommand (for the listing and the errors)."""
     parser = argparse.ArgumentParser(
         prog="mocap2mesh",
         description="Raw facial motion capture to head-stabilized markers, face meshes "
                     "and blendshape bases.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
+    first = next(iter(argv or ()), None)
+    for name in (first,) if first in COMMANDS else COMMANDS:
         module = importlib.import_module(f"fit.cli.commands.{name}")
         module.add_parser(sub)
     return parser
@@ -50,7 +53,8 @@ def _format_warning(message, category, filename, lineno, line=None):
 
 def main(argv=None) -> int:
     """Run the command line; returns the exit code."""
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:          # argparse: --help (0) or usage error (2)

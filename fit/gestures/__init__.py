@@ -19,78 +19,34 @@
 
 import functools
 
-from fit.gestures.analysis import (
-    DETAIL_GROUPS,
-    ESTIMATORS,
-    LIP_REGIONS,
-    GestureAnalysis,
-    analyze_gestures,
-)
-from fit.gestures.clip import (
-    GestureClip,
-    clip_from_analysis,
-    clip_from_performance,
-    load_clip,
-    save_clip,
-)
-from fit.gestures.features import (
-    DETAIL_FEATURES,
-    FEATURES,
-    WEIGHT_FEATURES,
-    WEIGHT_PATTERNS,
-    weight_columns,
-)
-from fit.gestures.lipsync import TalkingFace, lip_region, talking_face
-from fit.gestures.mrf import (
-    GestureSynthesis,
-    candidate_distances,
-    pick_candidate,
-    synthesize_gestures,
-)
-from fit.gestures.phones import (
-    PhoneSegments,
-    phones_from_wav,
-    read_phones_csv,
-    read_sphinx_alignment,
-    recognize_phones,
-    write_phones_csv,
-)
-from fit.gestures.prosody import Prosody, praat_prosody, rms_prosody, speech_prosody
-from fit.gestures.reference import CaptureClip, clip_from_capture
-from fit.gestures.speech import (
-    analog_intensity,
-    opening_intensity,
-    read_wav,
-    speech_intensity,
-    wav_intensity,
-)
-from fit.gestures.talking import SpeechAnalysis, analyze_speech
-from fit.gestures.timeline import Segment, Timeline, load_timeline, parse_timeline
-from fit.gestures.viseme_basis import (
-    ARKIT_VISEMES,
-    VisemeBasis,
-    load_viseme_basis,
-    viseme_basis_from_shapes,
-)
-from fit.gestures.visemes import PHONE_VISEMES, VISEMES, VisemeCurves, viseme_curves
 from mocap.util.deprecation import moved_names
+from mocap.util.lazy import lazy_names
 
-__all__ = ["GestureAnalysis", "analyze_gestures", "DETAIL_GROUPS",
-           "LIP_REGIONS", "ESTIMATORS",
-           "GestureClip", "clip_from_analysis", "clip_from_performance", "load_clip", "save_clip",
-           "CaptureClip", "clip_from_capture",
-           "GestureSynthesis", "synthesize_gestures", "candidate_distances", "pick_candidate",
-           "speech_intensity", "read_wav", "wav_intensity", "analog_intensity",
-           "opening_intensity",
-           "FEATURES", "WEIGHT_FEATURES", "DETAIL_FEATURES", "WEIGHT_PATTERNS", "weight_columns",
-           "Segment", "Timeline", "load_timeline", "parse_timeline",
-           "Prosody", "praat_prosody", "rms_prosody", "speech_prosody",
-           "PhoneSegments", "recognize_phones", "phones_from_wav", "read_phones_csv",
-           "write_phones_csv", "read_sphinx_alignment",
-           "VISEMES", "PHONE_VISEMES", "VisemeCurves", "viseme_curves",
-           "VisemeBasis", "ARKIT_VISEMES", "viseme_basis_from_shapes", "load_viseme_basis",
-           "TalkingFace", "lip_region", "talking_face", "SpeechAnalysis", "analyze_speech"]
+#: Each module's public names, imported when one is first read (:mod:`mocap.util.lazy`): the
+#: reconstruction needs :mod:`.transfer` alone, without the speech analysis' imports.
+_NAMES = {
+    "analysis": ["GestureAnalysis", "analyze_gestures", "DETAIL_GROUPS", "LIP_REGIONS",
+                 "ESTIMATORS"],
+    "clip": ["GestureClip", "clip_from_analysis", "clip_from_performance", "load_clip",
+             "save_clip"],
+    "reference": ["CaptureClip", "clip_from_capture"],
+    "mrf": ["GestureSynthesis", "synthesize_gestures", "candidate_distances", "pick_candidate"],
+    "speech": ["speech_intensity", "read_wav", "wav_intensity", "analog_intensity",
+               "opening_intensity"],
+    "features": ["FEATURES", "WEIGHT_FEATURES", "DETAIL_FEATURES", "WEIGHT_PATTERNS",
+                 "weight_columns"],
+    "timeline": ["Segment", "Timeline", "load_timeline", "parse_timeline"],
+    "prosody": ["Prosody", "praat_prosody", "rms_prosody", "speech_prosody"],
+    "phones": ["PhoneSegments", "recognize_phones", "phones_from_wav", "read_phones_csv",
+               "write_phones_csv", "read_sphinx_alignment"],
+    "visemes": ["VISEMES", "PHONE_VISEMES", "VisemeCurves", "viseme_curves"],
+    "viseme_basis": ["VisemeBasis", "ARKIT_VISEMES", "viseme_basis_from_shapes",
+                     "load_viseme_basis"],
+    "lipsync": ["TalkingFace", "lip_region", "talking_face"],
+    "talking": ["SpeechAnalysis", "analyze_speech"],
+}
 
+__all__ = [name for names in _NAMES.values() for name in names]
 
 
 def _marker_basis_in_mm():
@@ -99,6 +55,6 @@ def _marker_basis_in_mm():
     return functools.partial(marker_basis, units="mm")
 
 
-__getattr__ = moved_names(__name__, {
+__getattr__, __dir__ = lazy_names(__name__, _NAMES, otherwise=moved_names(__name__, {
     "marker_basis": ("fit.solve.marker_basis:marker_basis(..., units='mm')",
-                     _marker_basis_in_mm)})
+                     _marker_basis_in_mm)}, wrapped=True))

@@ -14,7 +14,6 @@ choosing a good ridge parameter", Technometrics 21 (1979).
 from __future__ import annotations
 
 import numpy as np
-import scipy.optimize
 
 from fit.solve._active_set import RANK_RTOL
 from fit.solve._smooth import Spectrum
@@ -121,6 +120,8 @@ def gcv_smoothness(basis, data) -> float:
     then :func:`scipy.optimize.minimize_scalar` (method "bounded") refines
     log λ between the best grid point's neighbours.
     """
+    import scipy.optimize  # here: a run without "gcv" does not pay for its import (0.1 s)
+
     score = _Score(np.asarray(basis, float), np.asarray(data, float))
     low, high = np.log(score.span())
     grid = np.linspace(low, high, _GRID)

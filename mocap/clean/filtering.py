@@ -5,7 +5,6 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
 
 from mocap.clean._segments import visible_segments
 from mocap.errors import InputError
@@ -77,6 +76,8 @@ def lowpass(take: Take, cutoff_hz: float, *, order: int = 4) -> Take:
     if cutoff_hz >= nyquist:
         raise InputError(f"cutoff_hz={cutoff_hz:g} Hz must be below the Nyquist frequency "
                          f"{nyquist:g} Hz of the take's rate {take.rate:g} Hz")
+    from scipy.signal import butter, sosfiltfilt  # here: scipy.signal takes ~0.5 s to import
+
     sos = butter(order, cutoff_hz, fs=take.rate, output="sos")
     pad = _pad_length(sos)
     out = take.positions.copy()

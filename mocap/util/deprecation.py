@@ -109,7 +109,7 @@ def alias_modules(aliases: dict) -> None:
     sys.meta_path.insert(0, _ModuleAliases(aliases))
 
 
-def moved_names(module: str, moved: dict):
+def moved_names(module: str, moved: dict, *, wrapped: bool = False):
     """A module ``__getattr__`` serving names that moved out of `module`.
 
     Parameters
@@ -120,9 +120,12 @@ def moved_names(module: str, moved: dict):
         Old name -> ``"new.module:name"``, or -> ``("new.module:name", adapter)``
         where ``adapter()`` builds what the old name gave (the new function
         under the old signature, say).
+    wrapped : bool
+        The module's own ``__getattr__`` calls this one (e.g. that of
+        :func:`mocap.util.lazy.lazy_names`): the warning skips its frame too.
     """
     def __getattr__(name):
         if name not in moved:
             raise AttributeError(f"module {module!r} has no attribute {name!r}")
-        return _moved(module, name, moved[name], stacklevel=3)
+        return _moved(module, name, moved[name], stacklevel=3 + wrapped)
     return __getattr__
