@@ -23,7 +23,7 @@ from mocap.util.arrays import read_only
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positions
 
 __all__ = ["ReconstructionErrors", "reconstruction_errors", "summary_frame",
-           "FRAME_METRICS"]
+           "separated_peaks", "FRAME_METRICS"]
 
 #: Frames whose differences :func:`_squared_lengths` forms at a time (they stay in cache).
 _ROWS = 1024
@@ -131,13 +131,7 @@ class ReconstructionErrors:
         if separation == 1:
             ranked = np.argsort(-np.nan_to_num(series, nan=-np.inf), kind="stable")
             return ranked[np.isfinite(series[ranked])][:n]
-        from scipy.signal import find_peaks  # here: scipy.signal takes ~1 s to import
-
-        padded = np.concatenate(([-np.inf], np.nan_to_num(series, nan=-np.inf), [-np.inf]))
-        peaks, _ = find_peaks(padded, distance=separation, plateau_size=1)
-        peaks = peaks - 1
-        peaks = peaks[np.isfinite(series[peaks])]
-        return peaks[np.argsort(-series[peaks], kind="stable")][:n]
+        return separated_peaks(series, n, separation)
 
     def to_frame(self, by: str = "frame") -> pd.DataFrame:
         """The statistics as a table.
@@ -159,6 +153,41 @@ class ReconstructionErrors:
                              "rms_mm": self.marker_rms, "max_mm": self.marker_max,
                              "n_missing": self.n_missing},
                             index=pd.Index(self.labels, name="marker"))
+
+
+def separated_peaks(series, n: int, separation: int) -> np.ndarray:
+    """The `n` highest local peaks of `series` at least `separation` samples apart.
+
+    What ``scipy.signal.find_peaks(series, distance=separation)`` keeps (a plateau's peak is
+    its middle sample, left of centre for an even run; a peak within `separation` of a
+    higher kept one is dropped), highest first, without importing ``scipy.signal`` (0.4 s
+    of a run's start). Equal heights go to the earlier peak.
+
+    Parameters
+    ----------
+    series : ndarray of shape (T,)
+        NaN samples are never peaks.
+    n, separation : int
+        At least 1.
+
+    Returns
+    -------
+    ndarray of int, shape (≤ n,)
+    """
+    values = np.concatenate(([-np.inf], np.nan_to_num(series, nan=-np.inf), [-np.inf]))
+    starts = np.flatnonzero(np.r_[True, values[1:] != values[:-1]])   # runs of equal values
+    ends = np.r_[starts[1:], len(values)] - 1
+    heights = values[starts]
+    inner = np.arange(1, len(starts) - 1)
+    peak = inner[(heights[inner] > heights[inner - 1]) & (heights[inner] > heights[inner + 1])]
+    position = (starts[peak] + ends[peak]) // 2 - 1             # in series, without the pads
+    kept = []
+    for i in np.argsort(-heights[peak], kind="stable"):    # highest first: at most all peaks
+        if all(abs(position[i] - j) >= separation for j in kept):
+            kept.append(position[i])
+            if len(kept) == n:
+                break
+    return np.array(kept, dtype=np.intp)
 
 
 def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:

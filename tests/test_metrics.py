@@ -7,7 +7,13 @@ import pandas as pd
 import pytest
 from tolerances import EXACT_FLOAT64
 
-from fit.metrics import FRAME_METRICS, ReconstructionErrors, reconstruction_errors, summary_frame
+from fit.metrics import (
+    FRAME_METRICS,
+    ReconstructionErrors,
+    reconstruction_errors,
+    separated_peaks,
+    summary_frame,
+)
 from mocap.errors import InputError, MarkerError
 
 
@@ -135,6 +141,32 @@ def test_inputs_not_mutated_and_result_read_only():
     np.testing.assert_array_equal(captured, before)
     with pytest.raises(ValueError):
         res.errors[0, 0] = 1.0
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_separated_peaks_are_those_scipy_find_peaks_keeps(seed):
+    """The oracle: scipy.signal.find_peaks(distance=...), its peaks ranked by height; series
+    with plateaus, NaN runs, peaks at both ends and (rounded) equal heights."""
+    from scipy.signal import find_peaks
+
+    rng = np.random.default_rng(seed)
+    series = rng.normal(size=int(rng.integers(1, 400)))
+    for start in rng.integers(0, len(series), 8):                   # plateaus, NaN runs
+        series[start:start + rng.integers(1, 6)] = series[start] if start % 3 else np.nan
+    if seed % 4 == 0:                                               # equal heights
+        series = np.round(series, 1)
+    n, separation = int(rng.integers(1, 12)), int(rng.integers(1, 30))
+    padded = np.concatenate(([-np.inf], np.nan_to_num(series, nan=-np.inf), [-np.inf]))
+    peaks = find_peaks(padded, distance=separation, plateau_size=1)[0] - 1
+    peaks = peaks[np.isfinite(series[peaks])]
+    got = separated_peaks(series, n, separation)
+    # of two close peaks of equal height, scipy may keep the other one: compare the heights
+    # and, where all peaks' heights are distinct, the frames
+    expected = peaks[np.argsort(-series[peaks], kind="stable")][:n]
+    np.testing.assert_array_equal(series[got], series[expected])
+    every = find_peaks(padded, plateau_size=1)[0] - 1
+    if len(np.unique(series[every])) == len(every):
+        np.testing.assert_array_equal(got, expected)
 
 
 @pytest.mark.parametrize("by", FRAME_METRICS)
