@@ -14,7 +14,7 @@ from typing import Sequence
 import numpy as np
 
 from mocap.errors import FileFormatError, InputError
-from mocap.mesh.mesh import Mesh, load_mesh
+from mocap.mesh.mesh import Mesh, load_mesh, load_shape_vertices
 from mocap.units import mm_per_unit
 from mocap.util.validation import as_float_array
 
@@ -146,17 +146,7 @@ def _obj_shapes(neutral: Mesh, folder: Path, names):
     absent = [n for n in names if n not in files]
     if absent:
         raise InputError(f"{folder}: no OBJ file for shapes {', '.join(absent)}")
-    vertices = np.empty((len(names), neutral.n_vertices, 3))
-    for i, name in enumerate(names):
-        mesh = load_mesh(files[name], units=neutral.units)
-        if mesh.n_vertices != neutral.n_vertices:
-            raise FileFormatError(files[name], f"has {mesh.n_vertices} vertices but the neutral "
-                                               f"has {neutral.n_vertices}")
-        if not neutral.same_topology(mesh):
-            raise FileFormatError(files[name], "has the neutral's vertex count but other faces: "
-                                               "a shape must keep the neutral's topology")
-        vertices[i] = mesh.vertices
-    return names, vertices
+    return names, load_shape_vertices([files[name] for name in names], neutral)
 
 
 def _gltf_shapes(neutral: Mesh, path: Path, names):

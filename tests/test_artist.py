@@ -163,3 +163,69 @@ def test_gltf_mismatches(ict_basis, tmp_path):
 def test_neutral_path_and_mesh_agree(ict_basis, ict_mesh):
     assert ict_mesh.same_topology(ict_basis.neutral)
     np.testing.assert_array_equal(ict_mesh.vertices, ict_basis.neutral.vertices)
+
+
+def _edited(source: Path, target: Path, edit) -> None:
+    """`target`: the OBJ text of `source` with `edit(lines)` applied to its lines."""
+    lines = source.read_bytes().split(b"\n")
+    target.write_bytes(b"\n".join(edit(lines)))
+
+
+def _vertex_line(lines, vertex: int) -> int:
+    return [i for i, line in enumerate(lines) if line.startswith(b"v ")][vertex]
+
+
+def test_shapes_that_share_the_neutrals_face_text_are_read_as_load_mesh_reads_them(
+        ict_basis, ict_dir, small_dir):
+    """Shapes whose face lines are the neutral's text have only their vertices parsed: the
+    oracle is load_mesh of each file; CRLF lines and faces written another way
+    (v/vt/vn corners) take the whole reader and give the same."""
+    from mocap.mesh.mesh import load_mesh
+
+    source = small_dir / "jawOpen.obj"
+    _edited(source, small_dir / "crlf.obj", lambda lines: [line + b"\r" for line in lines])
+    _edited(source, small_dir / "with_uv.obj", lambda lines: [
+        b"f " + b" ".join(c + b"/" + c for c in line.split()[1:]) if line.startswith(b"f ")
+        else line for line in lines])
+    basis = load_artist_basis(ict_basis.neutral, small_dir)
+    for name in basis.names:
+        np.testing.assert_array_equal(
+            basis.displacements[basis.index(name)],
+            load_mesh(small_dir / f"{name}.obj").vertices - ict_basis.neutral.vertices)
+    np.testing.assert_array_equal(basis.displacements[basis.index("crlf")],
+                                  basis.displacements[basis.index("with_uv")])
+
+
+@pytest.mark.parametrize("edit, error", [
+    (lambda lines: lines[:_vertex_line(lines, 9000)] + lines[_vertex_line(lines, 9001):],
+     r"bad.obj at line \d+: face indexes vertex 9409, out of range for 9408 vertices"),
+    (lambda lines: lines[:_vertex_line(lines, 5)] + [b"v 0 nan 0"]
+     + lines[_vertex_line(lines, 5) + 1:], r"bad.obj: 1 vertices have NaN"),
+])
+def test_a_shape_with_the_neutrals_faces_but_bad_vertices_is_refused_by_name(
+        ict_basis, small_dir, edit, error):
+    _edited(small_dir / "jawOpen.obj", small_dir / "bad.obj", edit)
+    with pytest.raises(FileFormatError, match=error):
+        load_artist_basis(ict_basis.neutral, small_dir)
+
+
+def test_a_shape_with_the_neutrals_faces_warns_of_its_degenerate_triangles(ict_basis, small_dir):
+    a, b, c = ict_basis.neutral.faces[0]
+    collapsed = ict_basis.neutral.vertices.copy()
+    collapsed[[b, c]] = collapsed[a]
+    _edited(small_dir / "jawOpen.obj", small_dir / "flat.obj", lambda lines: [
+        b"v %r %r %r" % tuple(map(float, collapsed[i])) if i in (b, c) else line
+        for i, line in zip(_vertex_numbers(lines), lines)])
+    with pytest.warns(UserWarning, match=r"flat.obj: \d+ degenerate"):
+        load_artist_basis(ict_basis.neutral, small_dir)
+
+
+def _vertex_numbers(lines):
+    """Each line's vertex id (-1 for lines that are not vertices)."""
+    count = -1
+    for line in lines:
+        if line.startswith(b"v "):
+            count += 1
+            yield count
+        else:
+            yield -1
