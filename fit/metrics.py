@@ -166,7 +166,8 @@ def separated_peaks(series, n: int, separation: int) -> np.ndarray:
     Parameters
     ----------
     series : ndarray of shape (T,)
-        NaN samples are never peaks.
+        NaN and infinite samples are never returned (an infinite peak still drops the
+        lower ones within `separation`, as in ``find_peaks``).
     n, separation : int
         At least 1.
 
@@ -174,6 +175,7 @@ def separated_peaks(series, n: int, separation: int) -> np.ndarray:
     -------
     ndarray of int, shape (≤ n,)
     """
+    series = np.asarray(series, dtype=float)
     values = np.concatenate(([-np.inf], np.nan_to_num(series, nan=-np.inf), [-np.inf]))
     starts = np.flatnonzero(np.r_[True, values[1:] != values[:-1]])   # runs of equal values
     ends = np.r_[starts[1:], len(values)] - 1
@@ -181,13 +183,16 @@ def separated_peaks(series, n: int, separation: int) -> np.ndarray:
     inner = np.arange(1, len(starts) - 1)
     peak = inner[(heights[inner] > heights[inner - 1]) & (heights[inner] > heights[inner + 1])]
     position = (starts[peak] + ends[peak]) // 2 - 1             # in series, without the pads
-    kept = []
+    finite = np.isfinite(series[position])
+    kept, out = [], []              # an infinite peak still keeps others away, unreturned
     for i in np.argsort(-heights[peak], kind="stable"):    # highest first: at most all peaks
         if all(abs(position[i] - j) >= separation for j in kept):
             kept.append(position[i])
-            if len(kept) == n:
-                break
-    return np.array(kept, dtype=np.intp)
+            if finite[i]:
+                out.append(position[i])
+                if len(out) == n:
+                    break
+    return np.array(out, dtype=np.intp)
 
 
 def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:

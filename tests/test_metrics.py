@@ -155,6 +155,8 @@ def test_separated_peaks_are_those_scipy_find_peaks_keeps(seed):
         series[start:start + rng.integers(1, 6)] = series[start] if start % 3 else np.nan
     if seed % 4 == 0:                                               # equal heights
         series = np.round(series, 1)
+    if seed % 5 == 0:                                               # never returned
+        series[rng.integers(0, len(series))] = np.inf
     n, separation = int(rng.integers(1, 12)), int(rng.integers(1, 30))
     padded = np.concatenate(([-np.inf], np.nan_to_num(series, nan=-np.inf), [-np.inf]))
     peaks = find_peaks(padded, distance=separation, plateau_size=1)[0] - 1
