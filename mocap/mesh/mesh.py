@@ -198,7 +198,7 @@ def _read_obj(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     spaces, positive indices) are parsed in one C call per block; anything else
     goes through a line-by-line parser that names the faulty line.
     """
-    data = read_input_bytes(path, "mesh").replace(b"\r\n", b"\n")
+    data = _obj_text(path)
     vertices = _fast_block(_block(data, b"v"), np.float64)
     faces = _fast_block(_block(data, b"f"), np.int64)
     if vertices is not None and faces is not None and np.all(vertices[1] == 3) \
@@ -207,6 +207,11 @@ def _read_obj(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if np.all(faces[0] <= len(vertices)):
             return vertices, faces[0] - 1, faces[1]
     return _read_obj_lines(path, data.splitlines())
+
+
+def _obj_text(path) -> bytes:
+    """The bytes of an OBJ file, line ends as ``\\n``."""
+    return read_input_bytes(path, "mesh").replace(b"\r\n", b"\n")
 
 
 def _block(data: bytes, key: bytes) -> bytes | None:
@@ -392,8 +397,7 @@ def load_shape_vertices(paths, neutral: Mesh) -> np.ndarray:
     """
     faces_text = None
     if neutral.path is not None and Path(neutral.path).suffix.lower() == ".obj":
-        faces_text = _block(read_input_bytes(neutral.path, "mesh").replace(b"\r\n", b"\n"),
-                            b"f")
+        faces_text = _block(_obj_text(neutral.path), b"f")
     out = np.empty((len(paths), neutral.n_vertices, 3))
     for row, path in enumerate(paths):
         vertices = _vertices_beside(path, faces_text, neutral.n_vertices)
@@ -421,7 +425,7 @@ def _vertices_beside(path, faces_text: bytes | None, n_vertices: int) -> np.ndar
     path = Path(path)
     if faces_text is None or path.suffix.lower() != ".obj":
         return None
-    data = read_input_bytes(path, "mesh").replace(b"\r\n", b"\n")
+    data = _obj_text(path)
     if _block(data, b"f") != faces_text:
         return None
     parsed = _fast_block(_block(data, b"v"), np.float64)
