@@ -81,6 +81,30 @@ def test_a_report_drawn_with_a_helper_is_the_same_pictures(sing_case, report, tm
         assert shared[key].read_bytes() == files[key].read_bytes(), key
 
 
+def test_a_report_from_errors_computed_before_is_the_same_report(sing_case, report, tmp_path):
+    """The pipeline hands the report the errors it computed for its manifest: the pictures
+    and the page are those of the errors the report computes itself; errors of another
+    basis, take or origin are refused, naming the basis."""
+    ms, face, recs, neutral = sing_case
+    files, results, pca = report
+    given = build_report(face, recs, neutral, tmp_path, markerset=ms, pca=pca, name="sing",
+                         errors=results)
+    assert set(given) == set(files)
+    for key, path in files.items():
+        assert given[key].read_bytes() == path.read_bytes(), key
+    swapped = {"QE": results["H"], "H": results["QE"]}
+    other_origin = {b: reconstruction_errors(face.positions, r, neutral, labels=face.labels,
+                                             name=b, origin=neutral.mean(axis=0) + 1.0)
+                    for b, r in recs.items()}
+    shorter = {b: reconstruction_errors(face.positions[:-1], r[:-1], neutral,
+                                        labels=face.labels, name=b) for b, r in recs.items()}
+    for wrong in (swapped, other_origin, shorter):
+        with pytest.raises(InputError, match="errors of basis 'QE' are not of this take"):
+            build_report(face, recs, neutral, tmp_path, name="sing", errors=wrong)
+    with pytest.raises(InputError, match="errors has no entry for basis 'QE'"):
+        build_report(face, recs, neutral, tmp_path, name="sing", errors={"H": results["H"]})
+
+
 def test_region_groups_follow_the_markerset(sing_case):
     ms, face, _, _ = sing_case
     labels = list(face.labels[::-1]) + ["extra"]

@@ -544,7 +544,8 @@ class ReconstructionResult:
                               mesh_space=self.mesh_space() if options.mesh_views else None,
                               cross_validation=self.retargeted.cross_validation,
                               selection=self.retargeted.selection,
-                              lip_seal=self.lip_seal, figures=figures).values()
+                              lip_seal=self.lip_seal, figures=figures,
+                              errors=self.errors).values()
         return files
 
     def _head_frame_summary(self) -> dict:

@@ -50,12 +50,29 @@ def _shared_scales(results) -> tuple[float, float]:
     return (max(tops) if tops else 1.0), 1.08 * max(max(bars), 1e-6)
 
 
+def _given_errors(errors: Mapping, basis: str, take, neutral, origin):
+    """``errors[basis]``, checked to be of `basis`, the take's markers and frames and the
+    origin of α (`origin`, default the centroid of `neutral`)."""
+    given = errors.get(basis)
+    if given is None:
+        raise InputError(f"errors has no entry for basis {basis!r}")
+    expected = np.mean(neutral, axis=0) if origin is None else np.asarray(origin, float)
+    if given.name != basis or tuple(given.labels) != tuple(take.labels) \
+            or given.errors.shape != (take.n_frames, len(take.labels)) \
+            or not np.array_equal(given.origin, expected):
+        raise InputError(f"errors of basis {basis!r} are not of this take, its markers and "
+                         f"origin (name {given.name!r}, {given.errors.shape[0]} frames, "
+                         f"{len(given.labels)} markers)")
+    return given
+
+
 def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=None,
                  origin=None, pca=None, ingest=None, pictures=None, video: bool = False,
                  video_step: int | str = "auto", n_worst: int = 5, exaggerate: float = 1.0,
                  name: str | None = None, warnings=(), provenance: Mapping | None = None,
                  grades=(), held_out=None, mesh_space=None, sections=(), cross_validation=None,
-                 selection=None, lip_seal=None, figures: FigureQueue | None = None) -> dict:
+                 selection=None, lip_seal=None, figures: FigureQueue | None = None,
+                 errors: Mapping | None = None) -> dict:
     """Metrics, figures, (video) and the HTML report of one take.
 
     Parameters
@@ -120,6 +137,10 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
     figures : fit.report.figure_queue.FigureQueue, optional
         Draws the figures, shared with its helper processes (make it before other work,
         so that they have started); default: all in this process, one after another.
+    errors : mapping of basis name to fit.metrics.ReconstructionErrors, optional
+        The errors of `reconstructions` against `take` from `neutral`, already computed
+        (the pipeline's, for its manifest): used as they are, after a check that each is
+        of its basis, the take's markers and frames and `origin`. Default: computed here.
 
     Returns
     -------
@@ -152,9 +173,11 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         captured = plottable_positions(take.positions, "captured", labels=take.labels,
                                        first_frame=number)
         for basis, rec in reconstructions.items():   # each basis's views drawn meanwhile
-            results[basis] = reconstruction_errors(take.positions, rec, neutral,
-                                                   origin=origin, labels=take.labels,
-                                                   name=basis)
+            results[basis] = (reconstruction_errors(take.positions, rec, neutral,
+                                                    origin=origin, labels=take.labels,
+                                                    name=basis)
+                              if errors is None else _given_errors(errors, basis, take,
+                                                                   neutral, origin))
             worst[basis] = results[basis].worst_frames(n_worst, separation=separation)
             _submit_views(queue.submit, captured, rec, worst[basis], basis,
                           out(f"views-{basis}"), neutral=neutral, labels=take.labels,
