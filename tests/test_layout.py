@@ -4,7 +4,9 @@ and the old import paths of moved modules still work (with a warning) until they
 from __future__ import annotations
 
 import ast
+import contextlib
 import importlib
+import io
 import sys
 import warnings
 from pathlib import Path
@@ -201,8 +203,53 @@ def test_the_run_command_loads_without_the_speech_analysis_and_the_other_command
     assert "fit.gestures.transfer" in loaded
     assert not {"scipy.signal", "fit.gestures.phones", "fit.gestures.mrf"} & loaded
     assert not {m for m in loaded if m.startswith("fit.cli.commands.")} - {"fit.cli.commands.run"}
-    everything = _fresh_modules("from fit.cli.main import build_parser\nbuild_parser([])")
+    everything = _fresh_modules("from fit.cli.main import full_parser\nfull_parser()")
     assert {f"fit.cli.commands.{name}" for name in ("demo", "gestures", "run")} <= everything
+
+
+_USAGES = (["--help"], ["-h"], [], ["bogus"], ["-h", "run"], ["--", "run", "x.toml"], ["-x"],
+           ["--version"])
+
+
+def _parsed(parser, argv) -> tuple:
+    """What `parser` prints and exits with on `argv` (the exit code None when it parses)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            parser.parse_args(argv)
+            code = None
+        except SystemExit as exc:
+            code = exc.code
+    return out.getvalue(), err.getvalue(), code
+
+
+@pytest.mark.parametrize("argv", _USAGES, ids=" ".join)
+def test_the_listing_of_the_commands_is_the_full_parsers(argv):
+    """Without a command name first, the parser lists every command from its module's HELP
+    line without importing it: the help, the listing and the usage errors are those of the
+    parser with every command registered."""
+    from fit.cli.main import build_parser, full_parser
+
+    assert _parsed(build_parser(argv), argv) == _parsed(full_parser(), argv)
+
+
+def test_the_help_of_the_command_line_imports_no_command():
+    loaded = _fresh_modules("from fit.cli.main import main\nmain(['--help'])")
+    assert not {m for m in loaded if m.startswith("fit.cli.commands.")}
+    assert not {"scipy", "pandas", "matplotlib"} & loaded
+
+
+def test_a_command_the_listing_parser_picks_is_parsed_again_with_its_own(monkeypatch, tmp_path,
+                                                                         capsys):
+    """Should argparse ever pick a listed command (its name not the first word), the
+    command line parses the words again with that command registered, and runs it."""
+    cli = importlib.import_module("fit.cli.main")   # (fit.cli.main is also the function)
+    listing = cli.build_parser([])
+    picked = listing.parse_args(["info", "--json", "-h"])
+    assert (picked.command, picked.words) == ("info", ["--json", "-h"])
+    monkeypatch.setattr(cli, "build_parser", lambda argv: listing)
+    assert cli.main(["info", str(tmp_path / "missing.c3d")]) == cli.EXIT_BAD_INPUT
+    assert "mocap2mesh info: error:" in capsys.readouterr().err
 
 
 def test_a_lazy_package_gives_its_modules_objects_and_keeps_its_moved_names():

@@ -142,8 +142,8 @@ def test_the_core_install_imports_none_of_the_extra():
     code = ("import sys\n"
             "for m in ('parselmouth', 'pocketsphinx', 'av'): sys.modules[m] = None\n"
             "import fit.gestures, fit.gestures.video, fit.gestures.page\n"
-            "from fit.cli.main import build_parser\n"
-            "build_parser()\n"
+            "from fit.cli.main import full_parser\n"
+            "full_parser()\n"
             "print('ok')\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120)

@@ -10,17 +10,19 @@ fault), 2 usage error, 130 interrupted, 141 output cut short by a closed pipe
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
 import os
 import pkgutil
 import re
 import sys
 import warnings
+from pathlib import Path
 
 from fit.cli import commands
 from mocap.errors import Mocap2MeshError
 
-__all__ = ["main", "COMMANDS"]
+__all__ = ["main", "COMMANDS", "build_parser", "full_parser"]
 
 #: Subcommands: every module of :mod:`fit.cli.commands`, each with ``add_parser`` and ``run``.
 COMMANDS = tuple(sorted(m.name for m in pkgutil.iter_modules(commands.__path__)
@@ -34,17 +36,48 @@ _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 def build_parser(argv=None) -> argparse.ArgumentParser:
     """The argument parser of `argv`: when its first word names a subcommand, with that one
     registered alone (a command's module imports what it runs: the others' imports would
-    only slow its start), else with every subcommand (for the listing and the errors)."""
+    only slow its start), else with every subcommand listed by its ``HELP`` line, read from
+    its module's source (the listing, ``--help`` and the usage errors need no more)."""
+    first = next(iter(argv or ()), None)
+    if first in COMMANDS:
+        return _parser(registered=(first,))
+    return _parser(listed=COMMANDS)
+
+
+def full_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand registered (imports every command)."""
+    return _parser(registered=COMMANDS)
+
+
+def _parser(*, registered=(), listed=()) -> argparse.ArgumentParser:
+    """The parser with the commands `registered` (their modules imported) and the commands
+    `listed` (a name and a help line each, no arguments: :func:`main` parses again with
+    the one named registered)."""
     parser = argparse.ArgumentParser(
         prog="mocap2mesh",
         description="Raw facial motion capture to head-stabilized markers, face meshes "
                     "and blendshape bases.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    first = next(iter(argv or ()), None)
-    for name in (first,) if first in COMMANDS else COMMANDS:
-        module = importlib.import_module(f"fit.cli.commands.{name}")
-        module.add_parser(sub)
+    for name in COMMANDS:
+        if name in registered:
+            importlib.import_module(f"fit.cli.commands.{name}").add_parser(sub)
+        elif name in listed:
+            # every word after the name taken as it is (no option of its own, not even -h)
+            listing = sub.add_parser(name, help=_help_line(name), add_help=False,
+                                     prefix_chars="\0")
+            listing.add_argument("words", nargs=argparse.REMAINDER)
+            listing.set_defaults(listed=True)
     return parser
+
+
+def _help_line(name: str) -> str:
+    """The ``HELP`` string of command `name`'s module, from its source (not imported)."""
+    source = Path(commands.__path__[0], f"{name}.py").read_text(encoding="utf-8")
+    for node in ast.parse(source).body:
+        if isinstance(node, ast.Assign) and [getattr(t, "id", None) for t in node.targets] \
+                == ["HELP"] and isinstance(node.value, ast.Constant):
+            return node.value.value
+    raise RuntimeError(f"fit.cli.commands.{name} has no HELP string")
 
 
 def _format_warning(message, category, filename, lineno, line=None):
@@ -54,9 +87,10 @@ def _format_warning(message, category, filename, lineno, line=None):
 def main(argv=None) -> int:
     """Run the command line; returns the exit code."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(argv)
     try:
-        args = parser.parse_args(argv)
+        args = build_parser(argv).parse_args(argv)
+        if getattr(args, "listed", False):      # a command named after other words
+            args = _parser(registered=(args.command,)).parse_args(argv)
     except SystemExit as exc:          # argparse: --help (0) or usage error (2)
         return int(exc.code or 0)
     warnings.formatwarning = _format_warning

@@ -19,12 +19,14 @@ from mocap.retarget.archive import is_retargeted_archive
 from mocap.retarget.retargeting import DISTANCES, KERNELS, RetargetOptions
 from mocap.util.atomic import refuse_overwrite
 
+HELP = "PCA and quasi-eigen bases of retargeted takes and an artist basis"
+
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "basis", help="PCA and quasi-eigen bases of retargeted takes and an artist basis",
+        "basis", help=HELP,
         description="Fit the PCA of the mesh motion of one or more takes, project the artist's "
                     "shapes onto its hyperplane (quasi-eigen faces, Kim & Ko 2007) and write "
                     "into OUT: pca.npz, pca/ and pca.glb (the mean 'pca_mean', then each "

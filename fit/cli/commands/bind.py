@@ -19,6 +19,8 @@ from mocap.mesh import load_mesh
 from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.util.atomic import refuse_overwrite
 
+HELP = "bind the markers of a neutral capture frame to a face mesh"
+
 __all__ = ["add_parser", "run", "OLD_STABILIZE"]
 
 #: ``--stabilize`` alone, the old spelling: bind the head-stabilized markers
@@ -28,7 +30,7 @@ OLD_STABILIZE = ("head", "head frame")
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "bind", help="bind the markers of a neutral capture frame to a face mesh",
+        "bind", help=HELP,
         description="Pick the neutral frame of a capture (or take the one given), fit the "
                     "capture-to-mesh similarity to the landmark markers, refine it by ICP and "
                     "write every marker's face, barycentric coordinates and distance to the "

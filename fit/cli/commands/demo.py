@@ -9,11 +9,13 @@ from pathlib import Path
 
 from fit.demo import run_demo
 
+HELP = "generate the demo session and run the chain on it"
+
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("demo", help="generate the demo session and run the chain on it",
+    p = sub.add_parser("demo", help=HELP,
                        description="Generate the project's own demo session (a procedural "
                                    "face, an 18-shape muscle basis, a simulated capture; "
                                    "seeded), write a run configuration for it and run the "

@@ -43,6 +43,8 @@ from fit.gestures.prosody import PROSODY_METHODS
 from mocap.errors import InputError
 from mocap.synth.performance import read_performance
 
+HELP = "facial gestures: reference clips from captures, synthesis from speech"
+
 __all__ = ["add_parser", "run_analyze", "run_synthesize", "run_phones", "load_palette"]
 
 
@@ -55,7 +57,7 @@ def _pair(text: str) -> tuple:
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "gestures", help="facial gestures: reference clips from captures, synthesis from speech",
+        "gestures", help=HELP,
         description="Expressive facial gestures (Ju & Lee 2008): 'analyze' decomposes a "
                     "capture into a reference clip (blend weights, blinks, brows, head motion, "
                     "details, speech intensity); 'synthesize' drives a Markov random field over "

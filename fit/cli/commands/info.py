@@ -9,11 +9,13 @@ import mocap
 from mocap.gaps import find_gaps
 from mocap.io.c3d import C3DSummary, summarize_c3d
 
+HELP = "labels, frames, rate, units and gaps of a marker file"
+
 __all__ = ["add_parser", "run", "describe"]
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("info", help="labels, frames, rate, units and gaps of a marker file",
+    p = sub.add_parser("info", help=HELP,
                        description="Print labels, frames, rate, units, producer, missing "
                                    "samples per marker and the longest gap of a marker file.")
     p.add_argument("file", help="C3D, Vicon Nexus CSV, TRC or .npz take")

@@ -13,12 +13,14 @@ from mocap.clean.gapfill import DEFAULT_MIN_VISIBLE
 from mocap.clean.ingest import EXTRA_MARKERS, IngestOptions, ingest, save_head_motion
 from mocap.markerset import load_markerset
 
+HELP = "gap-fill, filter, resample and head-stabilize a marker file"
+
 __all__ = ["add_parser", "run", "ingest_file"]
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "ingest", help="gap-fill, filter, resample and head-stabilize a marker file",
+        "ingest", help=HELP,
         description="Read a capture, fill its gaps, low-pass and resample it, express it in "
                     "the head frame, and write it as .c3d, .csv or .npz (by extension).")
     p.add_argument("file", help="input C3D, Vicon Nexus CSV, TRC or .npz take")

@@ -7,12 +7,14 @@ from pathlib import Path
 from fit.cli.arguments import add_capture, add_mesh, add_units
 from fit.pipeline.initialize import initialize
 
+HELP = "infer the marker set, landmarks and run.toml of a capture never seen"
+
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "init", help="infer the marker set, landmarks and run.toml of a capture never seen",
+        "init", help=HELP,
         description="Read a capture and a face mesh, infer what a first run needs (subject "
                     "prefix, markers not worth keeping, head or stabilization markers, the "
                     "face's axes, regions, landmark pairs, the mesh's landmarks when it has "

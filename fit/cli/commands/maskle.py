@@ -11,12 +11,14 @@ from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.mesh.mesh import load_mesh
 from mocap.util.atomic import atomic_path
 
+HELP = "paint bone and region weights on a face mesh with the Maskle"
+
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "maskle", help="paint bone and region weights on a face mesh with the Maskle",
+        "maskle", help=HELP,
         description="Place the Maskle on a face from its ten landmarks (mocap.anatomy."
                     "MASKLE_POINTS), shrink it onto the face and transfer its painted "
                     "weights to the face's vertices. Writes an .npz with channel_names, "

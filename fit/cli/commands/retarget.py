@@ -26,12 +26,14 @@ from mocap.mesh.mouth import find_mouth
 from mocap.retarget.archive import CONTENTS, save_npz, save_obj_sequence
 from mocap.retarget.retargeting import DISTANCES, RETARGET_KERNELS, RetargetOptions, retarget
 
+HELP = "retarget a capture onto a face mesh with an RBF operator"
+
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "retarget", help="retarget a capture onto a face mesh with an RBF operator",
+        "retarget", help=HELP,
         description="Fill the capture's gaps, stabilize it in the head frame (--stabilize), "
                     "take the "
                     "face-marker displacements from the neutral frame into the mesh's units "

@@ -11,12 +11,14 @@ from fit.pipeline.config import load_run_config
 from fit.pipeline.executors import EXECUTORS
 from fit.pipeline.session import run_takes
 
+HELP = "run the whole chain on every take of a configuration"
+
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "run", help="run the whole chain on every take of a configuration",
+        "run", help=HELP,
         description="Ingest, stabilize, bind, retarget, build the PCA and quasi-eigen bases, "
                     "fit the weights of every basis and write exports and QA reports for "
                     "every take named by CONFIG.toml; manifest.json records inputs (SHA-256), "

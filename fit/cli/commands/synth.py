@@ -17,6 +17,8 @@ from mocap.synth.performance import match_shape_names, read_performance
 from mocap.synth.performance_gaps import TRACKING_FILLS, fill_tracking_gaps
 from mocap.util.toml import read_toml
 
+HELP = "simulate a facial capture (and its ground truth) from a performance"
+
 __all__ = ["add_parser", "run", "parse_head_motion"]
 
 
@@ -33,7 +35,7 @@ def parse_head_motion(text: str) -> tuple[float, float]:
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "synth", help="simulate a facial capture (and its ground truth) from a performance",
+        "synth", help=HELP,
         description="Drive a face mesh and its expression shapes with a weight performance, "
                     "place the markers of a layout on it, move the head, add noise and "
                     "occlusion gaps, and write the capture (.c3d or .csv) and, with --truth, "
