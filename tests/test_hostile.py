@@ -353,3 +353,20 @@ def test_a_closed_pipe_ends_quietly(tmp_path):
                           capture_output=True, text=True, check=False)
     assert len(pipe.stdout.splitlines()) == 3 and pipe.stderr == ""
     assert pipe.returncode == 141
+
+
+def test_the_console_ends_with_all_it_printed_written(tmp_path):
+    """The console entry point leaves the objects of its imports to the process's end:
+    what it printed is still flushed whole, and its exit code is the command's."""
+    labels = tuple(f"marker-{i:04d}" for i in range(4000))
+    write_c3d(Take(labels, np.zeros((2, len(labels), 3)), 100.0), tmp_path / "many.c3d")
+    command = "from fit.cli.main import console; console()"
+    with open(tmp_path / "out.txt", "w") as out:
+        done = subprocess.run([sys.executable, "-c", command, "info", str(tmp_path / "many.c3d")],
+                              stdout=out, stderr=subprocess.PIPE, text=True, check=False)
+    assert done.returncode == 0 and done.stderr == ""
+    printed = (tmp_path / "out.txt").read_text()
+    assert all(label in printed for label in labels[-3:]) and printed.endswith("\n")
+    failed = subprocess.run([sys.executable, "-c", command, "info", str(tmp_path / "no.c3d")],
+                            capture_output=True, text=True, check=False)
+    assert failed.returncode == 1 and "mocap2mesh info: error:" in failed.stderr

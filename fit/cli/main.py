@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import gc
 import importlib
 import os
 import pkgutil
@@ -133,7 +134,13 @@ def _silence_stdout() -> None:
 
 def console() -> None:  # pragma: no cover - the installed entry point
     """Entry point of the ``mocap2mesh`` console script."""
-    sys.exit(main())
+    code = main()
+    # The interpreter's exit walks every object the imports made, in its last collections
+    # (0.3 s with the chain's libraries loaded, a tenth of that frozen). Frozen, they are
+    # left to the process's end; exit handlers, the flushing of stdout and stderr and the
+    # objects freed by reference counting go on as before.
+    gc.freeze()
+    sys.exit(code)
 
 
 if __name__ == "__main__":  # pragma: no cover
