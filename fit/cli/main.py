@@ -133,12 +133,18 @@ def _silence_stdout() -> None:
 
 
 def console() -> None:  # pragma: no cover - the installed entry point
-    """Entry point of the ``mocap2mesh`` console script."""
-    code = main()
-    # The interpreter's exit walks every object the imports made, in its last collections
-    # (0.3 s with the chain's libraries loaded, a tenth of that frozen). Frozen, they are
-    # left to the process's end; exit handlers, the flushing of stdout and stderr and the
-    # objects freed by reference counting go on as before.
+    """Entry point of the ``mocap2mesh`` console script.
+
+    The objects of the command's imports live as long as the process: frozen
+    (:func:`gc.freeze`) once they are made, the collector's full passes during the command
+    skip them (a run's: 0.25 -> 0.08 s). So are the command's own at its end, which the
+    interpreter's exit would walk again (0.38 -> 0.05 s). Exit handlers, the flushing of
+    stdout and stderr and the objects freed by reference counting go on as before.
+    """
+    argv = sys.argv[1:]
+    build_parser(argv)      # the command's imports
+    gc.freeze()
+    code = main(argv)
     gc.freeze()
     sys.exit(code)
 
