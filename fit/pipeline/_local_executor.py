@@ -5,6 +5,7 @@ Re-exported by :mod:`fit.pipeline.executors`.
 
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import signal
 import sys
@@ -35,6 +36,9 @@ def _child(conn, alive, task, job, shared, workers) -> None:
     """A local worker process among `workers`: say it started, run one job on its share of
     the BLAS's threads, send ``(ok, result or reason, traceback)``."""
     die_with_driver(alive)              # no orphan when the driver is killed
+    # the objects of the worker's imports live as long as it: the collector's full passes
+    # during the job skip them (see fit.cli.main.console)
+    gc.freeze()
     # the other workers keep the rest of the cores busy (threads waiting for a busy core
     # made a pool of 2 on 2 cores 1.7 times slower)
     threads = blas_threads()
