@@ -12,6 +12,7 @@ caller waiting for the exit code.
 
 from __future__ import annotations
 
+import gc
 import os
 import pickle
 import sys
@@ -46,6 +47,9 @@ def _send(outbox, outcome) -> None:
 
 
 def main() -> None:
+    # the objects of the imports live as long as the helper: the collector's full passes
+    # while it draws skip them (see fit.cli.main.console)
+    gc.freeze()
     inbox = sys.stdin.buffer
     outbox = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
