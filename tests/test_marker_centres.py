@@ -141,17 +141,17 @@ def test_an_unsettled_frame_is_reported(centres_case):
     assert f"{N_FRAMES} frames had not settled after 1 steps" in fit.solution.message
 
 
-def test_one_smooth_step_is_the_smooth_solve_at_the_frames_linear_optima(centres_case):
+def test_one_smooth_step_is_the_smooth_solve_at_the_clipped_unbounded_optimum(centres_case):
     """With smoothness the first chord step is the smooth solve of the data less r at the
-    frames' own linear optima; stopped there (max_steps=1), the result is that solve,
-    finished exactly even though the active set was not yet optimal when the step was
-    taken, and the frames are reported unsettled."""
+    linear model's unbounded smooth optimum clipped to the bounds; stopped there
+    (max_steps=1), the result is that solve, finished exactly even though the active set
+    was not yet optimal when the step was taken, and the frames are reported unsettled."""
     basis, layout, _, data, tangent = centres_case
     noisy = data + 0.02 * np.random.default_rng(6).standard_normal(data.shape)
     V0, E = basis.neutral.vertices, basis.displacements
     fit = solve_at_marker_centres(layout, V0, E, tangent, noisy, lower=0.0, upper=1.0,
                                   smoothness=0.5, max_steps=1)
-    start = solve_weights(tangent, noisy, lower=0.0, upper=1.0).weights
+    start = np.clip(solve_weights(tangent, noisy, smoothness=0.5).weights, 0.0, 1.0)
     moved = layout.positions_under_weights(V0, E, start) - layout.positions(V0)
     expected = solve_weights(tangent, noisy - (moved - np.tensordot(start, tangent, axes=1)),
                              lower=0.0, upper=1.0, smoothness=0.5)

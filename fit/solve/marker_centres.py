@@ -254,15 +254,16 @@ def _smooth_chord_steps(model: _CentreModel, data, smoothness, tol, max_steps,
     """The chord steps of `data` (T, M, 3) as one smooth problem, written into `out`;
     return the basis' rank.
 
-    The first iterate is the linear model's optima of the frames (solving their own
-    fixed points first costs more than the steps it saves). Every global solve of the
+    The first iterate is the linear model's unbounded smooth minimizer clipped to the
+    bounds (one spectral solve: a bounded solve per frame costs more than the steps it
+    saves, and a smooth start takes no more steps). Every global solve of the
     smooth active-set iteration is a chord step (:class:`_SmoothChord`): while the active
     set is still wrong the step is inexact and the next iterate is its weights; once a
     solve is optimal, iterates mix the last two steps as :func:`_chord_steps` does. The
     result solves the data of its own last iterate exactly.
     """
     basis, lower, upper = model.basis, model.lower, model.upper
-    start = solve_weights(basis, data, lower=lower, upper=upper).weights
+    start = np.clip(solve_weights(basis, data, smoothness=smoothness).weights, lower, upper)
     chord = _SmoothChord(model, data, start, tol, max_steps, out)
     sol = solve_weights(basis, chord.moved_data, lower=lower, upper=upper,
                         smoothness=smoothness, follow=chord)
