@@ -3,6 +3,7 @@ local pool, a worker killed mid-take, a driver killed mid-session and run again.
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import shutil
@@ -96,6 +97,9 @@ def test_dask_writes_the_same_bits_as_the_local_pool(session, client, local):
         assert _metrics(local.takes[take]) == _metrics(dask.takes[take])
         ran_on = dask.takes[take]["worker"]["pid"]
         assert ran_on in client.run(os.getpid).values()     # on a worker, not here
+    # the workers' objects, frozen out of the collector's passes while a take ran, are not
+    # left frozen after it
+    assert set(client.run(gc.get_freeze_count).values()) == {0}
 
 
 def test_a_worker_killed_mid_take_is_rescheduled(session, client, local):

@@ -36,6 +36,7 @@ caller's executor cannot say, so there it counts from the submission.
 
 from __future__ import annotations
 
+import gc
 import importlib.util
 import os
 import time
@@ -221,11 +222,19 @@ def _identity(value):
 
 
 def _announced(task, job, shared, topic: str):
-    """A Dask task: tell the driver it started (its timeout counts from here), run the job."""
+    """A Dask task: tell the driver it started (its timeout counts from here), run the job.
+
+    While the job runs, what the worker held before it (its imports, its own objects) is
+    frozen out of the collector's full passes, as a local worker's imports are; unfrozen
+    after, so that the worker's next tasks find its garbage collected as before."""
     from distributed import get_worker
     worker = get_worker()
     worker.log_event(topic, worker.get_current_task())
-    return task(job, shared)
+    gc.freeze()
+    try:
+        return task(job, shared)
+    finally:
+        gc.unfreeze()
 
 
 def _future_outcome(future, job, seconds: float) -> TaskOutcome:
