@@ -25,7 +25,7 @@ from mocap.util.validation import as_choice, as_float_array, as_int, as_position
 __all__ = ["ReconstructionErrors", "reconstruction_errors", "summary_frame",
            "separated_peaks", "FRAME_METRICS"]
 
-#: Frames whose differences :func:`_squared_lengths` forms at a time (they stay in cache).
+#: Frames whose differences :func:`_squared_errors` forms at a time (they stay in cache).
 _ROWS = 1024
 #: Per-frame series by which frames can be ranked (:meth:`ReconstructionErrors.worst_frames`).
 FRAME_METRICS = ("alpha", "displacement_error", "rms", "max_error")
@@ -273,29 +273,21 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
     origin = (neutral.mean(axis=0) if origin is None
               else as_float_array(origin, "origin", shape=(3,), allow_nan=False))
 
-    # squared lengths (T, M), NaN where a coordinate of either sample is: the valid ones
-    sq_err, sq_pos, sq_disp = (_squared_lengths(captured, other)
-                               for other in (reconstructed, origin, neutral))
-    valid = ~np.isnan(sq_err)
-    errors = np.sqrt(sq_err)
-    for sq in (sq_err, sq_pos, sq_disp):
-        sq[~valid] = 0.0
-
+    errors, sums, marker_sums = _squared_errors(captured, reconstructed, origin, neutral)
+    valid = ~np.isnan(errors)
     n_valid = valid.sum(axis=1)
-    per_frame_err = sq_err.sum(axis=1)
+    per_frame_err, per_frame_pos, per_frame_disp = sums
     has = n_valid > 0
-    frame_nan = np.where(has, 1.0, np.nan)
-    alpha = _ratio(per_frame_err, sq_pos.sum(axis=1))
-    disp = _ratio(per_frame_err, sq_disp.sum(axis=1))
-    rms = np.sqrt(per_frame_err / np.maximum(n_valid, 1)) * frame_nan
-    max_error = np.max(np.where(valid, errors, -np.inf), axis=1, initial=-np.inf)
-    max_error = np.where(has, max_error, np.nan)
+    alpha = _ratio(per_frame_err, per_frame_pos)
+    disp = _ratio(per_frame_err, per_frame_disp)
+    rms = np.sqrt(per_frame_err / np.maximum(n_valid, 1)) * np.where(has, 1.0, np.nan)
+    max_error = np.fmax.reduce(errors, axis=1)              # NaN for a frame without samples
 
     n_frames_valid = valid.sum(axis=0)
     marker_has = np.where(n_frames_valid > 0, 1.0, np.nan)
-    marker_mean = np.where(valid, errors, 0).sum(axis=0) / np.maximum(n_frames_valid, 1)
-    marker_rms = np.sqrt(sq_err.sum(axis=0) / np.maximum(n_frames_valid, 1))
-    marker_max = np.max(np.where(valid, errors, -np.inf), axis=0, initial=-np.inf)
+    marker_mean = marker_sums[0] / np.maximum(n_frames_valid, 1)
+    marker_rms = np.sqrt(marker_sums[1] / np.maximum(n_frames_valid, 1))
+    marker_max = np.fmax.reduce(errors, axis=0)             # NaN for a marker never counted
     if valid.all():
         marker_p95 = np.percentile(errors, 95, axis=0)
     else:
@@ -303,17 +295,21 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
         marker_p95 = np.full(n_markers, np.nan)
         marker_p95[n_frames_valid > 0] = np.nanpercentile(counted, 95, axis=0)
 
-    n_samples = int(valid.sum())
+    n_samples = int(n_valid.sum())
     all_err = errors[valid]
+    total_err, total_pos, total_disp = sums.sum(axis=1)
+    mean, top = (all_err.mean(), all_err.max()) if n_samples else (np.nan, np.nan)
+    # (after the mean and the largest: the percentile partitions all_err in place)
+    p95 = np.percentile(all_err, 95, overwrite_input=True) if n_samples else np.nan
     totals = {
-        "alpha": float(_ratio(sq_err.sum(), sq_pos.sum())),
+        "alpha": float(_ratio(total_err, total_pos)),
         "alpha_mean": float(np.nanmean(alpha)) if has.any() else np.nan,
         "alpha_max": float(np.nanmax(alpha)) if has.any() else np.nan,
-        "displacement_error": float(_ratio(sq_err.sum(), sq_disp.sum())),
-        "rms_mm": float(np.sqrt(sq_err.sum() / n_samples)) if n_samples else np.nan,
-        "mean_mm": float(all_err.mean()) if n_samples else np.nan,
-        "p95_mm": float(np.percentile(all_err, 95)) if n_samples else np.nan,
-        "max_mm": float(all_err.max()) if n_samples else np.nan,
+        "displacement_error": float(_ratio(total_err, total_disp)),
+        "rms_mm": float(np.sqrt(total_err / n_samples)) if n_samples else np.nan,
+        "mean_mm": float(mean),
+        "p95_mm": float(p95),
+        "max_mm": float(top),
         "worst_frame": int(np.nanargmax(rms)) if has.any() else -1,
         "n_samples": n_samples,
         "n_missing": int(valid.size - n_samples),
@@ -324,18 +320,39 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
         rms=read_only(rms), max_error=read_only(max_error),
         n_valid=read_only(n_valid), marker_mean=read_only(marker_mean * marker_has),
         marker_p95=read_only(marker_p95), marker_rms=read_only(marker_rms * marker_has),
-        marker_max=read_only(np.where(n_frames_valid > 0, marker_max, np.nan)),
+        marker_max=read_only(marker_max),
         n_missing=read_only(n_frames - n_frames_valid), origin=read_only(origin),
         totals=totals)
 
 
-def _squared_lengths(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``‖a − b‖²`` over the last axis, (T, M), by blocks of frames (no (T, M, 3) temporary)."""
-    out = np.empty(a.shape[:2])
-    for first in range(0, len(a), _ROWS):
-        diff = a[first:first + _ROWS] - (b if b.ndim < 3 else b[first:first + _ROWS])
-        out[first:first + _ROWS] = np.einsum("tmc,tmc->tm", diff, diff)
-    return out
+def _squared_errors(captured, reconstructed, origin, neutral):
+    """The errors and the squared lengths' sums over the counted samples, in one pass over
+    the frames, a block of ``_ROWS`` at a time (its temporaries stay in the cache).
+
+    Returns
+    -------
+    errors : ndarray, shape (T, M)
+        ‖v* − v‖, NaN where a coordinate of either sample is.
+    sums : ndarray, shape (3, T)
+        Per frame over its counted samples: Σ‖v* − v‖², Σ‖v* − o‖², Σ‖v* − v⁰‖².
+    marker_sums : ndarray, shape (2, M)
+        Per marker over its counted frames: Σ‖v* − v‖ and Σ‖v* − v‖².
+    """
+    n_frames, n_markers = captured.shape[:2]
+    errors = np.empty((n_frames, n_markers))
+    sums = np.empty((3, n_frames))
+    marker_sums = np.zeros((2, n_markers))
+    for first in range(0, n_frames, _ROWS):
+        rows = slice(first, first + _ROWS)
+        cap = captured[rows]
+        squared = np.stack([np.einsum("tmc,tmc->tm", diff, diff) for diff in
+                            (cap - reconstructed[rows], cap - origin, cap - neutral)])
+        np.sqrt(squared[0], out=errors[rows])
+        squared[:, np.isnan(squared[0])] = 0.0          # the samples not counted
+        sums[:, rows] = squared.sum(axis=2)
+        marker_sums[0] += np.where(np.isnan(errors[rows]), 0.0, errors[rows]).sum(axis=0)
+        marker_sums[1] += squared[0].sum(axis=0)
+    return errors, sums, marker_sums
 
 
 def summary_frame(results) -> pd.DataFrame:

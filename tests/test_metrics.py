@@ -65,6 +65,36 @@ def test_per_frame_metrics_match_loops(origin):
     assert np.isnan(res.alpha[20]) and res.n_valid[20] == 0
 
 
+def test_a_take_of_many_blocks_of_frames_matches_the_loops():
+    """Frames are taken a block at a time: a take of several blocks (and a part one), with
+    missing samples in each, gives what the loops give frame by frame and marker by marker."""
+    captured, recon, neutral = _data(seed=3, n_frames=2 * 1024 + 517)
+    rng = np.random.default_rng(4)
+    captured[rng.random(captured.shape[:2]) < 0.03] = np.nan
+    recon[rng.random(recon.shape[:2]) < 0.01] = np.nan
+    res = reconstruction_errors(captured, recon, neutral)
+    alpha, disp, rms = _brute(captured, recon, neutral, res.origin)
+    np.testing.assert_allclose(res.alpha, alpha, rtol=EXACT_FLOAT64)
+    np.testing.assert_allclose(res.displacement_error, disp, rtol=EXACT_FLOAT64)
+    np.testing.assert_allclose(res.rms, rms, rtol=EXACT_FLOAT64)
+    err = np.linalg.norm(captured - recon, axis=2)
+    np.testing.assert_array_equal(np.isnan(res.errors), np.isnan(err))
+    np.testing.assert_allclose(res.max_error, [np.nan if np.isnan(row).all()
+                                               else np.nanmax(row) for row in err],
+                               rtol=EXACT_FLOAT64)
+    for j in range(captured.shape[1]):
+        col = err[~np.isnan(err[:, j]), j]
+        assert res.marker_mean[j] == pytest.approx(col.mean(), rel=EXACT_FLOAT64)
+        assert res.marker_rms[j] == pytest.approx(np.sqrt((col ** 2).mean()), rel=EXACT_FLOAT64)
+        assert res.marker_max[j] == col.max()
+        assert res.marker_p95[j] == np.percentile(col, 95)
+    all_err = err[~np.isnan(err)]
+    tot = res.summary()
+    assert tot["p95_mm"] == np.percentile(all_err, 95) and tot["max_mm"] == all_err.max()
+    assert tot["rms_mm"] == pytest.approx(np.sqrt((all_err ** 2).mean()), rel=EXACT_FLOAT64)
+    assert tot["n_samples"] == all_err.size
+
+
 def test_alpha_depends_on_origin_as_expected():
     captured, recon, neutral = _data(missing=False)
     near = reconstruction_errors(captured, recon, neutral)
