@@ -137,9 +137,9 @@ def console() -> None:  # pragma: no cover - the installed entry point
 
     The objects of the command's imports live as long as the process: frozen
     (:func:`gc.freeze`) once they are made, the collector's full passes during the command
-    skip them (a run's: 0.25 -> 0.08 s). So are the command's own at its end, which the
-    interpreter's exit would walk again (0.38 -> 0.05 s). Exit handlers, the flushing of
-    stdout and stderr and the objects freed by reference counting go on as before.
+    skip them. So are the command's own at its end, which the interpreter's exit would walk
+    again in its last collections. Exit handlers, the flushing of stdout and stderr and the
+    objects freed by reference counting go on as before.
     """
     argv = sys.argv[1:]
     build_parser(argv)      # the command's imports
