@@ -348,9 +348,10 @@ def _squared_errors(captured, reconstructed, origin, neutral):
         squared = np.stack([np.einsum("tmc,tmc->tm", diff, diff) for diff in
                             (cap - reconstructed[rows], cap - origin, cap - neutral)])
         np.sqrt(squared[0], out=errors[rows])
-        squared[:, np.isnan(squared[0])] = 0.0          # the samples not counted
+        missing = np.isnan(squared[0])                  # the samples not counted
+        squared[:, missing] = 0.0
         sums[:, rows] = squared.sum(axis=2)
-        marker_sums[0] += np.where(np.isnan(errors[rows]), 0.0, errors[rows]).sum(axis=0)
+        marker_sums[0] += np.where(missing, 0.0, errors[rows]).sum(axis=0)
         marker_sums[1] += squared[0].sum(axis=0)
     return errors, sums, marker_sums
 
