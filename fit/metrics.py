@@ -22,7 +22,7 @@ from mocap.errors import InputError, MarkerError
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positions
 
-__all__ = ["ReconstructionErrors", "reconstruction_errors", "summary_frame",
+__all__ = ["ReconstructionErrors", "reconstruction_errors", "alpha_origin", "summary_frame",
            "separated_peaks", "FRAME_METRICS"]
 
 #: Frames whose differences :func:`_squared_errors` forms at a time (they stay in cache).
@@ -270,8 +270,7 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
     if bad.any():
         raise MarkerError(labels[int(np.argmax(bad))],
                           "neutral position is NaN; displacements need every rest position")
-    origin = (neutral.mean(axis=0) if origin is None
-              else as_float_array(origin, "origin", shape=(3,), allow_nan=False))
+    origin = alpha_origin(neutral, origin)
 
     errors, sums, marker_sums = _squared_errors(captured, reconstructed, origin, neutral)
     valid = ~np.isnan(errors)
@@ -323,6 +322,20 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
         marker_max=read_only(marker_max),
         n_missing=read_only(n_frames - n_frames_valid), origin=read_only(origin),
         totals=totals)
+
+
+def alpha_origin(neutral, origin=None) -> np.ndarray:
+    """The origin of α (:func:`reconstruction_errors`), (3,) mm: `origin`, or by default the
+    centroid of the rest positions `neutral` (M, 3), mm.
+
+    Raises
+    ------
+    InputError
+        `origin` not 3 finite numbers.
+    """
+    if origin is None:
+        return np.asarray(neutral, dtype=np.float64).mean(axis=0)
+    return as_float_array(origin, "origin", shape=(3,), allow_nan=False)
 
 
 def _squared_errors(captured, reconstructed, origin, neutral):

@@ -15,7 +15,7 @@ from typing import Mapping
 import numpy as np
 
 from basis.coverage import plot_coverage
-from fit.metrics import reconstruction_errors
+from fit.metrics import alpha_origin, reconstruction_errors
 from fit.report.extremes import take_extremes
 from fit.report.figure_queue import FigureQueue
 from fit.report.html import Figure, Section, Video, ingest_stats, write_report
@@ -56,7 +56,7 @@ def _given_errors(errors: Mapping, basis: str, take, neutral, origin):
     given = errors.get(basis)
     if given is None:
         raise InputError(f"errors has no entry for basis {basis!r}")
-    expected = np.mean(neutral, axis=0) if origin is None else np.asarray(origin, float)
+    expected = alpha_origin(neutral, origin)
     if given.name != basis or tuple(given.labels) != tuple(take.labels) \
             or given.errors.shape != (take.n_frames, len(take.labels)) \
             or not np.array_equal(given.origin, expected):
