@@ -11,7 +11,7 @@ import numpy as np
 
 from mocap.errors import InputError, MarkerError
 from mocap.util.arrays import read_only
-from mocap.util.validation import as_float_array, as_int, as_positions, as_positive_float
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["Take", "SourceInfo", "Analog", "FILL_METHODS", "fill_code", "as_take"]
 
@@ -150,7 +150,9 @@ class Take:
 
     def __post_init__(self):
         labels = tuple(str(s) for s in self.labels)
-        positions = as_positions(self.positions, copy=not _immutable(self.positions))
+        positions = as_float_array(self.positions, "positions", shape=(None, None, 3),
+                                   copy=not _immutable(self.positions), check_finite=False)
+        suspect, samples = _not_finite_samples(positions)
         if len(labels) != positions.shape[1]:
             raise InputError(f"take has {positions.shape[1]} markers but "
                              f"{len(labels)} labels")
@@ -159,11 +161,10 @@ class Take:
             if label in seen:
                 raise MarkerError(label, "label appears more than once in the take")
             seen.add(label)
-        # per coordinate, not np.isnan(positions).any(axis=2): no (T, M, 3) temporary
-        x, y, z = (np.isnan(positions[:, :, k]) for k in range(3))
-        partial = (x | y | z) & ~(x & y & z)
+        nan = np.isnan(samples)
+        partial = nan.any(axis=1) & ~nan.all(axis=1)
         if partial.any():
-            t, m = np.argwhere(partial)[0]
+            t, m = (int(index[np.argmax(partial)]) for index in suspect)
             raise MarkerError(labels[m], f"frame index {t} has some coordinates NaN and "
                                          "others not; a missing sample is NaN in x, y and z")
         if self.filled is None:
@@ -288,6 +289,24 @@ class Take:
     def replace(self, **changes) -> "Take":
         """A new take with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
+
+
+def _not_finite_samples(positions: np.ndarray) -> tuple:
+    """The samples of `positions` (T, M, 3) with a coordinate that is not finite: their
+    (frame, marker) indices in C order and their (k, 3) values; InputError if one is
+    infinite.
+
+    One (T, M) sum finds them: a sum is finite exactly when its three terms are, save
+    finite terms that overflow it (taken too, and found finite when looked at again).
+    """
+    with np.errstate(all="ignore"):     # inf - inf, overflow
+        total = positions @ np.ones(3)  # a BLAS product: twice as fast as two np.add
+    # flat indices, then divided: np.nonzero of a 2-D mask is ten times slower
+    suspect = np.divmod(np.flatnonzero(~np.isfinite(total)), positions.shape[1])
+    samples = positions[suspect]
+    if np.isinf(samples).any():
+        raise InputError("positions contains infinite values")
+    return suspect, samples
 
 
 def _immutable(arr) -> bool:

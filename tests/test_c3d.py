@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import struct
 import warnings
 
@@ -403,6 +404,36 @@ def tiny_chunks(request, monkeypatch):
     """Decode `param` bytes of frames at a time (at least one frame): runs of missing
     samples and analog blocks then cross many chunk boundaries."""
     monkeypatch.setattr("mocap.io._c3d_data.CHUNK_BYTES", request.param)
+
+
+@pytest.mark.parametrize("unit", ["mm", "m "])
+def test_a_coordinate_not_finite_makes_its_sample_missing(tmp_path, tiny_chunks, unit):
+    """Coordinate words NaN or infinite under a residual that says valid, residuals
+    negative, -0.0 or NaN, coordinates near float32's largest (whose sums must not be
+    taken for non-finite ones): every sample against the rule, a residual below 0 or a
+    coordinate not finite."""
+    take = _take(n_frames=40, n_markers=5, analog=False)
+    path = _patched(tmp_path, take, b"UNITS\x08\x00\xff\x01\x02mm",
+                    b"UNITS\x08\x00\xff\x01\x02" + unit.encode())
+    buf = bytearray(path.read_bytes())
+    offset = (struct.unpack("<H", buf[16:18])[0] - 1) * 512
+    shape = (take.n_frames, take.n_markers, 4)
+    words = np.frombuffer(buf, "<f4", count=math.prod(shape), offset=offset).reshape(shape)
+    words = words.copy()
+    rng = np.random.default_rng(3)
+    pick = rng.random(shape) < 0.15
+    words[pick] = rng.choice(np.array([np.nan, np.inf, -np.inf, 3.4e38, -3.4e38, -0.0],
+                                      dtype=np.float32), size=pick.sum())
+    buf[offset:offset + words.nbytes] = words.tobytes()
+    path.write_bytes(bytes(buf))
+    back = _quiet_read(path)
+    with np.errstate(invalid="ignore"):
+        missing = (words[:, :, 3] < 0) | ~np.isfinite(words[:, :, :3]).all(axis=2)
+    assert 0 < missing.sum() < missing.size
+    np.testing.assert_array_equal(back.missing, missing)
+    np.testing.assert_array_equal(back.positions[~missing],
+                                  words[:, :, :3][~missing].astype(float)
+                                  * mm_per_unit(unit.strip()))
 
 
 @pytest.mark.parametrize("name", ["c3d-samples/sample_01/Eb015pi.c3d",

@@ -23,6 +23,40 @@ def test_take_rejects_partial_nan():
         Take(("a", "b"), pos, rate=50)
 
 
+@pytest.mark.parametrize("specials", [[np.nan], [np.nan, 1e308, -1e308],
+                                      [np.inf, -np.inf, np.nan, 1e308]],
+                         ids=["nan", "nan-and-overflowing-sums", "infinite"])
+def test_take_validation_agrees_with_a_check_of_every_sample(specials):
+    """Infinite values are refused, samples partly NaN named (the first in frame, then
+    marker order), finite values whose sum overflows kept: the oracle is np.isinf and
+    np.isnan of every coordinate."""
+    rng = np.random.default_rng(len(specials))
+    labels = ("a", "b", "c", "d")
+    outcomes = set()
+    for _ in range(60):
+        pos = rng.normal(size=(30, 4, 3))
+        pick = rng.random(pos.shape) < rng.choice([0.0, 0.003, 0.02])
+        pos[pick] = rng.choice(specials, size=pick.sum())
+        pos[rng.random((30, 4)) < 0.1] = np.nan
+        nan = np.isnan(pos)
+        partial = nan.any(axis=2) & ~nan.all(axis=2)
+        if np.isinf(pos).any():
+            outcomes.add("infinite")
+            with pytest.raises(InputError, match="positions contains infinite values"):
+                Take(labels, pos, rate=50)
+        elif partial.any():
+            outcomes.add("partial")
+            t, m = np.argwhere(partial)[0]
+            with pytest.raises(MarkerError, match=f"'{labels[m]}': frame index {t} has"):
+                Take(labels, pos, rate=50)
+        else:
+            outcomes.add("valid")
+            np.testing.assert_array_equal(Take(labels, pos, rate=50).positions, pos)
+    assert outcomes >= {"partial", "valid"}
+    overflowing = np.full((1, 1, 3), 1e308)
+    np.testing.assert_array_equal(Take(("a",), overflowing, rate=50).positions, overflowing)
+
+
 def test_take_rejects_duplicate_labels_and_bad_rate():
     with pytest.raises(MarkerError, match="more than once"):
         Take(("a", "a"), np.zeros((1, 2, 3)), rate=50)

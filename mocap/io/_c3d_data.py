@@ -268,6 +268,18 @@ def _missing(points) -> np.ndarray:
     return missing
 
 
+def _missing_widened(points, xyz) -> np.ndarray:
+    """:func:`_missing` of (c, M, 4) point words whose coordinates are already widened to
+    float64 in `xyz` (c, M, 3), by one (c, M) sum instead of a (c, M, 3) mask: a sample's
+    coordinates are all finite exactly when their float64 sum is (float32 or int16 words
+    times a float32 scale and a unit factor stay far below float64's overflow)."""
+    with np.errstate(invalid="ignore"):
+        missing = points[:, :, 3] < 0
+        total = xyz @ np.ones(3)        # a BLAS product: twice as fast as two np.add
+    missing |= ~np.isfinite(total)
+    return missing
+
+
 def decode_frames(buf, layout: Layout, order: str, *, factor: float = 1.0):
     """Decode every frame, a chunk of frames at a time, into arrays allocated once.
 
@@ -306,7 +318,8 @@ def decode_frames(buf, layout: Layout, order: str, *, factor: float = 1.0):
         if scale != 1.0:
             with np.errstate(all="ignore"):
                 out *= scale
-        out[_missing(points)] = np.nan
+        # by flat indices: a boolean mask's assignment visits every sample
+        out.reshape(-1, 3)[np.flatnonzero(_missing_widened(points, out))] = np.nan
         values = words[:, 4 * m:4 * m + channels * per]
         analog[first * per:(first + count) * per] = values.reshape(count * per, channels)
     return xyz, analog
