@@ -357,9 +357,10 @@ class ReconstructionResult:
         """The face markers bound to the mesh."""
         return self.bound.binding
 
-    @property
+    @cached_property
     def face(self) -> Take:
-        """The take's face markers (the ones reconstructed), head frame, mm."""
+        """The take's face markers (the ones reconstructed), head frame, mm (gathered once:
+        the errors and the report both read them)."""
         return self.take.select(self.retargeted.labels)
 
     @cached_property

@@ -75,7 +75,7 @@ def take_extremes(positions, neutral, labels, markerset) -> list:
     >>> [(e.name, e.frame) for e in take_extremes(p, p[0], ("u", "l"), ms)]
     [('mouth open', 1)]
     """
-    positions = as_positions(positions, "positions")
+    positions = as_positions(positions, "positions", copy=False)        # only read
     labels = list(labels)
     neutral = np.asarray(neutral, dtype=float)
     regions = markerset.regions

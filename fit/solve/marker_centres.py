@@ -115,7 +115,8 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
         Shapes that do not match, NaN in the data, bad bounds or options.
     """
     basis = as_float_array(basis, "basis", ndim=3, allow_nan=False)
-    data = as_float_array(data, "data", shape=(None,) + basis.shape[1:], allow_nan=False)
+    data = as_float_array(data, "data", shape=(None,) + basis.shape[1:], allow_nan=False,
+                          copy=False)                       # only read
     if basis.shape[1] != layout.n_markers:
         raise InputError(f"basis has {basis.shape[1]} markers, the layout {layout.n_markers}")
     n_shapes = len(np.asarray(displacements))
