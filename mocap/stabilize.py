@@ -325,8 +325,8 @@ def stabilize(take: Take, head_markers, *, reference: str = "mean",
         interpolated = ~valid
     residuals = np.linalg.norm(apply_transform(rotation, translation, shape) - head, axis=-1)
     slips = _slips(residuals, valid, labels, slip_threshold, min_slip_frames)
-    head_take = take.replace(positions=apply_inverse_transform(rotation, translation,
-                                                               take.positions))
+    head_take = take.replace(positions=read_only(apply_inverse_transform(
+        rotation, translation, take.positions)))
     used = np.where(valid[:, None], base * robust_w, 0.0)
     n_bad = int(n_frames - valid.sum())
     message = (f"{'converged' if converged else 'did not converge'} in {n_iter} fit passes; "

@@ -121,7 +121,7 @@ class Take:
         Frame number of the first frame, as in the source file (C3D starts at 1).
     filled : ndarray of shape (n_frames, n_markers), uint8
         0 for a captured (or still missing) sample, ``i + 1`` for a sample
-        filled by ``FILL_METHODS[i]``.
+        filled by ``FILL_METHODS[i]``. Kept or copied as `positions` is.
     source : SourceInfo
         Where the take came from.
     analog : Analog or None
@@ -179,7 +179,7 @@ class Take:
                                  f"got {filled.shape}")
             if filled.size and (filled.min() < 0 or filled.max() > len(FILL_METHODS)):
                 raise InputError("filled holds an unknown fill-method code")
-            filled = filled.astype(np.uint8)
+            filled = filled.astype(np.uint8, copy=not _immutable(filled))
         object.__setattr__(self, "labels", labels)
         object.__setattr__(self, "positions", read_only(positions))
         object.__setattr__(self, "filled", read_only(filled))

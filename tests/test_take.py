@@ -104,6 +104,17 @@ def test_take_keeps_an_immutable_array_and_copies_anything_else():
     take = Take(("a", "b"), view, 100.0)
     writable[1, 0] = 7.0
     assert take.positions[1, 0, 0] == 0.0
+    # the fill codes alike; codes of another integer type are converted
+    codes = np.zeros((4, 2), np.uint8)
+    codes.flags.writeable = False
+    assert Take(("a", "b"), owned, 100.0, filled=codes).filled is codes
+    codes = np.zeros((4, 2), np.uint8)
+    take = Take(("a", "b"), owned, 100.0, filled=codes)
+    codes[0, 0] = 1
+    assert take.filled[0, 0] == 0 and not take.filled.flags.writeable
+    wide = np.ones((4, 2), np.int64)
+    wide.flags.writeable = False
+    assert Take(("a", "b"), owned, 100.0, filled=wide).filled.dtype == np.uint8
 
 
 def test_select_is_the_take_of_those_columns():

@@ -9,6 +9,7 @@ import numpy as np
 from mocap.clean._segments import visible_segments
 from mocap.errors import InputError
 from mocap.take import Take, as_take
+from mocap.util.arrays import read_only
 from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["lowpass"]
@@ -91,4 +92,4 @@ def lowpass(take: Take, cutoff_hz: float, *, order: int = 4) -> Take:
         warnings.warn(f"{short} visible segments of at most {pad} samples were left "
                       f"unfiltered (too short for an order-{order} filter's padding)",
                       UserWarning, stacklevel=2)
-    return take.replace(positions=out)
+    return take.replace(positions=read_only(out))

@@ -15,6 +15,7 @@ from mocap.clean._spline_fill import fill_spline
 from mocap.errors import InputError
 from mocap.gaps import find_gaps
 from mocap.take import Take, as_take, fill_code
+from mocap.util.arrays import read_only
 from mocap.util.validation import as_choice, as_fraction, as_int
 
 __all__ = ["FILL_OPTIONS", "DEFAULT_MAX_GAP_S", "DEFAULT_MIN_VISIBLE", "FillResult",
@@ -318,6 +319,7 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
     message = (f"filled {n_filled} samples in {int((table['filled'] > 0).sum())} of "
                f"{len(table)} gaps (max_gap {max_gap} frames); {n_missing} samples still "
                "missing")
-    return FillResult(take=take.replace(positions=out, filled=filled), gaps=table,
+    return FillResult(take=take.replace(positions=read_only(out), filled=read_only(filled)),
+                      gaps=table,
                       n_filled=n_filled, n_missing=n_missing, message=message,
                       max_gap=max_gap, unfilled_markers=unfilled)

@@ -350,4 +350,4 @@ def remove_implausible_samples(take: Take, found: ImplausibleSamples) -> Take:
     filled = take.filled.copy()
     positions[found.mask] = np.nan
     filled[found.mask] = 0
-    return take.replace(positions=positions, filled=filled)
+    return take.replace(positions=read_only(positions), filled=read_only(filled))

@@ -9,6 +9,7 @@ from mocap.clean._segments import visible_segments
 from mocap.clean.filtering import lowpass
 from mocap.errors import InputError
 from mocap.take import Take, as_take
+from mocap.util.arrays import read_only
 from mocap.util.budget import ENV_VAR, format_bytes, max_bytes
 from mocap.util.validation import as_int, as_positive_float
 
@@ -113,4 +114,4 @@ def resample(take: Take, rate: float, *, cutoff_hz: float | None = None,
     other = np.where((at == lo)[:, None], 0, other)
     filled = np.where(near > 0, near, other).astype(np.uint8)
     filled[np.isnan(out[:, :, 0])] = 0
-    return take.replace(positions=out, rate=rate, filled=filled)
+    return take.replace(positions=read_only(out), rate=rate, filled=read_only(filled))

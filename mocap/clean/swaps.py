@@ -15,6 +15,7 @@ import numpy as np
 from mocap.clean._tracks import last_visible, long_gap_starts, typical_step
 from mocap.errors import InputError, MarkerError
 from mocap.take import Take, as_take
+from mocap.util.arrays import read_only
 from mocap.util.medians import nan_column_medians
 from mocap.util.validation import as_int, as_positive_float
 
@@ -286,4 +287,4 @@ def fix_label_swaps(take: Take, swaps) -> Take:
     for a, b, start, stop in plan:
         for arr in (positions, filled):
             arr[start:stop, [a, b]] = arr[start:stop, [b, a]]
-    return take.replace(positions=positions, filled=filled)
+    return take.replace(positions=read_only(positions), filled=read_only(filled))

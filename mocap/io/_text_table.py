@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from mocap.errors import FileFormatError, InputError, MarkerError
+from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
 from mocap.util.budget import check_allocation
 from mocap.util.files import read_input_bytes
@@ -224,7 +225,8 @@ def numeric_block(path, data: bytes, *, first_line: int, columns: list,
 
 def frames_and_positions(path, values: np.ndarray, *, first_line: int,
                           labels: tuple, scale: float) -> tuple:
-    """First frame and (n_frames, n_markers, 3) mm positions from parsed rows.
+    """First frame and (n_frames, n_markers, 3) mm positions from parsed rows (read-only:
+    a take keeps them without a copy).
 
     Column 0 holds frame numbers, columns 2: the X, Y, Z of each marker.
     Frame numbers absent between the first and the last row become missing
@@ -262,7 +264,7 @@ def frames_and_positions(path, values: np.ndarray, *, first_line: int,
     frames = frames.astype(np.int64)
     first, n_frames = int(frames[0]), int(frames[-1] - frames[0]) + 1
     if n_frames == len(frames):
-        return first, xyz
+        return first, read_only(xyz)
     jump = int(np.argmax(np.diff(frames))) + 1
     check_allocation(path, f"positions of {n_frames} frames (frame numbers {first} to "
                            f"{frames[-1]}, {n_frames - len(frames)} of them absent; the "
@@ -275,7 +277,7 @@ def frames_and_positions(path, values: np.ndarray, *, first_line: int,
     warnings.warn(f"{path}: {absent.size} frame(s) absent between frames {first} and "
                   f"{frames[-1]} (first absent: {absent[0]}); they are read as missing",
                   stacklevel=3)
-    return first, positions
+    return first, read_only(positions)
 
 
 def check_labels(labels, sep: str, what: str) -> None:
