@@ -6,7 +6,9 @@ scipy's Rotation.align_vectors for the batched Kabsch fit the rigid fill uses.
 """
 
 import numpy as np
+import pandas as pd
 import pytest
+import threadpoolctl
 from scipy.spatial.transform import Rotation
 from tolerances import (
     EXACT_FLOAT64,
@@ -406,3 +408,26 @@ def test_a_marker_visible_in_under_half_the_take_is_reported_not_filled(n_visibl
         assert result.unfilled_markers == ("face-2",)
         anyway = fill_gaps(take, clusters=CLUSTERS, max_gap=ANY, min_visible=0)
         assert anyway.gaps.loc[anyway.gaps["marker"] == "face-2", "filled"].sum() > 0
+
+
+def test_gaps_filled_on_two_threads_as_on_one():
+    """The gaps are estimated on the BLAS's threads: with the BLAS on two threads the
+    take, the fill codes and the gap table are those of one thread, bit for bit, whatever
+    order the gaps finish in (rigid, PCA and spline fills, and gaps left as they are)."""
+    take = with_gaps(head_take(n_face=8), [
+        ("root-2", 100, 130), ("root-1", 300, 340), ("face-0", 200, 240), ("face-3", 50, 52),
+        ("face-5", 250, 330), ("face-7", 0, 10), ("face-1", 150, 155), ("face-2", 150, 160)])
+    few = with_gaps(head_take(n_face=0).select(HEAD[:_pca_fill.MIN_DONORS]),
+                    [("root-1", 100, 110), ("root-2", 200, 230)])
+    methods = []
+    for case, clusters in ((take, CLUSTERS), (few, None)):
+        results = []
+        for threads in (1, 2):
+            with threadpoolctl.threadpool_limits(threads, user_api="blas"):
+                results.append(fill_gaps(case, method="auto", clusters=clusters, max_gap=60))
+        one, two = results
+        np.testing.assert_array_equal(two.take.positions, one.take.positions)
+        np.testing.assert_array_equal(two.take.filled, one.take.filled)
+        pd.testing.assert_frame_equal(two.gaps, one.gaps)
+        methods.append(set(one.gaps["method"]))
+    assert methods == [{"rigid", "pca", "none"}, {"spline"}]

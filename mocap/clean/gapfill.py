@@ -16,6 +16,7 @@ from mocap.errors import InputError
 from mocap.gaps import find_gaps
 from mocap.take import Take, as_take, fill_code
 from mocap.util.arrays import read_only
+from mocap.util.blas import map_on_blas_threads
 from mocap.util.validation import as_choice, as_fraction, as_int
 
 __all__ = ["FILL_OPTIONS", "DEFAULT_MAX_GAP_S", "DEFAULT_MIN_VISIBLE", "FillResult",
@@ -274,32 +275,45 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
     scarce = n_seen < min_visible * take.n_frames
     visible = seen & to_fill                 # only the markers to fill are donors
     gaps = find_gaps(take.missing)
+    gaps = list(zip(gaps.marker.tolist(), gaps.start.tolist(), gaps.stop.tolist(),
+                    gaps.at_edge.tolist()))
+
+    def left_as_it_is(target, start, stop, edge) -> str:
+        """Why a gap is not filled ("" when it is)."""
+        if not to_fill[target]:
+            return "not among the markers to fill"
+        if method == "none":
+            return "method is 'none'"
+        if scarce[target]:
+            return (f"visible in {n_seen[target]} of {take.n_frames} frames "
+                    f"({100 * n_seen[target] / take.n_frames:.1f} %), under "
+                    f"min_visible = {min_visible:g}")
+        if edge and not extrapolate:
+            return "touches the first or last frame (extrapolate=False)"
+        if stop - start > max_gap:
+            return f"longer than max_gap={max_gap}"
+        return ""
+
+    def estimate(gap) -> tuple:
+        """(method used, values (length, 3) NaN where not filled, why not)."""
+        target, start, stop, _ = gap
+        if method == "auto":
+            return _auto(cluster_cols, positions, visible, target, start, stop)
+        return (method, *_fill_one(method, cluster_cols, positions, visible, target, start,
+                                   stop))
+
+    skipped = [left_as_it_is(*gap) for gap in gaps]
+    # every gap is filled from the captured samples only: the gaps are estimated apart,
+    # on the BLAS's threads (one GEMM and eigh, or one batched fit, each)
+    estimates = iter(map_on_blas_threads(estimate, [gap for gap, why in zip(gaps, skipped)
+                                                    if not why]))
     out = positions.copy()
     filled = take.filled.copy()
     rows = []
-    for target, start, stop, edge in zip(gaps.marker.tolist(), gaps.start.tolist(),
-                                         gaps.stop.tolist(), gaps.at_edge.tolist()):
-        used, n, reason = "none", 0, ""
-        if not to_fill[target]:
-            reason = "not among the markers to fill"
-        elif method == "none":
-            reason = "method is 'none'"
-        elif scarce[target]:
-            reason = (f"visible in {n_seen[target]} of {take.n_frames} frames "
-                      f"({100 * n_seen[target] / take.n_frames:.1f} %), under "
-                      f"min_visible = {min_visible:g}")
-        elif edge and not extrapolate:
-            reason = "touches the first or last frame (extrapolate=False)"
-        elif stop - start > max_gap:
-            reason = f"longer than max_gap={max_gap}"
-        else:
-            if method == "auto":
-                used, values, reason = _auto(cluster_cols, positions, visible,
-                                             target, start, stop)
-            else:
-                used = method
-                values, reason = _fill_one(method, cluster_cols, positions, visible,
-                                           target, start, stop)
+    for (target, start, stop, _), why in zip(gaps, skipped):
+        used, n, reason = "none", 0, why
+        if not why:
+            used, values, reason = next(estimates)
             ok = ~np.isnan(values[:, 0])
             n = int(ok.sum())
             if n:
