@@ -65,6 +65,27 @@ def test_exports_written_with_a_helper_are_the_same_files(demo, tmp_path):
     assert (tmp_path / "taken" / f"face-{first}.glb").is_file()   # the others written
 
 
+def test_exports_left_to_the_helpers_are_written_by_the_queue_s_next_run(demo, tmp_path):
+    """With ``wait=False`` the weights CSVs are left to the helper: the queue's next run
+    writes the bytes written here and raises a CSV's error, which save did not."""
+    result = demo["result"]
+    alone = result.save(tmp_path / "alone")
+    with FigureQueue(helpers=1) as figures:
+        shared = result.save(tmp_path / "shared", figures=figures, wait=False)
+        figures.run()
+    assert [p.relative_to(tmp_path / "shared") for p in shared] == \
+        [p.relative_to(tmp_path / "alone") for p in alone]
+    for path in alone:
+        assert (tmp_path / "shared" / path.name).read_bytes() == path.read_bytes()
+    first = next(iter(result.bases.bases))
+    (tmp_path / "taken" / f"weights-{first}.csv").mkdir(parents=True)   # not a file
+    with FigureQueue(helpers=1) as figures:
+        result.save(tmp_path / "taken", figures=figures, wait=False)
+        with pytest.raises(InputError) as raised:
+            figures.run()
+    assert f"weights-{first}.csv" in str(raised.value)
+
+
 # ---------------------------------------------------------------- out of sample
 
 @pytest.mark.parametrize("n_frames, n_folds, guard", [(10, 2, 0), (101, 5, 3), (7, 7, 0)])

@@ -418,7 +418,8 @@ class ReconstructionResult:
                             first_frame=self.take.first_frame, rotation=self.head_motion[0],
                             translation=self.head_motion[1])
 
-    def save(self, directory, *, inputs=(), figures: FigureQueue | None = None) -> list:
+    def save(self, directory, *, inputs=(), figures: FigureQueue | None = None,
+             wait: bool = True) -> list:
         """Write the take's exports into `directory` (created); returns the paths.
 
         ``take.c3d`` (cleaned, head-stabilized), ``head_motion.npz``,
@@ -430,7 +431,11 @@ class ReconstructionResult:
         `figures` (:class:`~fit.report.figure_queue.FigureQueue`), the weights
         CSVs (text, the slowest to write) are queued first, for its helpers to
         write while this process writes the other files; all are written when
-        this returns, and the first error is raised here.
+        this returns, and the first error is raised here, unless ``wait=False``:
+        the CSVs are then left to the queue's helpers while this process goes on
+        (with the report's work), and the queue's next
+        :meth:`~fit.report.figure_queue.FigureQueue.run` writes what is left and
+        raises their first error (a queue closed before it drops them).
         """
         if figures is None:
             with FigureQueue(helpers=0) as figures:
@@ -446,7 +451,8 @@ class ReconstructionResult:
         except BaseException:
             figures.close()     # a CSV a helper is writing is finished, the others dropped
             raise
-        figures.run()
+        if wait or not figures.helpers:
+            figures.run()
         return files
 
     def _save_binary(self, out: Path, inputs, timing) -> list:

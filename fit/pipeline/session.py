@@ -147,10 +147,12 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
                     source, session_basis=session_basis), name=name)
             stages = dict(result.stage_seconds)
             # the helpers start with the exports (a core of a helper's start would slow the
-            # chain's threaded stages), write the weights CSVs, then draw the figures
+            # chain's threaded stages), write the weights CSVs while this process writes the
+            # other exports and gathers the report's errors and held-out fits, then draw the
+            # figures ("exports" is then the binary files, "report" the rest)
             with FigureQueue(figure_helpers) as figures:
                 tic = time.perf_counter()
-                result.save(stage, inputs=[capture], figures=figures)
+                result.save(stage, inputs=[capture], figures=figures, wait=False)
                 stages["exports"] = time.perf_counter() - tic
                 tic = time.perf_counter()
                 result.report(stage / "report", warnings=caught, figures=figures,
