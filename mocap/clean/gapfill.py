@@ -334,6 +334,5 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
                f"{len(table)} gaps (max_gap {max_gap} frames); {n_missing} samples still "
                "missing")
     return FillResult(take=take.replace(positions=read_only(out), filled=read_only(filled)),
-                      gaps=table,
-                      n_filled=n_filled, n_missing=n_missing, message=message,
+                      gaps=table, n_filled=n_filled, n_missing=n_missing, message=message,
                       max_gap=max_gap, unfilled_markers=unfilled)
