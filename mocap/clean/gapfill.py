@@ -274,9 +274,9 @@ def fill_gaps(take: Take, *, method: str = "auto", max_gap: int | None = None,
     n_seen = seen.sum(axis=0)
     scarce = n_seen < min_visible * take.n_frames
     visible = seen & to_fill                 # only the markers to fill are donors
-    gaps = find_gaps(take.missing)
-    gaps = list(zip(gaps.marker.tolist(), gaps.start.tolist(), gaps.stop.tolist(),
-                    gaps.at_edge.tolist()))
+    found = find_gaps(take.missing)
+    gaps = list(zip(found.marker.tolist(), found.start.tolist(), found.stop.tolist(),
+                    found.at_edge.tolist()))
 
     def left_as_it_is(target, start, stop, edge) -> str:
         """Why a gap is not filled ("" when it is)."""
