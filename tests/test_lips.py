@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from helpers import slit_grid
@@ -151,6 +153,28 @@ def test_mouth_errors(demo_face):
         mouth.gap(np.zeros((3, 5, 3)))
     with pytest.raises(InputError, match="positions contains NaN"):
         mouth.gap(np.full((104, 3), np.nan))
+
+
+def test_a_non_finite_coordinate_anywhere_in_a_block_is_refused(demo_face, monkeypatch):
+    """The gap checks its positions by their result: a NaN or ±inf in any frame of a block
+    (not only its first), any vertex of either lip and any coordinate is named as numpy's
+    isnan and isinf find it; finite lips pass."""
+    import mocap.mesh.mouth as mouth_module
+    mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
+    n_up, n_low = len(mouth.upper), len(mouth.lower)
+    monkeypatch.setattr(mouth_module, "_CHUNK_BYTES", 4 * 8 * n_up * n_low)   # 4-frame blocks
+    rng = np.random.default_rng(11)
+    lips = demo_face.mesh.vertices[mouth.vertex_ids] + rng.normal(0.0, 1.0, (9, n_up + n_low, 3))
+    assert np.isfinite(mouth.gap(lips)).all()
+    assert mouth.gap(lips[:0]).shape == (0,) and mouth.gap(lips[None, :0]).shape == (1, 0)
+    for _ in range(40):
+        bad = lips.copy()
+        where = (rng.integers(9), rng.integers(n_up + n_low), rng.integers(3))
+        bad[where] = rng.choice([np.nan, np.inf, -np.inf])
+        expected = "infinite values" if np.isinf(bad).any() else r"NaN \(first at index " \
+            + re.escape(str(tuple(int(i) for i in np.argwhere(np.isnan(bad))[0]))) + r"\)"
+        with pytest.raises(InputError, match=f"positions contains {expected}"):
+            mouth.gap(bad)
 
 
 # ---------------------------------------------------------------- lip markers

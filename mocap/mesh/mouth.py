@@ -94,7 +94,7 @@ class MouthOpening:
         Raises
         ------
         InputError
-            Wrong shape or NaN.
+            Wrong shape, NaN or infinite values.
 
         Examples
         --------
@@ -104,32 +104,54 @@ class MouthOpening:
         1.118
         """
         n_up, n = len(self.upper), len(self.upper) + len(self.lower)
-        x = as_float_array(positions, "positions", allow_nan=False)
+        # only read; a NaN or infinite coordinate makes its frame's gap NaN (below)
+        x = as_float_array(positions, "positions", copy=False, check_finite=False)
         if x.ndim < 2 or x.shape[-2:] != (n, 3):
             raise InputError(f"positions must have shape (..., {n}, 3) (the lips' "
                              f"vertices, vertex_ids), got {x.shape}")
         batch = x.shape[:-2]
-        x = x.reshape(-1, n, 3)
-        n_low = n - n_up
-        block = min(len(x), max(1, _CHUNK_BYTES // (8 * n_up * n_low)))
-        # ‖u − l‖² = ‖u‖² + (‖l‖² − 2 u·l): the bracket of every pair is one product of
-        # [u, 1] with [−2 l, ‖l‖²], a block of frames at a time, then its least per upper
-        # vertex plus ‖u‖². Points are taken about the block's first frame's centre: the
-        # expansion loses digits with their squared distance from the origin.
-        upper, lower = np.ones((block, n_up, 4)), np.empty((block, 4, n_low))
-        pairs = np.empty((block, n_up, n_low))
-        out = np.empty(len(x))
-        for first in range(0, len(x), block):
-            frames = x[first:first + block]
-            m, centre = len(frames), frames[0].mean(axis=0)
-            u = np.subtract(frames[:, :n_up], centre, out=upper[:m, :, :3])
-            low = frames[:, n_up:] - centre
-            np.multiply(low.transpose(0, 2, 1), -2.0, out=lower[:m, :3])
-            np.einsum("tjc,tjc->tj", low, low, out=lower[:m, 3])
-            nearest = np.matmul(upper[:m], lower[:m], out=pairs[:m]).min(axis=2)
-            nearest += np.einsum("tic,tic->ti", u, u)
-            out[first:first + m] = np.sqrt(np.maximum(nearest.min(axis=1), 0.0))
+        out = _least_squared_distances(x.reshape(-1, n, 3), n_up)
+        np.sqrt(np.maximum(out, 0.0, out=out), out=out)
+        if not np.isfinite(out).all():
+            # a NaN or infinite coordinate makes that coordinate of its frame's centre NaN
+            # or infinite, so NaN in the centred points (its own at least), in their pairs
+            # and in their least: the exact checks name it
+            as_float_array(positions, "positions", allow_nan=False, copy=False)
         return out.reshape(batch)
+
+
+@np.errstate(invalid="ignore")              # NaN from a non-finite point: the caller's check
+def _least_squared_distances(x: np.ndarray, n_up: int) -> np.ndarray:
+    """The least squared distance between the points ``[:n_up]`` and ``[n_up:]`` of each
+    frame of `x` (T, n, 3), (T,); NaN in a frame with a NaN or infinite coordinate.
+
+    ‖u − l‖² = ‖u‖² + ‖l‖² − 2 u·l: every pair's is one product of [u, 1, ‖u‖²] with
+    [−2 l, ‖l‖², 1], a block of frames at a time, then the least of each frame's pairs (one
+    reduction over a frame's contiguous pairs: one per upper point, over its few pairs,
+    costs more than the product). The factors are stored coordinate by coordinate, each a
+    contiguous row of points. Each frame's points are taken about their centre: the
+    expansion loses digits with their squared distance from the origin.
+    """
+    n = x.shape[1]
+    n_low = n - n_up
+    block = max(1, min(len(x), _CHUNK_BYTES // (8 * n_up * n_low)))
+    upper, lower = np.ones((block, 5, n_up)), np.ones((block, 5, n_low))
+    pairs = np.empty((block, n_up, n_low))
+    out = np.empty(len(x))
+    average = np.full(n, 1.0 / n)
+    for first in range(0, len(x), block):
+        points = x[first:first + block]                                     # (m, n, 3)
+        m = len(points)
+        centre = np.matmul(average, points)[:, :, None]                     # (m, 3, 1)
+        frames = points.transpose(0, 2, 1)                                  # (m, 3, n)
+        u = np.subtract(frames[:, :, :n_up], centre, out=upper[:m, :3])
+        np.einsum("tci,tci->ti", u, u, out=upper[:m, 4])
+        low = np.subtract(frames[:, :, n_up:], centre, out=lower[:m, :3])
+        np.einsum("tcj,tcj->tj", low, low, out=lower[:m, 3])
+        low *= -2.0
+        product = np.matmul(upper[:m].transpose(0, 2, 1), lower[:m], out=pairs[:m])
+        out[first:first + m] = product.reshape(m, -1).min(axis=1)
+    return out
 
 
 def _landmark(landmarks, names, n_vertices):
