@@ -287,12 +287,13 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
     marker_mean = marker_sums[0] / np.maximum(n_frames_valid, 1)
     marker_rms = np.sqrt(marker_sums[1] / np.maximum(n_frames_valid, 1))
     marker_max = np.fmax.reduce(errors, axis=0)             # NaN for a marker never counted
+    # along the rows of the transpose: each marker's errors are then contiguous to partition
     if valid.all():
-        marker_p95 = np.percentile(errors, 95, axis=0)
+        marker_p95 = np.percentile(errors.T, 95, axis=1)
     else:
-        counted = errors[:, n_frames_valid > 0]
+        counted = errors.T[n_frames_valid > 0]
         marker_p95 = np.full(n_markers, np.nan)
-        marker_p95[n_frames_valid > 0] = np.nanpercentile(counted, 95, axis=0)
+        marker_p95[n_frames_valid > 0] = np.nanpercentile(counted, 95, axis=1)
 
     n_samples = int(n_valid.sum())
     all_err = errors[valid]
@@ -355,11 +356,20 @@ def _squared_errors(captured, reconstructed, origin, neutral):
     errors = np.empty((n_frames, n_markers))
     sums = np.empty((3, n_frames))
     marker_sums = np.zeros((2, n_markers))
+    differences = np.empty((3, min(_ROWS, n_frames), n_markers * 3))
+    # the fixed points as one row of a frame's coordinates (subtracted along whole rows)
+    fixed = (np.tile(origin, n_markers), neutral.reshape(-1))
+    ones = np.ones(3)
     for first in range(0, n_frames, _ROWS):
         rows = slice(first, first + _ROWS)
-        cap = captured[rows]
-        squared = np.stack([np.einsum("tmc,tmc->tm", diff, diff) for diff in
-                            (cap - reconstructed[rows], cap - origin, cap - neutral)])
+        cap = captured[rows].reshape(-1, n_markers * 3)
+        diff = differences[:, :len(cap)]
+        for k, other in enumerate((reconstructed[rows].reshape(cap.shape), *fixed)):
+            np.subtract(cap, other, out=diff[k])
+        diff = diff.reshape(3, len(cap), n_markers, 3)
+        # the squared lengths: one product of the squares with (1, 1, 1) (a reduction along
+        # the 3 coordinates of each sample costs several times more)
+        squared = np.square(diff, out=diff) @ ones                  # (3, rows, M)
         np.sqrt(squared[0], out=errors[rows])
         missing = np.isnan(squared[0])                  # the samples not counted
         squared[:, missing] = 0.0
