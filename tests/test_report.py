@@ -27,7 +27,7 @@ from fit.report.views import CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_v
 from mocap.errors import InputError
 from mocap.stabilize import stabilize
 from mocap.take import FILL_METHODS, Take
-from mocap.viz.figures import new_figure, write_png
+from mocap.viz.figures import draw_png, new_figure, write_png
 
 N_FRAMES = 600
 
@@ -354,6 +354,33 @@ def test_a_line_envelope_draws_the_pixels_of_the_whole_line(tmp_path):
     full, drawn = draw("full.png", False), draw("envelope.png", True)
     differ = np.abs(full - drawn).max(axis=2)
     assert (differ > 0).mean() < 0.06 and (differ > 64).mean() < 0.01
+
+
+def test_long_lines_stroked_in_pieces_draw_the_picture_of_one_stroke(tmp_path):
+    """draw_png strokes long lines in pieces: six noisy residual lines of a 35,000-frame take
+    by their envelope (the head-residual plot's), against matplotlib's own picture of each
+    line as one stroke. Only antialiased pixels at the pieces' joins differ."""
+    rng = np.random.default_rng(5)
+    t = np.arange(35_000) / 276.0
+    lines = [np.abs(rng.normal(0.3, 0.15, t.size)) for _ in range(6)]
+
+    def figure():
+        fig = new_figure(11, 4.4)
+        ax = fig.add_subplot()
+        for y in lines:
+            ax.plot(*line_envelope(t, y, 11 * 120), lw=0.8)
+        return fig
+
+    one = figure()
+    with rc_context({"agg.path.chunksize": 0, "text.parse_math": False}):
+        one.set_dpi(120)
+        one.canvas.draw()
+    whole = np.asarray(one.canvas.buffer_rgba())[:, :, :3].astype(int)
+    draw_png(figure(), tmp_path / "pieces.png", dpi=120)
+    pieces = cv2.imread(str(tmp_path / "pieces.png"))[:, :, ::-1].astype(int)
+    assert pieces.shape == whole.shape
+    differ = np.abs(pieces - whole).max(axis=2)
+    assert 0 < (differ > 0).mean() < 0.01 and (differ > 64).mean() < 0.003
 
 
 def test_the_heatmap_of_a_real_marker_set_has_a_pixel_per_column(ict_markerset, tmp_path):

@@ -27,6 +27,11 @@ __all__ = ["MAX_PLOT_MM", "new_figure", "save_figure", "draw_png", "write_png",
 
 #: Positions and distances beyond this many mm (1 km) are no capture: refused before plotting.
 MAX_PLOT_MM = 1e6
+#: Vertices of the pieces Agg strokes a long line in: it strokes a line of a few thousand
+#: vertices that zigzags over the same rows (a take's noisy residuals, four points a pixel
+#: column) about twice as slowly in one piece as in pieces of this size; the pieces' joins
+#: differ from one stroke in a few antialiased pixels.
+_LINE_PIECE = 256
 #: zlib level of the PNGs: the size of level 9 at a fraction of its time (charts are flat
 #: colours; a lower level or OpenCV's default RLE makes noisy heatmaps several times larger).
 _PNG_LEVEL = 6
@@ -48,8 +53,9 @@ def save_figure(fig: Figure, path, *, dpi: int = 120) -> None:
 
 def draw_png(fig: Figure, path, *, dpi: int = 120) -> None:
     """Draw `fig` once at `dpi` (layout and rendering together) and write its pixels to
-    `path` as PNG, atomically; texts the draw makes (tick labels) are plain text."""
-    with rc_context({"text.parse_math": False}):
+    `path` as PNG, atomically; texts the draw makes (tick labels) are plain text, and long
+    lines are stroked in pieces (:data:`_LINE_PIECE`)."""
+    with rc_context({"text.parse_math": False, "agg.path.chunksize": _LINE_PIECE}):
         fig.set_dpi(dpi)
         fig.canvas.draw()
     write_png(np.asarray(fig.canvas.buffer_rgba()), path)
