@@ -52,11 +52,13 @@ def test_the_gap_is_the_smallest_distance_between_the_lips(demo_face):
 
 
 def test_the_gap_of_many_frames_block_by_block_is_each_frames_own(demo_face, monkeypatch):
-    """Frames go through in blocks of pair distances; blocks of 3 frames, the last one short."""
+    """Frames go through in blocks of pair distances, in batches of blocks: blocks of 3
+    frames, batches of 2 blocks, the last batch and its last block short."""
     import mocap.mesh.mouth as mouth_module
     mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
     n_up, n_low = len(mouth.upper), len(mouth.lower)
     monkeypatch.setattr(mouth_module, "_CHUNK_BYTES", 3 * 8 * n_up * n_low)
+    monkeypatch.setattr(mouth_module, "_BLOCKS_PER_BATCH", 2)
     rng = np.random.default_rng(7)
     lips = demo_face.mesh.vertices[mouth.vertex_ids]
     frames = lips + rng.normal(0.0, 2.0, (11,) + lips.shape)           # mm: lips part and cross
