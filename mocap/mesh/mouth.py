@@ -39,16 +39,14 @@ _BAND = 0.25
 #: landmarks, as a fraction of the corners' distance.
 _CORNER_REACH = 0.35
 #: Bytes of one block of frames' lip-pair distances in :meth:`MouthOpening.gap`: a block
-#: well inside a core's L2 cache is formed and reduced before it leaves the cache, in
-#: memory made once per call (a new array of this size per block would be mapped and its
-#: pages faulted in afresh). With 2 MB of L2 a core, 1 MB blocks took 0.36-0.41 s for the
-#: 35,000 frames of the ICT lips, 2 MB blocks 0.54-0.73 s.
+#: well inside a core's L2 cache (with the factors it is made from) is formed and reduced
+#: before it leaves the cache, in memory made once per call (a new array of this size per
+#: block would be mapped and its pages faulted in afresh).
 _CHUNK_BYTES = 2 ** 20
 #: Blocks whose factors :meth:`MouthOpening.gap` forms at once (~3 MB for the ICT lips):
 #: each block then runs only its product and reduction, which release the GIL, so that
 #: threads measuring other frames at the same time do not queue for each other's small
-#: steps (the lip-seal stage of a 35,000-frame run on 2 threads: 1.5-1.7 s with the
-#: factors formed block by block, 1.0-1.2 s so).
+#: steps.
 _BLOCKS_PER_BATCH = 32
 
 

@@ -27,10 +27,10 @@ __all__ = ["MAX_PLOT_MM", "new_figure", "save_figure", "draw_png", "write_png",
 
 #: Positions and distances beyond this many mm (1 km) are no capture: refused before plotting.
 MAX_PLOT_MM = 1e6
-#: Vertices of the pieces Agg strokes a long line in: it strokes a line of a few thousand
-#: vertices that zigzags over the same rows (a take's noisy residuals, four points a pixel
-#: column) about twice as slowly in one piece as in pieces of this size; the pieces' joins
-#: differ from one stroke in a few antialiased pixels.
+#: Vertices of the pieces Agg strokes a long line in: a line of a few thousand vertices
+#: that zigzags over the same rows (a take's noisy residuals, four points a pixel column)
+#: is stroked faster in pieces of this size than in one; the pieces' joins differ from one
+#: stroke in a few antialiased pixels.
 _LINE_PIECE = 256
 #: zlib level of the PNGs: the size of level 9 at a fraction of its time (charts are flat
 #: colours; a lower level or OpenCV's default RLE makes noisy heatmaps several times larger).
