@@ -14,7 +14,7 @@ from tolerances import EXACT_FLOAT64
 from mocap import InputError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh
-from mocap.mesh.mouth import find_mouth
+from mocap.mesh.mouth import MouthOpening, find_mouth
 from mocap.retarget.lip_seal import check_lip_seal, contradicts, lip_witness
 
 # ---------------------------------------------------------------- the mouth of a mesh
@@ -26,7 +26,8 @@ def test_the_demo_mouth_splits_into_the_lip_chains_the_demo_drew(demo_face):
     assert mouth.upper_edge[1:-1].tolist() in (demo_face.upper_lip.tolist(),
                                                demo_face.upper_lip[::-1].tolist())
     assert set(mouth.lower_edge[1:-1]) == set(demo_face.lower_lip)
-    assert mouth.upper_edge[0] == mouth.lower_edge[0] and mouth.upper_edge[-1] == mouth.lower_edge[-1]
+    assert mouth.upper_edge[0] == mouth.lower_edge[0]
+    assert mouth.upper_edge[-1] == mouth.lower_edge[-1]
     v = demo_face.mesh.vertices
     assert v[mouth.upper, 1].mean() > v[mouth.lower, 1].mean()
     assert set(mouth.upper).isdisjoint(mouth.lower)
@@ -155,6 +156,9 @@ def test_mouth_errors(demo_face):
         mouth.gap(np.zeros((3, 5, 3)))
     with pytest.raises(InputError, match="positions contains NaN"):
         mouth.gap(np.full((104, 3), np.nan))
+    lipless = MouthOpening([], [], upper=[0, 1], lower=[], method="loop")
+    with pytest.raises(InputError, match="needs vertices on both lips .* 2 upper and 0 lower"):
+        lipless.gap(np.zeros((2, 3)))
 
 
 def test_a_non_finite_coordinate_anywhere_in_a_block_is_refused(demo_face, monkeypatch):

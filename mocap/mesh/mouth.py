@@ -99,7 +99,7 @@ class MouthOpening:
         Raises
         ------
         InputError
-            Wrong shape, NaN or infinite values.
+            Wrong shape, NaN or infinite values; a lip without vertices.
 
         Examples
         --------
@@ -109,6 +109,9 @@ class MouthOpening:
         1.118
         """
         n_up, n = len(self.upper), len(self.upper) + len(self.lower)
+        if not n_up or n == n_up:
+            raise InputError(f"the mouth needs vertices on both lips to measure a gap, got "
+                             f"{n_up} upper and {n - n_up} lower")
         # only read; a NaN or infinite coordinate makes its frame's gap NaN (below)
         x = as_float_array(positions, "positions", copy=False, check_finite=False)
         if x.ndim < 2 or x.shape[-2:] != (n, 3):
