@@ -270,9 +270,11 @@ def save_head_motion(stabilization: Stabilization, path, *, inputs=()) -> None:
     if isinstance(stabilization, HeadFrame):
         method = {"method": np.array(stabilization.method)}
         stabilization = stabilization.stabilization
+    # stored, not deflated: rotations, translations and residuals at capture precision
+    # deflate by a few percent, at many times the cost of writing them
     with atomic_path(path, inputs=inputs) as tmp:
         with open(tmp, "wb") as fh:
-            np.savez_compressed(
+            np.savez(
                 fh, rotation=stabilization.rotation, translation=stabilization.translation,
                 head_residuals=stabilization.head_residuals, valid=stabilization.valid,
                 head_markers=np.array(stabilization.head_markers, dtype=str),
