@@ -9,8 +9,9 @@ against ``numpy.ndarray.tofile`` of the bytes it wrote (the file read back as on
 uint8 array), alternately in one run (best of three each), so that a load on the
 machine weighs on both; both write new files (as the exports of a new take), and the
 ``.glb`` is timed again over an existing file. The CSV is text: it is also timed
-against the floor of its formatting, ``repr`` of every float it holds (the shortest
-repr that reads back exactly, what it writes), joined into one string.
+against ``repr`` of every float it holds joined into one string (Python's own
+formatting of the same text, number by number: the shortest that reads back exactly),
+which is not its floor: :mod:`mocap.util.float_text` formats whole arrays.
 
 Run: ``python bench/bench_exports.py [--frames 35000]``.
 """
@@ -84,8 +85,7 @@ def main() -> None:
     ours, floor = alternately(lambda: write_csv(csv_path),
                               lambda: ",".join(map(repr, cells.tolist())))
     print(f"\nweights CSV against formatting its {cells.size:,} floats with repr alone: "
-          f"{ours:.3f} s vs {floor:.3f} s, ratio {ours / floor:.2f} (aim: the text's floor "
-          "is its float formatting, ~100x tofile of its bytes)")
+          f"{ours:.3f} s vs {floor:.3f} s, ratio {ours / floor:.2f}")
     print("aim: npz and glb <= 2x tofile of the same bytes")
 
     write_glb, over = exports["glb (morph targets + weights)"][1], out / "over.glb"

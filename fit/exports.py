@@ -21,6 +21,7 @@ from fit.solve.weights import WeightSolution
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh
 from mocap.util.atomic import atomic_path
+from mocap.util.float_text import csv_lines
 from mocap.util.npz import NotFiniteError, read_npz, write_npz
 from mocap.util.validation import as_float_array, as_int, as_positive_float, surely_finite
 
@@ -29,8 +30,6 @@ __all__ = ["weights_frame", "write_weights_csv", "read_weights_csv", "MeshSequen
 
 #: Frames evaluated per matrix product when materializing a sequence.
 _CHUNK_FRAMES = 256
-#: Rows of a weights CSV formatted per string (a few MB of text).
-_CSV_ROWS = 4096
 _SEQ_VERSION = 1
 #: The leading columns of a weights table.
 _COLUMNS = ("frame", "time")
@@ -91,7 +90,7 @@ def write_weights_csv(path, weights, names, *, rate: float, first_frame: int = 1
 
     Parameters are those of :func:`weights_frame`, plus the output `path`
     (written atomically; never over one of `inputs`). Floats are written with
-    the shortest repr that reads back exactly.
+    the shortest repr that reads back exactly (:mod:`mocap.util.float_text`).
 
     Raises
     ------
@@ -99,18 +98,11 @@ def write_weights_csv(path, weights, names, *, rate: float, first_frame: int = 1
         Shapes, names or NaN as in :func:`weights_frame`; the file cannot be written.
     """
     table = weights_frame(weights, names, rate=rate, first_frame=first_frame)
-    cells = table.to_numpy(dtype=np.float64)                       # time, then the weights
-    # One %-format per block of rows, in C: %d for the frame and %r for the floats (the
-    # shortest repr that reads back exactly), no per-row Python code.
-    row = "%d" + ",%r" * cells.shape[1] + "\n"
-    with atomic_path(path, inputs=inputs) as tmp, open(tmp, "w", encoding="utf-8",
-                                                        newline="") as fh:
-        table.iloc[:0].to_csv(fh, lineterminator="\n")             # the header, quoted as needed
-        for start in range(0, len(table), _CSV_ROWS):              # blocks of rows, not rows
-            block = np.empty((min(_CSV_ROWS, len(table) - start), cells.shape[1] + 1), object)
-            block[:, 0] = table.index[start:start + len(block)].to_numpy()
-            block[:, 1:] = cells[start:start + len(block)]
-            fh.write((row * len(block)) % tuple(block.ravel()))
+    header = table.iloc[:0].to_csv(lineterminator="\n")          # quoted as needed
+    with atomic_path(path, inputs=inputs) as tmp, open(tmp, "wb") as fh:
+        fh.write(header.encode("utf-8"))
+        for lines in csv_lines(table.index.to_numpy(), table.to_numpy(dtype=np.float64)):
+            fh.write(lines)
 
 
 def read_weights_csv(path) -> pd.DataFrame:
