@@ -155,9 +155,11 @@ def _shortest_digits(magnitude):
     exponent = np.floor(np.log10(magnitude)).astype(np.int64)
     hi, lo = _two_product(magnitude, _POW10[16 - exponent])
     # log10 may round across a power of ten: the product X = hi + lo must be in [1e16, 1e17)
-    exponent += ((hi > 1e17) | ((hi == 1e17) & (lo >= 0))).astype(np.int64)
-    exponent -= ((hi < 1e16) | ((hi == 1e16) & (lo < 0))).astype(np.int64)
-    hi, lo = _two_product(magnitude, _POW10[16 - exponent])
+    shift = ((hi > 1e17) | ((hi == 1e17) & (lo >= 0))).astype(np.int64)
+    shift -= (hi < 1e16) | ((hi == 1e16) & (lo < 0))
+    wrong = np.flatnonzero(shift)
+    exponent[wrong] += shift[wrong]
+    hi[wrong], lo[wrong] = _two_product(magnitude[wrong], _POW10[16 - exponent[wrong]])
     whole = hi.astype(np.int64)             # hi ≥ 1e16 > 2**53: an even integer
     # the decimals that read back as x are those within half its spacing, in X's units
     half = np.spacing(magnitude) * _POW10[16 - exponent] / 2
