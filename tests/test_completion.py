@@ -57,6 +57,8 @@ def test_a_committed_take_records_its_outputs_and_verifies(tmp_path, provenance)
     record = _commit(out, "t1", provenance)
     assert sorted(record.files) == ["a.txt", "report/b.txt"]
     assert record.files["a.txt"] == {"bytes": 5, "sha256": hashlib.sha256(b"alpha").hexdigest()}
+    assert record.files["report/b.txt"] == {"bytes": 4,
+                                            "sha256": hashlib.sha256(b"beta").hexdigest()}
     doc = json.loads((out / "t1" / RECORD_NAME).read_text())
     assert doc["capture"]["sha256"] == hashlib.sha256(b"capture bytes").hexdigest()
     assert doc["key"] == provenance.key and doc["summary"] == {"status": "ok", "n": 1}
@@ -64,6 +66,16 @@ def test_a_committed_take_records_its_outputs_and_verifies(tmp_path, provenance)
     verdict = verify_take(out, "t1", provenance)
     assert verdict.reusable and verdict.reason == "done by an earlier run; 2 outputs verified"
     assert not (out / STAGING_NAME).exists() or not any((out / STAGING_NAME).iterdir())
+
+
+def test_every_output_gets_its_own_digest(tmp_path, provenance):
+    """The files are hashed side by side: each digest still goes with its file."""
+    out = tmp_path / "out"
+    out.mkdir()
+    texts = {f"{folder}/{i}.txt": f"file {i} " * i for i in range(12) for folder in "ab"}
+    record = _commit(out, "t1", provenance, texts)
+    assert record.files == {rel: {"bytes": len(text), "sha256": hashlib.sha256(
+        text.encode()).hexdigest()} for rel, text in texts.items()}
 
 
 def test_a_new_commit_replaces_the_whole_folder(tmp_path, provenance):

@@ -42,6 +42,7 @@ from fit.pipeline.manifest import json_default, package_versions, sha256_path, t
 from fit.pipeline.outdir import check_take_dir, staging_dir
 from mocap.errors import InputError
 from mocap.util.atomic import atomic_path, is_inside
+from mocap.util.blas import map_on_blas_threads
 
 __all__ = ["RECORD_NAME", "FORMAT", "Provenance", "TakeRecord", "Verdict", "input_entries",
            "begin_take", "commit_take", "discard_stage", "read_record", "verify_take",
@@ -192,12 +193,16 @@ def commit_take(stage, out_dir, name: str, provenance: Provenance, *, summary: d
     """
     stage, out_dir = Path(stage), Path(out_dir)
     target = check_take_dir(out_dir, name, inputs)
-    files = {}
+    outputs = {}
     for path in sorted(stage.rglob("*")):
         if path.is_file() or path.is_symlink():
             rel = _relative(path, stage)
             if rel != RECORD_NAME:
-                files[rel] = {"bytes": path.stat().st_size, "sha256": sha256_path(path)}
+                outputs[rel] = path
+    # hashlib leaves the GIL while it hashes: the files on this process's share of cores
+    digests = map_on_blas_threads(sha256_path, outputs.values())
+    files = {rel: {"bytes": path.stat().st_size, "sha256": digest}
+             for (rel, path), digest in zip(outputs.items(), digests)}
     doc = {"format": FORMAT, "name": name, "key": provenance.key,
            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
            "capture": provenance.capture, "inputs": provenance.inputs,
