@@ -121,10 +121,10 @@ def _format_pass(values, chars, lengths) -> None:
     _place(digits, exponent, negative[fast], chars, lengths, fast)
     done = zero & ~negative                             # -0.0 as the others below
     done[fast] = True
-    for i in np.flatnonzero(~done):                     # the few that repr itself writes
-        text = repr(float(values[i])).encode()
-        chars[i, :len(text)] = np.frombuffer(text, np.uint8)
-        lengths[i] = len(text)
+    rest = np.flatnonzero(~done)                        # those that repr itself writes
+    texts = np.array([repr(value) for value in values[rest].tolist()], f"S{FIELD_WIDTH}")
+    chars[rest] = texts.view(np.uint8).reshape(len(rest), FIELD_WIDTH)
+    lengths[rest] = np.char.str_len(texts)
 
 
 def _two_product(a, b):
