@@ -38,10 +38,12 @@ class _Score:
     def __init__(self, basis, data):
         G = basis.T @ basis
         C = data @ basis
-        self.spectrum = Spectrum.build(G, len(data))
-        self.power = self.spectrum.transform(C) ** 2          # (Qᵀ C V)², (T, n)
-        eig = self.spectrum.eig
-        self.keep = eig > RANK_RTOL * max(eig[-1], np.finfo(float).tiny)
+        spectrum = Spectrum.build(G, len(data))
+        eig = spectrum.eig
+        keep = eig > RANK_RTOL * max(eig[-1], np.finfo(float).tiny)
+        self.eig, self.mu = eig[keep], spectrum.mu
+        # (Qᵀ C V)² / Λ per coefficient, (T, r): the data's power in each kept direction
+        self.power = spectrum.transform(C)[:, keep] ** 2 / self.eig
         # out-of-span residual Σ_t ‖d_t − B B⁺ d_t‖², independent of λ (the
         # data's part no weights can fit), from the frames' least-squares fit
         fitted = (C @ np.linalg.pinv(G, rcond=RANK_RTOL, hermitian=True)) @ basis.T
@@ -49,16 +51,18 @@ class _Score:
         self.n_obs = data.size
 
     def __call__(self, lam: float) -> float:
-        eig, mu = self.spectrum.eig[self.keep], self.spectrum.mu
-        denom = eig[None, :] + lam * mu[:, None]
-        shrink = lam * mu[:, None] / denom                  # 1 − influence, per coefficient
-        rss = self.base + float(np.sum(self.power[:, self.keep] / eig * shrink ** 2))
-        trace = float(np.sum(eig / denom))
+        # with a_k = λ μ_k and q_kj = 1 / (Λ_j + a_k): 1 − influence = a_k q_kj, so
+        # RSS = base + Σ_k a_k² Σ_j power_kj q_kj² and tr A = Σ_j Λ_j Σ_k q_kj
+        a = lam * self.mu
+        q = np.add.outer(a, self.eig)
+        np.reciprocal(q, out=q)
+        trace = float(self.eig @ q.sum(axis=0))
+        np.square(q, out=q)
+        rss = self.base + float(np.square(a) @ np.einsum("kj,kj->k", self.power, q))
         return self.n_obs * rss / (self.n_obs - trace) ** 2
 
     def span(self) -> tuple[float, float]:
-        eig = self.spectrum.eig[self.keep]
-        mu = self.spectrum.mu
+        eig, mu = self.eig, self.mu
         lowest = mu[1] if len(mu) > 1 else 1.0
         return _SPAN_LOW * eig[0] / 4.0, _SPAN_HIGH * eig[-1] / lowest
 
