@@ -133,6 +133,31 @@ def test_pieces_of_the_frames_on_threads_are_one_fit(centres_case, monkeypatch):
     np.testing.assert_array_equal(fits[2].solution.cost, fits[1].solution.cost)
 
 
+def test_smooth_fit_evaluates_pieces_of_the_frames_on_threads_as_one(centres_case,
+                                                                     monkeypatch):
+    """The smooth fit's evaluations of the centre model share pieces of the frames among
+    threads: the same weights and centres, bit for bit, on one BLAS thread or two, and
+    those of one piece up to rounding."""
+    basis, layout, _, data, tangent = centres_case
+    noisy = data + 0.02 * np.random.default_rng(6).standard_normal(data.shape)
+    args = (layout, basis.neutral.vertices, basis.displacements, tangent, noisy)
+    fits = {}
+    for per_piece, threads in ((len(noisy), 1), (64, 1), (64, 2)):   # 64: two pieces
+        monkeypatch.setattr(fit.solve.marker_centres, "_FRAMES_PER_EVALUATION", per_piece)
+        with threadpoolctl.threadpool_limits(threads, user_api="blas"):
+            fits[per_piece, threads] = solve_at_marker_centres(*args, lower=0.0, upper=1.0,
+                                                               smoothness=0.5)
+    one = fits[len(noisy), 1]
+    for got in fits.values():
+        assert got.solution.status == 0, got.solution.message
+        np.testing.assert_allclose(got.solution.weights, one.solution.weights, rtol=0,
+                                   atol=EXACT_FLOAT64)
+        np.testing.assert_allclose(got.displacements, one.displacements, rtol=0,
+                                   atol=EXACT_FLOAT64)
+    np.testing.assert_array_equal(fits[64, 2].solution.weights, fits[64, 1].solution.weights)
+    np.testing.assert_array_equal(fits[64, 2].displacements, fits[64, 1].displacements)
+
+
 def test_an_unsettled_frame_is_reported(centres_case):
     basis, layout, _, data, tangent = centres_case
     fit = solve_at_marker_centres(layout, basis.neutral.vertices, basis.displacements, tangent,

@@ -51,6 +51,7 @@ import scipy.fft
 import scipy.linalg
 
 from fit.solve._active_set import RANK_RTOL, BoxQP, kkt_residual
+from mocap.util.blas import worker_threads
 
 #: Frames either side of a state change that settle it locally.
 _WINDOW = 3
@@ -82,11 +83,15 @@ class Spectrum:
         mu = 4.0 * np.sin(np.pi * np.arange(n_frames) / (2 * n_frames)) ** 2
         return cls(eig=eig, vec=vec, mu=mu)
 
+    # the transforms of the n columns are shared among the worker threads (each column's
+    # the same on any number of them)
     def transform(self, c):
-        return scipy.fft.dct(c @ self.vec, type=2, norm="ortho", axis=0)
+        return scipy.fft.dct(c @ self.vec, type=2, norm="ortho", axis=0,
+                             workers=worker_threads())
 
     def inverse(self, spectral):
-        return scipy.fft.idct(spectral, type=2, norm="ortho", axis=0) @ self.vec.T
+        return scipy.fft.idct(spectral, type=2, norm="ortho", axis=0,
+                              workers=worker_threads()) @ self.vec.T
 
     def denominators(self, lam):
         """Λ_j + λ μ_k, (T, n), and where it counts as nonzero (a pseudo-inverse elsewhere)."""

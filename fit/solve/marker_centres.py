@@ -157,9 +157,18 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
 _FRAMES_PER_TASK = 4096
 
 
+#: Frames of one piece of an evaluation of the centre model shared among threads (pieces
+#: of a fixed size: the values do not depend on the thread count).
+_FRAMES_PER_EVALUATION = 512
+
+
 @dataclass(frozen=True)
 class _CentreModel:
-    """The centres' model: ``centres(w) = c(w) − c(0)`` and the bounds."""
+    """The centres' model: ``centres(w) = c(w) − c(0)`` and the bounds.
+
+    Both evaluations share pieces of the frames among the worker threads (one
+    thread inside a piece of an independent-frame fit, whose work is already shared).
+    """
 
     layout: MarkerLayout
     neutral: np.ndarray
@@ -171,12 +180,26 @@ class _CentreModel:
 
     def centres(self, w: np.ndarray) -> np.ndarray:
         """``c(w) − c(0)`` of the weights `w` (T, n), (T, M, 3)."""
-        return self.layout.positions_under_weights(self.neutral, self.displacements, w) \
-            - self.rest
+        return self._by_pieces(self._centres, w)
 
     def nonlinear(self, w: np.ndarray) -> np.ndarray:
         """``r(w) = c(w) − c(0) − B w`` of the weights `w` (T, n), (T, M, 3)."""
-        return self.centres(w) - np.tensordot(w, self.basis, axes=1)
+        return self._by_pieces(
+            lambda part: self._centres(part) - np.tensordot(part, self.basis, axes=1), w)
+
+    def _centres(self, w: np.ndarray) -> np.ndarray:
+        return self.layout.positions_under_weights(self.neutral, self.displacements, w) \
+            - self.rest
+
+    def _by_pieces(self, function, w: np.ndarray) -> np.ndarray:
+        """``function(w)`` (T, M, 3), pieces of the frames of `w` (T, n) on the threads."""
+        out = np.empty((len(w), *self.rest.shape))
+
+        def piece(first):
+            rows = slice(first, first + _FRAMES_PER_EVALUATION)
+            out[rows] = function(w[rows])
+        map_on_blas_threads(piece, range(0, len(w), _FRAMES_PER_EVALUATION))
+        return out
 
 
 @dataclass(frozen=True)
