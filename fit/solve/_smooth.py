@@ -85,8 +85,8 @@ class Spectrum:
         mu = 4.0 * np.sin(np.pi * np.arange(n_frames) / (2 * n_frames)) ** 2
         return cls(eig=eig, vec=vec, mu=mu)
 
-    # the transforms of the n columns are shared among the worker threads (each column's
-    # the same on any number of them)
+    # the n columns' transforms are shared among the worker threads (each column's result
+    # is the same on any number of them)
     def transform(self, c):
         return scipy.fft.dct(c @ self.vec, type=2, norm="ortho", axis=0,
                              workers=worker_threads())
