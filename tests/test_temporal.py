@@ -6,6 +6,7 @@ import warnings
 
 import numpy as np
 import pytest
+import scipy.linalg
 from scipy.optimize import lsq_linear
 from tolerances import (
     EXACT_FLOAT64,
@@ -272,12 +273,12 @@ def test_a_cycle_while_the_data_move_holds_them_and_ends_optimal(monkeypatch):
 def _counted_factorizations(monkeypatch) -> list:
     """A list that gets one item per factorization of the whole sequence from now on."""
     factors = []
-    real = fit.solve._smooth.scipy.linalg.cholesky_banded
+    real = fit.solve._smooth.cholesky_banded_upper
 
     def counted(*args, **kwargs):
         factors.append(1)
         return real(*args, **kwargs)
-    monkeypatch.setattr(fit.solve._smooth.scipy.linalg, "cholesky_banded", counted)
+    monkeypatch.setattr(fit.solve._smooth, "cholesky_banded_upper", counted)
     return factors
 
 
@@ -396,6 +397,67 @@ def test_whole_sequence_solves_nearby_states_through_one_factor(ridge, monkeypat
     far[tuple(np.argwhere(far == 0)[0])] = 1
     check(far)
     assert len(factors) == 3
+
+
+def test_a_prepared_factor_solves_as_one_made_at_the_solve(monkeypatch):
+    """``prepare`` factors a state far from the kept factor on a thread of its own: the
+    solve then uses that factor (no second factorization) and gives the same bits; a
+    state near the kept factor is not factored ahead (its solve borders the factor); an
+    error of the background factorization is raised by the solve."""
+    rng = np.random.default_rng(14)
+    T, n = 30, 4
+    a = rng.standard_normal((2 * n, n))
+    band = fit.solve._smooth._Band(a.T @ a, 0.4, 0.0)
+    first = rng.choice(np.array([-1, 0, 0, 1], np.int8), size=(T, n))
+    far = rng.choice(np.array([-1, 0, 0, 1], np.int8), size=(T, n))
+    rhs = np.where(far == 0, rng.standard_normal(far.shape), 0.0).ravel()
+    expected = fit.solve._smooth._WholeFactor(band, T).solve(far, rhs)
+    whole = fit.solve._smooth._WholeFactor(band, T)
+    whole.solve(first, np.zeros(T * n))
+    factors = _counted_factorizations(monkeypatch)
+    whole.prepare(far)
+    whole.wait()
+    assert len(factors) == 1
+    np.testing.assert_array_equal(whole.solve(far, rhs), expected)
+    assert len(factors) == 1
+    near = far.copy()
+    near[tuple(np.argwhere(far == 0)[0])] = 1
+    whole.prepare(near)
+    assert whole._factoring is None and len(factors) == 1
+
+    def broken(ab):
+        raise np.linalg.LinAlgError("3-th leading minor not positive definite")
+    monkeypatch.setattr(fit.solve._smooth, "cholesky_banded_upper", broken)
+    whole.prepare(first)
+    with pytest.raises(np.linalg.LinAlgError, match="3-th leading minor"):
+        whole.solve(first, np.zeros(T * n))
+
+
+def test_banded_cholesky_without_the_gil_is_scipys_factor():
+    """The GIL-free factorization is LAPACK's dpbtrf, as SciPy's `cholesky_banded` calls
+    it: the same factor bit for bit, the same refusal of a matrix that is not positive
+    definite, and a clear error for storage LAPACK cannot factor in place."""
+    from fit.solve._banded_cholesky import cholesky_banded_upper
+    rng = np.random.default_rng(15)
+    N, kd = 300, 7
+    dense = rng.standard_normal((N, N)) * np.triu(np.tril(np.ones((N, N)), kd), -kd)
+    dense = dense @ dense.T + 0.1 * np.eye(N)            # SPD, bandwidth 2 kd
+    kd = 2 * kd
+    ab = np.zeros((kd + 1, N), order="F")
+    for i, j in zip(*np.triu_indices(N)):
+        if j - i <= kd:
+            ab[kd + i - j, j] = dense[i, j]
+    expected = scipy.linalg.cholesky_banded(ab, check_finite=False)
+    got = ab.copy(order="F")
+    assert cholesky_banded_upper(got) is got
+    np.testing.assert_array_equal(got, expected)
+    indefinite = ab.copy(order="F")
+    indefinite[kd, 10] = -1.0                          # A[10, 10]: the 11th minor fails
+    for factor in (cholesky_banded_upper, scipy.linalg.cholesky_banded):
+        with pytest.raises(np.linalg.LinAlgError, match="^11-th leading minor not positive"):
+            factor(indefinite.copy(order="F"))
+    with pytest.raises(ValueError, match="Fortran-ordered float64"):
+        cholesky_banded_upper(np.ascontiguousarray(ab))
 
 
 def test_smoothness_reduces_frame_to_frame_change():

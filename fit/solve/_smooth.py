@@ -38,11 +38,14 @@ the chord steps of the exact marker-centre fit change them after every global
 solve, so that the steps and the active-set iteration converge together
 instead of one full iteration per step. The whole sequence's factor is kept
 while the state stays near it, so a step that keeps the state costs two
-triangular solves.
+triangular solves; a new state's factor forms on a thread of its own while
+`follow` works (the factorization does not hold the GIL), since the state,
+not the terms, decides it.
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -51,6 +54,7 @@ import scipy.fft
 import scipy.linalg
 
 from fit.solve._active_set import RANK_RTOL, BoxQP, kkt_residual
+from fit.solve._banded_cholesky import cholesky_banded_upper
 from mocap.util.blas import worker_threads
 
 #: Frames either side of a state change that settle it locally.
@@ -277,10 +281,29 @@ class _WholeFactor:
     def __init__(self, band: _Band, n_frames: int):
         self.band, self.n_frames = band, n_frames
         self.free, self.factor, self.columns = None, None, {}
+        self._factoring = None
+
+    def prepare(self, state) -> None:
+        """Start factoring ``state`` (T, n) on a thread of its own when its solve will need
+        a factor of its own: the factorization runs without the GIL
+        (:func:`fit.solve._banded_cholesky.cholesky_banded_upper`), beside the caller's
+        work until :meth:`solve` or :meth:`wait`."""
+        self.wait()
+        free = (state == 0).ravel()
+        if self.free is not None and np.count_nonzero(free != self.free) <= _LOW_RANK_MAX:
+            return
+        self._factoring = _Background(self._factor, free)
+
+    def wait(self) -> None:
+        """Wait for the factorization :meth:`prepare` started, if any (its error raised)."""
+        factoring, self._factoring = self._factoring, None
+        if factoring is not None:
+            factoring.result()
 
     def solve(self, state, rhs):
         """``M⁻¹ rhs`` (T·n,) for the reduced Hessian M of ``state`` (T, n); ``rhs`` is 0
         on the bound variables."""
+        self.wait()
         free = (state == 0).ravel()
         if self.free is not None:
             changed = np.flatnonzero(free != self.free)
@@ -298,7 +321,7 @@ class _WholeFactor:
         self.free, self.columns = None, {}  # the buffer is about to hold another factor
         ab = self.band.matrix(free.reshape(self.n_frames, -1), degree(self.n_frames),
                               np.ones(max(self.n_frames - 1, 0), bool), out=self.factor)
-        self.factor = scipy.linalg.cholesky_banded(ab, overwrite_ab=True, check_finite=False)
+        self.factor = cholesky_banded_upper(ab)
         self.free = free
 
     def _solve(self, rhs):
@@ -368,6 +391,27 @@ class _WholeFactor:
         grad, scale = gradient(G, rhs.reshape(T, -1), band.lam, x.reshape(T, -1))
         rel = np.abs(grad).ravel()[free] / np.maximum(scale.ravel()[free], np.finfo(float).tiny)
         return rel.max(initial=0.0)
+
+
+class _Background:
+    """``function(*args)`` on a thread of its own; :meth:`result` waits for it and raises
+    its error."""
+
+    def __init__(self, function, *args):
+        self._error = None
+
+        def run():
+            try:
+                function(*args)
+            except BaseException as exc:     # raised again in the caller's thread
+                self._error = exc
+        self._thread = threading.Thread(target=run, daemon=True)
+        self._thread.start()
+
+    def result(self) -> None:
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
 
 
 def _step(qp: BoxQP, state, w, grad):
@@ -480,7 +524,12 @@ def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None,
             continue
         if iteration == max_iter - 1:
             break                       # (the last terms are the ones w solves)
-        following = follow(w, optimal)
+        # the next state's factor forms while follow works (on the state, not on the terms)
+        whole.prepare(state)
+        try:
+            following = follow(w, optimal)
+        finally:
+            whole.wait()
         if following is None:
             break
         c = following
