@@ -460,6 +460,23 @@ def test_banded_cholesky_without_the_gil_is_scipys_factor():
         cholesky_banded_upper(np.ascontiguousarray(ab))
 
 
+def test_banded_cholesky_of_another_signature_is_scipys(monkeypatch):
+    """A SciPy exporting dpbtrf with another C signature is not called through it: SciPy's
+    own `cholesky_banded` factors, with the same factor."""
+    import fit.solve._banded_cholesky as banded
+    rng = np.random.default_rng(16)
+    ab = np.asfortranarray(0.01 * rng.standard_normal((4, 50)))
+    ab[-1] = 2.0
+    expected = banded.cholesky_banded_upper(ab.copy(order="F"))
+    assert banded._dpbtrf() is not None
+    assert banded._SIGNATURE.fullmatch(
+        b"void (char *, int *, int *, __pyx_t_5scipy_6linalg_13cython_lapack_d *, int *, int *)")
+    assert not banded._SIGNATURE.fullmatch(
+        b"void (char *, int64_t *, int64_t *, double *, int64_t *, int64_t *)")
+    monkeypatch.setattr(banded, "_dpbtrf", lambda: None)
+    np.testing.assert_array_equal(banded.cholesky_banded_upper(ab.copy(order="F")), expected)
+
+
 def test_smoothness_reduces_frame_to_frame_change():
     rng = np.random.default_rng(11)
     basis = rng.standard_normal((15, 4))
