@@ -26,7 +26,8 @@ REPORT ?= $(DEMO_DIR)/results
 .PHONY: test demo bench env clean blender-check blender-check-ict report-check
 
 # `.[test]` includes the optional `speech` extra (Praat, PocketSphinx and its model, PyAV),
-# so that the tests run the real speech tools; the core install needs none of them.
+# so that the tests run the real speech tools, and the `speed` extra (numba), so that they
+# run the compiled marker placement; the core install needs none of them.
 env: $(STAMP)
 
 $(STAMP): pyproject.toml

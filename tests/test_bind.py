@@ -118,6 +118,42 @@ def test_positions_offset_along_interpolated_normals(ict_mesh, ict_layout):
     assert np.all(ict_layout.offsets == 0.2)
 
 
+@pytest.mark.parametrize("frames", [2, 5, 64, 130])
+def test_compiled_placement_is_the_numpy_placement_bit_for_bit(ict_mesh, ict_basis, frames,
+                                                               monkeypatch):
+    """With numba (the `speed` extra) markers are placed by one compiled loop: the same
+    positions, bit for bit, as the NumPy path, for face and vertex markers, with and
+    without offsets, under weights and on meshes with NaN vertices."""
+    pytest.importorskip("numba", reason="the compiled placement needs numba (speed extra)")
+    import mocap.mesh.layout as layout_module
+    rng = np.random.default_rng(frames)
+    faces = rng.choice(len(ict_mesh.faces), 20, replace=False)
+    markers = {f"face-{i}": {"face": int(f), "bary": list(rng.dirichlet(np.ones(3)))}
+               for i, f in enumerate(faces)}
+    markers.update({f"vertex-{i}": {"vertex": int(v)}
+                    for i, v in enumerate(rng.choice(ict_mesh.n_vertices, 10))})
+    markers["face-0"]["offset"] = markers["vertex-0"]["offset"] = 0.0     # on the skin
+    layout = make_layout(ict_mesh, markers, offset=0.2)
+    assert layout_module._compiled_place() is not None
+    weights = rng.uniform(-0.2, 1.1, (frames, len(ict_basis.names)))
+    meshes = ict_mesh.vertices + rng.normal(0, 0.1, (frames,) + ict_mesh.vertices.shape)
+    meshes[1, layout.vertex_ids[3, 0]] = np.nan           # NaN where a marker reads
+    for marker in (0, 5):                       # where only a normal reads, of a marker on
+        ring = ict_mesh.faces[(ict_mesh.faces == layout.vertex_ids[marker, 0]).any(axis=1)]
+        meshes[0, np.setdiff1d(ring, layout.vertex_ids)[0]] = np.nan      # the skin and off it
+    runs = []
+    for compiled in (True, False):
+        if not compiled:
+            monkeypatch.setattr(layout_module, "_compiled_place", lambda: None)
+        runs.append([layout.positions_under_weights(ict_basis.neutral.vertices,
+                                                    ict_basis.displacements, weights),
+                     layout.positions(meshes), layout.positions(meshes, offset=False)])
+    for got, expected in zip(*runs):
+        np.testing.assert_array_equal(got, expected)
+    assert np.isnan(runs[0][1][1]).any() and np.isnan(runs[0][1][0, 5]).all()
+    assert np.isfinite(runs[0][1][0, 0]).all()     # on the skin: its normal is not read
+
+
 def test_positions_vectorized_over_frames(ict_mesh, ict_layout):
     rng = np.random.default_rng(1)
     frames = ict_mesh.vertices + rng.normal(0, 0.1, (2, 3) + ict_mesh.vertices.shape)

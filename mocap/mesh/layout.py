@@ -18,6 +18,7 @@ file's polygons).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -104,8 +105,8 @@ class MarkerLayout:
         ``local`` the marker corners among them; ``edges`` (2 Fs x K, sparse)
         forms the two edges from the first corner of each face around a
         marker corner, ``incidence`` (corners x Fs) sums those faces' normals
-        at the corners, and ``slot`` is each marker corner's row among the
-        corners.
+        at the corners, ``slot`` is each marker corner's row among the
+        corners, and ``faces`` (Fs x 3) are those faces in ids among ``needed``.
         """
         corners = np.unique(self.vertex_ids)
         sub_faces = self.faces[np.isin(self.faces, corners).any(axis=1)]
@@ -121,7 +122,7 @@ class MarkerLayout:
         incidence = sp.csr_matrix((np.ones(len(rows)), (np.searchsorted(
             corners, sub_faces[rows, cols]), rows)), shape=(len(corners), n_sub))
         return (needed, np.searchsorted(needed, self.vertex_ids), edges, incidence,
-                np.searchsorted(corners, self.vertex_ids))
+                np.searchsorted(corners, self.vertex_ids), local_faces)
 
     @property
     def n_markers(self) -> int:
@@ -205,7 +206,15 @@ class MarkerLayout:
         return out
 
     def _place(self, near: np.ndarray, offset: bool = True) -> np.ndarray:
-        """Marker positions (B, M, 3) from the needed vertices ``near``, (3, K, B)."""
+        """Marker positions (B, M, 3) from the needed vertices ``near``, (3, K, B): compiled
+        when numba is installed (:mod:`mocap.mesh._layout_kernel`, the same bits)."""
+        kernel = _compiled_place()
+        if kernel is not None:
+            _, local, _, incidence, slot, faces = self._normal_op
+            out = np.empty((near.shape[-1], self.n_markers, 3))
+            kernel(np.ascontiguousarray(near), faces, incidence.indptr, incidence.indices, slot,
+                   local, self.weights, self.offsets, offset, out)
+            return out
         local = self._normal_op[1]
         points = np.einsum("cmkb,mk->bmc", near[:, local], self.weights)       # (B, M, 3)
         has = self.offsets != 0
@@ -221,7 +230,7 @@ class MarkerLayout:
         normals around them (edge cross products; edges and sums are sparse
         products, one per coordinate), interpolated by its barycentric weights.
         """
-        _, _, edges, incidence, slot = self._normal_op
+        _, _, edges, incidence, slot, _ = self._normal_op
         n_sub = incidence.shape[1]
         uv = [edges @ coordinate for coordinate in near]                        # 3 x (2 Fs, B)
         u, v = [e[:n_sub] for e in uv], [e[n_sub:] for e in uv]
@@ -234,6 +243,16 @@ class MarkerLayout:
         along = np.einsum("cmkb,mk->cmb", summed[:, slot], self.weights)
         along /= _norm(along)
         return along
+
+
+@functools.cache
+def _compiled_place():
+    """:func:`mocap.mesh._layout_kernel.place_markers`, or None without numba."""
+    try:
+        from mocap.mesh._layout_kernel import place_markers
+    except ImportError:                 # numba is optional: the `speed` extra
+        return None
+    return place_markers
 
 
 def _norm(v: np.ndarray) -> np.ndarray:
