@@ -61,19 +61,9 @@ def place_markers(near, faces, corner_start, corner_faces, slot, local, bary, of
                     normals[2, corner, t] = z / length
     for m in range(n_markers):
         for t in range(n_frames):
-            px = py = pz = 0.0
-            for k in range(3):
-                vertex, weight = local[m, k], bary[m, k]
-                px += near[0, vertex, t] * weight
-                py += near[1, vertex, t] * weight
-                pz += near[2, vertex, t] * weight
+            px, py, pz = _interpolated(near, local, bary, m, t)
             if offset and offsets[m] != 0:
-                ax = ay = az = 0.0
-                for k in range(3):
-                    corner, weight = slot[m, k], bary[m, k]
-                    ax += normals[0, corner, t] * weight
-                    ay += normals[1, corner, t] * weight
-                    az += normals[2, corner, t] * weight
+                ax, ay, az = _interpolated(normals, slot, bary, m, t)
                 length = np.sqrt(ax * ax + ay * ay + az * az)
                 if not length > 0:
                     length = 1.0
@@ -83,3 +73,15 @@ def place_markers(near, faces, corner_start, corner_faces, slot, local, bary, of
             out[t, m, 0] = px
             out[t, m, 1] = py
             out[t, m, 2] = pz
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _interpolated(values, rows, bary, m, t):  # pragma: no cover - compiled
+    """``Σ_k bary[m, k] values[:, rows[m, k], t]``, k in order, as (x, y, z)."""
+    x = y = z = 0.0
+    for k in range(3):
+        row, weight = rows[m, k], bary[m, k]
+        x += values[0, row, t] * weight
+        y += values[1, row, t] * weight
+        z += values[2, row, t] * weight
+    return x, y, z
