@@ -154,6 +154,36 @@ def test_compiled_placement_is_the_numpy_placement_bit_for_bit(ict_mesh, ict_bas
     assert np.isfinite(runs[0][1][0, 0]).all()     # on the skin: its normal is not read
 
 
+def test_numba_without_a_cache_folder_falls_back_to_numpy_with_a_warning(ict_mesh, ict_layout,
+                                                                        monkeypatch):
+    """numba raises RuntimeError when it can write its compiled code nowhere (a read-only
+    install and home): the markers are then placed by NumPy, with a warning saying so."""
+    import sys
+
+    import mocap.mesh.layout as layout_module
+    name = "mocap.mesh._layout_kernel"
+
+    class NoCacheFolder:
+        @staticmethod
+        def find_spec(fullname, path=None, target=None):
+            if fullname == name:
+                raise RuntimeError("cannot cache function 'place_markers': no locator "
+                                   "available for file '_layout_kernel.py'")
+            return None
+    meshes = np.stack([ict_mesh.vertices, ict_mesh.vertices[::-1]])
+    monkeypatch.delitem(sys.modules, name, raising=False)
+    monkeypatch.setattr(sys, "meta_path", [NoCacheFolder, *sys.meta_path])
+    layout_module._compiled_place.cache_clear()
+    try:
+        with pytest.warns(UserWarning, match="compiled marker placement is off .*no locator"):
+            got = ict_layout.positions(meshes)
+        assert layout_module._compiled_place() is None
+    finally:
+        monkeypatch.undo()
+        layout_module._compiled_place.cache_clear()
+    np.testing.assert_array_equal(got, ict_layout.positions(meshes))
+
+
 def test_positions_vectorized_over_frames(ict_mesh, ict_layout):
     rng = np.random.default_rng(1)
     frames = ict_mesh.vertices + rng.normal(0, 0.1, (2, 3) + ict_mesh.vertices.shape)

@@ -19,6 +19,7 @@ file's polygons).
 from __future__ import annotations
 
 import functools
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -247,10 +248,16 @@ class MarkerLayout:
 
 @functools.cache
 def _compiled_place():
-    """:func:`mocap.mesh._layout_kernel.place_markers`, or None without numba."""
+    """:func:`mocap.mesh._layout_kernel.place_markers`, or None without numba, or where numba
+    can keep its compiled code nowhere (warned once: NumPy places the markers then)."""
     try:
         from mocap.mesh._layout_kernel import place_markers
     except ImportError:                 # numba is optional: the `speed` extra
+        return None
+    except RuntimeError as exc:         # numba's "cannot cache function ...": no folder to write
+        warnings.warn(f"the compiled marker placement is off ({exc}); NumPy places the "
+                      "markers, about half as fast: set NUMBA_CACHE_DIR to a writable folder",
+                      stacklevel=3)
         return None
     return place_markers
 
