@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import igl
 import numpy as np
 import pytest
@@ -18,6 +20,7 @@ from tolerances import (
     NEUTRAL_FRAME_RMS_MM,
 )
 
+import mocap.mesh.layout as layout_module
 from mocap.bind import Binding, bind_markers, closest_surface_points, load_binding
 from mocap.errors import FileFormatError, InputError, MarkerError
 from mocap.markerset import REQUIRED_REGIONS
@@ -124,8 +127,6 @@ def test_compiled_placement_is_the_numpy_placement_bit_for_bit(ict_mesh, ict_bas
     """With numba (the `speed` extra) markers are placed by one compiled loop: the same
     positions, bit for bit, as the NumPy path, for face and vertex markers, with and
     without offsets, under weights and on meshes with NaN vertices."""
-    pytest.importorskip("numba", reason="the compiled placement needs numba (speed extra)")
-    import mocap.mesh.layout as layout_module
     rng = np.random.default_rng(frames)
     faces = rng.choice(len(ict_mesh.faces), 20, replace=False)
     markers = {f"face-{i}": {"face": int(f), "bary": list(rng.dirichlet(np.ones(3)))}
@@ -134,7 +135,7 @@ def test_compiled_placement_is_the_numpy_placement_bit_for_bit(ict_mesh, ict_bas
                     for i, v in enumerate(rng.choice(ict_mesh.n_vertices, 10))})
     markers["face-0"]["offset"] = markers["vertex-0"]["offset"] = 0.0     # on the skin
     layout = make_layout(ict_mesh, markers, offset=0.2)
-    assert layout_module._compiled_place() is not None
+    assert layout_module._compiled_place() is not None     # numba: the speed extra, in .[test]
     weights = rng.uniform(-0.2, 1.1, (frames, len(ict_basis.names)))
     meshes = ict_mesh.vertices + rng.normal(0, 0.1, (frames,) + ict_mesh.vertices.shape)
     meshes[1, layout.vertex_ids[3, 0]] = np.nan           # NaN where a marker reads
@@ -158,9 +159,6 @@ def test_numba_without_a_cache_folder_falls_back_to_numpy_with_a_warning(ict_mes
                                                                         monkeypatch):
     """numba raises RuntimeError when it can write its compiled code nowhere (a read-only
     install and home): the markers are then placed by NumPy, with a warning saying so."""
-    import sys
-
-    import mocap.mesh.layout as layout_module
     name = "mocap.mesh._layout_kernel"
 
     class NoCacheFolder:

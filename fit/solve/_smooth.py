@@ -45,8 +45,8 @@ not the terms, decides it.
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -292,7 +292,9 @@ class _WholeFactor:
         free = (state == 0).ravel()
         if self.free is not None and np.count_nonzero(free != self.free) <= _LOW_RANK_MAX:
             return
-        self._factoring = _Background(self._factor, free)
+        pool = ThreadPoolExecutor(1)
+        self._factoring = pool.submit(self._factor, free)
+        pool.shutdown(wait=False)           # its thread ends with the factorization
 
     def wait(self) -> None:
         """Wait for the factorization :meth:`prepare` started, if any (its error raised)."""
@@ -391,27 +393,6 @@ class _WholeFactor:
         grad, scale = gradient(G, rhs.reshape(T, -1), band.lam, x.reshape(T, -1))
         rel = np.abs(grad).ravel()[free] / np.maximum(scale.ravel()[free], np.finfo(float).tiny)
         return rel.max(initial=0.0)
-
-
-class _Background:
-    """``function(*args)`` on a thread of its own; :meth:`result` waits for it and raises
-    its error."""
-
-    def __init__(self, function, *args):
-        self._error = None
-
-        def run():
-            try:
-                function(*args)
-            except BaseException as exc:     # raised again in the caller's thread
-                self._error = exc
-        self._thread = threading.Thread(target=run, daemon=True)
-        self._thread.start()
-
-    def result(self) -> None:
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
 
 
 def _step(qp: BoxQP, state, w, grad):
