@@ -17,22 +17,25 @@ __all__ = ["place_markers"]
 
 
 @numba.njit(cache=True, nogil=True)
-def place_markers(near, faces, corner_start, corner_faces, slot, local, bary, offsets,
-                  offset, out):  # pragma: no cover - compiled; tested against the NumPy path
+def place_markers(near, faces, face_start, face_corners, n_corners, slot, local, bary,
+                  offsets, offset, out):  # pragma: no cover - compiled; tested against NumPy
     """Marker positions into `out` (B, M, 3) from the needed vertices `near` (3, K, B).
 
     `faces` (Fs, 3) are the faces around the marker corners in local vertex ids;
-    `corner_start` and `corner_faces` list each corner's faces (CSR, in the order the
-    NumPy path sums them); `slot`, `local` and `bary` (M, 3) give each marker's corners
-    (rows of the corner normals), their local vertex ids and its barycentric weights;
-    `offsets` (M,) its distance along the normal, added where nonzero when `offset`.
+    `face_start` and `face_corners` list the marker corners of each face (CSR, rows of
+    the `n_corners` corner normals); `slot`, `local` and `bary` (M, 3) give each
+    marker's corners (rows of the corner normals), their local vertex ids and its
+    barycentric weights; `offsets` (M,) its distance along the normal, added where
+    nonzero when `offset`. Each face's normal is added to its corners' as it is made
+    (no array of all the face normals): a corner sums its faces in their order, as the
+    NumPy path's sparse product does.
     """
     n_frames = near.shape[2]
     n_markers = len(offsets)
     if offset:
-        n_faces, n_corners = len(faces), len(corner_start) - 1
-        cross = np.empty((3, n_faces, n_frames))
-        for f in range(n_faces):
+        normals = np.zeros((3, n_corners, n_frames))
+        cross = np.empty((3, n_frames))
+        for f in range(len(faces)):
             a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
             for t in range(n_frames):
                 ux = near[0, b, t] - near[0, a, t]
@@ -41,17 +44,16 @@ def place_markers(near, faces, corner_start, corner_faces, slot, local, bary, of
                 vx = near[0, c, t] - near[0, a, t]
                 vy = near[1, c, t] - near[1, a, t]
                 vz = near[2, c, t] - near[2, a, t]
-                cross[0, f, t] = uy * vz - uz * vy
-                cross[1, f, t] = uz * vx - ux * vz
-                cross[2, f, t] = ux * vy - uy * vx
-        normals = np.zeros((3, n_corners, n_frames))
-        for corner in range(n_corners):
-            for k in range(corner_start[corner], corner_start[corner + 1]):
-                f = corner_faces[k]
+                cross[0, t] = uy * vz - uz * vy
+                cross[1, t] = uz * vx - ux * vz
+                cross[2, t] = ux * vy - uy * vx
+            for k in range(face_start[f], face_start[f + 1]):
+                corner = face_corners[k]
                 for t in range(n_frames):
-                    normals[0, corner, t] += cross[0, f, t]
-                    normals[1, corner, t] += cross[1, f, t]
-                    normals[2, corner, t] += cross[2, f, t]
+                    normals[0, corner, t] += cross[0, t]
+                    normals[1, corner, t] += cross[1, t]
+                    normals[2, corner, t] += cross[2, t]
+        for corner in range(n_corners):
             for t in range(n_frames):
                 x, y, z = normals[0, corner, t], normals[1, corner, t], normals[2, corner, t]
                 length = np.sqrt(x * x + y * y + z * z)

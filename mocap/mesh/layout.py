@@ -107,7 +107,8 @@ class MarkerLayout:
         forms the two edges from the first corner of each face around a
         marker corner, ``incidence`` (corners x Fs) sums those faces' normals
         at the corners, ``slot`` is each marker corner's row among the
-        corners, and ``faces`` (Fs x 3) are those faces in ids among ``needed``.
+        corners, ``faces`` (Fs x 3) are those faces in ids among ``needed``,
+        and ``by_face`` (Fs x corners) is ``incidence`` transposed: each face's corners.
         """
         corners = np.unique(self.vertex_ids)
         sub_faces = self.faces[np.isin(self.faces, corners).any(axis=1)]
@@ -123,7 +124,7 @@ class MarkerLayout:
         incidence = sp.csr_matrix((np.ones(len(rows)), (np.searchsorted(
             corners, sub_faces[rows, cols]), rows)), shape=(len(corners), n_sub))
         return (needed, np.searchsorted(needed, self.vertex_ids), edges, incidence,
-                np.searchsorted(corners, self.vertex_ids), local_faces)
+                np.searchsorted(corners, self.vertex_ids), local_faces, incidence.T.tocsr())
 
     @property
     def n_markers(self) -> int:
@@ -211,10 +212,10 @@ class MarkerLayout:
         when numba is installed (:mod:`mocap.mesh._layout_kernel`, the same bits)."""
         kernel = _compiled_place()
         if kernel is not None:
-            _, local, _, incidence, slot, faces = self._normal_op
+            _, local, _, incidence, slot, faces, by_face = self._normal_op
             out = np.empty((near.shape[-1], self.n_markers, 3))
-            kernel(np.ascontiguousarray(near), faces, incidence.indptr, incidence.indices, slot,
-                   local, self.weights, self.offsets, offset, out)
+            kernel(np.ascontiguousarray(near), faces, by_face.indptr, by_face.indices,
+                   incidence.shape[0], slot, local, self.weights, self.offsets, offset, out)
             return out
         local = self._normal_op[1]
         points = np.einsum("cmkb,mk->bmc", near[:, local], self.weights)       # (B, M, 3)
@@ -231,7 +232,7 @@ class MarkerLayout:
         normals around them (edge cross products; edges and sums are sparse
         products, one per coordinate), interpolated by its barycentric weights.
         """
-        _, _, edges, incidence, slot, _ = self._normal_op
+        _, _, edges, incidence, slot, _, _ = self._normal_op
         n_sub = incidence.shape[1]
         uv = [edges @ coordinate for coordinate in near]                        # 3 x (2 Fs, B)
         u, v = [e[:n_sub] for e in uv], [e[n_sub:] for e in uv]
