@@ -32,7 +32,7 @@ import numpy as np
 from fit.solve.gcv import SMOOTHNESS_RULES, gcv_smoothness
 from fit.solve.weights import WeightSolution, as_smoothness, solve_weights
 from mocap.errors import InputError
-from mocap.mesh.layout import MarkerLayout
+from mocap.mesh.layout import MarkerLayout, PlacementUnderWeights
 from mocap.util.blas import map_on_blas_threads
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
@@ -129,8 +129,8 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     smoothness = as_smoothness(smoothness)
     if smoothness in SMOOTHNESS_RULES:
         smoothness = gcv_smoothness(basis.reshape(n, -1).T, data.reshape(T, -1))
-    rest = layout.positions_under_weights(neutral, displacements, np.zeros((1, n)))[0]
-    model = _CentreModel(layout, neutral, displacements, basis, rest, lower, upper)
+    placement = layout.under_weights(neutral, displacements)
+    model = _CentreModel(placement, basis, placement(np.zeros((1, n)))[0], lower, upper)
     steps = _ChordSteps.empty(T, n, layout.n_markers)
     if smoothness > 0:
         ranks = [_smooth_chord_steps(model, data, smoothness, tol, max_steps, steps)]
@@ -170,9 +170,7 @@ class _CentreModel:
     thread inside a piece of an independent-frame fit, whose work is already shared).
     """
 
-    layout: MarkerLayout
-    neutral: np.ndarray
-    displacements: np.ndarray
+    placement: PlacementUnderWeights
     basis: np.ndarray
     rest: np.ndarray
     lower: object
@@ -188,8 +186,7 @@ class _CentreModel:
             lambda part: self._centres(part) - np.tensordot(part, self.basis, axes=1), w)
 
     def _centres(self, w: np.ndarray) -> np.ndarray:
-        return self.layout.positions_under_weights(self.neutral, self.displacements, w) \
-            - self.rest
+        return self.placement(w) - self.rest
 
     def _by_pieces(self, function, w: np.ndarray) -> np.ndarray:
         """``function(w)`` (T, M, 3), pieces of the frames of `w` (T, n) on the threads."""

@@ -35,14 +35,15 @@ from mocap.util.blas import on_one_blas_thread
 from mocap.util.toml import read_toml
 from mocap.util.validation import as_float_array
 
-__all__ = ["MarkerLayout", "make_layout", "load_marker_layout", "save_marker_layout"]
+__all__ = ["MarkerLayout", "PlacementUnderWeights", "make_layout", "load_marker_layout",
+           "save_marker_layout"]
 
 _KEYS = {"name", "description", "n_vertices", "units", "offset", "markers"}
 _MARKER_KEYS = {"vertex", "face", "bary", "offset"}
 _BARY_TOL = 1e-6
 
 
-#: Frames whose marker positions :meth:`MarkerLayout.positions_under_weights`
+#: Frames whose marker positions :class:`PlacementUnderWeights`
 #: forms together: few enough that their vertex, edge and normal arrays stay in the
 #: core's cache (on one thread, passes four times larger take three times longer), and
 #: enough that pieces evaluated on two Python threads (the marker-centre fit) are not
@@ -170,13 +171,8 @@ class MarkerLayout:
             out[first:first + part.shape[-1]] = self._place(part, offset=offset)
         return out.reshape(batch + out.shape[1:])
 
-    @on_one_blas_thread
     def positions_under_weights(self, neutral, displacements, weights) -> np.ndarray:
         """Marker positions on ``neutral + Σ_i w_i e_i`` for each row of `weights`.
-
-        Only the vertices the markers and their normals read are formed (no
-        mesh is), by one product with the weights, frames ``_FRAMES_PER_PASS``
-        at a time (too small a product to split: on one BLAS thread).
 
         Parameters
         ----------
@@ -189,6 +185,18 @@ class MarkerLayout:
         -------
         ndarray of shape (T, M, 3), mesh units
         """
+        return self.under_weights(neutral, displacements)(weights)
+
+    def under_weights(self, neutral, displacements) -> "PlacementUnderWeights":
+        """:meth:`positions_under_weights` of `neutral` and `displacements` as a function of
+        the weights, for many calls: the rows of the vertices the markers read are taken
+        once (e.g. 0.9 MB: the 53 ICT shapes at the 722 vertices its 60 markers read).
+
+        Raises
+        ------
+        InputError
+            Shapes that do not match the layout's mesh; NaN in `neutral`.
+        """
         needed = self._normal_op[0]
         neutral = as_float_array(neutral, "neutral", shape=(self.n_vertices, 3),
                                  allow_nan=False)
@@ -196,16 +204,9 @@ class MarkerLayout:
         if displacements.ndim != 3 or displacements.shape[1:] != (self.n_vertices, 3):
             raise InputError(f"displacements must have shape (n, {self.n_vertices}, 3), got "
                              f"{displacements.shape}")
-        weights = as_float_array(weights, "weights", shape=(None, len(displacements)))
-        rest = neutral[needed].T[:, :, None]                                   # (3, K, 1)
-        shapes = displacements[:, needed].transpose(2, 1, 0).reshape(-1, len(displacements))
-        out = np.empty((len(weights), self.n_markers, 3))
-        for first in range(0, len(weights), _FRAMES_PER_PASS):
-            part = weights[first:first + _FRAMES_PER_PASS]
-            near = (shapes @ part.T).reshape(3, len(needed), len(part))       # (3, K, B)
-            near += rest
-            out[first:first + len(part)] = self._place(near)
-        return out
+        return PlacementUnderWeights(
+            self, neutral[needed].T[:, :, None],
+            displacements[:, needed].transpose(2, 1, 0).reshape(-1, len(displacements)))
 
     def _place(self, near: np.ndarray, offset: bool = True) -> np.ndarray:
         """Marker positions (B, M, 3) from the needed vertices ``near``, (3, K, B): compiled
@@ -245,6 +246,42 @@ class MarkerLayout:
         along = np.einsum("cmkb,mk->cmb", summed[:, slot], self.weights)
         along /= _norm(along)
         return along
+
+
+@dataclass(frozen=True, eq=False)
+class PlacementUnderWeights:
+    """Marker positions of a layout on ``neutral + Σ_i w_i e_i`` as a function of the
+    weights w (:meth:`MarkerLayout.under_weights`).
+
+    Only the vertices the markers and their normals read are formed (no mesh is), by
+    one product with the weights, frames ``_FRAMES_PER_PASS`` at a time (too small a
+    product to split: on one BLAS thread).
+
+    Attributes
+    ----------
+    layout : MarkerLayout
+    rest : ndarray of shape (3, K, 1), mesh units
+        The neutral's K vertices the markers read, coordinate-major.
+    shapes : ndarray of shape (3 K, n), mesh units
+        The shapes at those vertices, one column per shape.
+    """
+
+    layout: MarkerLayout
+    rest: np.ndarray
+    shapes: np.ndarray
+
+    @on_one_blas_thread
+    def __call__(self, weights) -> np.ndarray:
+        """Marker positions (T, M, 3), mesh units, for `weights` (T, n)."""
+        weights = as_float_array(weights, "weights", shape=(None, self.shapes.shape[1]))
+        layout, n_near = self.layout, self.rest.shape[1]
+        out = np.empty((len(weights), layout.n_markers, 3))
+        for first in range(0, len(weights), _FRAMES_PER_PASS):
+            part = weights[first:first + _FRAMES_PER_PASS]
+            near = (self.shapes @ part.T).reshape(3, n_near, len(part))        # (3, K, B)
+            near += self.rest
+            out[first:first + len(part)] = layout._place(near)
+        return out
 
 
 @functools.cache
