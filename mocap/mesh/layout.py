@@ -19,7 +19,6 @@ file's polygons).
 from __future__ import annotations
 
 import functools
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -32,6 +31,7 @@ from mocap.mesh.mesh import Mesh
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
 from mocap.util.blas import on_one_blas_thread
+from mocap.util.optional import compiled
 from mocap.util.toml import read_toml
 from mocap.util.validation import as_float_array
 
@@ -286,18 +286,10 @@ class PlacementUnderWeights:
 
 @functools.cache
 def _compiled_place():
-    """:func:`mocap.mesh._layout_kernel.place_markers`, or None without numba, or where numba
-    can keep its compiled code nowhere (warned once: NumPy places the markers then)."""
-    try:
-        from mocap.mesh._layout_kernel import place_markers
-    except ImportError:                 # numba is optional: the `speed` extra
-        return None
-    except RuntimeError as exc:         # numba's "cannot cache function ...": no folder to write
-        warnings.warn(f"the compiled marker placement is off ({exc}); NumPy places the "
-                      "markers, about half as fast: set NUMBA_CACHE_DIR to a writable folder",
-                      stacklevel=3)
-        return None
-    return place_markers
+    """:func:`mocap.mesh._layout_kernel.place_markers`, or None (NumPy places the markers):
+    :func:`mocap.util.optional.compiled`."""
+    return compiled("mocap.mesh._layout_kernel", "place_markers", what="marker placement",
+                    fallback="NumPy places the markers, about half as fast")
 
 
 def _norm(v: np.ndarray) -> np.ndarray:

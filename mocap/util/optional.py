@@ -10,10 +10,11 @@ of the package never imports it.
 from __future__ import annotations
 
 import importlib
+import warnings
 
 from mocap.errors import MissingDependencyError
 
-__all__ = ["require", "available"]
+__all__ = ["require", "available", "compiled"]
 
 
 def require(module: str, *, package: str, extra: str, purpose: str):
@@ -57,3 +58,21 @@ def available(module: str) -> bool:
     except ImportError:
         return False
     return True
+
+
+def compiled(module: str, name: str, *, what: str, fallback: str):
+    """The function `name` of `module`, a numba kernel of the ``speed`` extra, or None.
+
+    None without numba, and where numba can keep its compiled code nowhere (a read-only
+    install and home: numba raises RuntimeError at import); that case is warned once per
+    call, saying what is off (`what`), what does the work instead (`fallback`) and that
+    ``NUMBA_CACHE_DIR`` turns it back on. Callers cache the result.
+    """
+    try:
+        return getattr(importlib.import_module(module), name)
+    except ImportError:                 # numba is optional: the `speed` extra
+        return None
+    except RuntimeError as exc:         # numba's "cannot cache function ...": no folder to write
+        warnings.warn(f"the compiled {what} is off ({exc}); {fallback}: set NUMBA_CACHE_DIR "
+                      "to a writable folder", stacklevel=4)
+        return None
