@@ -19,6 +19,7 @@ from tolerances import (
     SOLVE_TOL,
 )
 
+import fit.solve._active_set as active_set
 from fit.solve.sampling_estimator import estimate_weights_by_sampling
 from fit.solve.weights import WeightSolution, solve_weights
 from mocap.errors import InputError
@@ -33,6 +34,19 @@ BOUNDS = {
                   np.r_[np.full(6, np.inf), np.linspace(0.2, 1.0, 6)]),
 }
 BASES = ("random", "ill-conditioned", "rank-deficient")
+#: The box QP's iterations compiled frame by frame (numba: the `speed` extra, in .[test]).
+COMPILED_SOLVE, ITERATE_COMPILED = active_set._compiled_solve, active_set._iterate_compiled
+
+
+@pytest.fixture(params=["compiled", "numpy"], autouse=True)
+def solver_path(request, monkeypatch):
+    """Every test here runs on both paths of the box QP's iterations: compiled frame by
+    frame, and NumPy's, all frames at once."""
+    if request.param == "numpy":
+        monkeypatch.setattr(active_set, "_compiled_solve", lambda: None)
+    else:
+        assert COMPILED_SOLVE() is not None, "numba (the speed extra, in .[test]) is missing"
+    return request.param
 
 
 def make_basis(kind: str, rng) -> np.ndarray:
@@ -531,3 +545,89 @@ def test_principal_submatrices_match_indexing_each_frame(lower):
     for t in range(frames):
         expected = ext[np.ix_(sel[:, t], sel[:, t])]
         np.testing.assert_array_equal(out[rows, cols, t], expected[rows, cols])
+
+
+@pytest.mark.parametrize("kind", ["moderate", "ill-conditioned"])
+@pytest.mark.parametrize("bounds", ["unit", "per-shape", "fixed"])
+def test_compiled_iterations_are_numpys(kind, bounds, monkeypatch):
+    """Frame by frame, compiled, the box QP takes the NumPy path's iterations: the same
+    number in every frame, through both phases (many frames reach the monotone one), with
+    the refinement of an ill-conditioned G (cond 1e10, in either phase: 2,000 frames, for
+    the few the primal-dual phase refines) or without it (cond 1e5); the same optimum
+    (cost to rounding, weights to rounding times the condition), against bvls."""
+    from fit.solve._reduced import BoxQP
+
+    rng = np.random.default_rng([20, len(kind), len(bounds)])
+    if kind == "moderate":
+        u, _, vt = np.linalg.svd(rng.standard_normal((N_ROWS, N_SHAPES)), full_matrices=False)
+        basis = u @ np.diag(np.logspace(0, -2.5, N_SHAPES)) @ vt
+    else:
+        basis = make_basis(kind, rng)
+    data = make_data(basis, rng, n_frames=2000)
+    lo, hi = BOUNDS["unit" if bounds == "fixed" else bounds]
+    if bounds == "fixed":
+        lo, hi = np.zeros(N_SHAPES), np.ones(N_SHAPES)
+        lo[4] = hi[4] = 0.5
+    qp = BoxQP.build(basis.T @ basis, *np.broadcast_arrays(lo, hi))
+    assert (qp.refinements > 0) == (kind == "ill-conditioned")
+    calls = []
+    monkeypatch.setattr(active_set, "_iterate_compiled", lambda *a: calls.append(1) or
+                        ITERATE_COMPILED(*a))
+    monkeypatch.setattr(active_set, "_compiled_solve", COMPILED_SOLVE)
+    compiled = solve_weights(basis, data, lower=lo, upper=hi)
+    monkeypatch.setattr(active_set, "_compiled_solve", lambda: None)
+    numpy = solve_weights(basis, data, lower=lo, upper=hi)
+    assert calls, "the compiled iterations did not run"
+    assert compiled.status == numpy.status == 0
+    np.testing.assert_array_equal(compiled.n_iter, numpy.n_iter)
+    assert np.mean(compiled.n_iter > active_set._PDAS_MAX_ITER) > 0.1     # the monotone phase
+    np.testing.assert_allclose(compiled.cost, numpy.cost, rtol=SOLVE_OBJECTIVE_REL)
+    np.testing.assert_allclose(compiled.weights, numpy.weights, rtol=0,
+                               atol=SOLVE_SAME_MINIMIZER * qp.cond / 1e5)
+    if bounds == "fixed":                           # (bvls needs lower < upper)
+        assert np.all(compiled.weights[:, 4] == 0.5)
+    else:
+        np.testing.assert_allclose(compiled.cost[:200], oracle_cost(basis, data[:200], lo, hi),
+                                   rtol=SOLVE_OBJECTIVE_REL)
+        assert_kkt(basis, data, compiled.weights, lo, hi)
+
+
+
+def test_numba_without_a_cache_folder_falls_back_to_numpy_with_a_warning(monkeypatch):
+    """numba raises RuntimeError when it can write its compiled code nowhere (a read-only
+    install and home): NumPy then iterates, with a warning saying so; a missing module
+    (numba not installed) is None without one."""
+    import sys
+    import warnings
+
+    from mocap.util.optional import compiled
+
+    name = "fit.solve._box_qp_kernel"
+
+    class NoCacheFolder:
+        @staticmethod
+        def find_spec(fullname, path=None, target=None):
+            if fullname == name:
+                raise RuntimeError("cannot cache function 'solve_frames': no locator "
+                                   "available for file '_box_qp_kernel.py'")
+            return None
+    rng = np.random.default_rng(23)
+    basis = make_basis("random", rng)
+    data = make_data(basis, rng)
+    monkeypatch.setattr(active_set, "_compiled_solve", lambda: None)
+    expected = solve_weights(basis, data, lower=0, upper=1)
+    monkeypatch.undo()
+    monkeypatch.delitem(sys.modules, name, raising=False)
+    monkeypatch.setattr(sys, "meta_path", [NoCacheFolder, *sys.meta_path])
+    active_set._compiled_solve.cache_clear()
+    try:
+        with pytest.warns(UserWarning, match="compiled box-QP iteration is off .*no locator"):
+            got = solve_weights(basis, data, lower=0, upper=1)
+        assert active_set._compiled_solve() is None
+    finally:
+        monkeypatch.undo()
+        active_set._compiled_solve.cache_clear()
+    np.testing.assert_array_equal(got.weights, expected.weights)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert compiled("fit.solve.no_such_kernel", "f", what="x", fallback="y") is None

@@ -26,6 +26,8 @@ optimal but the KKT residual misses the tolerance.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from fit.solve._reduced import (
@@ -38,6 +40,7 @@ from fit.solve._reduced import (
     schur_weights,
 )
 from mocap.util.blas import map_on_blas_threads
+from mocap.util.optional import compiled
 
 __all__ = ["RANK_RTOL", "BoxQP", "kkt_residual", "reduced_solve", "residual", "solve_box_qp",
            "start_state"]
@@ -74,12 +77,7 @@ def kkt_residual(w, g, scale, lo, hi, *, atol=None, feasible: bool = False) -> n
     free weights inside and bound ones at their bound): its feasibility term,
     zero, is then not computed (six (T, n) passes fewer).
     """
-    if atol is None:
-        atol = 1e-12
-    # Within atol of a finite bound; never for an infinite one.
-    lo_f, hi_f = (np.where(np.isfinite(b), b, 0.0) for b in (lo, hi))
-    near_lo = np.where(np.isfinite(lo), lo_f + atol * np.maximum(1.0, np.abs(lo_f)), -np.inf)
-    near_hi = np.where(np.isfinite(hi), hi_f - atol * np.maximum(1.0, np.abs(hi_f)), np.inf)
+    near_lo, near_hi = _near_bounds(lo, hi, _ATOL if atol is None else atol)
     out = np.empty(len(w))
     # blocks of frames: the dozen (frames, n) temporaries of a block stay in the cache
     for first in range(0, len(w), _KKT_ROWS):
@@ -97,6 +95,16 @@ def kkt_residual(w, g, scale, lo, hi, *, atol=None, feasible: bool = False) -> n
 
 #: Frames of :func:`kkt_residual` checked at a time (~0.4 MB a temporary for 53 weights).
 _KKT_ROWS = 1024
+#: :func:`kkt_residual`'s default `atol`.
+_ATOL = 1e-12
+
+
+def _near_bounds(lo, hi, atol):
+    """Where a weight counts as at its bound: within `atol` · max(1, |bound|) of a finite
+    bound, (n,) each; -inf and +inf for no bound (never)."""
+    lo_f, hi_f = (np.where(np.isfinite(b), b, 0.0) for b in (lo, hi))
+    return (np.where(np.isfinite(lo), lo_f + atol * np.maximum(1.0, np.abs(lo_f)), -np.inf),
+            np.where(np.isfinite(hi), hi_f - atol * np.maximum(1.0, np.abs(hi_f)), np.inf))
 
 
 def residual(qp: BoxQP, w: np.ndarray, c: np.ndarray, grad=None, *,
@@ -175,6 +183,14 @@ def _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt):
         if not todo.size:
             break
     return w, done
+
+
+@functools.cache
+def _compiled_solve():
+    """:func:`fit.solve._box_qp_kernel.solve_frames`, or None (NumPy iterates):
+    :func:`mocap.util.optional.compiled`."""
+    return compiled("fit.solve._box_qp_kernel", "solve_frames", what="box-QP iteration",
+                    fallback="NumPy iterates over all frames at once, about 1.5 times slower")
 
 
 def _next_state(qp, state, w, g):
@@ -382,12 +398,27 @@ def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
 
 
 def _solve_from(qp, c, u, state, tol, max_iter):
-    """Both phases from an initial state (updated in place).
+    """Both phases from an initial state (updated in place): compiled frame by frame
+    when numba is installed and G is invertible, else by NumPy.
 
     Returns the clipped weights, the iterations and the KKT residual of
     each frame: that of its converged weights (which the clip leaves alone),
     computed anew for the others.
     """
+    kernel = _compiled_solve() if u is not None else None
+    if kernel is None:
+        w, n_iter, kkt = _iterate(qp, c, u, state, tol, max_iter)
+    else:
+        w, n_iter, kkt = _iterate_compiled(kernel, qp, c, u, state, tol, max_iter)
+    clipped = np.clip(w, qp.lo, qp.hi)
+    again = np.flatnonzero((kkt > tol) | (clipped != w).any(axis=1))
+    kkt[again] = residual(qp, clipped[again], c[again], feasible=True)
+    return clipped, n_iter, kkt
+
+
+def _iterate(qp, c, u, state, tol, max_iter):
+    """Both phases by NumPy, all frames at once, from `state` (in place): the weights, the
+    iterations and the KKT residual of the converged frames (inf for the others)."""
     n_iter, kkt = np.zeros(len(c), np.int64), np.full(len(c), np.inf)
     w, done = _pdas(qp, c, u, state, max_iter, tol, n_iter, kkt)
     rest = np.nonzero(~done)[0]
@@ -399,7 +430,16 @@ def _solve_from(qp, c, u, state, tol, max_iter):
         _primal(qp, c[rest], _rows_of(u, rest), ws, ss, max_iter, tol, it, res)
         w[rest], state[rest], kkt[rest] = ws, ss, res
         n_iter[rest] += it
-    clipped = np.clip(w, qp.lo, qp.hi)
-    again = np.flatnonzero((kkt > tol) | (clipped != w).any(axis=1))
-    kkt[again] = residual(qp, clipped[again], c[again], feasible=True)
-    return clipped, n_iter, kkt
+    return w, n_iter, kkt
+
+
+def _iterate_compiled(kernel, qp, c, u, state, tol, max_iter):
+    """:func:`_iterate` by the compiled loop (:mod:`fit.solve._box_qp_kernel`), frame by
+    frame."""
+    w, n_iter, kkt = np.empty_like(c), np.empty(len(c), np.int64), np.empty(len(c))
+    lo_value, hi_value = qp.finite_bounds
+    kernel(qp.G, qp.inverse, qp.lo, qp.hi, lo_value, hi_value,
+           *_near_bounds(qp.lo, qp.hi, _ATOL), qp.fixed, c, u, state, max_iter,
+           min(_PDAS_ITER, max_iter), min(_PDAS_MAX_ITER, max_iter), _PDAS_MANY, tol,
+           qp.refinements, w, n_iter, kkt)
+    return w, n_iter, kkt

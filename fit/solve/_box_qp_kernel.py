@@ -155,16 +155,9 @@ def _reduced_solve(G, inverse, lo_value, hi_value, c, u, s, w, g, free, bound, m
     chain of dependent additions.
     """
     n = len(s)
-    n_free = n_bound = 0
+    n_free, n_bound = _split(s, free, bound)
     for j in range(n):
-        if s[j] == 0:
-            free[n_free] = j
-            n_free += 1
-            w[j] = 0.0
-        else:
-            bound[n_bound] = j
-            n_bound += 1
-            w[j] = hi_value[j] if s[j] > 0 else lo_value[j]
+        w[j] = 0.0 if s[j] == 0 else hi_value[j] if s[j] > 0 else lo_value[j]
     if 2 * n_free > n:
         # the Schur complement of G⁻¹: (G⁻¹)_AA λ_A = w_A − u_A, w = u + G⁻¹λ
         for a in range(n_bound):
@@ -203,6 +196,21 @@ def _reduced_solve(G, inverse, lo_value, hi_value, c, u, s, w, g, free, bound, m
 
 
 @numba.njit(cache=True, nogil=True)
+def _split(s, free, bound):  # pragma: no cover - compiled
+    """The free and the bound variables of state `s`, in order, into `free` and `bound`;
+    returns how many of each."""
+    n_free = n_bound = 0
+    for j in range(len(s)):
+        if s[j] == 0:
+            free[n_free] = j
+            n_free += 1
+        else:
+            bound[n_bound] = j
+            n_bound += 1
+    return n_free, n_bound
+
+
+@numba.njit(cache=True, nogil=True)
 def _refine(G, inverse, c, s, w, g, path, passes, free, bound, mat, rhs,
             base):  # pragma: no cover - compiled
     """Iterative refinement of the solve of state `s` that :func:`_reduced_solve` just
@@ -210,14 +218,7 @@ def _refine(G, inverse, c, s, w, g, path, passes, free, bound, mat, rhs,
     `passes` times, the reduced solve of the residual −(G w − c) corrects the free
     weights `w`; `g` gets the gradient ``G w − c`` of the result. `base` is scratch."""
     n = len(s)
-    n_free = n_bound = 0
-    for j in range(n):
-        if s[j] == 0:
-            free[n_free] = j
-            n_free += 1
-        else:
-            bound[n_bound] = j
-            n_bound += 1
+    n_free, n_bound = _split(s, free, bound)
     for _ in range(passes):
         _gradient(G, c, w, g)
         if path == 1:
