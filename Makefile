@@ -27,7 +27,7 @@ REPORT ?= $(DEMO_DIR)/results
 
 # `.[test]` includes the optional `speech` extra (Praat, PocketSphinx and its model, PyAV),
 # so that the tests run the real speech tools, and the `speed` extra (numba), so that they
-# run the compiled marker placement; the core install needs none of them.
+# run the compiled marker placement and solver; the core install needs none of them.
 env: $(STAMP)
 
 $(STAMP): pyproject.toml
