@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import os
+import sys
 import time
 from html.parser import HTMLParser
 from pathlib import Path
@@ -329,3 +330,18 @@ def wait_for_file(path, seconds: float = 60.0) -> None:
         if time.monotonic() > deadline:
             pytest.fail(f"no helper drew {path} within {seconds} s")
         time.sleep(0.05)
+
+
+def numba_cannot_cache(monkeypatch, module: str) -> None:
+    """Make importing the numba kernel `module` raise what numba raises when it can write
+    its compiled code nowhere (a read-only install and home): RuntimeError, not
+    ImportError. Undone with `monkeypatch`."""
+    class NoCacheFolder:
+        @staticmethod
+        def find_spec(fullname, path=None, target=None):
+            if fullname == module:
+                raise RuntimeError(f"cannot cache function: no locator available for file "
+                                   f"'{module.rsplit('.', 1)[-1]}.py'")
+            return None
+    monkeypatch.delitem(sys.modules, module, raising=False)
+    monkeypatch.setattr(sys, "meta_path", [NoCacheFolder, *sys.meta_path])

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import sys
-
 import igl
 import numpy as np
 import pytest
+from helpers import numba_cannot_cache
 from scipy.spatial.transform import Rotation
 from tolerances import (
     BIND_CLOSEST_POINT_CM,
@@ -159,18 +158,8 @@ def test_numba_without_a_cache_folder_falls_back_to_numpy_with_a_warning(ict_mes
                                                                         monkeypatch):
     """numba raises RuntimeError when it can write its compiled code nowhere (a read-only
     install and home): the markers are then placed by NumPy, with a warning saying so."""
-    name = "mocap.mesh._layout_kernel"
-
-    class NoCacheFolder:
-        @staticmethod
-        def find_spec(fullname, path=None, target=None):
-            if fullname == name:
-                raise RuntimeError("cannot cache function 'place_markers': no locator "
-                                   "available for file '_layout_kernel.py'")
-            return None
     meshes = np.stack([ict_mesh.vertices, ict_mesh.vertices[::-1]])
-    monkeypatch.delitem(sys.modules, name, raising=False)
-    monkeypatch.setattr(sys, "meta_path", [NoCacheFolder, *sys.meta_path])
+    numba_cannot_cache(monkeypatch, "mocap.mesh._layout_kernel")
     layout_module._compiled_place.cache_clear()
     try:
         with pytest.warns(UserWarning, match="compiled marker placement is off .*no locator"):

@@ -597,28 +597,19 @@ def test_numba_without_a_cache_folder_falls_back_to_numpy_with_a_warning(monkeyp
     """numba raises RuntimeError when it can write its compiled code nowhere (a read-only
     install and home): NumPy then iterates, with a warning saying so; a missing module
     (numba not installed) is None without one."""
-    import sys
     import warnings
+
+    from helpers import numba_cannot_cache
 
     from mocap.util.optional import compiled
 
-    name = "fit.solve._box_qp_kernel"
-
-    class NoCacheFolder:
-        @staticmethod
-        def find_spec(fullname, path=None, target=None):
-            if fullname == name:
-                raise RuntimeError("cannot cache function 'solve_frames': no locator "
-                                   "available for file '_box_qp_kernel.py'")
-            return None
     rng = np.random.default_rng(23)
     basis = make_basis("random", rng)
     data = make_data(basis, rng)
     monkeypatch.setattr(active_set, "_compiled_solve", lambda: None)
     expected = solve_weights(basis, data, lower=0, upper=1)
     monkeypatch.undo()
-    monkeypatch.delitem(sys.modules, name, raising=False)
-    monkeypatch.setattr(sys, "meta_path", [NoCacheFolder, *sys.meta_path])
+    numba_cannot_cache(monkeypatch, "fit.solve._box_qp_kernel")
     active_set._compiled_solve.cache_clear()
     try:
         with pytest.warns(UserWarning, match="compiled box-QP iteration is off .*no locator"):
