@@ -310,3 +310,21 @@ def test_session_directory_and_relative_paths(session_root):
     assert [c.name for c in config.captures] == ["broken.c3d", "capture.c3d"]
     assert config.mesh == (session_root / "session" / "neutral.obj").resolve()
     assert config.workers == 2
+
+
+def test_a_take_records_its_warnings_not_the_garbage_collectors():
+    """A finalizer that the garbage collector runs inside a take's block (an unclosed file
+    of earlier work) warns ResourceWarning there: it says nothing of the take, so neither
+    capture records it; the take's own warnings are recorded, each once."""
+    from fit.pipeline.take_warnings import capture_warnings, recorded_warnings
+
+    def take():
+        warnings.warn("marker far from the skin", UserWarning)
+        warnings.warn("unclosed file <_io.BufferedReader name=60>", ResourceWarning)
+        warnings.warn("marker far from the skin", UserWarning)
+    with capture_warnings(reemit=False) as caught:
+        take()
+    with recorded_warnings() as pairs:
+        take()
+    assert caught == ["marker far from the skin"]
+    assert pairs == [("marker far from the skin", UserWarning)] * 2
