@@ -41,12 +41,17 @@ COMPILED_SOLVE, ITERATE_COMPILED = active_set._compiled_solve, active_set._itera
 @pytest.fixture(params=["compiled", "numpy"], autouse=True)
 def solver_path(request, monkeypatch):
     """Every test here runs on both paths of the box QP's iterations: compiled frame by
-    frame, and NumPy's, all frames at once."""
+    frame, and NumPy's, all frames at once; a test that sets the paths itself takes
+    ``"both"`` (indirect parametrization) and runs once."""
     if request.param == "numpy":
         monkeypatch.setattr(active_set, "_compiled_solve", lambda: None)
-    else:
+    elif request.param == "compiled":
         assert COMPILED_SOLVE() is not None, "numba (the speed extra, in .[test]) is missing"
     return request.param
+
+
+#: For a test that chooses the solver's path itself: one run, not one per path.
+BOTH_PATHS = pytest.mark.parametrize("solver_path", ["both"], indirect=True)
 
 
 def make_basis(kind: str, rng) -> np.ndarray:
@@ -547,6 +552,7 @@ def test_principal_submatrices_match_indexing_each_frame(lower):
         np.testing.assert_array_equal(out[rows, cols, t], expected[rows, cols])
 
 
+@BOTH_PATHS
 @pytest.mark.parametrize("kind", ["moderate", "ill-conditioned"])
 @pytest.mark.parametrize("bounds", ["unit", "per-shape", "fixed"])
 def test_compiled_iterations_are_numpys(kind, bounds, monkeypatch):
@@ -593,6 +599,7 @@ def test_compiled_iterations_are_numpys(kind, bounds, monkeypatch):
 
 
 
+@BOTH_PATHS
 def test_numba_without_a_cache_folder_falls_back_to_numpy_with_a_warning(monkeypatch):
     """numba raises RuntimeError when it can write its compiled code nowhere (a read-only
     install and home): NumPy then iterates, with a warning saying so; a missing module
