@@ -254,8 +254,8 @@ def test_a_cycle_while_the_data_move_holds_them_and_ends_optimal(monkeypatch):
     monkeypatch.setattr(fit.solve._smooth, "_step", back_and_forth)
     solve, global_solves = fit.solve._smooth._reduced, []
 
-    def counted(qp, band, c, state, w, frames, whole=None):
-        global_solves.append(len(frames) == T)
+    def counted(qp, band, c, state, w, frames=None, whole=None):
+        global_solves.append(frames is None)
         return solve(qp, band, c, state, w, frames, whole)
     monkeypatch.setattr(fit.solve._smooth, "_reduced", counted)
     datas = [data + 0.3 ** j * rng.standard_normal(data.shape) for j in range(12)]
@@ -268,6 +268,31 @@ def test_a_cycle_while_the_data_move_holds_them_and_ends_optimal(monkeypatch):
     assert len(forced) == 4 and sol.status == 0, sol.message
     np.testing.assert_allclose(sol.weights, alone.weights, rtol=0, atol=SOLVE_SAME_MINIMIZER)
     assert n_global > len(moves.calls)                   # global solves without a call
+
+
+def test_gradient_is_the_sequence_hessians_product():
+    """The smooth solve's gradient and term magnitudes, of the whole sequence (by slices)
+    and of a window of frames (by index), against the dense Hessian I ⊗ G + λ L ⊗ I."""
+    rng = np.random.default_rng(12)
+    T, n, lam = 9, 4, 0.7
+    B = rng.standard_normal((7, n))
+    G = B.T @ B
+    c, w = rng.standard_normal((T, n)), rng.standard_normal((T, n))
+    lap = np.diag(np.r_[1.0, np.full(T - 2, 2.0), 1.0]) - np.eye(T, k=1) - np.eye(T, k=-1)
+    hessian = np.kron(np.eye(T), G) + lam * np.kron(lap, np.eye(n))
+    grad = (hessian @ w.ravel() - c.ravel()).reshape(T, n)
+    magnitude = (np.abs(hessian) @ np.abs(w).ravel() + np.abs(c).ravel()).reshape(T, n)
+    whole = fit.solve._smooth.gradient(G, c, lam, w)
+    every = fit.solve._smooth.gradient(G, c, lam, w, np.arange(T))
+    for got, want in zip(whole, (grad, magnitude)):
+        np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-13)
+    for got, want in zip(every, whole):
+        np.testing.assert_array_equal(got, want)
+    frames = np.array([0, 1, 4, 8])
+    window = fit.solve._smooth.gradient(G, c, lam, w, frames)
+    for got, want in zip(window, (grad, magnitude)):
+        np.testing.assert_allclose(got, want[frames], rtol=1e-13, atol=1e-13)
+    assert fit.solve._smooth.gradient(G, c, lam, w, frames, scale=False)[1] is None
 
 
 def _counted_factorizations(monkeypatch) -> list:

@@ -145,31 +145,43 @@ def degree(n_frames: int) -> np.ndarray:
 
 
 def gradient(G, c, lam, w, frames=None, *, scale: bool = True):
-    """Gradient of the sequence objective at rows ``frames`` of ``w`` (all when None).
+    """Gradient of the sequence objective at rows ``frames`` (sorted) of ``w`` (all when
+    None).
 
     Returns the gradient and the magnitude of its terms (None without ``scale``),
     (F, n) each, F the number of frames.
     """
-    T = len(w)
-    frames = np.arange(T) if frames is None else frames
-    wf = w[frames]
-    prev, nxt = frames - 1, frames + 1
-    sides = [(prev >= 0, prev), (nxt < T, nxt)]
-
-    def neighbours(values):
-        """Sum over each frame's neighbours in the path of ``values`` of their weights, (F, n)."""
-        out = np.zeros_like(wf)
-        for rows, there in sides:
-            out[rows] += values(w[there[rows]])
-        return out
-
-    deg = degree(T)[frames][:, None]
-    grad = wf @ G - c[frames] + lam * (deg * wf - neighbours(lambda v: v))
+    whole = frames is None
+    wf, cf = (w, c) if whole else (w[frames], c[frames])
+    deg = degree(len(w))[:, None] if whole else degree(len(w))[frames][:, None]
+    grad = wf @ G - cf + lam * (deg * wf - _neighbour_sum(w, frames))
     if not scale:
         return grad, None
-    magnitude = np.abs(wf) @ np.abs(G) + np.abs(c[frames]) \
-        + lam * (deg * np.abs(wf) + neighbours(np.abs))
+    abs_wf = np.abs(wf)
+    # the whole sequence's neighbours are its own rows: their magnitudes are abs_wf
+    neighbours = _neighbour_sum(abs_wf, None) if whole else _neighbour_sum(w, frames, np.abs)
+    magnitude = abs_wf @ np.abs(G) + np.abs(cf) + lam * (deg * abs_wf + neighbours)
     return grad, magnitude
+
+
+def _neighbour_sum(w, frames, values=None):
+    """Sum over each frame of ``frames`` (sorted; all when None) of the rows of ``w``
+    (T, n) of its neighbours in the path, each through ``values`` when given: (F, n).
+
+    The previous frame's row first, then the next one's, whichever way the frames come:
+    the same sums to the bit.
+    """
+    if frames is None:          # the rows before and after, by slices
+        out = np.zeros_like(w)
+        out[1:] += w[:-1]
+        out[:-1] += w[1:]
+        return out
+    out = np.zeros((len(frames), w.shape[1]))
+    for there in (frames - 1, frames + 1):
+        rows = (there >= 0) & (there < len(w))
+        picked = w[there[rows]]
+        out[rows] += picked if values is None else values(picked)
+    return out
 
 
 #: Bytes of the piece of frames of the banded matrix formed at a time (its masks and
@@ -232,27 +244,30 @@ class _Band:
         return ab
 
 
-def _reduced(qp: BoxQP, band: _Band, c, state, w, frames, whole: "_WholeFactor | None" = None):
-    """Weights of ``frames`` (sorted) for their state, the other frames held at ``w``.
+def _reduced(qp: BoxQP, band: _Band, c, state, w, frames=None,
+             whole: "_WholeFactor | None" = None):
+    """Weights of ``frames`` (sorted) for their state, the other frames held at ``w``;
+    with ``frames`` None, of the whole sequence, through the factor ``whole`` keeps.
 
     Bound weights sit at their bound, free ones are stationary: one banded
-    solve over the frames (for the whole sequence, through the factor
-    ``whole`` keeps, which such a solve needs). Returns (F, n).
+    solve over the frames. Returns (F, n).
     """
-    T, n = c.shape
-    sub = state[frames]
+    sub = state if frames is None else state[frames]
     free = sub == 0
     fixed_part = qp.bound_values(sub)
-    held = w.copy()
-    held[frames] = fixed_part
+    if frames is None:
+        held = fixed_part
+    else:
+        held = w.copy()
+        held[frames] = fixed_part
     rhs = np.where(free, -gradient(qp.G, c, band.lam, held, frames, scale=False)[0],
                    0.0).ravel()
-    if len(frames) == T:
+    if frames is None:
         step = whole.solve(sub, rhs)
     else:
-        ab = band.matrix(free, degree(T)[frames], np.diff(frames) == 1)
+        ab = band.matrix(free, degree(len(c))[frames], np.diff(frames) == 1)
         step = scipy.linalg.solveh_banded(ab, rhs, overwrite_ab=True, check_finite=False)
-    return fixed_part + np.where(free, step.reshape(len(frames), n), 0.0)
+    return fixed_part + np.where(free, step.reshape(free.shape), 0.0)
 
 
 #: Variables whose freedom may differ from the factored state's for a global solve to go
@@ -476,13 +491,12 @@ def bounded(qp: BoxQP, spectrum: Spectrum, c, lam, tol, max_iter, start=None,
     if start is None:
         start = rough(spectrum, spectrum.transform(c), lam, qp.lo, qp.hi, _ADMM_ITER)
     state = qp.state_of(start)
-    every = np.arange(T)
     n_iter = np.zeros(T, np.int64)
     w = np.zeros_like(c)
     seen = {state.tobytes()}
     local, hold = True, False
     for iteration in range(max_iter):
-        w = _reduced(qp, band, c, state, w, every, whole)
+        w = _reduced(qp, band, c, state, w, whole=whole)
         n_iter += 1
         grad, scale = gradient(qp.G, c, lam, w)
         optimal = bool((kkt_residual(w, grad, scale, qp.lo, qp.hi) <= tol).all())
