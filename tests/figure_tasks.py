@@ -3,6 +3,8 @@ that they pickle by name into a helper process."""
 
 from __future__ import annotations
 
+import gc
+import json
 import os
 import warnings
 
@@ -26,6 +28,14 @@ def pid(path) -> None:
     """Write the drawing process's id."""
     with open(path, "w") as out:
         out.write(str(os.getpid()))
+
+
+def collector(path) -> None:
+    """Write the drawing process's id and its garbage collector's state."""
+    with open(path, "w") as out:
+        json.dump({"pid": os.getpid(), "enabled": gc.isenabled(),
+                   "frozen": gc.get_freeze_count(),
+                   "collections": [g["collections"] for g in gc.get_stats()]}, out)
 
 
 def bad_file(path) -> None:

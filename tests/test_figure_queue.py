@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 
@@ -25,6 +26,20 @@ def test_a_helper_draws_as_soon_as_a_figure_is_submitted(tmp_path):
         wait_for_file(tmp_path / "early.txt")
         figures.run()
     assert _drawn_by(tmp_path / "early.txt") != os.getpid()
+
+
+def test_a_helper_imports_with_the_collector_off_and_draws_with_it_on(tmp_path):
+    """The helper's imports are made with the collector off and then frozen: it draws with
+    the collector on, its full passes skipping the imports' objects."""
+    with FigureQueue(helpers=1) as figures:
+        figures.submit(figure_tasks.collector, tmp_path / "gc.json")
+        wait_for_file(tmp_path / "gc.json")
+        figures.run()
+    state = json.loads((tmp_path / "gc.json").read_text())
+    assert state["pid"] != os.getpid()
+    assert state["enabled"] and state["frozen"] > 10_000
+    # a few collections (the interpreter's start, the figure), not hundreds (the imports)
+    assert sum(state["collections"]) < 100, state
 
 
 def test_the_same_png_bytes_whoever_draws_it_under_the_callers_rcparams(tmp_path):

@@ -355,6 +355,24 @@ def test_a_closed_pipe_ends_quietly(tmp_path):
     assert pipe.returncode == 141
 
 
+def test_the_console_imports_with_the_collector_off_and_runs_with_it_on():
+    """The console entry point makes the command's imports with the collector off, then
+    freezes them: the command runs with the collector on."""
+    command = ("import atexit, gc, json, sys; import fit.cli.main; "
+               "cli = sys.modules['fit.cli.main']; seen = []; "
+               "real = cli.build_parser; "
+               "cli.build_parser = lambda argv: seen.append(gc.isenabled()) or real(argv); "
+               "atexit.register(lambda: print(json.dumps({'importing': seen, "
+               "'after': gc.isenabled(), 'frozen': gc.get_freeze_count()}))); "
+               "cli.console()")
+    done = subprocess.run([sys.executable, "-c", command, "info", "--help"],
+                          capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    state = json.loads(done.stdout.strip().splitlines()[-1])
+    # (main builds the parser again, the command already imported)
+    assert state["importing"][0] is False and state["after"] and state["frozen"] > 10_000
+
+
 def test_the_console_ends_with_all_it_printed_written(tmp_path):
     """The console entry point leaves the objects of its imports to the process's end:
     what it printed is still flushed whole, and its exit code is the command's."""

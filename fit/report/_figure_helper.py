@@ -47,9 +47,11 @@ def _send(outbox, outcome) -> None:
 
 
 def main() -> None:
-    # the objects of the imports live as long as the helper: the collector's full passes
-    # while it draws skip them (see fit.cli.main.console)
+    # the objects of the imports live as long as the helper: made with the collector off
+    # (the boot turned it off), its full passes while it draws skip them (see
+    # fit.cli.main.console)
     gc.freeze()
+    gc.enable()
     inbox = sys.stdin.buffer
     outbox = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())

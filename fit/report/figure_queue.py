@@ -42,8 +42,9 @@ MAX_HELPERS = 3
 READY = "ready"
 #: A helper's answer that did not pickle (the figure is drawn again by the caller).
 UNSENT = "unsent"
-#: A helper's program: the caller's ``sys.path`` comes first on its stdin.
-_BOOT = ("import pickle, sys; sys.path[:] = pickle.load(sys.stdin.buffer); "
+#: A helper's program: the caller's ``sys.path`` comes first on its stdin. The collector
+#: is off during its imports (:func:`fit.report._figure_helper.main` turns it back on).
+_BOOT = ("import gc, pickle, sys; gc.disable(); sys.path[:] = pickle.load(sys.stdin.buffer); "
          "from fit.report._figure_helper import main; main()")
 #: rcParams that are the process's, not the figure's.
 _PROCESS_RC = ("backend", "backend_fallback", "interactive")
