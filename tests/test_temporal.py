@@ -295,6 +295,26 @@ def test_gradient_is_the_sequence_hessians_product():
     assert fit.solve._smooth.gradient(G, c, lam, w, frames, scale=False)[1] is None
 
 
+def test_banded_matrix_without_numbas_cache_is_formed_by_numpy(monkeypatch):
+    """Where numba can keep its compiled code nowhere, the banded matrix is NumPy's, with a
+    warning saying so; the smooth solve's weights are the same."""
+    from helpers import numba_cannot_cache
+
+    rng = np.random.default_rng(14)
+    basis, data = _smooth_problem(rng, 40, 5, 12, collinear=True)
+    expected = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0)
+    numba_cannot_cache(monkeypatch, "fit.solve._band_kernel")
+    fit.solve._smooth._compiled_band.cache_clear()
+    try:
+        with pytest.warns(UserWarning, match="compiled banded matrix is off .*no locator"):
+            got = solve_weights(basis, data, lower=0, upper=1, smoothness=2.0)
+        assert fit.solve._smooth._compiled_band() is None
+    finally:
+        monkeypatch.undo()
+        fit.solve._smooth._compiled_band.cache_clear()
+    np.testing.assert_array_equal(got.weights, expected.weights)
+
+
 def _counted_factorizations(monkeypatch) -> list:
     """A list that gets one item per factorization of the whole sequence from now on."""
     factors = []
@@ -333,13 +353,19 @@ def test_follow_is_refused_without_smoothness_or_with_the_wrong_size():
                       follow=lambda w, optimal: np.zeros((4, 2)))
 
 
+@pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "numpy"])
 @pytest.mark.parametrize("n, T", [(1, 6), (4, 1), (5, 300)])
-def test_band_matrix_is_the_reduced_hessian(n, T, monkeypatch):
+def test_band_matrix_is_the_reduced_hessian(n, T, compiled, monkeypatch):
     """The banded storage holds the reduced Hessian of the dense oracle (I ⊗ G + λ L ⊗ I,
     bound weights' rows and columns replaced by the fill on the diagonal, a frame not
     linked to the next one decoupled from it), in LAPACK's upper form, Fortran-ordered;
-    written in small pieces and into a given array alike."""
+    written in small pieces and into a given array alike; by numba's loop the same bits
+    as by NumPy's pieces, the zeros' signs too."""
     monkeypatch.setattr(fit.solve._smooth, "_PIECE_BYTES", 8 * n * (n + 1) * 7)  # 7 frames
+    if not compiled:
+        monkeypatch.setattr(fit.solve._smooth, "_compiled_band", lambda: None)
+    elif fit.solve._smooth._compiled_band() is None:
+        pytest.skip("numba is not installed (the speed extra)")
     rng = np.random.default_rng(n * T)
     a = rng.standard_normal((2 * n, n))
     G, lam, ridge = a.T @ a, 0.7, 0.01
@@ -363,6 +389,8 @@ def test_band_matrix_is_the_reduced_hessian(n, T, monkeypatch):
     out = np.full((n + 1, T * n), np.nan, order="F")
     assert band.matrix(free, deg.astype(float), link, out=out) is out
     np.testing.assert_array_equal(out, got)
+    monkeypatch.setattr(fit.solve._smooth, "_compiled_band", lambda: None)
+    assert band.matrix(free, deg.astype(float), link).tobytes() == got.tobytes()
 
 
 def _dense_reduced_hessian(band, state):

@@ -45,6 +45,7 @@ not the terms, decides it.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -56,6 +57,7 @@ import scipy.linalg
 from fit.solve._active_set import RANK_RTOL, BoxQP, kkt_residual
 from fit.solve._banded_cholesky import cholesky_banded_upper
 from mocap.util.blas import worker_threads
+from mocap.util.optional import compiled
 
 #: Frames either side of a state change that settle it locally.
 _WINDOW = 3
@@ -200,11 +202,12 @@ class _Band:
     def __init__(self, G, lam, ridge):
         n = len(G)
         self.G, self.lam, self.n, self.ridge = G, lam, n, ridge
-        self.fill = float(np.mean(np.diag(G))) or 1.0
+        self.g_diag = np.diag(G).copy()
+        self.fill = float(np.mean(self.g_diag)) or 1.0
         cols = np.arange(n)
-        # [c, r − 1]: the entry of storage row r (band n − r) in a frame's column c
+        # [c, r − 1], (n, n − 1): the entry of storage row r (band n − r) in a frame's column c
         self.bands = np.array([np.where(cols >= k, G[(cols - k) % n, cols], 0.0)
-                               for k in range(n - 1, 0, -1)]).T.copy()       # (n, n − 1)
+                               for k in range(n - 1, 0, -1)]).reshape(n - 1, n).T.copy()
 
     def matrix(self, free, deg, link, out=None):
         """Banded matrix of frames with free mask ``free`` (F, n), degrees (F,),
@@ -212,12 +215,23 @@ class _Band:
 
         Fortran-ordered, so that LAPACK factors it in place (a C-ordered one it
         would copy whole first), written column by column (each the n + 1
-        entries of one variable, contiguous) by pieces of frames; into `out`
-        (its shape, Fortran-ordered) when given.
+        entries of one variable, contiguous): by the compiled loop of
+        :mod:`fit.solve._band_kernel` when numba is there, else by pieces of
+        frames (the same values, bit for bit); into `out` (its shape,
+        Fortran-ordered) when given.
         """
         n, F = self.n, len(free)
+        ab = np.empty((n + 1, F * n), order="F") if out is None else out
+        if ab.shape != (n + 1, F * n) or not ab.flags.f_contiguous:
+            raise ValueError(f"out must be a Fortran-ordered {(n + 1, F * n)} array")
+        kernel = _compiled_band()
+        if kernel is not None:
+            kernel(self.bands, self.g_diag, self.ridge, self.lam, self.fill,
+                   np.ascontiguousarray(free, dtype=bool), np.asarray(deg, dtype=float),
+                   np.asarray(link, dtype=bool), ab)
+            return ab
         mask = free.ravel()
-        diag = (np.diag(self.G)[None, :] + self.ridge + self.lam * deg[:, None]).ravel()
+        diag = (self.g_diag[None, :] + self.ridge + self.lam * deg[:, None]).ravel()
         coupled = np.zeros(mask.size)
         if F > 1:
             coupled[n:] = mask[n:] & mask[:-n] & np.repeat(link, n)
@@ -225,9 +239,6 @@ class _Band:
         # (where the bands are 0 too): a sliding window, no copy
         behind = np.lib.stride_tricks.sliding_window_view(np.r_[np.zeros(n, bool), mask],
                                                           n - 1)
-        ab = np.empty((n + 1, mask.size), order="F") if out is None else out
-        if ab.shape != (n + 1, mask.size) or not ab.flags.f_contiguous:
-            raise ValueError(f"out must be a Fortran-ordered {(n + 1, mask.size)} array")
         columns = ab.T                                                    # (F·n, n + 1), C
         per_piece = max(1, _PIECE_BYTES // (8 * n * (n + 1)))
         for first in range(0, F, per_piece):
@@ -242,6 +253,14 @@ class _Band:
             piece[:, :, 0] = (-self.lam * coupled[cols]).reshape(count, n)
             piece[:, :, n] = np.where(mask[cols], diag[cols], self.fill).reshape(count, n)
         return ab
+
+
+@functools.cache
+def _compiled_band():
+    """:func:`fit.solve._band_kernel.band_matrix`, or None (NumPy forms the banded matrix):
+    :func:`mocap.util.optional.compiled`."""
+    return compiled("fit.solve._band_kernel", "band_matrix", what="banded matrix",
+                    fallback="NumPy forms it by pieces of frames, about half as fast")
 
 
 def _reduced(qp: BoxQP, band: _Band, c, state, w, frames=None,
