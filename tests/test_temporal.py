@@ -364,8 +364,9 @@ def test_band_matrix_is_the_reduced_hessian(n, T, compiled, monkeypatch):
     monkeypatch.setattr(fit.solve._smooth, "_PIECE_BYTES", 8 * n * (n + 1) * 7)  # 7 frames
     if not compiled:
         monkeypatch.setattr(fit.solve._smooth, "_compiled_band", lambda: None)
-    elif fit.solve._smooth._compiled_band() is None:
-        pytest.skip("numba is not installed (the speed extra)")
+    else:
+        assert fit.solve._smooth._compiled_band() is not None, \
+            "numba (the speed extra, in .[test]) is missing"
     rng = np.random.default_rng(n * T)
     a = rng.standard_normal((2 * n, n))
     G, lam, ridge = a.T @ a, 0.7, 0.01
