@@ -456,8 +456,10 @@ def test_whole_sequence_solves_nearby_states_through_one_factor(ridge, monkeypat
 def test_a_prepared_factor_solves_as_one_made_at_the_solve(monkeypatch):
     """``prepare`` factors a state far from the kept factor on a thread of its own: the
     solve then uses that factor (no second factorization) and gives the same bits; a
-    state near the kept factor is not factored ahead (its solve borders the factor); an
-    error of the background factorization is raised by the solve."""
+    state near the kept factor is not factored (its solve borders the factor): the
+    columns that border it are made ahead, and its solve makes no other and gives the
+    bits of a solve that made them itself; an error of the background factorization is
+    raised by the solve."""
     rng = np.random.default_rng(14)
     T, n = 30, 4
     a = rng.standard_normal((2 * n, n))
@@ -466,6 +468,13 @@ def test_a_prepared_factor_solves_as_one_made_at_the_solve(monkeypatch):
     far = rng.choice(np.array([-1, 0, 0, 1], np.int8), size=(T, n))
     rhs = np.where(far == 0, rng.standard_normal(far.shape), 0.0).ravel()
     expected = fit.solve._smooth._WholeFactor(band, T).solve(far, rhs)
+    near = far.copy()
+    near[tuple(np.argwhere(far == 0)[0])] = 1
+    near[tuple(np.argwhere(far != 0)[0])] = 0
+    near_rhs = np.where(near == 0, rng.standard_normal(near.shape), 0.0).ravel()
+    alone = fit.solve._smooth._WholeFactor(band, T)
+    alone.solve(far, rhs)
+    near_expected = alone.solve(near, near_rhs)             # bordered, its columns its own
     whole = fit.solve._smooth._WholeFactor(band, T)
     whole.solve(first, np.zeros(T * n))
     factors = _counted_factorizations(monkeypatch)
@@ -474,10 +483,15 @@ def test_a_prepared_factor_solves_as_one_made_at_the_solve(monkeypatch):
     assert len(factors) == 1
     np.testing.assert_array_equal(whole.solve(far, rhs), expected)
     assert len(factors) == 1
-    near = far.copy()
-    near[tuple(np.argwhere(far == 0)[0])] = 1
     whole.prepare(near)
-    assert whole._factoring is None and len(factors) == 1
+    whole.wait()
+    assert len(factors) == 1 and sorted(whole.columns) == sorted(
+        np.flatnonzero((near != 0).ravel() != (far != 0).ravel()).tolist())
+    made = []
+    monkeypatch.setattr(whole, "_column", lambda j: made.append(j) or whole.columns[int(j)])
+    np.testing.assert_array_equal(whole.solve(near, near_rhs), near_expected)
+    assert len(factors) == 1 and made and set(made) <= set(whole.columns)
+    monkeypatch.undo()
 
     def broken(ab):
         raise np.linalg.LinAlgError("3-th leading minor not positive definite")
@@ -488,10 +502,11 @@ def test_a_prepared_factor_solves_as_one_made_at_the_solve(monkeypatch):
 
 
 def test_banded_cholesky_without_the_gil_is_scipys_factor():
-    """The GIL-free factorization is LAPACK's dpbtrf, as SciPy's `cholesky_banded` calls
-    it: the same factor bit for bit, the same refusal of a matrix that is not positive
-    definite, and a clear error for storage LAPACK cannot factor in place."""
-    from fit.solve._banded_cholesky import cholesky_banded_upper
+    """The GIL-free factorization and solve are LAPACK's dpbtrf and dpbtrs, as SciPy's
+    `cholesky_banded` and `cho_solve_banded` call them: the same factor and solution bit
+    for bit (the right-hand side left as it was), the same refusal of a matrix that is not
+    positive definite, and a clear error for storage LAPACK cannot factor in place."""
+    from fit.solve._banded_cholesky import cho_solve_banded_upper, cholesky_banded_upper
     rng = np.random.default_rng(15)
     N, kd = 300, 7
     dense = rng.standard_normal((N, N)) * np.triu(np.tril(np.ones((N, N)), kd), -kd)
@@ -505,6 +520,12 @@ def test_banded_cholesky_without_the_gil_is_scipys_factor():
     got = ab.copy(order="F")
     assert cholesky_banded_upper(got) is got
     np.testing.assert_array_equal(got, expected)
+    b = rng.standard_normal(N)
+    kept = b.copy()
+    x = cho_solve_banded_upper(got, b)
+    assert x.tobytes() == scipy.linalg.cho_solve_banded((expected, False), b).tobytes()
+    np.testing.assert_array_equal(b, kept)
+    np.testing.assert_allclose(dense @ x, b, rtol=0, atol=1e-9 * np.abs(b).max())
     indefinite = ab.copy(order="F")
     indefinite[kd, 10] = -1.0                          # A[10, 10]: the 11th minor fails
     for factor in (cholesky_banded_upper, scipy.linalg.cholesky_banded):
@@ -515,8 +536,9 @@ def test_banded_cholesky_without_the_gil_is_scipys_factor():
 
 
 def test_banded_cholesky_of_another_signature_is_scipys(monkeypatch):
-    """A SciPy exporting dpbtrf with another C signature is not called through it: SciPy's
-    own `cholesky_banded` factors, with the same factor."""
+    """A SciPy exporting dpbtrf or dpbtrs with another C signature is not called through
+    it: SciPy's own `cholesky_banded` factors and `cho_solve_banded` solves, with the same
+    results."""
     import fit.solve._banded_cholesky as banded
     rng = np.random.default_rng(16)
     ab = np.asfortranarray(0.01 * rng.standard_normal((4, 50)))
@@ -529,6 +551,14 @@ def test_banded_cholesky_of_another_signature_is_scipys(monkeypatch):
         b"void (char *, int64_t *, int64_t *, double *, int64_t *, int64_t *)")
     monkeypatch.setattr(banded, "_dpbtrf", lambda: None)
     np.testing.assert_array_equal(banded.cholesky_banded_upper(ab.copy(order="F")), expected)
+    b = rng.standard_normal(50)
+    solved = banded.cho_solve_banded_upper(expected, b)
+    assert banded._dpbtrs() is not None
+    assert banded._SOLVE_SIGNATURE.fullmatch(
+        b"void (char *, int *, int *, int *, __pyx_t_5scipy_6linalg_13cython_lapack_d *, "
+        b"int *, __pyx_t_5scipy_6linalg_13cython_lapack_d *, int *, int *)")
+    monkeypatch.setattr(banded, "_dpbtrs", lambda: None)
+    np.testing.assert_array_equal(banded.cho_solve_banded_upper(expected, b), solved)
 
 
 def test_smoothness_reduces_frame_to_frame_change():

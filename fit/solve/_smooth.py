@@ -55,7 +55,7 @@ import scipy.fft
 import scipy.linalg
 
 from fit.solve._active_set import RANK_RTOL, BoxQP, kkt_residual
-from fit.solve._banded_cholesky import cholesky_banded_upper
+from fit.solve._banded_cholesky import cho_solve_banded_upper, cholesky_banded_upper
 from mocap.util.blas import worker_threads
 from mocap.util.optional import compiled
 
@@ -315,26 +315,33 @@ class _WholeFactor:
     def __init__(self, band: _Band, n_frames: int):
         self.band, self.n_frames = band, n_frames
         self.free, self.factor, self.columns = None, None, {}
-        self._factoring = None
+        self._pending = None
 
     def prepare(self, state) -> None:
-        """Start factoring ``state`` (T, n) on a thread of its own when its solve will need
-        a factor of its own: the factorization runs without the GIL
-        (:func:`fit.solve._banded_cholesky.cholesky_banded_upper`), beside the caller's
+        """Start what the solve of ``state`` (T, n) will need on a thread of its own: a
+        factorization of its own, or, for a state a few variables from the factored one,
+        the columns that border the kept factor (:meth:`_column`) that are not kept yet.
+        Both run without the GIL (:mod:`fit.solve._banded_cholesky`), beside the caller's
         work until :meth:`solve` or :meth:`wait`."""
         self.wait()
         free = (state == 0).ravel()
-        if self.free is not None and np.count_nonzero(free != self.free) <= _LOW_RANK_MAX:
-            return
+        if self.free is None:
+            work = functools.partial(self._factor, free)
+        else:
+            changed = np.flatnonzero(free != self.free)
+            if not changed.size:
+                return
+            work = functools.partial(self._factor, free) if changed.size > _LOW_RANK_MAX \
+                else functools.partial(self._columns, changed)
         pool = ThreadPoolExecutor(1)
-        self._factoring = pool.submit(self._factor, free)
-        pool.shutdown(wait=False)           # its thread ends with the factorization
+        self._pending = pool.submit(work)
+        pool.shutdown(wait=False)           # its thread ends with the work
 
     def wait(self) -> None:
-        """Wait for the factorization :meth:`prepare` started, if any (its error raised)."""
-        factoring, self._factoring = self._factoring, None
-        if factoring is not None:
-            factoring.result()
+        """Wait for the work :meth:`prepare` started, if any (its error raised)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
 
     def solve(self, state, rhs):
         """``M⁻¹ rhs`` (T·n,) for the reduced Hessian M of ``state`` (T, n); ``rhs`` is 0
@@ -361,7 +368,7 @@ class _WholeFactor:
         self.free = free
 
     def _solve(self, rhs):
-        return scipy.linalg.cho_solve_banded((self.factor, False), rhs, check_finite=False)
+        return cho_solve_banded_upper(self.factor, rhs)
 
     def _hessian_column(self, j):
         """Rows and values of column j of the full Hessian A = I ⊗ (G + ridge I) + λ L ⊗ I."""
@@ -377,8 +384,14 @@ class _WholeFactor:
                 values.append(np.array([-band.lam]))
         return np.concatenate(rows), np.concatenate(values)
 
+    def _columns(self, variables) -> None:
+        """:meth:`_column` of each of `variables`, kept."""
+        for j in variables:
+            self._column(j)
+
     def _column(self, j):
         """``M₀⁻¹ e_j`` (j free in F₀) or ``M₀⁻¹ W_j`` (j bound in F₀), kept."""
+        j = int(j)
         if j not in self.columns:
             u = np.zeros(self.free.size)
             if self.free[j]:
