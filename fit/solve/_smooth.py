@@ -38,9 +38,10 @@ the chord steps of the exact marker-centre fit change them after every global
 solve, so that the steps and the active-set iteration converge together
 instead of one full iteration per step. The whole sequence's factor is kept
 while the state stays near it, so a step that keeps the state costs two
-triangular solves; a new state's factor forms on a thread of its own while
-`follow` works (the factorization does not hold the GIL), since the state,
-not the terms, decides it.
+triangular solves; a new state's factor, or the columns that border the kept
+one for a state near it, form on a thread of its own while `follow` works
+(neither the factorization nor the solves hold the GIL), since the state, not
+the terms, decides them.
 """
 
 from __future__ import annotations
