@@ -1,8 +1,11 @@
 """The vectorized float text against Python's own ``repr`` (the oracle), byte for byte."""
 
+import sys
+
 import numpy as np
 import pytest
 
+from mocap.util import float_text
 from mocap.util.float_text import FIELD_WIDTH, _shortest_digits, csv_lines, float_fields
 
 N = 40_000
@@ -56,15 +59,63 @@ def test_the_exact_path_settles_all_but_ties():
     assert settled.all()
 
 
-def test_csv_lines_are_the_percent_format():
+@pytest.fixture(params=["compiled", "numpy"])
+def lines_by(request, monkeypatch):
+    """csv_lines by the compiled kernel (numba: the speed extra, in .[test]) for any table,
+    or by NumPy's array operations."""
+    if request.param == "compiled":
+        assert float_text._compiled_lines() is not None
+        monkeypatch.setattr(float_text, "_CELLS_WORTH_COMPILING", 0)
+    else:
+        monkeypatch.setattr(float_text, "_compiled_lines", lambda: None)
+    return request.param
+
+
+def _percent_lines(index, cells) -> bytes:
+    """The oracle: each line by Python's ``%d`` and ``%r``."""
+    row = "%d" + ",%r" * cells.shape[1] + "\n"
+    return "".join(row % (i, *c) for i, c in zip(index.tolist(), cells.tolist())).encode()
+
+
+def test_csv_lines_are_the_percent_format(lines_by):
     rng = np.random.default_rng(2)
     cells = rng.normal(size=(5000, 7)) * 10.0 ** rng.integers(-6, 6, (5000, 7))
     cells[::3, 2], cells[1, 4], cells[2, 5] = 0.0, -0.0, 1e300
+    cells[3, :3] = np.nan, np.inf, -np.inf
     index = np.arange(-40, 4960) * 3
-    text = b"".join(csv_lines(index, cells))
-    row = "%d" + ",%r" * cells.shape[1] + "\n"
-    assert text == "".join(row % (i, *c) for i, c in zip(index.tolist(), cells.tolist())).encode()
+    index[:2] = np.iinfo(np.int64).min, np.iinfo(np.int64).max
+    assert b"".join(csv_lines(index, cells)) == _percent_lines(index, cells)
 
 
-def test_no_lines_for_no_rows():
+@pytest.mark.parametrize("name, values", _cases().items())
+def test_lines_of_every_kind_of_value_are_what_repr_writes(name, values, lines_by):
+    """Every case of the fields' test, as lines of 5 (and one column of what is left)."""
+    whole = len(values) // 5 * 5
+    for cells in (values[:whole].reshape(-1, 5), values[whole:, None]):
+        index = np.arange(len(cells)) - 3
+        assert b"".join(csv_lines(index, cells)) == _percent_lines(index, cells), name
+
+
+def test_the_compiled_lines_are_loaded_for_a_table_that_pays_for_it(monkeypatch):
+    """Loading numba costs about half a second: a process that has not loaded it writes a
+    small table by NumPy, a large one by the compiled kernel, with the same bytes."""
+    cells = np.random.default_rng(3).random((300, 4))
+    expected = _percent_lines(np.arange(300), cells)
+    used = []
+    monkeypatch.setattr(float_text, "_compiled_lines",
+                        lambda real=float_text._compiled_lines: used.append(1) or real())
+    monkeypatch.delitem(sys.modules, "numba")
+    assert not float_text.compiled_lines_ready()
+    assert b"".join(csv_lines(np.arange(300), cells)) == expected and not used
+    monkeypatch.setattr(float_text, "_CELLS_WORTH_COMPILING", cells.size)
+    assert b"".join(csv_lines(np.arange(300), cells)) == expected and used
+
+
+def test_an_index_of_another_length_is_refused(lines_by):
+    with pytest.raises(ValueError, match=r"an index of \(4,\) for 5 rows"):
+        next(csv_lines(np.arange(4), np.zeros((5, 2))))
+
+
+def test_no_lines_for_no_rows(lines_by):
     assert b"".join(csv_lines(np.zeros(0, int), np.zeros((0, 3)))) == b""
+    assert b"".join(csv_lines(np.arange(2), np.zeros((2, 0)))) == b"0\n1\n"

@@ -19,15 +19,22 @@ narrower spacing below them never decides, and no double rounds up to the next p
 of ten. A number this does not settle exactly (zero's sign, not finite, outside the
 range, a tie or near-tie at a rounding or at half the spacing) is written by ``repr``
 itself. So the text is always ``repr``'s, and ``float`` reads every field back exactly.
+
+With numba (the ``speed`` extra), :func:`csv_lines` does the same arithmetic value by
+value in one compiled pass that writes the lines (:mod:`mocap.util._float_text_kernel`).
 """
 
 from __future__ import annotations
 
+import functools
+import sys
 from typing import Iterator
 
 import numpy as np
 
-__all__ = ["FIELD_WIDTH", "csv_lines", "float_fields"]
+from mocap.util.optional import compiled
+
+__all__ = ["FIELD_WIDTH", "csv_lines", "float_fields", "compiled_lines_ready"]
 
 #: Characters of the longest ``repr`` of a double (``-2.2250738585072014e-308``).
 FIELD_WIDTH = 24
@@ -48,6 +55,9 @@ _ZEROS = _GROUP_WORDS[0]
 _CELLS_PER_PASS = 1 << 15
 #: Rows of a CSV formatted at a time.
 _ROWS_PER_PASS = 2048
+#: Cells of a CSV for which loading numba (about half a second, once a process) pays for
+#: itself; in a process that has loaded it, the compiled lines are used for any CSV.
+_CELLS_WORTH_COMPILING = 2_000_000
 
 
 def float_fields(values) -> tuple[np.ndarray, np.ndarray]:
@@ -89,26 +99,61 @@ def csv_lines(index, cells) -> Iterator[bytes]:
     bytes
         The next lines, each ended by ``\n``; T lines in all.
     """
-    index = np.asarray(index, dtype=np.int64)
+    index = np.ascontiguousarray(index, dtype=np.int64)
     cells = np.asarray(cells, dtype=np.float64)
     T, C = cells.shape
+    if index.shape != (T,):
+        raise ValueError(f"an index of {index.shape} for {T} rows of cells")
+    write = _numpy_lines
+    if compiled_lines_ready() or T * C >= _CELLS_WORTH_COMPILING:
+        kernel = _compiled_lines()
+        if kernel is not None:
+            out = np.empty(min(T, _ROWS_PER_PASS) * (1 + (C + 1) * (FIELD_WIDTH + 1)),
+                           np.uint8)
+            write = functools.partial(kernel, out=out)
     for first in range(0, T, _ROWS_PER_PASS):
-        block = cells[first:first + _ROWS_PER_PASS]
-        R = len(block)
-        head = index[first:first + R].astype(f"S{FIELD_WIDTH}").view(np.uint8)
-        head = head.reshape(R, FIELD_WIDTH)
-        chars, lengths = float_fields(block)
-        # fixed-width fields, a comma before each float, a newline after the last; the
-        # characters kept are each field's text
-        line = np.empty((R, FIELD_WIDTH + C * (FIELD_WIDTH + 1) + 1), np.uint8)
-        keep = np.empty(line.shape, bool)
-        line[:, :FIELD_WIDTH], keep[:, :FIELD_WIDTH] = head, head != 0
-        fields = line[:, FIELD_WIDTH:-1].reshape(R, C, FIELD_WIDTH + 1)
-        fields[:, :, 0], fields[:, :, 1:] = ord(","), chars.reshape(R, C, FIELD_WIDTH)
-        kept = keep[:, FIELD_WIDTH:-1].reshape(R, C, FIELD_WIDTH + 1)
-        kept[:] = np.arange(FIELD_WIDTH + 1) <= lengths.reshape(R, C, 1)
-        line[:, -1], keep[:, -1] = ord("\n"), True
-        yield line[keep].tobytes()
+        block = np.ascontiguousarray(cells[first:first + _ROWS_PER_PASS])
+        yield write(index[first:first + len(block)], block)
+
+
+def compiled_lines_ready() -> bool:
+    """Whether :func:`csv_lines` writes any table by its compiled kernel (numba, the
+    ``speed`` extra) without loading numba: this process has loaded it."""
+    return "numba" in sys.modules and _compiled_lines() is not None
+
+
+@functools.cache
+def _compiled_lines():
+    """:func:`mocap.util._float_text_kernel.csv_block`, or None (NumPy writes the lines):
+    :func:`mocap.util.optional.compiled`."""
+    return compiled("mocap.util._float_text_kernel", "csv_block", what="CSV text",
+                    fallback="NumPy writes it, about three times slower")
+
+
+def _numpy_lines(index, cells) -> bytes:
+    """The lines of :func:`csv_lines` for a block of rows (R,) and (R, C), by array
+    operations."""
+    R, C = cells.shape
+    head = index.astype(f"S{FIELD_WIDTH}").view(np.uint8).reshape(R, FIELD_WIDTH)
+    chars, lengths = float_fields(cells)
+    # fixed-width fields, a comma before each float, a newline after the last; the
+    # characters kept are each field's text
+    line = np.empty((R, FIELD_WIDTH + C * (FIELD_WIDTH + 1) + 1), np.uint8)
+    keep = np.empty(line.shape, bool)
+    line[:, :FIELD_WIDTH], keep[:, :FIELD_WIDTH] = head, head != 0
+    fields = line[:, FIELD_WIDTH:-1].reshape(R, C, FIELD_WIDTH + 1)
+    fields[:, :, 0], fields[:, :, 1:] = ord(","), chars.reshape(R, C, FIELD_WIDTH)
+    kept = keep[:, FIELD_WIDTH:-1].reshape(R, C, FIELD_WIDTH + 1)
+    kept[:] = np.arange(FIELD_WIDTH + 1) <= lengths.reshape(R, C, 1)
+    line[:, -1], keep[:, -1] = ord("\n"), True
+    return line[keep].tobytes()
+
+
+def _repr_fields(values) -> tuple[np.ndarray, np.ndarray]:
+    """``repr`` of `values` (k,) itself: fields (k, FIELD_WIDTH) uint8 and lengths (k,)."""
+    texts = np.array([repr(value) for value in values.tolist()], f"S{FIELD_WIDTH}")
+    return (texts.view(np.uint8).reshape(len(values), FIELD_WIDTH),
+            np.char.str_len(texts).astype(np.int64))
 
 
 def _format_pass(values, chars, lengths) -> None:
@@ -124,9 +169,7 @@ def _format_pass(values, chars, lengths) -> None:
     done = zero & ~negative                             # -0.0 as the others below
     done[fast] = True
     rest = np.flatnonzero(~done)                        # those that repr itself writes
-    texts = np.array([repr(value) for value in values[rest].tolist()], f"S{FIELD_WIDTH}")
-    chars[rest] = texts.view(np.uint8).reshape(len(rest), FIELD_WIDTH)
-    lengths[rest] = np.char.str_len(texts)
+    chars[rest], lengths[rest] = _repr_fields(values[rest])
 
 
 def _two_product(a, b):
