@@ -11,7 +11,10 @@ machine weighs on both; both write new files (as the exports of a new take), and
 ``.glb`` is timed again over an existing file. The CSV is text: it is also timed
 against ``repr`` of every float it holds joined into one string (Python's own
 formatting of the same text, number by number: the shortest that reads back exactly),
-which is not its floor: :mod:`mocap.util.float_text` formats whole arrays.
+which is not its floor: :mod:`mocap.util.float_text` formats whole arrays, by NumPy in a
+process that has not loaded numba (the table's 1.9M cells do not pay for loading it), by
+its compiled kernel in one that has (``mocap2mesh run``, whose fit loads it); both are
+timed.
 
 Run: ``python bench/bench_exports.py [--frames 35000]``.
 """
@@ -32,6 +35,8 @@ from _common import best_time, shared_data  # noqa: E402
 from basis.gltf import write_gltf  # noqa: E402
 from fit.exports import write_mesh_sequence, write_weights_csv  # noqa: E402
 from mocap.mesh.mesh import Mesh  # noqa: E402
+from mocap.util.float_text import compiled_lines_ready  # noqa: E402
+from mocap.util.optional import available  # noqa: E402
 
 RATE = 276.0
 N_SHAPES = 53
@@ -82,10 +87,17 @@ def main() -> None:
 
     cells = np.column_stack([np.arange(args.frames) / RATE, weights]).ravel()
     csv_path, write_csv = exports["weights CSV"]
-    ours, floor = alternately(lambda: write_csv(csv_path),
-                              lambda: ",".join(map(repr, cells.tolist())))
-    print(f"\nweights CSV against formatting its {cells.size:,} floats with repr alone: "
-          f"{ours:.3f} s vs {floor:.3f} s, ratio {ours / floor:.2f}")
+    print(f"\nweights CSV against formatting its {cells.size:,} floats with repr alone:")
+    for text in ("NumPy", "compiled"):
+        if text == "compiled":
+            if not available("numba"):
+                print("  compiled text: numba is not installed (the speed extra)")
+                break
+            import numba  # noqa: F401  (loaded: the CSV text is compiled for any table)
+        assert compiled_lines_ready() == (text == "compiled"), "numba loaded by an import"
+        ours, floor = alternately(lambda: write_csv(csv_path),
+                                  lambda: ",".join(map(repr, cells.tolist())))
+        print(f"  {text} text: {ours:.3f} s vs {floor:.3f} s, ratio {ours / floor:.2f}")
     print("aim: npz and glb <= 2x tofile of the same bytes")
 
     write_glb, over = exports["glb (morph targets + weights)"][1], out / "over.glb"

@@ -41,15 +41,34 @@ def demo(tmp_path_factory):
     return dict(result=result, files=files, root=root, paths=p)
 
 
-def test_exports_written_with_a_helper_are_the_same_files(demo, tmp_path):
-    """The weights CSVs written by a figure helper while this process writes the rest are
-    the bytes written here, and every export is there when save returns; an error of a
-    queued CSV is raised by save."""
+@pytest.fixture(params=["helpers", "here"])
+def csv_writer(request, monkeypatch):
+    """Where save writes the weights CSVs: queued for the figure helpers (this process has
+    no compiled CSV text loaded), or here after the other files (it has). Returns the
+    list of the functions save queues."""
+    import fit.pipeline.reconstruction as reconstruction
+
+    monkeypatch.setattr(reconstruction, "compiled_lines_ready",
+                        lambda: request.param == "here")
+    queued = []
+    submit = FigureQueue.submit
+    monkeypatch.setattr(FigureQueue, "submit",
+                        lambda self, fn, *a, **k: queued.append(fn) or submit(self, fn, *a, **k))
+    return request.param, queued
+
+
+def test_exports_written_with_a_helper_are_the_same_files(demo, tmp_path, csv_writer):
+    """The weights CSVs written by a figure helper while this process writes the rest, or
+    by this process after the rest, are the bytes written with no helper, and every export
+    is there when save returns; an error of a CSV is raised by save."""
+    where, queued = csv_writer
     result = demo["result"]
     alone = result.save(tmp_path / "alone")
+    queued.clear()
     with FigureQueue(helpers=1) as figures:
         shared = result.save(tmp_path / "shared", figures=figures)
         assert figures.helpers == 1
+    assert len(queued) == (len(result.bases.bases) if where == "helpers" else 0)
     assert [p.relative_to(tmp_path / "shared") for p in shared] == \
         [p.relative_to(tmp_path / "alone") for p in alone]
     assert all(p.is_file() for p in shared)
@@ -65,13 +84,18 @@ def test_exports_written_with_a_helper_are_the_same_files(demo, tmp_path):
     assert (tmp_path / "taken" / f"face-{first}.glb").is_file()   # the others written
 
 
-def test_exports_left_to_the_helpers_are_written_by_the_queue_s_next_run(demo, tmp_path):
-    """With ``wait=False`` the weights CSVs are left to the helper: the queue's next run
-    writes the bytes written here and raises a CSV's error, which save did not."""
+def test_exports_left_to_the_helpers_are_written_by_the_queue_s_next_run(demo, tmp_path,
+                                                                         csv_writer):
+    """With ``wait=False`` queued weights CSVs are left to the helper: the queue's next run
+    writes the bytes written with no helper and raises a CSV's error, which save did not.
+    CSVs written here are written, or their error raised, before save returns."""
+    where, _ = csv_writer
     result = demo["result"]
     alone = result.save(tmp_path / "alone")
     with FigureQueue(helpers=1) as figures:
         shared = result.save(tmp_path / "shared", figures=figures, wait=False)
+        if where == "here":
+            assert all(p.is_file() for p in shared)
         figures.run()
     assert [p.relative_to(tmp_path / "shared") for p in shared] == \
         [p.relative_to(tmp_path / "alone") for p in alone]
@@ -80,9 +104,13 @@ def test_exports_left_to_the_helpers_are_written_by_the_queue_s_next_run(demo, t
     first = next(iter(result.bases.bases))
     (tmp_path / "taken" / f"weights-{first}.csv").mkdir(parents=True)   # not a file
     with FigureQueue(helpers=1) as figures:
-        result.save(tmp_path / "taken", figures=figures, wait=False)
-        with pytest.raises(InputError) as raised:
-            figures.run()
+        if where == "helpers":
+            result.save(tmp_path / "taken", figures=figures, wait=False)     # not raised here
+            with pytest.raises(InputError) as raised:
+                figures.run()
+        else:
+            with pytest.raises(InputError) as raised:
+                result.save(tmp_path / "taken", figures=figures, wait=False)
     assert f"weights-{first}.csv" in str(raised.value)
 
 

@@ -68,6 +68,7 @@ from mocap.retarget.lip_seal import LipSealCheck
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
 from mocap.units import mm_per_unit
+from mocap.util.float_text import compiled_lines_ready
 from mocap.util.medians import nan_column_medians
 
 __all__ = ["Reconstruction", "SharedReconstruction", "PreparedTake", "ReconstructionResult"]
@@ -430,9 +431,11 @@ class ReconstructionResult:
         translation). Every file atomically; none over one of `inputs`. With
         `figures` (:class:`~fit.report.figure_queue.FigureQueue`), the weights
         CSVs (text, the slowest to write) are queued first, for its helpers to
-        write while this process writes the other files; all are written when
-        this returns, and the first error is raised here, unless ``wait=False``:
-        the CSVs are then left to the queue's helpers while this process goes on
+        write while this process writes the other files, unless this process
+        has the compiled CSV text loaded (numba, the ``speed`` extra): it then
+        writes them itself, after the others. All are written when this returns,
+        and the first error is raised here, unless ``wait=False``: the queued
+        CSVs are then left to the queue's helpers while this process goes on
         (with the report's work), and the queue's next
         :meth:`~fit.report.figure_queue.FigureQueue.run` writes what is left and
         raises their first error (a queue closed before it drops them).
@@ -443,11 +446,19 @@ class ReconstructionResult:
         out = Path(directory)
         out.mkdir(parents=True, exist_ok=True)
         timing = dict(rate=self.take.rate, first_frame=self.take.first_frame)
-        for name, basis in self.bases.bases.items():
-            figures.submit(write_weights_csv, out / f"weights-{name}.csv",
-                           self.fitted.weights[name], basis.names, inputs=inputs, **timing)
+        # the CSVs' text by the compiled kernel costs less here than the weights' trip to a
+        # helper and its NumPy formatting there (three times the kernel's time)
+        here = compiled_lines_ready()
+        csvs = [(write_weights_csv, out / f"weights-{name}.csv", self.fitted.weights[name],
+                 basis.names) for name, basis in self.bases.bases.items()]
+        if not here:
+            for task in csvs:
+                figures.submit(*task, inputs=inputs, **timing)
         try:
             files = self._save_binary(out, inputs, timing)
+            if here:
+                for write, *args in csvs:
+                    write(*args, inputs=inputs, **timing)
         except BaseException:
             figures.close()     # a CSV a helper is writing is finished, the others dropped
             raise
@@ -583,7 +594,8 @@ class ReconstructionResult:
                 else retargeted.selection.to_dict()}
 
     def summary(self) -> dict:
-        """What the manifest records of the take: frames, binding, retargeting, lips, bases, fit and metrics."""
+        """What the manifest records of the take: frames, binding, retargeting, lips, bases,
+        fit and metrics."""
         take, ingested = self.take, self.ingested
 
         def finite(summary: dict) -> dict:
