@@ -22,6 +22,7 @@ from mocap.mesh.mesh import (
     degenerate_faces,
     face_normals,
     load_mesh,
+    mesh_edges,
     save_obj,
     vertex_normals,
 )
@@ -169,17 +170,35 @@ def test_ict_has_four_boundary_loops(ict_mesh):
     ref = igl.boundary_loop_all(ict_mesh.faces) if hasattr(igl, "boundary_loop_all") else None
     if ref is not None:
         assert sorted(map(len, ref)) == sorted(map(len, loops))
-        assert {frozenset(map(int, r)) for r in ref} == {frozenset(l.tolist()) for l in loops}
+        assert {frozenset(map(int, r)) for r in ref} == {frozenset(loop.tolist()) for loop in loops}
     all_edges = np.sort(ict_mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     edges = set(map(tuple, all_edges.tolist()))
     for loop in loops:  # consecutive loop vertices share an edge of the mesh
         pairs = np.sort(np.c_[loop, np.roll(loop, -1)], axis=1)
         assert all(tuple(pair) in edges for pair in pairs.tolist())
-    centres = np.array([ict_mesh.vertices[l].mean(axis=0) for l in loops[1:]])
+    centres = np.array([ict_mesh.vertices[loop].mean(axis=0) for loop in loops[1:]])
     mouth = np.argmin(centres[:, 1])
     eyes = np.delete(centres, mouth, axis=0)
     assert abs(centres[mouth, 0]) < 0.1 and np.all(eyes[:, 1] > centres[mouth, 1] + 4)
     assert sorted(np.sign(eyes[:, 0])) == [-1, 1]
+
+
+@pytest.mark.parametrize("which", ["ict", "two triangles", "none"])
+def test_mesh_edges_are_numpys_unique_rows_of_the_sides(ict_mesh, which):
+    """Against NumPy's row-wise unique of the sorted sides (the oracle) and igl's edges."""
+    faces = {"ict": ict_mesh.faces, "two triangles": np.array([[0, 1, 2], [2, 1, 3]]),
+             "none": np.zeros((0, 3), np.int64)}[which]
+    edges, side_edge, counts = mesh_edges(faces)
+    sides = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    expected, inverse, expected_counts = np.unique(sides, axis=0, return_inverse=True,
+                                                   return_counts=True)
+    np.testing.assert_array_equal(edges, expected.reshape(-1, 2))
+    np.testing.assert_array_equal(side_edge, inverse.ravel())
+    np.testing.assert_array_equal(counts, expected_counts)
+    np.testing.assert_array_equal(edges[side_edge], sides)
+    if len(faces):
+        assert {tuple(e) for e in igl.edges(faces).tolist()} == \
+            {tuple(sorted(e)) for e in edges.tolist()}
 
 
 def test_save_obj_round_trip_keeps_quads(ict_mesh, tmp_path):

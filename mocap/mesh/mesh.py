@@ -23,7 +23,7 @@ from mocap.util.files import open_input, read_input_bytes
 from mocap.util.validation import as_float_array
 
 __all__ = ["Mesh", "MESH_FORMATS", "load_mesh", "load_shape_vertices", "save_obj",
-           "vertex_normals", "face_normals", "boundary_loops", "degenerate_faces"]
+           "vertex_normals", "face_normals", "boundary_loops", "degenerate_faces", "mesh_edges"]
 
 #: File extensions :func:`load_mesh` reads.
 MESH_FORMATS = (".obj", ".ply", ".gltf", ".glb")
@@ -544,6 +544,31 @@ def vertex_normals(vertices, faces) -> np.ndarray:
     return np.divide(summed, norm, out=np.zeros_like(summed), where=norm > 0)
 
 
+def mesh_edges(faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The undirected edges of triangles, each once.
+
+    Parameters
+    ----------
+    faces : ndarray of int, shape (F, 3)
+
+    Returns
+    -------
+    edges : ndarray of int64, shape (E, 2)
+        Vertex ids, the lower first, rows in lexicographic order.
+    side_edge : ndarray of int64, shape (3 F,)
+        The edge of each face's sides 01, 12 and 20, face after face.
+    counts : ndarray of int64, shape (E,)
+        The sides on each edge: 1 on the boundary.
+    """
+    sides = np.asarray(faces, dtype=np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    low, high = sides.min(axis=1), sides.max(axis=1)
+    span = int(high.max(initial=0)) + 1
+    # one integer per edge, in the rows' lexicographic order: a sort of integers, not of rows
+    keys, side_edge, counts = np.unique(low * span + high, return_inverse=True,
+                                        return_counts=True)
+    return np.column_stack(np.divmod(keys, span)), side_edge, counts
+
+
 def boundary_loops(mesh_or_faces) -> list[np.ndarray]:
     """The closed boundary loops of a mesh, longest first.
 
@@ -559,11 +584,8 @@ def boundary_loops(mesh_or_faces) -> list[np.ndarray]:
     """
     faces = mesh_or_faces.faces if isinstance(mesh_or_faces, Mesh) else \
         np.asarray(mesh_or_faces, dtype=np.int64)
-    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    undirected = np.sort(directed, axis=1)
-    _, inverse, counts = np.unique(undirected, axis=0, return_inverse=True,
-                                   return_counts=True)
-    edges = directed[counts[inverse.ravel()] == 1]
+    _, side_edge, counts = mesh_edges(faces)
+    edges = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)[counts[side_edge] == 1]
     following: dict[int, list[int]] = {}
     for a, b in edges.tolist():
         following.setdefault(a, []).append(b)

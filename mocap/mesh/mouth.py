@@ -20,7 +20,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from mocap.errors import InputError
-from mocap.mesh.mesh import Mesh, boundary_loops
+from mocap.mesh.mesh import Mesh, boundary_loops, mesh_edges
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_float_array
 
@@ -264,8 +264,7 @@ def find_mouth(mesh: Mesh, landmarks: Mapping[str, int], *,
 
 def _band(mesh: Mesh, sources: np.ndarray, reach: float) -> np.ndarray:
     """Vertices (mask) within `reach` of `sources` along the mesh's edges."""
-    f = mesh.faces
-    edges = np.unique(np.sort(np.r_[f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]], axis=1), axis=0)
+    edges = mesh_edges(mesh.faces)[0]
     lengths = np.linalg.norm(mesh.vertices[edges[:, 0]] - mesh.vertices[edges[:, 1]], axis=1)
     graph = sp.coo_array((lengths, (edges[:, 0], edges[:, 1])),
                          shape=(mesh.n_vertices,) * 2).tocsr()
