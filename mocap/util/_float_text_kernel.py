@@ -8,8 +8,6 @@ is marked, and :func:`lines` takes its text from ``repr``.
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 
@@ -24,6 +22,9 @@ _POW10 = float_text._POW10
 _two_product = numba.njit(inline="always")(float_text._two_product)
 #: The doubles nearest 10^-5 ... 10^16.
 _NEAR_POW10 = np.array([float(f"1e{k}") for k in range(-5, 17)])
+#: 2^j for j from _POW2_FIRST: half a double's spacing, by its binary exponent.
+_POW2_FIRST = -70
+_POW2 = np.ldexp(1.0, np.arange(_POW2_FIRST, 8))
 #: The two characters of 0-99.
 _PAIRS = (np.arange(100)[:, None] // np.array([10, 1]) % 10 + ord("0")).astype(np.uint8)
 
@@ -61,6 +62,7 @@ def shortest_digits(values, digits, exponents, kinds):  # pragma: no cover - com
         Out: DIGITS, ZERO (±0.0) or REPR (``repr`` writes it).
     """
     pow10 = _POW10
+    bits = values.view(np.int64)
     for k in range(values.size):
         x = values[k]
         m = abs(x)
@@ -70,8 +72,10 @@ def shortest_digits(values, digits, exponents, kinds):  # pragma: no cover - com
             else:
                 kinds[k] = REPR
             continue
-        # floor(log10 m) from the binary exponent, within one: the product below tells
-        binary = math.frexp(m)[1]
+        # m in [2^(b-1), 2^b) (b: frexp's exponent; m is normal here), so floor(log10 m)
+        # is floor(b · log10 2) or one less: the comparison tells, within one ulp of a
+        # power of ten, where the product below corrects it
+        binary = ((bits[k] >> 52) & 0x7FF) - 1022
         e = (binary * 78913) >> 18                      # floor(binary · log10 2)
         if m < _NEAR_POW10[e + 5]:
             e -= 1
@@ -83,26 +87,38 @@ def shortest_digits(values, digits, exponents, kinds):  # pragma: no cover - com
             e -= 1
             hi, lo = _two_product(m, pow10[16 - e])
         whole = np.int64(hi)
-        half = math.ldexp(1.0, binary - 53) * pow10[16 - e] / 2
+        # half the spacing of m, 2^(b - 53) / 2, in X's units
+        half = _POW2[binary - 53 - _POW2_FIRST] * pow10[16 - e] / 2
         r = np.rint(lo)
         best = whole + np.int64(r)
         settled = abs(lo - r) != 0.5
-        unit = 10
-        for _ in range(2):                       # 16, then 15 digits
-            quotient = whole // unit
-            share = (whole - quotient * unit + lo) / unit
-            rounded = np.rint(share)
-            nearest = quotient + np.int64(rounded)
-            tie = abs(abs(share - rounded) - 0.5) < 1e-9
-            distance = abs((nearest * unit - whole) - lo)
-            if distance < half:
-                best = nearest * unit
-            settled = settled and not tie and not abs(distance - half) < 1e-9
-            unit = 100
+        # 16, then 15 digits (constant units: their divisions are multiplications)
+        reads, nearest, sure = _nearest_decimal(whole, lo, half, 10)
+        if reads:
+            best = nearest
+        settled = settled and sure
+        reads, nearest, sure = _nearest_decimal(whole, lo, half, 100)
+        if reads:
+            best = nearest
+        settled = settled and sure
         if settled:
             digits[k], exponents[k], kinds[k] = best, e, DIGITS
         else:
             kinds[k] = REPR
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _nearest_decimal(whole, lo, half, unit):  # pragma: no cover - compiled
+    """The multiple of `unit` nearest X = whole + lo: whether it reads back (within `half`
+    of X), it, and whether neither that nor the rounding was (nearly) a tie, as
+    :func:`mocap.util.float_text._nearest` and ``_reads_back`` decide."""
+    quotient = whole // unit
+    share = (whole - quotient * unit + lo) / unit
+    rounded = np.rint(share)
+    nearest = (quotient + np.int64(rounded)) * unit
+    tie = abs(abs(share - rounded) - 0.5) < 1e-9
+    distance = abs((nearest - whole) - lo)
+    return distance < half, nearest, not tie and not abs(distance - half) < 1e-9
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
