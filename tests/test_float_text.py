@@ -116,6 +116,20 @@ def test_an_index_of_another_length_is_refused(lines_by):
         next(csv_lines(np.arange(4), np.zeros((5, 2))))
 
 
+def test_a_wide_table_is_written_a_few_rows_at_a_time(lines_by, monkeypatch):
+    """Blocks hold whole rows and about _CELLS_PER_BLOCK cells, one row at least: a table
+    of any width is formatted in a few MB at a time."""
+    monkeypatch.setattr(float_text, "_CELLS_PER_BLOCK", 1000)
+    cells = np.random.default_rng(4).normal(size=(7, 300))
+    blocks = list(csv_lines(np.arange(7), cells))
+    assert [block.count(b"\n") for block in blocks] == [3, 3, 1]
+    assert b"".join(blocks) == _percent_lines(np.arange(7), cells)
+    wide = np.random.default_rng(5).normal(size=(3, 1500))
+    blocks = list(csv_lines(np.arange(3), wide))
+    assert [block.count(b"\n") for block in blocks] == [1, 1, 1]
+    assert b"".join(blocks) == _percent_lines(np.arange(3), wide)
+
+
 def test_no_lines_for_no_rows(lines_by):
     assert b"".join(csv_lines(np.zeros(0, int), np.zeros((0, 3)))) == b""
     assert b"".join(csv_lines(np.arange(2), np.zeros((2, 0)))) == b"0\n1\n"

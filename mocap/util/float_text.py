@@ -53,8 +53,9 @@ _GROUP_WORDS = _GROUPS.view(np.uint32).ravel()
 _ZEROS = _GROUP_WORDS[0]
 #: Cells formatted at a time (their temporaries stay within a few MB).
 _CELLS_PER_PASS = 1 << 15
-#: Rows of a CSV formatted at a time.
-_ROWS_PER_PASS = 2048
+#: Cells of a CSV formatted at a time (whole rows, at least one): a block's text and
+#: temporaries stay within a few MB however wide the table.
+_CELLS_PER_BLOCK = 1 << 17
 #: Cells of a CSV for which loading numba (about half a second, once a process) pays for
 #: itself; in a process that has loaded it, the compiled lines are used for any CSV.
 _CELLS_WORTH_COMPILING = 2_000_000
@@ -104,15 +105,15 @@ def csv_lines(index, cells) -> Iterator[bytes]:
     T, C = cells.shape
     if index.shape != (T,):
         raise ValueError(f"an index of {index.shape} for {T} rows of cells")
+    rows = max(1, min(T, _CELLS_PER_BLOCK // max(C, 1)))
     write = _numpy_lines
     if compiled_lines_ready() or T * C >= _CELLS_WORTH_COMPILING:
         kernel = _compiled_lines()
         if kernel is not None:
-            out = np.empty(min(T, _ROWS_PER_PASS) * (1 + (C + 1) * (FIELD_WIDTH + 1)),
-                           np.uint8)
+            out = np.empty(rows * (1 + (C + 1) * (FIELD_WIDTH + 1)), np.uint8)
             write = functools.partial(kernel, out=out)
-    for first in range(0, T, _ROWS_PER_PASS):
-        block = np.ascontiguousarray(cells[first:first + _ROWS_PER_PASS])
+    for first in range(0, T, rows):
+        block = np.ascontiguousarray(cells[first:first + rows])
         yield write(index[first:first + len(block)], block)
 
 
