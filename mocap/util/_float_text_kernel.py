@@ -26,7 +26,7 @@ _NEAR_POW10 = np.array([float(f"1e{k}") for k in range(-5, 17)])
 _POW2_FIRST = -70
 _POW2 = np.ldexp(1.0, np.arange(_POW2_FIRST, 8))
 #: The two characters of 0-99.
-_PAIRS = (np.arange(100)[:, None] // np.array([10, 1]) % 10 + ord("0")).astype(np.uint8)
+_PAIRS = np.ascontiguousarray(float_text._GROUPS[:100, 2:])
 
 
 def csv_block(index, cells, out) -> bytes:
