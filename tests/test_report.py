@@ -17,7 +17,13 @@ from basis.coverage import plot_coverage
 from basis.pca import pca_streaming
 from fit.metrics import reconstruction_errors
 from fit.report import build_report
-from fit.report.drawing import IMAGE_WIDTH_PX, line_envelope, plain_log_axis, report_figure
+from fit.report.drawing import (
+    IMAGE_WIDTH_PX,
+    label_ticks,
+    line_envelope,
+    plain_log_axis,
+    report_figure,
+)
 from fit.report.figure_queue import FigureQueue
 from fit.report.html import render_report
 from fit.report.ingest_plots import GapChart, HeadResiduals, plot_gaps, plot_head_residuals
@@ -354,6 +360,36 @@ def test_a_line_envelope_draws_the_pixels_of_the_whole_line(tmp_path):
     full, drawn = draw("full.png", False), draw("envelope.png", True)
     differ = np.abs(full - drawn).max(axis=2)
     assert (differ > 0).mean() < 0.06 and (differ > 64).mean() < 0.01
+
+
+@pytest.mark.parametrize("axis, text", [("y", {"fontsize": 6}),
+                                         ("x", {"rotation": 70, "ha": "right",
+                                                "rotation_mode": "anchor", "fontsize": 7})])
+def test_labelled_ticks_draw_the_picture_of_the_axis_own(tmp_path, axis, text):
+    """label_ticks (one line of tick markers, a text per label) against matplotlib's own
+    ticks and labels at the same places: the same pixels, the layout making room for the
+    labels as it does for the axis' (a long label widens the margin)."""
+    labels = [f"marker-{i}" for i in range(60)]
+    labels[7] = "a-much-longer-label-than-the-others"
+    positions = np.arange(60) * 1.5
+
+    def draw(name, ours):
+        with report_figure(tmp_path / name, 11, 6) as fig:
+            ax = fig.add_subplot()
+            ax.plot(positions, np.sin(positions)) if axis == "x" else \
+                ax.plot(np.sin(positions), positions)
+            if ours:
+                label_ticks(ax, positions, labels, axis=axis, **text)
+            elif axis == "y":
+                ax.set_yticks(positions, labels, **text)
+            else:
+                ax.set_xticks(positions, labels, **text)
+            ax.set_title("ticks")
+        return cv2.imread(str(tmp_path / name)).astype(int)
+
+    ours, theirs = draw("ours.png", True), draw("theirs.png", False)
+    assert ours.shape == theirs.shape
+    np.testing.assert_array_equal(ours, theirs)
 
 
 def test_long_lines_stroked_in_pieces_draw_the_picture_of_one_stroke(tmp_path):

@@ -11,13 +11,15 @@ from __future__ import annotations
 from contextlib import contextmanager
 
 import numpy as np
-from matplotlib import rc_context
+from matplotlib import rc_context, rcParams
+from matplotlib.lines import TICKDOWN, TICKLEFT
 from matplotlib.ticker import LogFormatter
+from matplotlib.transforms import ScaledTranslation
 
 from mocap.viz.figures import draw_png, new_figure
 
 __all__ = ["DPI", "PAGE_WIDTH", "PAGE_WIDTH_PX", "FIGURE_MARGIN_PX", "IMAGE_WIDTH_PX",
-           "report_figure", "plain_log_axis", "column_starts", "line_envelope"]
+           "report_figure", "plain_log_axis", "column_starts", "line_envelope", "label_ticks"]
 
 #: Widest the report page's body gets, CSS pixels.
 PAGE_WIDTH_PX = 1400
@@ -56,6 +58,46 @@ def report_figure(path, width: float, height: float):
         fig.set_dpi(DPI)
         yield fig
         draw_png(fig, path, dpi=DPI)
+
+
+def label_ticks(ax, positions, labels, *, axis: str = "y", **text) -> None:
+    """Tick marks and labels at `positions` (data units) on the left (``"y"``) or bottom
+    (``"x"``) of `ax`, drawn as ``set_yticks(positions, labels)`` draws them, but as one
+    line of tick-mark markers and one text per label, the same pixels: no axis ``Tick`` per
+    label (two tick lines, a grid line, two texts and their markers, made and laid out for
+    each: about 1 ms a label, half a second of a report's figures of markers). The axis
+    keeps no ticks of its own.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+    positions : array_like of float, shape (k,)
+    labels : sequence of str, length k
+    axis : {"y", "x"}
+    **text
+        Text properties of the labels (``fontsize``, ``rotation``, ``ha``,
+        ``rotation_mode``...), over the axis' defaults.
+    """
+    positions = np.asarray(positions, dtype=float)
+    size, pad = rcParams[f"{axis}tick.major.size"], rcParams[f"{axis}tick.major.pad"]
+    offset = (size + pad) / 72                          # inches, as an outward tick's label
+    if axis == "y":
+        ax.set_yticks([])
+        along, marker = ax.get_yaxis_transform(), TICKLEFT
+        points = np.zeros_like(positions), positions
+        shift = ScaledTranslation(-offset, 0, ax.figure.dpi_scale_trans)
+        text = {"ha": "right", "va": "center_baseline", **text}
+    else:
+        ax.set_xticks([])
+        along, marker = ax.get_xaxis_transform(), TICKDOWN
+        points = positions, np.zeros_like(positions)
+        shift = ScaledTranslation(0, -offset, ax.figure.dpi_scale_trans)
+        text = {"ha": "center", "va": "top", **text}
+    ax.plot(*points, linestyle="none", marker=marker, markersize=size,
+            markeredgewidth=rcParams[f"{axis}tick.major.width"],
+            color=rcParams[f"{axis}tick.color"], transform=along, clip_on=False)
+    for x, y, label in zip(*points, labels):
+        ax.text(x, y, label, transform=along + shift, **text)
 
 
 class _PlainLogFormatter(LogFormatter):

@@ -8,7 +8,7 @@ import numpy as np
 from matplotlib.colors import ListedColormap
 from matplotlib.patches import Patch
 
-from fit.report.drawing import DPI, column_starts, line_envelope, report_figure
+from fit.report.drawing import DPI, column_starts, label_ticks, line_envelope, report_figure
 from fit.report.plots import HEATMAP_COLUMNS
 from mocap.take import FILL_METHODS, Take
 from mocap.viz.figures import distinct_colours
@@ -92,8 +92,8 @@ def plot_gaps(take: Take | GapChart, path, *, title: str | None = None) -> None:
         ax.imshow(chart.codes, aspect="auto", interpolation="nearest", cmap=cmap,
                   vmin=-0.5, vmax=len(_STATES) - 0.5,
                   extent=(*chart.times, n_markers - 0.5, -0.5))
-        ax.set_yticks(range(n_markers))
-        ax.set_yticklabels(chart.labels, fontsize=max(4, min(8, 400 // max(n_markers, 1))))
+        label_ticks(ax, range(n_markers), chart.labels,
+                    fontsize=max(4, min(8, 400 // max(n_markers, 1))))
         ax.set_xlabel("time (s)")
         n_filled = sum(counts[m] for m in FILL_METHODS)
         ax.set_title(title or f"{n_markers} markers, {chart.n_frames} frames at "

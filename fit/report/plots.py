@@ -19,6 +19,7 @@ from fit.report.drawing import (
     IMAGE_WIDTH_PX,
     PAGE_WIDTH,
     column_starts,
+    label_ticks,
     line_envelope,
     plain_log_axis,
     report_figure,
@@ -206,9 +207,8 @@ def plot_error_heatmap(errors: ReconstructionErrors, path, *, markerset=None,
         # the page, 20 times the pixels (nearest-neighbour, so the same colours either way)
         ax.imshow(colours.to_rgba(np.ma.masked_invalid(data), bytes=True), aspect="auto",
                   interpolation="nearest", extent=(x[0], x[-1] + step, n - 0.5, -0.5))
-        ax.set_yticks(range(n))
-        ax.set_yticklabels([errors.labels[i] for i in order],
-                           fontsize=max(4, min(8, 400 // max(n, 1))))
+        label_ticks(ax, range(n), [errors.labels[i] for i in order],
+                    fontsize=max(4, min(8, 400 // max(n, 1))))
         _region_labels_right(ax, groups)
         ax.set_xlabel(xlabel)
         fig.colorbar(colours, ax=ax, label="error (mm)", extend="max", pad=0.01, fraction=0.05)
@@ -242,9 +242,8 @@ def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
             np.concatenate([errors.marker_p95[order], errors.marker_mean[order]]),
             np.repeat([0.8, 0.45], len(pos)),
             np.concatenate([colours * [1, 1, 1, 0.35], colours])))
-        ax.set_xticks(pos)
-        ax.set_xticklabels([errors.labels[i] for i in order], rotation=70, ha="right",
-                           rotation_mode="anchor", fontsize=7)
+        label_ticks(ax, pos, [errors.labels[i] for i in order], axis="x", rotation=70,
+                    ha="right", rotation_mode="anchor", fontsize=7)
         sec = ax.secondary_xaxis("top")
         sec.set_xticks([(pos[start] + pos[stop - 1]) / 2 for _, start, stop in groups],
                        labels=[name.replace("_", " ") for name, _, _ in groups], fontsize=8,

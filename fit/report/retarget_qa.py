@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 from matplotlib.patches import Patch
 
-from fit.report.drawing import DPI, line_envelope, report_figure
+from fit.report.drawing import DPI, label_ticks, line_envelope, report_figure
 from fit.report.html import Figure, Section, Table
 from fit.report.plots import bar_collection, region_colours, region_groups
 from mocap.errors import InputError
@@ -192,8 +192,8 @@ def plot_cross_validation(cv, path, *, markerset=None, title: str | None = None)
             horizontal=True))
         singular = np.flatnonzero(~np.isfinite(cv.marker_rms[order]))
         ax.scatter(np.zeros(len(singular)), y[singular], marker="x", color="black", zorder=3)
-        ax.set_yticks(y)
-        ax.set_yticklabels([cv.labels[i] for i in order], fontsize=max(5, min(8, 420 // max(n, 1))))
+        label_ticks(ax, y, [cv.labels[i] for i in order],
+                    fontsize=max(5, min(8, 420 // max(n, 1))))
         ax.set_ylim(n - 0.5, -0.5)
         for _, start, _ in groups[1:]:
             ax.axhline(start - 0.5, color="grey", lw=0.6, ls=":")
@@ -262,7 +262,8 @@ def cross_validation_section(cv, *, markerset=None, selection=None,
     if selection is not None:
         paragraphs.append(
             f"kernel = \"auto\" tried {len(selection.candidates)} variants (shape parameters "
-            f"in units of the median marker spacing h = {selection.spacing * selection.mm_per_unit:.1f} mm) "
+            f"in units of the median marker spacing h = "
+            f"{selection.spacing * selection.mm_per_unit:.1f} mm) "
             f"in {selection.seconds:.1f} s and chose {selection.best.name}: the "
             f"{selection.rule}. Lips open: the mesh's median opening over the lip markers' at "
             "those frames; shut frames: where it opens less than a quarter of theirs.")
