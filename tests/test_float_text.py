@@ -4,6 +4,7 @@ import sys
 
 import numpy as np
 import pytest
+from helpers import numba_cannot_cache
 
 from mocap.util import float_text
 from mocap.util.float_text import FIELD_WIDTH, _shortest_digits, csv_lines, float_fields
@@ -109,6 +110,25 @@ def test_the_compiled_lines_are_loaded_for_a_table_that_pays_for_it(monkeypatch)
     assert b"".join(csv_lines(np.arange(300), cells)) == expected and not used
     monkeypatch.setattr(float_text, "_CELLS_WORTH_COMPILING", cells.size)
     assert b"".join(csv_lines(np.arange(300), cells)) == expected and used
+
+
+def test_numba_without_a_cache_folder_leaves_the_text_to_numpy_with_a_warning(monkeypatch):
+    """numba raises RuntimeError where it can write its compiled code nowhere (a read-only
+    install and home): in a process that has loaded numba, the lines are then NumPy's, the
+    same bytes, with a warning."""
+    import numba  # noqa: F401  (loaded: the compiled text would be used for any table)
+
+    cells = np.random.default_rng(6).normal(size=(50, 4))
+    numba_cannot_cache(monkeypatch, "mocap.util._float_text_kernel")
+    float_text._compiled_lines.cache_clear()
+    try:
+        with pytest.warns(UserWarning, match="compiled CSV text is off .*no locator"):
+            assert not float_text.compiled_lines_ready()
+        assert b"".join(csv_lines(np.arange(50), cells)) == _percent_lines(np.arange(50), cells)
+    finally:
+        monkeypatch.undo()
+        float_text._compiled_lines.cache_clear()
+    assert float_text.compiled_lines_ready()            # numba caches again: compiled
 
 
 def test_an_index_of_another_length_is_refused(lines_by):
