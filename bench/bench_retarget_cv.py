@@ -298,7 +298,8 @@ def part_sim(basis, landmarks, layout_name: str, seconds: float) -> None:
     print(f"  TPS W·D shut in {int(shut.sum())} frames; of the {int(truth_open.sum())} frames "
           f"where the true mouth opens by >= {check.marker_open_mm:.1f} mm, "
           f"{shut[truth_open].mean():.0%} flagged; flagged frames with the true mouth open by "
-          f">= {check.open_mm:g} mm: {np.mean(truth_gap[shut] - check.rest_gap >= check.open_mm):.0%}")
+          f">= {check.open_mm:g} mm: "
+          f"{np.mean(truth_gap[shut] - check.rest_gap >= check.open_mm):.0%}")
 
     centers = MarkerGeometry.from_binding(auto.binding, mesh, auto.retargeted.labels).centers
     vertices = np.flatnonzero(cKDTree(centers).query(mesh.vertices)[0] * 10.0 <= FACE_MM)
@@ -317,7 +318,8 @@ def part_sim(basis, landmarks, layout_name: str, seconds: float) -> None:
     best = keys[int(np.argmin(errs))]
     chosen = selection.chosen
     print(f"  {len(keys)} variants scored against the truth ({len(vertices)} vertices within "
-          f"{FACE_MM:g} mm of a marker, every {TRUTH_STEP}rd frame, {time.perf_counter() - tic:.0f} s): "
+          f"{FACE_MM:g} mm of a marker, every {TRUTH_STEP}rd frame, "
+          f"{time.perf_counter() - tic:.0f} s): "
           f"Spearman rank correlation of the cross-validated marker error with the vertex "
           f"error {rho:.3f} (aim >= 0.8)")
     cv_best = keys[int(np.argmin(scores))]

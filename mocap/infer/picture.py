@@ -50,7 +50,8 @@ def plot_inference(inference: Inference, path, *, title: str = "") -> None:
     fig = new_figure(14, 8.6)
     grid = fig.add_gridspec(1, 2, width_ratios=(1.35, 1))
     views = ((fig.add_subplot(grid[0]), 0, "front (the subject's left on the right)",
-              "subject's left (mm)"), (fig.add_subplot(grid[1]), 2, "side (facing right)", "forward (mm)"))
+              "subject's left (mm)"),
+             (fig.add_subplot(grid[1]), 2, "side (facing right)", "forward (mm)"))
     for ax, horizontal, label, xlabel in views:
         h = coords[:, horizontal]
         for region in names:
