@@ -427,10 +427,12 @@ def test_fixed_weights_against_bvls_on_the_rest():
     lo[[2, 9]] = hi[[2, 9]] = [0.3, 1.0]
     sol = solve_weights(basis, data, lower=lo, upper=hi)
     assert sol.status == 0
-    np.testing.assert_array_equal(sol.weights[:, [2, 9]], np.broadcast_to([0.3, 1.0], (N_FRAMES, 2)))
+    np.testing.assert_array_equal(sol.weights[:, [2, 9]],
+                                  np.broadcast_to([0.3, 1.0], (N_FRAMES, 2)))
     rest = np.setdiff1d(np.arange(N_SHAPES), [2, 9])
     residual_data = data - np.array([0.3, 1.0]) @ basis[:, [2, 9]].T
-    np.testing.assert_allclose(sol.cost, oracle_cost(basis[:, rest], residual_data, lo[rest], hi[rest]),
+    np.testing.assert_allclose(sol.cost,
+                               oracle_cost(basis[:, rest], residual_data, lo[rest], hi[rest]),
                                rtol=SOLVE_OBJECTIVE_REL)
 
 

@@ -138,10 +138,10 @@ def console() -> None:  # pragma: no cover - the installed entry point
     The objects of the command's imports live as long as the process: the collector is
     off while they are made (its passes would walk the growing heap for nothing, about a
     tenth of the imports' time; the few cycles the imports leave behind stay), then they
-    are frozen (:func:`gc.freeze`), so that its full passes during the command skip them. So are the command's own at its end, which the
-    interpreter's exit would walk again in its last collections. Exit handlers, the
-    flushing of stdout and stderr and the objects freed by reference counting go on as
-    before.
+    are frozen (:func:`gc.freeze`), so that its full passes during the command skip
+    them. So are the command's own at its end, which the interpreter's exit would walk
+    again in its last collections. Exit handlers, the flushing of stdout and stderr and
+    the objects freed by reference counting go on as before.
     """
     argv = sys.argv[1:]
     gc.disable()
