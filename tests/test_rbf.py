@@ -178,6 +178,15 @@ def test_wendland_is_sparse_positive_definite_and_interpolates():
         np.testing.assert_allclose(got, expected, atol=atol * max(1.0, np.abs(expected).max()))
 
 
+@pytest.mark.parametrize("kernel, epsilon", [("gaussian", 2.0), ("wendland_c2", 1.5)])
+def test_condition_is_the_solved_systems(kernel, epsilon):
+    # without a polynomial the system is the kernel matrix: its condition number is NumPy's
+    # (the oracle) of the matrix made here; dense and compact (sparse) systems alike
+    op = build_rbf_operator(CENTERS, POINTS, kernel=kernel, epsilon=epsilon, degree=-1)
+    k = evaluate(kernel, epsilon * cdist(CENTERS, CENTERS))
+    np.testing.assert_allclose(op.diagnostics[0].condition, np.linalg.cond(k), rtol=1e-8)
+
+
 def test_wendland_formula_is_c2_at_the_support_edge():
     r = np.array([0.0, 0.5, 1.0 - 1e-4, 1.0, 1.3])
     values = evaluate("wendland_c2", r)
@@ -283,7 +292,8 @@ def test_region_operator_is_the_weighted_sum_of_region_operators():
 def test_region_weights_blend_smoothly():
     dist = np.array([[0.0, 1.0, 2.0, 3.0, 4.0], [4.0, 3.0, 2.0, 1.0, 0.0]])
     w = region_weights(dist, {"a": [0], "b": [1]}, width=2.5)
-    np.testing.assert_allclose(w["a"], np.array([1.0, 1.0, 0.5, 0.104, 0.0]) / [1, 1.104, 1, 1.104, 1])
+    np.testing.assert_allclose(w["a"], np.array([1.0, 1.0, 0.5, 0.104, 0.0])
+                               / [1, 1.104, 1, 1.104, 1])
     np.testing.assert_allclose(w.weights.sum(axis=1), 1.0)
     painted = painted_region_weights([[2.0, 2.0], [0.0, 3.0]], ["a", "b"])
     np.testing.assert_allclose(painted.weights, [[0.5, 0.5], [0.0, 1.0]])

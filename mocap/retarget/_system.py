@@ -44,7 +44,7 @@ class SolvedSystem:
         The first m columns of the inverse of the augmented system matrix
         (``inverse[:m]`` is symmetric): the RBF coefficients of each unit datum.
     condition, min_eigenvalue, shift : float
-        As :class:`mocap.retarget.rbf.RBFSolveInfo`.
+        As :class:`mocap.retarget.rbf.RBFSolveInfo` (`condition` NaN when not asked).
     """
 
     matrix: np.ndarray
@@ -66,11 +66,13 @@ def polynomial(centers, points, degree):
 
 
 def solve_system(region, kcc, kxc, pc, px, smoothing, degree, regularize, *,
-                 stacklevel: int = 4) -> SolvedSystem:
+                 stacklevel: int = 4, condition: bool = True) -> SolvedSystem:
     """Solve the system for the identity (see the module docstring).
 
     With `regularize`, a kernel matrix that is not positive definite on the
     null space of ``P^T`` gets a diagonal shift (and a warning at `stacklevel`).
+    Without `condition` the system's condition number (an SVD of it, which costs
+    more than the solve) is not computed and is NaN.
     """
     m, n_mono = pc.shape
     where = "" if region == "all" else f"region {region!r}: "
@@ -99,22 +101,22 @@ def solve_system(region, kcc, kxc, pc, px, smoothing, degree, regularize, *,
             system = (kcc + sp.diags_array(diag)).tocsc()
             z = scipy.sparse.linalg.splu(system).solve(np.eye(m))
             w = kxc @ z
-            condition = np.linalg.cond(system.toarray())
+            cond = np.linalg.cond(system.toarray()) if condition else np.nan
         else:
             system = np.block([[kcc + np.diag(diag), pc], [pc.T, np.zeros((n_mono, n_mono))]])
             # np.linalg.solve: scipy.linalg.solve first inspects the matrix's structure,
             # and takes 100x longer on a compact kernel's sparse blocks
             z = np.linalg.solve(system, np.eye(m + n_mono, m))
             w = kxc @ z[:m] + px @ z[m:]
-            condition = np.linalg.cond(system)
+            cond = np.linalg.cond(system) if condition else np.nan
     except (np.linalg.LinAlgError, RuntimeError) as exc:
         raise InputError(f"{where}the RBF system is singular ({exc}): coincident "
                          "centers? add smoothing") from None
-    return SolvedSystem(np.asarray(w), np.asarray(z), float(condition), lam_min, float(shift))
+    return SolvedSystem(np.asarray(w), np.asarray(z), float(cond), lam_min, float(shift))
 
 
 def check_options(kernel, epsilon, degree, smoothing, n_centers, *, stacklevel: int = 3):
-    """Validated ``(kernel, epsilon, degree, smoothing (n_centers,))`` with the defaults filled in."""
+    """Validated ``(kernel, epsilon, degree, smoothing (n_centers,))``, defaults filled in."""
     kernel = as_choice(kernel, "kernel", KERNELS)
     if epsilon is None:
         if kernel not in _k.SCALE_INVARIANT:
@@ -137,8 +139,9 @@ def check_options(kernel, epsilon, degree, smoothing, n_centers, *, stacklevel: 
     if smoothing.ndim == 0:
         smoothing = np.full(n_centers, float(smoothing))
     if smoothing.shape != (n_centers,) or (smoothing < 0).any():
+        got = smoothing.tolist() if smoothing.size < 8 else smoothing.shape
         raise InputError(f"smoothing must be a scalar or an array of shape ({n_centers},), "
-                         f">= 0, got {smoothing.tolist() if smoothing.size < 8 else smoothing.shape}")
+                         f">= 0, got {got}")
     return kernel, epsilon, degree, smoothing
 
 

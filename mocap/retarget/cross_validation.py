@@ -298,7 +298,8 @@ def leave_one_out(geometry: MarkerGeometry, *, kernel: str = "thin_plate_spline"
     for name, subset in systems.items():
         pc, pq = _system.polynomial(geometry.centers[subset], points, degree)
         solved = _system.solve_system(name, kcc[np.ix_(subset, subset)], kq[:, subset], pc, pq,
-                                      smoothing[subset], degree, regularize, stacklevel=3)
+                                      smoothing[subset], degree, regularize, stacklevel=3,
+                                      condition=False)
         shifts[name] = solved.shift
         n_sub = len(subset)
         col = columns[name]
@@ -371,7 +372,8 @@ class CrossValidation:
         return self.rms / motion if motion > 0 else np.nan
 
     def by_region(self, regions: Mapping[str, Sequence[str]]) -> list[dict]:
-        """Pooled errors per region: ``region``, ``markers``, ``rms_mm``, ``motion_mm``, ``relative``.
+        """Pooled errors per region: ``region``, ``markers``, ``rms_mm``, ``motion_mm``,
+        ``relative``.
 
         Parameters
         ----------
