@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import re
+import sys
 
 import numpy as np
 import pytest
-from helpers import slit_grid
+from helpers import numba_cannot_cache, slit_grid
 from scipy.spatial import Delaunay
 from scipy.spatial.distance import cdist
 from tolerances import EXACT_FLOAT64
 
+import mocap.mesh.mouth as mouth_module
 from mocap import InputError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh
@@ -52,10 +54,39 @@ def test_the_gap_is_the_smallest_distance_between_the_lips(demo_face):
     assert mouth.gap(crossed) == 0.0
 
 
-def test_the_gap_of_many_frames_block_by_block_is_each_frames_own(demo_face, monkeypatch):
+@pytest.fixture(params=["compiled", "numpy"])
+def gap_by(request, monkeypatch):
+    """The lip gap by numba's loop over the pairs (the `speed` extra, in .[test]) or by
+    NumPy's expansion in products of blocks of frames."""
+    assert mouth_module._compiled_gap() is not None
+    if request.param == "numpy":
+        monkeypatch.setattr(mouth_module, "_compiled_gap", lambda: None)
+    else:                                   # in any process, for any number of frames
+        monkeypatch.setattr(mouth_module, "_PAIRS_WORTH_COMPILING", 0)
+    return request.param
+
+
+def test_the_compiled_gap_is_the_least_of_the_pairs_direct_distances(demo_face, monkeypatch):
+    """Bit for bit the least of NumPy's squared coordinate differences summed in order (the
+    oracle), on lips that part, cross and sit far from the origin (where the expansion
+    ‖u‖² + ‖l‖² − 2 u·l would lose digits)."""
+    monkeypatch.setattr(mouth_module, "_PAIRS_WORTH_COMPILING", 0)
+    mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
+    n_up = len(mouth.upper)
+    rng = np.random.default_rng(3)
+    lips = demo_face.mesh.vertices[mouth.vertex_ids]
+    frames = lips + rng.normal(0.0, 2.0, (200,) + lips.shape)
+    frames[100:] += rng.normal(0.0, 1e6, (100, 1, 3))        # mm: 1 km from the origin
+    up, low = frames[:, :n_up], frames[:, n_up:]
+    oracle = ((up[:, :, None] - low[:, None]) ** 2).sum(axis=-1).reshape(200, -1).min(axis=1)
+    np.testing.assert_array_equal(mouth.gap(frames), np.sqrt(oracle))
+
+
+def test_the_gap_of_many_frames_block_by_block_is_each_frames_own(demo_face, monkeypatch,
+                                                                  gap_by):
     """Frames go through in blocks of pair distances, in batches of blocks: blocks of 3
-    frames, batches of 2 blocks, the last batch and its last block short."""
-    import mocap.mesh.mouth as mouth_module
+    frames, batches of 2 blocks, the last batch and its last block short (NumPy's); the
+    compiled loop takes them frame by frame."""
     mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
     n_up, n_low = len(mouth.upper), len(mouth.lower)
     monkeypatch.setattr(mouth_module, "_CHUNK_BYTES", 3 * 8 * n_up * n_low)
@@ -161,11 +192,11 @@ def test_mouth_errors(demo_face):
         lipless.gap(np.zeros((2, 3)))
 
 
-def test_a_non_finite_coordinate_anywhere_in_a_block_is_refused(demo_face, monkeypatch):
+def test_a_non_finite_coordinate_anywhere_in_a_block_is_refused(demo_face, monkeypatch,
+                                                                gap_by):
     """The gap checks its positions by their result: a NaN or ±inf in any frame of a block
     (not only its first), any vertex of either lip and any coordinate is named as numpy's
     isnan and isinf find it; finite lips pass."""
-    import mocap.mesh.mouth as mouth_module
     mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
     n_up, n_low = len(mouth.upper), len(mouth.lower)
     monkeypatch.setattr(mouth_module, "_CHUNK_BYTES", 4 * 8 * n_up * n_low)   # 4-frame blocks
@@ -181,6 +212,46 @@ def test_a_non_finite_coordinate_anywhere_in_a_block_is_refused(demo_face, monke
             + re.escape(str(tuple(int(i) for i in np.argwhere(np.isnan(bad))[0]))) + r"\)"
         with pytest.raises(InputError, match=f"positions contains {expected}"):
             mouth.gap(bad)
+
+
+def test_the_compiled_gap_is_loaded_for_frames_that_pay_for_it(demo_face, monkeypatch):
+    """Loading numba costs about half a second: a process that has not loaded it measures a
+    few frames by NumPy, many by the compiled loop."""
+    mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
+    lips = demo_face.mesh.vertices[mouth.vertex_ids]
+    frames = lips + np.random.default_rng(9).normal(0.0, 2.0, (6,) + lips.shape)
+    used = []
+    monkeypatch.setattr(mouth_module, "_compiled_gap",
+                        lambda real=mouth_module._compiled_gap: used.append(1) or real())
+    monkeypatch.delitem(sys.modules, "numba", raising=False)
+    few = mouth.gap(frames)
+    assert not used
+    monkeypatch.setattr(mouth_module, "_PAIRS_WORTH_COMPILING",
+                        len(frames) * len(mouth.upper) * len(mouth.lower))
+    assert used == [] and np.allclose(mouth.gap(frames), few, rtol=0, atol=EXACT_FLOAT64)
+    assert used == [1]
+
+
+def test_numba_without_a_cache_folder_measures_the_gap_with_numpy_and_a_warning(
+        demo_face, monkeypatch):
+    """numba raises RuntimeError when it can write its compiled code nowhere (a read-only
+    install and home): NumPy's expansion measures the gap, with a warning saying so."""
+    mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
+    lips = demo_face.mesh.vertices[mouth.vertex_ids]
+    frames = lips + np.random.default_rng(5).normal(0.0, 2.0, (4,) + lips.shape)
+    monkeypatch.setattr(mouth_module, "_PAIRS_WORTH_COMPILING", 0)
+    numba_cannot_cache(monkeypatch, "mocap.mesh._mouth_kernel")
+    mouth_module._compiled_gap.cache_clear()
+    try:
+        with pytest.warns(UserWarning, match="compiled lip gap is off .*no locator"):
+            got = mouth.gap(frames)
+        assert mouth_module._compiled_gap() is None
+    finally:
+        monkeypatch.undo()
+        mouth_module._compiled_gap.cache_clear()
+    expanded = mouth_module._expanded_least_squared_distances(frames, len(mouth.upper))
+    np.testing.assert_array_equal(got, np.sqrt(np.maximum(expanded, 0.0)))
+    np.testing.assert_allclose(got, mouth.gap(frames), rtol=0, atol=EXACT_FLOAT64)
 
 
 # ---------------------------------------------------------------- lip markers
