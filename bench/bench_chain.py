@@ -5,15 +5,16 @@ driven by ``alex_rom_4.csv``, sampled at 276 Hz so that its 127 s give 35,000
 frames; 66 markers of ``tests/ict_marker_layout.toml``, 0.2 mm noise, head
 motion, 60 gaps) and written to C3D. Timed per stage, as ``mocap2mesh run``
 runs them (:mod:`fit.pipeline.stages`): read, ingest (gap fill, stabilization),
-bind (with the layout's 2 mm skin offset), retarget (W), bases (PCA of W·D
-without Ξ, quasi-eigen), fit (H at the exact marker centres, QE, PCA in marker
-space), exports (CSV, compact mesh npz, glb per basis) and the QA
-figures (no video). Peak memory: the process's maximum resident set size.
-Then the same take goes through ``mocap2mesh run`` in a fresh process, as a
-user runs it (2 mm skin offset, no video): its wall time (the issue's aim,
-20 s) and the stages its manifest records, which add to the ones above the
-lip-seal check, the report's held-out fits, mesh renders and further figures,
-and the cost of a fresh process's first touches of its memory.
+bind (with the layout's 2 mm skin offset), retarget (W, its variant chosen with the
+mesh's lips read, as ``run`` reads them), bases (PCA of W·D without Ξ, quasi-eigen),
+fit (H at the exact marker centres, QE, PCA in marker space), the lip-seal check
+(the lip gap of W·D and of every basis's mesh in every frame), exports (CSV, compact
+mesh npz, glb per basis) and the QA figures (no video). Peak memory: the process's
+maximum resident set size. Then the same take goes through ``mocap2mesh run`` in a
+fresh process, as a user runs it (2 mm skin offset, no video): its wall time (the
+issue's aim, 20 s) and the stages its manifest records, which add to the ones above
+the report's held-out fits, mesh renders and further figures, and the cost of a fresh
+process's first touches of its memory.
 
 Floors, timed in the same run on the same arrays: what each stage cannot go
 under.
@@ -42,6 +43,9 @@ under.
   evaluated once at the answer. H's fit at the exact centres is timed again
   beside the bounded fit of its linear (tangent) model, and their ratio
   printed (the issue's aim: at most 2×);
+* lip seal: the lips' vertices of every frame of each sequence (one product each)
+  and, for every pair of an upper- and a lower-lip vertex in every frame, the three
+  multiply-adds of its squared distance at the rate of a square GEMM of as many;
 * exports: the same number of bytes written by one ``ndarray.tofile``. The weights
   CSVs' text (the shortest that reads back exactly) is not bound by it: its floats'
   formatting by ``repr`` alone is printed beside it, which the CSV writer's whole-array
@@ -95,6 +99,7 @@ from fit.pipeline import (
     ingest_stage,
     retarget_stage,
 )
+from fit.pipeline.stages import lip_seal_stage
 from fit.report import build_report
 from fit.report.figure_queue import FigureQueue
 from fit.solve._reduced import BoxQP, reduced_solve
@@ -282,6 +287,7 @@ def measure_floors(out: Path, take, bound, retargeted, bases, fill, weights) -> 
                                   f"at the exact centres {exact_h:.2f} s = "
                                   f"{exact_h / linear_h:.1f}× its bounded linear model's "
                                   f"{linear_h:.2f} s; aim ≤ 2×)")
+    floors["lip seal"] = lip_seal_floor(retargeted, bases, weights)
     exported = [f for f in out.iterdir() if f.suffix in {".csv", ".npz", ".glb"}]
     size = sum(f.stat().st_size for f in exported)
     blob = np.zeros(size, np.uint8)
@@ -309,10 +315,29 @@ def measure_floors(out: Path, take, bound, retargeted, bases, fill, weights) -> 
     return floors
 
 
+def lip_seal_floor(retargeted, bases, weights) -> tuple[float, str]:
+    """The lip-seal stage's floor (see the module docstring) and what it is."""
+    mouth, lips = retargeted.mouth, retargeted.mouth.vertex_ids
+    rows = retargeted.operator.matrix[lips]
+    rows = rows.toarray() if scipy.sparse.issparse(rows) else np.asarray(rows)
+    shapes = [b.displacements[:, lips].reshape(len(b.displacements), -1)
+              for b in bases.bases.values()]
+    T, n_pairs, n_sequences = len(retargeted.displacements), \
+        len(mouth.upper) * len(mouth.lower), 1 + len(shapes)
+    side = round((3 * n_sequences * T * n_pairs) ** (1 / 3))
+    square = np.random.default_rng(0).standard_normal((side, side))
+    seconds = best_time(lambda: (np.matmul(rows, retargeted.displacements),
+                                 [w @ e for w, e in zip(weights.values(), shapes)])) \
+        + best_time(lambda: square @ square)
+    return seconds, (f"the lips' {len(lips)} vertices of the {n_sequences} sequences (one "
+                     f"product each), 3 multiply-adds for each of their {n_pairs:,} pairs a "
+                     f"frame at the rate of a {side}² GEMM")
+
+
 def run_as_a_user(out: Path, capture: Path, frames: int) -> None:
     """``mocap2mesh run`` on `capture` in a fresh process, as a user runs the take: its wall
-    time and the stages the manifest records (which take the lip-seal check, the held-out
-    fits, the renders and the other figures the chain above leaves out)."""
+    time and the stages the manifest records (which take the held-out fits, the renders
+    and the other figures the chain above leaves out)."""
     config = out / "run.toml"
     config.write_text(f"""[inputs]
 captures = ["{capture}"]
@@ -374,9 +399,11 @@ def main() -> None:
         take = complete_span(ingested.take, markerset.face_markers)
         bound = timed("bind", lambda: bind_stage(take, markerset, mesh, landmarks,
                                                  options=BindOptions(skin_offset=2.0)))
-        retargeted = timed("retarget (W)", lambda: retarget_stage(take, bound, mesh, markerset))
+        retargeted = timed("retarget (W)", lambda: retarget_stage(take, bound, mesh, markerset,
+                                                                  mesh_landmarks=landmarks))
         bases = timed("bases (PCA, QE)", lambda: basis_stage(retargeted, artist))
         fitted = timed("fit (H, QE, PCA)", lambda: fit_stage(take, bound, retargeted, bases))
+        timed("lip seal", lambda: lip_seal_stage(take, bound, retargeted, bases, fitted))
 
         def exports():
             # as `mocap2mesh run` does: the CSVs (text) queued first, for the figure helpers,
