@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import base64
 import pickle
+import struct
+import zlib
 from pathlib import Path
 
 import cv2
@@ -11,6 +13,7 @@ import numpy as np
 import pytest
 from helpers import ReportPage, wait_for_file
 from matplotlib import rc_context
+from PIL import Image
 from tolerances import EXACT_FLOAT64
 
 from basis.coverage import plot_coverage
@@ -509,6 +512,34 @@ def test_views_refuse_a_value_out_of_range_in_a_frame_not_drawn(tmp_path, bad, m
     plot_frame_views(captured, captured + 0.5, [1, 2], tmp_path / "v.png", neutral=neutral)
     assert _png_size(tmp_path / "v.png")[0] <= IMAGE_WIDTH_PX
 
+
+
+def _png_row_filters(path) -> list:
+    """The filter type of every row of an 8-bit RGB PNG (the PNG specification: the IDAT
+    chunks' zlib stream holds each row as its filter byte, then its filtered bytes)."""
+    raw, at, idat = Path(path).read_bytes(), 8, b""
+    while at < len(raw):
+        length, kind = struct.unpack(">I4s", raw[at:at + 8])
+        if kind == b"IHDR":
+            width, height = struct.unpack(">II", raw[at + 8:at + 16])
+        elif kind == b"IDAT":
+            idat += raw[at + 8:at + 8 + length]
+        at += 12 + length
+    rows = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(height, 1 + 3 * width)
+    return rows[:, 0].tolist()
+
+
+def test_write_png_filters_each_row_by_the_row_above(tmp_path):
+    """Where OpenCV lets the filter be chosen, every row is its difference from the row
+    above (PNG filter type 2, "Up"), and the pixels read back by another decoder (PIL)."""
+    if not hasattr(cv2, "IMWRITE_PNG_FILTER"):
+        pytest.skip(f"OpenCV {cv2.__version__} chooses the PNG filters itself")
+    rng = np.random.default_rng(4)
+    image = np.repeat(rng.integers(0, 256, (40, 1, 3), np.uint8), 30, axis=1)  # flat rows
+    image[::7] = rng.integers(0, 256, (6, 30, 3), np.uint8)                   # and noisy
+    write_png(image, tmp_path / "a.png")
+    assert set(_png_row_filters(tmp_path / "a.png")) == {2}
+    np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "a.png")), image)
 
 
 def test_write_png_keeps_the_pixels_and_refuses_what_is_no_image(tmp_path):

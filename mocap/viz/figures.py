@@ -35,6 +35,15 @@ _LINE_PIECE = 256
 #: zlib level of the PNGs: the size of level 9 at a fraction of its time (charts are flat
 #: colours; a lower level or OpenCV's default RLE makes noisy heatmaps several times larger).
 _PNG_LEVEL = 6
+#: OpenCV's PNG options: the zlib level, and every row filtered by its difference from the
+#: row above (PNG's "Up") where OpenCV lets the filter be chosen (4.12 and later). A chart's
+#: rows mostly repeat the flat colours of the row above, and libpng's own choice among the
+#: five filters, row by row, costs about as much as the compression: the 20 PNGs of a
+#: 35,000-frame run's report encode in 0.54 s instead of 0.80 s, 1.7% larger, the same
+#: pixels.
+_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, _PNG_LEVEL] + (
+    [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP] if hasattr(cv2, "IMWRITE_PNG_FILTER")
+    else [])
 
 
 def new_figure(width: float, height: float) -> Figure:
@@ -69,8 +78,7 @@ def write_png(image, path) -> None:
         raise InputError(f"{path}: need a uint8 RGB or RGBA image, got {image.dtype} "
                          f"{image.shape}")
     code = cv2.COLOR_RGB2BGR if image.shape[2] == 3 else cv2.COLOR_RGBA2BGR
-    ok, data = cv2.imencode(".png", cv2.cvtColor(image, code),
-                            [cv2.IMWRITE_PNG_COMPRESSION, _PNG_LEVEL])
+    ok, data = cv2.imencode(".png", cv2.cvtColor(image, code), _PNG_PARAMS)
     if not ok:
         raise InputError(f"{path}: cannot encode the image as PNG")
     with atomic_path(path) as tmp:
