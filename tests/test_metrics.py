@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import numba_cannot_cache
 from tolerances import EXACT_FLOAT64
 
+import fit.metrics as metrics_module
 from fit.metrics import (
     FRAME_METRICS,
     ReconstructionErrors,
@@ -52,8 +56,20 @@ def _brute(captured, recon, neutral, origin):
     return np.array(alpha), np.array(disp), np.array(rms)
 
 
+@pytest.fixture(params=["compiled", "numpy"])
+def errors_by(request, monkeypatch):
+    """The samples' pass by numba's loop (the `speed` extra, in .[test]) or by NumPy's
+    blocks of frames."""
+    assert metrics_module._compiled_errors() is not None
+    if request.param == "numpy":
+        monkeypatch.setattr(metrics_module, "_compiled_errors", lambda: None)
+    else:                                   # in any process, for any number of samples
+        monkeypatch.setattr(metrics_module, "_SAMPLES_WORTH_COMPILING", 0)
+    return request.param
+
+
 @pytest.mark.parametrize("origin", [None, np.zeros(3), np.array([100.0, -50.0, 900.0])])
-def test_per_frame_metrics_match_loops(origin):
+def test_per_frame_metrics_match_loops(origin, errors_by):
     captured, recon, neutral = _data()
     res = reconstruction_errors(captured, recon, neutral, origin=origin)
     used = neutral.mean(axis=0) if origin is None else origin
@@ -65,7 +81,7 @@ def test_per_frame_metrics_match_loops(origin):
     assert np.isnan(res.alpha[20]) and res.n_valid[20] == 0
 
 
-def test_a_take_of_many_blocks_of_frames_matches_the_loops():
+def test_a_take_of_many_blocks_of_frames_matches_the_loops(errors_by):
     """Frames are taken a block at a time: a take of several blocks (and a part one), with
     missing samples in each, gives what the loops give frame by frame and marker by marker."""
     captured, recon, neutral = _data(seed=3, n_frames=2 * 1024 + 517)
@@ -95,6 +111,60 @@ def test_a_take_of_many_blocks_of_frames_matches_the_loops():
     assert tot["n_samples"] == all_err.size
 
 
+def test_the_compiled_pass_gives_numpys_errors_and_sums(monkeypatch):
+    """The same errors bit for bit, the same sums to rounding (added in another order), on
+    a take of several of NumPy's blocks with samples missing from either side."""
+    captured, recon, neutral = _data(seed=8, n_frames=2 * 1024 + 300)
+    rng = np.random.default_rng(9)
+    captured[rng.random(captured.shape[:2]) < 0.03] = np.nan
+    recon[rng.random(recon.shape[:2]) < 0.01, rng.integers(3)] = np.nan
+    origin = neutral.mean(axis=0)
+    monkeypatch.setattr(metrics_module, "_SAMPLES_WORTH_COMPILING", 0)
+    compiled = metrics_module._squared_errors(captured, recon, origin, neutral)
+    by_blocks = metrics_module._squared_errors_by_blocks(captured, recon, origin, neutral)
+    np.testing.assert_array_equal(compiled[0], by_blocks[0])
+    for ours, numpys in zip(compiled[1:], by_blocks[1:]):
+        np.testing.assert_allclose(ours, numpys, rtol=EXACT_FLOAT64, atol=0)
+
+
+def test_the_compiled_pass_is_loaded_for_a_take_that_pays_for_it(monkeypatch):
+    """Loading numba costs about half a second: a process that has not loaded it takes a
+    small take's samples by NumPy, a large one's by the compiled pass."""
+    captured, recon, neutral = _data(seed=2)
+    used = []
+    monkeypatch.setattr(metrics_module, "_compiled_errors",
+                        lambda real=metrics_module._compiled_errors: used.append(1) or real())
+    monkeypatch.delitem(sys.modules, "numba", raising=False)
+    small = reconstruction_errors(captured, recon, neutral)
+    assert not used
+    monkeypatch.setattr(metrics_module, "_SAMPLES_WORTH_COMPILING", captured[..., 0].size)
+    large = reconstruction_errors(captured, recon, neutral)
+    assert used == [1]
+    np.testing.assert_array_equal(large.errors, small.errors)
+    np.testing.assert_allclose(large.rms, small.rms, rtol=EXACT_FLOAT64)
+
+
+def test_numba_without_a_cache_folder_leaves_the_errors_to_numpy_with_a_warning(monkeypatch):
+    """numba raises RuntimeError when it can write its compiled code nowhere (a read-only
+    install and home): NumPy's blocks take the samples, with a warning saying so."""
+    captured, recon, neutral = _data(seed=5)
+    monkeypatch.setattr(metrics_module, "_SAMPLES_WORTH_COMPILING", 0)
+    numba_cannot_cache(monkeypatch, "fit._metrics_kernel")
+    metrics_module._compiled_errors.cache_clear()
+    try:
+        with pytest.warns(UserWarning, match="compiled reconstruction-error pass is off .*no loc"):
+            got = reconstruction_errors(captured, recon, neutral)
+        assert metrics_module._compiled_errors() is None
+    finally:
+        monkeypatch.undo()
+        metrics_module._compiled_errors.cache_clear()
+    origin = neutral.mean(axis=0)
+    errors, sums, _ = metrics_module._squared_errors_by_blocks(captured, recon, origin, neutral)
+    np.testing.assert_array_equal(got.errors, errors)
+    np.testing.assert_array_equal(got.rms, np.sqrt(sums[0] / np.maximum(got.n_valid, 1))
+                                  * np.where(got.n_valid > 0, 1.0, np.nan))
+
+
 def test_alpha_depends_on_origin_as_expected():
     captured, recon, neutral = _data(missing=False)
     near = reconstruction_errors(captured, recon, neutral)
@@ -122,7 +192,7 @@ def test_alpha_of_a_hand_example():
     np.testing.assert_allclose(res.errors, [[4.0, 0.0]])
 
 
-def test_per_marker_and_totals_match_loops():
+def test_per_marker_and_totals_match_loops(errors_by):
     captured, recon, neutral = _data()
     res = reconstruction_errors(captured, recon, neutral, labels=list("abcdefg"))
     err = np.linalg.norm(captured - recon, axis=2)
