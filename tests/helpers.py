@@ -332,6 +332,18 @@ def wait_for_file(path, seconds: float = 60.0) -> None:
         time.sleep(0.05)
 
 
+def kernel_or_numpy(param: str, monkeypatch, module, loader: str, threshold: str) -> str:
+    """Make `module` do its work by its compiled kernel (numba: the speed extra, in .[test])
+    for any size of work, or by NumPy, as `param` says ("compiled" or "numpy"): `loader`
+    names its cached kernel loader, `threshold` the work from which it loads numba."""
+    if param == "compiled":
+        assert getattr(module, loader)() is not None
+        monkeypatch.setattr(module, threshold, 0)
+    else:
+        monkeypatch.setattr(module, loader, lambda: None)
+    return param
+
+
 def numba_cannot_cache(monkeypatch, module: str) -> None:
     """Make importing the numba kernel `module` raise what numba raises when it can write
     its compiled code nowhere (a read-only install and home): RuntimeError, not

@@ -4,7 +4,7 @@ import sys
 
 import numpy as np
 import pytest
-from helpers import numba_cannot_cache
+from helpers import kernel_or_numpy, numba_cannot_cache
 
 from mocap.util import float_text
 from mocap.util.float_text import FIELD_WIDTH, _shortest_digits, csv_lines, float_fields
@@ -64,12 +64,8 @@ def test_the_exact_path_settles_all_but_ties():
 def lines_by(request, monkeypatch):
     """csv_lines by the compiled kernel (numba: the speed extra, in .[test]) for any table,
     or by NumPy's array operations."""
-    if request.param == "compiled":
-        assert float_text._compiled_lines() is not None
-        monkeypatch.setattr(float_text, "_CELLS_WORTH_COMPILING", 0)
-    else:
-        monkeypatch.setattr(float_text, "_compiled_lines", lambda: None)
-    return request.param
+    return kernel_or_numpy(request.param, monkeypatch, float_text, "_compiled_lines",
+                           "_CELLS_WORTH_COMPILING")
 
 
 def _percent_lines(index, cells) -> bytes:

@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 import pytest
-from helpers import numba_cannot_cache, slit_grid
+from helpers import kernel_or_numpy, numba_cannot_cache, slit_grid
 from scipy.spatial import Delaunay
 from scipy.spatial.distance import cdist
 from tolerances import EXACT_FLOAT64
@@ -58,12 +58,8 @@ def test_the_gap_is_the_smallest_distance_between_the_lips(demo_face):
 def gap_by(request, monkeypatch):
     """The lip gap by numba's loop over the pairs (the `speed` extra, in .[test]) or by
     NumPy's expansion in products of blocks of frames."""
-    assert mouth_module._compiled_gap() is not None
-    if request.param == "numpy":
-        monkeypatch.setattr(mouth_module, "_compiled_gap", lambda: None)
-    else:                                   # in any process, for any number of frames
-        monkeypatch.setattr(mouth_module, "_PAIRS_WORTH_COMPILING", 0)
-    return request.param
+    return kernel_or_numpy(request.param, monkeypatch, mouth_module, "_compiled_gap",
+                           "_PAIRS_WORTH_COMPILING")
 
 
 def test_the_compiled_gap_is_the_least_of_the_pairs_direct_distances(demo_face, monkeypatch):

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import numba_cannot_cache
+from helpers import kernel_or_numpy, numba_cannot_cache
 from tolerances import EXACT_FLOAT64
 
 import fit.metrics as metrics_module
@@ -60,12 +60,8 @@ def _brute(captured, recon, neutral, origin):
 def errors_by(request, monkeypatch):
     """The samples' pass by numba's loop (the `speed` extra, in .[test]) or by NumPy's
     blocks of frames."""
-    assert metrics_module._compiled_errors() is not None
-    if request.param == "numpy":
-        monkeypatch.setattr(metrics_module, "_compiled_errors", lambda: None)
-    else:                                   # in any process, for any number of samples
-        monkeypatch.setattr(metrics_module, "_SAMPLES_WORTH_COMPILING", 0)
-    return request.param
+    return kernel_or_numpy(request.param, monkeypatch, metrics_module, "_compiled_errors",
+                           "_SAMPLES_WORTH_COMPILING")
 
 
 @pytest.mark.parametrize("origin", [None, np.zeros(3), np.array([100.0, -50.0, 900.0])])
