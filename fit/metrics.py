@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import sys
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -22,7 +21,7 @@ import pandas as pd
 
 from mocap.errors import InputError, MarkerError
 from mocap.util.arrays import read_only
-from mocap.util.optional import compiled
+from mocap.util.optional import compiled, compiled_if_worth
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positions
 
 __all__ = ["ReconstructionErrors", "reconstruction_errors", "alpha_origin", "summary_frame",
@@ -364,8 +363,8 @@ def _squared_errors(captured, reconstructed, origin, neutral):
         Per marker over its counted frames: Σ‖v* − v‖ and Σ‖v* − v‖².
     """
     n_frames, n_markers = captured.shape[:2]
-    worth = "numba" in sys.modules or n_frames * n_markers >= _SAMPLES_WORTH_COMPILING
-    kernel = _compiled_errors() if worth else None
+    kernel = compiled_if_worth(_compiled_errors, n_frames * n_markers,
+                               _SAMPLES_WORTH_COMPILING)
     if kernel is None:
         return _squared_errors_by_blocks(captured, reconstructed, origin, neutral)
     errors, sums, marker_sums = np.empty((n_frames, n_markers)), np.empty((3, n_frames)), \

@@ -13,7 +13,6 @@ frame is the smallest distance between the two bands.
 from __future__ import annotations
 
 import functools
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -24,7 +23,7 @@ from scipy.sparse.csgraph import dijkstra
 from mocap.errors import InputError
 from mocap.mesh.mesh import Mesh, boundary_loops, mesh_edges
 from mocap.util.arrays import read_only
-from mocap.util.optional import compiled
+from mocap.util.optional import compiled, compiled_if_worth
 from mocap.util.validation import as_float_array
 
 __all__ = ["MouthOpening", "find_mouth", "UPPER_POINTS", "LOWER_POINTS", "MIDDLE"]
@@ -145,9 +144,8 @@ def _least_squared_distances(x: np.ndarray, n_up: int) -> np.ndarray:
     pairs or more; else by :func:`_expanded_least_squared_distances`. The two agree to
     rounding (the compiled one is the more exact), not bit for bit.
     """
-    n_pairs = len(x) * n_up * (x.shape[1] - n_up)
-    worth = "numba" in sys.modules or n_pairs >= _PAIRS_WORTH_COMPILING
-    kernel = _compiled_gap() if worth else None
+    kernel = compiled_if_worth(_compiled_gap, len(x) * n_up * (x.shape[1] - n_up),
+                               _PAIRS_WORTH_COMPILING)
     if kernel is None:
         return _expanded_least_squared_distances(x, n_up)
     out = np.empty(len(x))

@@ -32,7 +32,7 @@ from typing import Iterator
 
 import numpy as np
 
-from mocap.util.optional import compiled
+from mocap.util.optional import compiled, compiled_if_worth
 
 __all__ = ["FIELD_WIDTH", "csv_lines", "float_fields", "compiled_lines_ready"]
 
@@ -107,11 +107,10 @@ def csv_lines(index, cells) -> Iterator[bytes]:
         raise ValueError(f"an index of {index.shape} for {T} rows of cells")
     rows = max(1, min(T, _CELLS_PER_BLOCK // max(C, 1)))
     write = _numpy_lines
-    if compiled_lines_ready() or T * C >= _CELLS_WORTH_COMPILING:
-        kernel = _compiled_lines()
-        if kernel is not None:
-            out = np.empty(rows * (1 + (C + 1) * (FIELD_WIDTH + 1)), np.uint8)
-            write = functools.partial(kernel, out=out)
+    kernel = compiled_if_worth(_compiled_lines, T * C, _CELLS_WORTH_COMPILING)
+    if kernel is not None:
+        out = np.empty(rows * (1 + (C + 1) * (FIELD_WIDTH + 1)), np.uint8)
+        write = functools.partial(kernel, out=out)
     for first in range(0, T, rows):
         block = np.ascontiguousarray(cells[first:first + rows])
         yield write(index[first:first + len(block)], block)

@@ -10,11 +10,12 @@ of the package never imports it.
 from __future__ import annotations
 
 import importlib
+import sys
 import warnings
 
 from mocap.errors import MissingDependencyError
 
-__all__ = ["require", "available", "compiled"]
+__all__ = ["require", "available", "compiled", "compiled_if_worth"]
 
 
 def require(module: str, *, package: str, extra: str, purpose: str):
@@ -76,3 +77,14 @@ def compiled(module: str, name: str, *, what: str, fallback: str):
         warnings.warn(f"the compiled {what} is off ({exc}); {fallback}: set NUMBA_CACHE_DIR "
                       "to a writable folder", stacklevel=4)
         return None
+
+
+def compiled_if_worth(loader, work: int, worth: int):
+    """``loader()`` (a module's cached :func:`compiled` kernel, or None) in a process that
+    has loaded numba, or for `work` of at least `worth`; else None, and NumPy does the work.
+
+    Loading numba and a kernel's machine code costs a process about half a second, which
+    only large work pays back; a process that has loaded it (``mocap2mesh run``'s fit)
+    uses the kernel for any work.
+    """
+    return loader() if "numba" in sys.modules or work >= worth else None
