@@ -27,12 +27,11 @@ value in one compiled pass that writes the lines (:mod:`mocap.util._float_text_k
 from __future__ import annotations
 
 import functools
-import sys
 from typing import Iterator
 
 import numpy as np
 
-from mocap.util.optional import compiled, compiled_if_worth
+from mocap.util.optional import compiled, compiled_if_worth, numba_loaded
 
 __all__ = ["FIELD_WIDTH", "csv_lines", "float_fields", "compiled_lines_ready"]
 
@@ -119,7 +118,7 @@ def csv_lines(index, cells) -> Iterator[bytes]:
 def compiled_lines_ready() -> bool:
     """Whether :func:`csv_lines` writes any table by its compiled kernel (numba, the
     ``speed`` extra) without loading numba: this process has loaded it."""
-    return "numba" in sys.modules and _compiled_lines() is not None
+    return numba_loaded() and _compiled_lines() is not None
 
 
 @functools.cache

@@ -15,7 +15,7 @@ import warnings
 
 from mocap.errors import MissingDependencyError
 
-__all__ = ["require", "available", "compiled", "compiled_if_worth"]
+__all__ = ["require", "available", "compiled", "compiled_if_worth", "numba_loaded"]
 
 
 def require(module: str, *, package: str, extra: str, purpose: str):
@@ -87,4 +87,9 @@ def compiled_if_worth(loader, work: int, worth: int):
     only large work pays back; a process that has loaded it (``mocap2mesh run``'s fit)
     uses the kernel for any work.
     """
-    return loader() if "numba" in sys.modules or work >= worth else None
+    return loader() if numba_loaded() or work >= worth else None
+
+
+def numba_loaded() -> bool:
+    """Whether this process has imported numba (its kernels then cost no more to load)."""
+    return "numba" in sys.modules
