@@ -196,11 +196,48 @@ def test_shapes_that_share_the_neutrals_face_text_are_read_as_load_mesh_reads_th
                                   basis.displacements[basis.index("with_uv")])
 
 
+def _vertex_lines_edited(edit):
+    """An edit of an OBJ's lines that replaces each ``v`` line by the lines `edit` gives."""
+    return lambda lines: [out for line in lines
+                          for out in (edit(line) if line.startswith(b"v ") else [line])]
+
+
+#: Vertex lines written other ways, and whether load_mesh then reads the whole file (the
+#: others are read by the shapes' own parser).
+_VERTEX_WRITINGS = {
+    "homogeneous": (_vertex_lines_edited(lambda line: [line + b" 1.0"]), False),
+    "trailing_space": (_vertex_lines_edited(lambda line: [line + b" "]), False),
+    "two_spaces": (_vertex_lines_edited(lambda line: [line.replace(b" ", b"  ", 1)]), True),
+    "normals_between": (_vertex_lines_edited(lambda line: [line, b"vn 0 0 1"]), True),
+}
+
+
+@pytest.mark.parametrize("writing", sorted(_VERTEX_WRITINGS))
+def test_shapes_whose_vertex_lines_are_written_other_ways_read_as_load_mesh_reads_them(
+        ict_basis, small_dir, monkeypatch, writing):
+    """The oracle is load_mesh of the file; the shapes' parser takes the plain ones (it
+    does not call load_mesh for them) and leaves the others to load_mesh."""
+    import mocap.mesh.mesh as mesh_module
+
+    edit, read_whole = _VERTEX_WRITINGS[writing]
+    _edited(small_dir / "jawOpen.obj", small_dir / f"{writing}.obj", edit)
+    expected = mesh_module.load_mesh(small_dir / f"{writing}.obj").vertices
+    original, reads = mesh_module.load_mesh, []
+    monkeypatch.setattr(mesh_module, "load_mesh",
+                        lambda path: reads.append(Path(path).name) or original(path))
+    basis = load_artist_basis(ict_basis.neutral, small_dir)
+    np.testing.assert_array_equal(basis.displacements[basis.index(writing)],
+                                  expected - ict_basis.neutral.vertices)
+    assert reads == ([f"{writing}.obj"] if read_whole else [])
+
+
 @pytest.mark.parametrize("edit, error", [
     (lambda lines: lines[:_vertex_line(lines, 9000)] + lines[_vertex_line(lines, 9001):],
      r"bad.obj at line \d+: face indexes vertex 9409, out of range for 9408 vertices"),
     (lambda lines: lines[:_vertex_line(lines, 5)] + [b"v 0 nan 0"]
      + lines[_vertex_line(lines, 5) + 1:], r"bad.obj: 1 vertices have NaN"),
+    (lambda lines: lines[:_vertex_line(lines, 7)] + [b"v 0 1"]
+     + lines[_vertex_line(lines, 7) + 1:], r"bad.obj at line \d+: vertex line needs 3"),
 ])
 def test_a_shape_with_the_neutrals_faces_but_bad_vertices_is_refused_by_name(
         ict_basis, small_dir, edit, error):
