@@ -155,6 +155,19 @@ def test_manifest_hashes(session_root, first_run):
     assert manifest["versions"]["numpy"] == np.__version__
 
 
+def test_package_versions_are_the_installed_ones_in_a_new_dict_each_call():
+    from importlib import metadata
+
+    from fit.pipeline.manifest import package_versions
+
+    first = package_versions()
+    first["numpy"] = "changed by a caller"
+    again = package_versions()
+    assert again is not first
+    assert again["numpy"] == metadata.version("numpy") == np.__version__
+    assert again["scipy"] == metadata.version("scipy")
+
+
 def test_rerun_of_the_same_config_skips_the_done_take(session_root, first_run):
     path = _config(session_root, ["session/capture.c3d", "session/broken.c3d"])
     outcome = run_takes(load_run_config(path), progress=False)

@@ -11,7 +11,8 @@ Layout::
      "parameters": {stage: {option: value}},
      "inputs": {role: {"path": ..., "sha256": ...}},      # + "session": {"takes", "sha256"}
      "session_basis": {"takes": {name: frames}, "n_components", "sha256", ...},  # if shared
-     "takes": {name: {"capture": {"path", "sha256"}, "key", "status": "ok" | "failed" | "pending" (not finished yet),
+     "takes": {name: {"capture": {"path", "sha256"}, "key",
+                      "status": "ok" | "failed" | "pending" (not finished yet),
                       "skipped": bool, "error": str | null, "seconds",
                       "worker": {"host", "pid", "peak_rss_mb"},
                       "basis": {"scope", "pca_sha256"}, "warnings": [str],
@@ -20,6 +21,7 @@ Layout::
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import platform
@@ -64,7 +66,14 @@ def sha256_path(path) -> str:
 
 
 def package_versions() -> dict:
-    """Python and the installed versions of the packages the chain uses."""
+    """Python and the installed versions of the packages the chain uses (a new dict)."""
+    return dict(_installed_versions())
+
+
+@functools.cache
+def _installed_versions() -> dict:
+    """:func:`package_versions`, read once a process: the packages a process has imported
+    do not change, and each read of the installed metadata costs a few milliseconds."""
     versions = {"python": platform.python_version()}
     for name in _PACKAGES:
         try:
