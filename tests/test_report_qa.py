@@ -281,6 +281,20 @@ def test_provenance_hashes_the_inputs_and_names_the_neutral_frame(demo):
     assert f'data-value="{r.binding.rms!r}"' in page
 
 
+def test_provenance_shows_a_digest_it_is_given_without_reading_the_file(demo, tmp_path):
+    """An input given with its digest (a run's record of it) is listed as given: the file
+    is not read again (a digest that is not the file's proves it)."""
+    given = "0" * 64
+    page = demo["result"].report(tmp_path / "report", inputs={
+        "capture": {"path": str(demo["paths"]["capture"]), "sha256": given},
+        "mesh": demo["paths"]["neutral"]})
+    html = next(p for p in page if str(p).endswith(".html"))
+    text = html.read_text()
+    assert f"<td>{demo['paths']['capture']}</td><td>{given}</td>" in text
+    digest = hashlib.sha256(demo["paths"]["neutral"].read_bytes()).hexdigest()
+    assert f"<td>{demo['paths']['neutral']}</td><td>{digest}</td>" in text
+
+
 def test_grades_follow_their_stated_thresholds(demo):
     page = _html(demo)
     rows = re.findall(r"<tr><td>([^<]+)</td><td class=\"num\" data-value=\"([^\"]+)\">[^<]*"

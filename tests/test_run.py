@@ -153,6 +153,13 @@ def test_manifest_hashes(session_root, first_run):
         with open(entry["path"], "rb") as fh:
             assert entry["sha256"] == hashlib.sha256(fh.read()).hexdigest()
     assert manifest["versions"]["numpy"] == np.__version__
+    # the report's provenance shows the digests of the run's record, each file read once
+    page = (session_root / "results" / "capture" / "report" / "capture.html").read_text()
+    files = [manifest["takes"]["capture"]["capture"],
+             *(entry for entry in manifest["inputs"].values() if "path" in entry)]
+    assert len(files) == 5                      # the capture, its 4 shared inputs
+    for entry in files:
+        assert f"<td>{entry['path']}</td><td>{entry['sha256']}</td>" in page
 
 
 def test_package_versions_are_the_installed_ones_in_a_new_dict_each_call():

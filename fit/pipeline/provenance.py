@@ -27,11 +27,16 @@ def _inputs(result, inputs) -> Table:
         inputs = {"capture": result.ingested.raw.source.path, "mesh": recon.mesh.path,
                   "markerset": recon.markerset.path}
     rows = []
-    for role, path in inputs.items():
+    for role, given in inputs.items():
+        # a manifest entry carries the digest the run's record has: no second read
+        path, digest = ((given.get("path"), given.get("sha256")) if isinstance(given, dict)
+                        else (given, None))
         if path is None:
             continue
         path = Path(path)
-        rows.append([role, str(path), sha256_path(path) if path.exists() else "(not found)"])
+        if digest is None:
+            digest = sha256_path(path) if path.exists() else "(not found)"
+        rows.append([role, str(path), digest])
     return Table(("role", "path", "SHA-256"), tuple(rows), "provenance-inputs")
 
 
@@ -58,9 +63,10 @@ def take_provenance(result, *, inputs=None) -> dict:
     Parameters
     ----------
     result : ReconstructionResult
-    inputs : mapping of role to path, optional
+    inputs : mapping of role to path or to ``{"path", "sha256"}``, optional
         The files the take read (default the capture, the mesh and the marker
-        set as the result knows them); each is hashed.
+        set as the result knows them); a path is hashed, an entry with its
+        digest (the run's record of it) is shown as it is.
 
     Returns
     -------

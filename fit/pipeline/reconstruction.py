@@ -523,8 +523,9 @@ class ReconstructionResult:
     def report(self, directory, *, inputs=None, warnings=(), figures=None) -> list:
         """Write the QA pictures, videos and ``<name>.html`` into `directory`; returns the paths.
 
-        `inputs` (role to path) are hashed into the report's provenance (default
-        the capture, the mesh and the marker set); `warnings` (messages) are
+        `inputs` (role to path, hashed, or to ``{"path", "sha256"}``, a digest known
+        already) are the report's provenance (default the capture, the mesh and the
+        marker set); `warnings` (messages) are
         listed in a section of the page of their own. `figures`
         (:class:`fit.report.figure_queue.FigureQueue`) draws the figures; default one of
         its own, with :func:`~fit.report.figure_queue.default_helpers` helper processes.

@@ -155,8 +155,9 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
                 result.save(stage, inputs=[capture], figures=figures, wait=False)
                 stages["exports"] = time.perf_counter() - tic
                 tic = time.perf_counter()
+                # the inputs with the digests of the take's record (read once a run)
                 result.report(stage / "report", warnings=caught, figures=figures,
-                              inputs={"capture": capture, **config.shared_inputs})
+                              inputs={"capture": provenance.capture, **provenance.inputs})
                 stages["report"] = time.perf_counter() - tic
         summary = {"status": "ok", "skipped": False, "error": None,
                    "seconds": round(time.perf_counter() - start, 3),
