@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import cv2
 import matplotlib
 import numpy as np
 import pytest
 import trimesh
+from helpers import kernel_or_numpy, numba_cannot_cache
 from tolerances import (
     EXACT_FLOAT64,
     RENDER_EXACT_PX,
+    RENDER_KERNEL_LEVELS,
+    RENDER_KERNEL_PIXELS,
     RENDER_POINT_CENTRE_PX,
     RENDER_POINT_RGB_LEVELS,
     RENDER_RGB_LEVELS,
@@ -25,6 +32,7 @@ from mocap.viz.render import (
     Camera,
     Lighting,
     colorbar,
+    compiled_renders,
     image_grid,
     render_mesh,
     save_png,
@@ -59,6 +67,14 @@ def _not_background(image) -> np.ndarray:
     return np.any(image != 255, axis=2)
 
 
+@pytest.fixture(params=["compiled", "numpy"])
+def raster_by(request, monkeypatch):
+    """The z-buffer and the shading by numba's loops over the triangles and the pixels (the
+    `speed` extra, in .[test]) or by NumPy's batches of fragments."""
+    return kernel_or_numpy(request.param, monkeypatch, _raster, "_compiled_kernels",
+                           "_TRIANGLES_WORTH_COMPILING")
+
+
 # ---------------------------------------------------------------- rasterizer
 
 def _brute_force_faces(xy, depth, faces, width, height):
@@ -79,7 +95,7 @@ def _brute_force_faces(xy, depth, faces, width, height):
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_rasterizer_matches_brute_force(seed):
+def test_rasterizer_matches_brute_force(seed, raster_by):
     rng = np.random.default_rng(seed)
     width, height = 90, 70
     # small and large triangles (tiled), some reaching past the image border
@@ -99,11 +115,21 @@ def test_rasterizer_matches_brute_force(seed):
                                centre, atol=RENDER_EXACT_PX)
 
 
+def test_of_triangles_at_the_same_depth_the_last_drawn_is_seen(raster_by):
+    """A tie in the z-buffer (here the same triangle drawn three times) goes to the triangle
+    drawn last, whichever way the buffer is made."""
+    xy = np.array([[5.0, 5.0], [60.0, 8.0], [30.0, 50.0]])
+    depth = np.array([1.0, 2.0, 3.0])
+    frags = _raster.rasterize(xy, depth, np.array([[0, 1, 2]] * 3), 64, 64)
+    assert len(frags.pixel) > 500
+    np.testing.assert_array_equal(frags.face, 2)
+
+
 # ---------------------------------------------------------------- geometry oracles
 
 @pytest.mark.parametrize("supersample", [1, 2, 3])
 @pytest.mark.parametrize("view", VIEWS)
-def test_sphere_silhouette_is_pi_r_squared(view, supersample):
+def test_sphere_silhouette_is_pi_r_squared(view, supersample, raster_by):
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=2.0)
     cam = Camera.fit(sphere.vertices, view=view, size=(300, 260), margin=0.1)
     image = render_mesh(sphere.vertices, sphere.faces, camera=cam, supersample=supersample,
@@ -116,7 +142,7 @@ def test_sphere_silhouette_is_pi_r_squared(view, supersample):
     assert area == pytest.approx(np.pi * radius_px ** 2 + rim, rel=RENDER_SILHOUETTE_REL)
 
 
-def test_near_triangle_hides_far_one_in_any_order():
+def test_near_triangle_hides_far_one_in_any_order(raster_by):
     near, faces = _square(z=1.0)
     far, _ = _square(z=-1.0, half=1.5)
     vertices = np.concatenate([near, far])
@@ -135,7 +161,7 @@ def test_near_triangle_hides_far_one_in_any_order():
 
 
 @pytest.mark.parametrize("kind", ["rgb", "uint8", "scalar"])
-def test_constant_colour_field_renders_that_colour_where_lit(kind):
+def test_constant_colour_field_renders_that_colour_where_lit(kind, raster_by):
     vertices, faces = _grid()
     light = Lighting(direction=(0, 0, 1), ambient=0.3, diffuse=0.6, specular=0.0)
     rgb = np.array([0.2, 0.7, 0.4])
@@ -154,7 +180,7 @@ def test_constant_colour_field_renders_that_colour_where_lit(kind):
     assert np.abs(inner - expected).max() <= RENDER_RGB_LEVELS
 
 
-def test_plane_facing_the_light_is_brighter_than_one_at_60_degrees():
+def test_plane_facing_the_light_is_brighter_than_one_at_60_degrees(raster_by):
     light = Lighting(direction=(0, 0, 1), ambient=0.2, diffuse=0.8, specular=0.0)
     vertices, faces = _square()
     c, s = np.cos(np.radians(60)), np.sin(np.radians(60))
@@ -233,7 +259,7 @@ def test_points_are_drawn_where_the_camera_projects_them(supersample):
 
 
 @pytest.mark.parametrize("hidden", HIDDEN_POINTS)
-def test_points_behind_the_mesh(hidden):
+def test_points_behind_the_mesh(hidden, raster_by):
     vertices, faces = _square(z=0.0)
     points = np.array([[0.0, 0.0, -1.0]])                    # behind the square
     cam = _camera()
@@ -268,7 +294,7 @@ def test_shape_and_dtype(size, supersample):
     assert (image[0, 0] == WHITE).all()
 
 
-def test_nan_scalars_render_grey_and_empty_faces_render_white():
+def test_nan_scalars_render_grey_and_empty_faces_render_white(raster_by):
     vertices, faces = _grid()
     colors = np.full(len(vertices), np.nan)
     image = render_mesh(vertices, faces, camera=_camera(), colors=colors, lighting=FLAT)
@@ -369,7 +395,7 @@ def ict_smile(ict_expressions_dir):
     return load_mesh(ict_expressions_dir / "mouthSmile_L.obj", units="cm")
 
 
-def test_ict_face_front_view_has_no_holes_and_faces_the_viewer(ict_mesh):
+def test_ict_face_front_view_has_no_holes_and_faces_the_viewer(ict_mesh, raster_by):
     neutral = ict_mesh
     cam = Camera.fit(neutral.vertices, size=(300, 300)).zoomed(1)
     proj = cam.project(neutral.vertices)
@@ -385,7 +411,7 @@ def test_ict_face_front_view_has_no_holes_and_faces_the_viewer(ict_mesh):
     assert frags.front[frags.face].mean() > 0.97
 
 
-def test_ict_left_smile_is_on_the_viewer_right(ict_mesh, ict_smile):
+def test_ict_left_smile_is_on_the_viewer_right(ict_mesh, ict_smile, raster_by):
     neutral, smile = ict_mesh, ict_smile
     error = np.linalg.norm(smile.vertices - neutral.vertices, axis=1)
     image = render_mesh(smile.vertices, smile.faces, size=(200, 200), colors=error,
@@ -393,3 +419,75 @@ def test_ict_left_smile_is_on_the_viewer_right(ict_mesh, ict_smile):
     hot = (image[:, :, 0] > 128) & np.any(image != 255, axis=2)    # bright, not background
     cols = np.nonzero(hot)[1]
     assert len(cols) > 20 and cols.mean() > 110
+
+
+@pytest.mark.parametrize("colours", ["clay", "rgb", "scalars"])
+@pytest.mark.parametrize("view", VIEWS)
+def test_the_compiled_render_is_numpys(ict_mesh, ict_smile, monkeypatch, colours, view):
+    """The compiled scan and shading against NumPy's batches of fragments (the oracle), on
+    the ICT face smiling: the same depth and triangle at every pixel, bit for bit, and the
+    same picture but where the specular power's last bit moves a pixel's 8-bit level."""
+    vertices, faces = ict_smile.vertices, ict_smile.faces
+    moved = np.linalg.norm(vertices - ict_mesh.vertices, axis=1)
+    moved[::53] = np.nan                                    # grey vertices among the scalars
+    colors = {"clay": None, "scalars": moved,
+              "rgb": np.random.default_rng(2).uniform(0, 1, vertices.shape)}[colours]
+    cam = Camera.fit(vertices, view=view, size=(216, 248))
+    proj = cam.zoomed(2).project(vertices)
+    planes = _raster._Planes.of(proj[:, :2], proj[:, 2], faces)
+
+    def both(function):
+        got = {}
+        for way in ("compiled", "numpy"):
+            with monkeypatch.context() as patch:
+                kernel_or_numpy(way, patch, _raster, "_compiled_kernels",
+                                "_TRIANGLES_WORTH_COMPILING")
+                got[way] = function()
+        return got["compiled"], got["numpy"]
+    (zbuf, fbuf), (zbuf_np, fbuf_np) = both(lambda: planes.zbuffer(*cam.zoomed(2).size))
+    np.testing.assert_array_equal(zbuf, zbuf_np)
+    np.testing.assert_array_equal(fbuf, fbuf_np)
+    assert (fbuf >= 0).mean() > 0.2
+    image, image_np = both(lambda: render_mesh(
+        vertices, faces, camera=cam, colors=colors, vmin=0.0, vmax=float(np.nanmax(moved)),
+        points=vertices[::300], hidden_points="dim"))
+    levels = np.abs(image.astype(int) - image_np.astype(int))
+    assert levels.max() <= RENDER_KERNEL_LEVELS
+    assert (levels > 0).any(axis=2).mean() <= RENDER_KERNEL_PIXELS
+
+
+def test_numba_without_a_cache_folder_renders_with_numpy_and_a_warning(monkeypatch):
+    """numba raises RuntimeError when it can write its compiled code nowhere (a read-only
+    install and home): NumPy renders, with a warning saying so, the same picture."""
+    vertices, faces = _grid()
+    expected = render_mesh(vertices, faces, camera=_camera())
+    monkeypatch.setattr(_raster, "_TRIANGLES_WORTH_COMPILING", 0)
+    numba_cannot_cache(monkeypatch, "mocap.viz._raster_kernel")
+    _raster._compiled_kernels.cache_clear()
+    try:
+        with pytest.warns(UserWarning, match="compiled mesh rasterizer is off .*no locator"):
+            got = render_mesh(vertices, faces, camera=_camera())
+        assert _raster._compiled_kernels() is None
+    finally:
+        monkeypatch.undo()
+        _raster._compiled_kernels.cache_clear()
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_compiled_renders_loads_numba_only_for_work_that_pays_for_it():
+    """In a process that has not loaded numba, a few small renders leave it unloaded (NumPy
+    draws them); a video's worth of renders loads it, and render_mesh then uses it."""
+    script = (
+        "import sys\n"
+        "from mocap.viz import _raster\n"
+        "from mocap.viz.render import compiled_renders\n"
+        "small = compiled_renders(3, 1000)\n"
+        "loaded_small = 'numba' in sys.modules\n"
+        "large = compiled_renders(300, 18460)\n"
+        "print(small, loaded_small, large, 'numba' in sys.modules,"
+        " _raster.kernels_for(1) is not None)\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         check=True, cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.split() == ["False", "False", "True", "True", "True"]
+    with pytest.raises(InputError, match="n_renders"):
+        compiled_renders(-1, 10)

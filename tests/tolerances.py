@@ -280,6 +280,11 @@ RENDER_SILHOUETTE_REL = 0.01
 RENDER_RGB_LEVELS = 2
 #: A point's colour dimmed behind the mesh against the blend formula, 8-bit levels (rounding).
 RENDER_POINT_RGB_LEVELS = 1
+#: The compiled shading against NumPy's, 8-bit levels: the specular power's float32 ``**``
+#: may differ from NumPy's in the last bit, which can move a pixel across a rounding edge.
+RENDER_KERNEL_LEVELS = 1
+#: Share of a render's pixels the compiled shading may give another 8-bit level than NumPy's.
+RENDER_KERNEL_PIXELS = 1e-3
 #: Pixel coordinates that only float64 rounding separates from their oracle (pixel
 #: centres from barycentric coordinates, the framing margin), px.
 RENDER_EXACT_PX = 1e-9

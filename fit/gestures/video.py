@@ -28,7 +28,7 @@ from mocap.mesh.mesh import Mesh
 from mocap.util.atomic import atomic_path
 from mocap.util.optional import available, require
 from mocap.util.validation import as_float_array, as_int, as_positive_float
-from mocap.viz.render import Camera, render_mesh
+from mocap.viz.render import Camera, compiled_renders, render_mesh
 from mocap.viz.webm import WebmWriter
 
 __all__ = ["write_talking_video", "AUDIO_RATE"]
@@ -129,6 +129,7 @@ def write_talking_video(path, neutral: Mesh, displacements, weights, *, rate: fl
 def _write_frames(path: Path, neutral, displacements, weights, camera, rate, rotation,
                   translation) -> None:
     writer = WebmWriter(path, rate, camera.size)
+    compiled_renders(len(weights), neutral.n_faces)         # loaded once for every frame
     progress = tqdm(total=len(weights), unit="frame", desc="talking video", disable=None,
                     leave=False)
     try:

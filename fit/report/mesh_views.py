@@ -15,7 +15,14 @@ import cv2
 import numpy as np
 
 from mocap.errors import InputError
-from mocap.viz.render import Camera, colorbar, image_grid, render_mesh, save_png
+from mocap.viz.render import (
+    Camera,
+    colorbar,
+    compiled_renders,
+    image_grid,
+    render_mesh,
+    save_png,
+)
 
 __all__ = ["MESH_VIEWS", "MeshSpace", "mesh_cameras", "plot_mesh_frames"]
 
@@ -123,6 +130,7 @@ def plot_mesh_frames(vertices, faces, path, *, captions, cameras: dict, markers=
             vmax = float(finite.max()) if finite.size else 1.0
         vmax = max(float(vmax), 1e-9)
     images, labels = [], []
+    compiled_renders(len(vertices) * len(MESH_VIEWS), len(faces))    # when they pay for it
     for k, frame in enumerate(vertices):
         points = None if markers is None else np.asarray(markers[k], dtype=float)
         for view in MESH_VIEWS:

@@ -1,24 +1,31 @@
-"""Numerics of :mod:`mocap.viz.render`: a vectorized z-buffer rasterizer and shading.
+"""Numerics of :mod:`mocap.viz.render`: a z-buffer rasterizer and shading.
 
 Conventions: image coordinates are continuous pixels, ``x`` to the right and
 ``y`` downwards; pixel ``(row, col)`` covers ``[col, col + 1) x [row, row + 1)``
 and is sampled at its centre ``(col + 0.5, row + 0.5)``. Depth grows towards
 the viewer (the nearest fragment has the largest depth).
 
-Scan conversion, vectorized: every triangle is cut into the pixel rows of its
-bounding box; on each row the three barycentric coordinates are linear in
-``x``, so the span of pixel centres where all are >= 0 comes from where each
-one vanishes. Spans are expanded into fragments (pixel, depth) in batches of
-about ``_BATCH`` pixels, and a scatter-max (``np.maximum.at``) merges each
-batch into the z-buffer. Only pixels inside triangles are ever generated.
+Scan conversion: every triangle is cut into the pixel rows of its bounding box;
+on each row the three barycentric coordinates are linear in ``x``, so the span
+of pixel centres where all are >= 0 comes from where each one vanishes. Only
+pixels inside triangles are ever generated. In NumPy, spans are expanded into
+fragments (pixel, depth) in batches of about ``_BATCH`` pixels, and a
+scatter-max (``np.maximum.at``) merges each batch into the z-buffer; the
+covered pixels are then shaded as arrays. Where numba is loaded (the ``speed``
+extra), :mod:`mocap.viz._raster_kernel` walks the same spans and shades the
+same pixels one by one, with the same arithmetic (:func:`paint`).
 """
 
 from __future__ import annotations
 
+import functools
+import importlib
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from mocap.util.optional import compiled, compiled_if_worth
 
 #: Fragments generated per vectorized batch (~60 bytes each while live).
 _BATCH = 1 << 18
@@ -29,6 +36,10 @@ _X_EPS = 1e-7
 _EDGE_EPS = 1e-9
 #: Triangles whose doubled screen area is below this (pixels^2) are edge-on: skipped.
 _MIN_AREA2 = 1e-12
+#: Triangles (summed over the renders to come) from which the compiled kernels are worth
+#: loading numba in a process that has not: its import and the kernels' load take about
+#: 0.35 s, and they save about 0.6 µs a triangle (the ICT face at a report's cell size).
+_TRIANGLES_WORTH_COMPILING = 600_000
 
 
 @dataclass(frozen=True)
@@ -94,6 +105,97 @@ def _merge(zbuf, fbuf, pix, depth, face) -> None:
     fbuf[pix[win]] = face[win]
 
 
+def _scan_triangles(live, y, a, u, v, za, zu, zv, width: int, height: int, zbuf,
+                    fbuf) -> None:
+    """Draw the triangles `live` into the z-buffer `zbuf` and `fbuf` (H W,), in place: their
+    (triangle, row) spans expanded into fragments ``_BATCH`` pixels at a time, each batch
+    merged by a scatter-max (:func:`_merge`)."""
+    tri, row = _rows(y, live, height)
+    first, count = _spans(a, u, v, tri, row, width)
+    base = row * width + first                                  # pixel of each span start
+    z0 = za[tri] + zu[tri] * (first + 0.5) + zv[tri] * (row + 0.5)
+    dz = zu[tri]
+    ends = np.cumsum(count)
+    cuts = np.searchsorted(ends, np.arange(_BATCH, ends[-1] if len(ends) else 0, _BATCH))
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(count)]):
+        n = count[lo:hi]
+        offset = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+        _merge(zbuf, fbuf, np.repeat(base[lo:hi], n) + offset,
+               np.repeat(z0[lo:hi], n) + np.repeat(dz[lo:hi], n) * offset,
+               np.repeat(tri[lo:hi], n))
+
+
+@functools.cache
+def _compiled_kernels():
+    """(:func:`~mocap.viz._raster_kernel.scan_triangles`,
+    :func:`~mocap.viz._raster_kernel.shade_pixels`), or None (NumPy rasterizes and shades):
+    :func:`mocap.util.optional.compiled`."""
+    scan = compiled("mocap.viz._raster_kernel", "scan_triangles", what="mesh rasterizer",
+                    fallback="NumPy rasterizes and shades, several times slower")
+    return None if scan is None else (scan, importlib.import_module(scan.__module__).shade_pixels)
+
+
+def kernels_for(n_triangles: int):
+    """The compiled kernels (:func:`_compiled_kernels`) where numba is loaded already or
+    rendering `n_triangles` in all pays for loading it (it is then loaded); else None."""
+    return compiled_if_worth(_compiled_kernels, n_triangles, _TRIANGLES_WORTH_COMPILING)
+
+
+@dataclass(frozen=True)
+class _Planes:
+    """Each triangle's barycentric and depth planes in image coordinates.
+
+    Barycentric coordinate i of triangle t at (x, y) is ``a[i, t] + u[i, t] x + v[i, t] y``
+    and its depth ``za[t] + zu[t] x + zv[t] y``; `y` (3, F) holds the corners' rows;
+    `live` the triangles that are not edge-on, in order; `front` as in :class:`Fragments`.
+    """
+
+    y: np.ndarray
+    a: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    za: np.ndarray
+    zu: np.ndarray
+    zv: np.ndarray
+    live: np.ndarray
+    front: np.ndarray
+
+    @classmethod
+    def of(cls, xy: np.ndarray, depth: np.ndarray, faces: np.ndarray) -> "_Planes":
+        """The planes of `faces` (F, 3) with vertices at `xy` (N, 2) pixels, `depth` (N,)."""
+        x = [xy[faces[:, i], 0] for i in range(3)]                 # per corner, (F,) each
+        y = [xy[faces[:, i], 1] for i in range(3)]
+        z = [depth[faces[:, i]] for i in range(3)]
+        cyc = [(1, 2), (2, 0), (0, 1)]
+        # b_i(p) = (a_i + u_i p_x + v_i p_y) / area2, (i, j, k) cyclic
+        a = [x[j] * y[k] - x[k] * y[j] for j, k in cyc]
+        u = [y[j] - y[k] for j, k in cyc]
+        v = [x[k] - x[j] for j, k in cyc]
+        area2 = a[0] + a[1] + a[2]
+        keep = np.abs(area2) > _MIN_AREA2
+        inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=keep)
+        a, u, v = [np.stack([c * inv for c in coef]) for coef in (a, u, v)]
+        # depth plane of each triangle: z(p) = sum_i b_i(p) z_i = za + zu p_x + zv p_y
+        za, zu, zv = [c[0] * z[0] + c[1] * z[1] + c[2] * z[2] for c in (a, u, v)]
+        # image y points down: counter-clockwise is negative
+        return cls(np.stack(y), a, u, v, za, zu, zv, np.flatnonzero(keep), area2 < 0)
+
+    def zbuffer(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        """The depth (H W,) of the nearest fragment of each pixel (``-inf`` for none) and its
+        triangle (-1 for none), by the compiled scan where it is worth loading, else NumPy's:
+        the same bits."""
+        zbuf = np.full(width * height, -np.inf)
+        fbuf = np.full(width * height, -1, dtype=np.int64)
+        kernels = kernels_for(len(self.live))
+        if kernels is not None:
+            kernels[0](self.live, self.y, self.a, self.u, self.v, self.za, self.zu, self.zv, width,
+                   height, _X_EPS, _EDGE_EPS, zbuf, fbuf)
+        else:
+            _scan_triangles(self.live, self.y, self.a, self.u, self.v, self.za, self.zu,
+                            self.zv, width, height, zbuf, fbuf)
+        return zbuf, fbuf
+
+
 def rasterize(xy: np.ndarray, depth: np.ndarray, faces: np.ndarray,
               width: int, height: int) -> Fragments:
     """Z-buffer rasterization of triangles in image coordinates.
@@ -108,45 +210,75 @@ def rasterize(xy: np.ndarray, depth: np.ndarray, faces: np.ndarray,
     width, height : int
         Image size, pixels.
     """
-    x = [xy[faces[:, i], 0] for i in range(3)]                 # per corner, (F,) each
-    y = [xy[faces[:, i], 1] for i in range(3)]
-    z = [depth[faces[:, i]] for i in range(3)]
-    cyc = [(1, 2), (2, 0), (0, 1)]
-    # b_i(p) = (a_i + u_i p_x + v_i p_y) / area2, (i, j, k) cyclic
-    a = [x[j] * y[k] - x[k] * y[j] for j, k in cyc]
-    u = [y[j] - y[k] for j, k in cyc]
-    v = [x[k] - x[j] for j, k in cyc]
-    area2 = a[0] + a[1] + a[2]
-    front = area2 < 0                  # image y points down: counter-clockwise is negative
-    keep = np.abs(area2) > _MIN_AREA2
-    inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=keep)
-    a, u, v = [[c * inv for c in coef] for coef in (a, u, v)]
-    # depth plane of each triangle: z(p) = sum_i b_i(p) z_i = za + zu p_x + zv p_y
-    za, zu, zv = [c[0] * z[0] + c[1] * z[1] + c[2] * z[2] for c in (a, u, v)]
-
-    zbuf = np.full(width * height, -np.inf)
-    fbuf = np.full(width * height, -1, dtype=np.int64)
-    tri, row = _rows(y, np.flatnonzero(keep), height)
-    first, count = _spans(a, u, v, tri, row, width)
-    base = row * width + first                                  # pixel of each span start
-    z0 = za[tri] + zu[tri] * (first + 0.5) + zv[tri] * (row + 0.5)
-    dz = zu[tri]
-    ends = np.cumsum(count)
-    cuts = np.searchsorted(ends, np.arange(_BATCH, ends[-1] if len(ends) else 0, _BATCH))
-    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(count)]):
-        n = count[lo:hi]
-        offset = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-        _merge(zbuf, fbuf, np.repeat(base[lo:hi], n) + offset,
-               np.repeat(z0[lo:hi], n) + np.repeat(dz[lo:hi], n) * offset,
-               np.repeat(tri[lo:hi], n))
+    planes = _Planes.of(xy, depth, faces)
+    zbuf, fbuf = planes.zbuffer(width, height)
     pixel = np.flatnonzero(fbuf >= 0)
     face = fbuf[pixel]
     px, py = pixel % width + 0.5, pixel // width + 0.5
     bary = np.empty((3, len(pixel)))
     for i in range(2):
-        bary[i] = np.take(a[i], face) + np.take(u[i], face) * px + np.take(v[i], face) * py
+        bary[i] = (np.take(planes.a[i], face) + np.take(planes.u[i], face) * px
+                   + np.take(planes.v[i], face) * py)
     bary[2] = 1.0 - bary[0] - bary[1]
-    return Fragments(pixel=pixel, face=face, bary=bary, depth=zbuf, front=front)
+    return Fragments(pixel=pixel, face=face, bary=bary, depth=zbuf, front=planes.front)
+
+
+def paint(image: np.ndarray, width: int, xy: np.ndarray, depth: np.ndarray, faces: np.ndarray,
+          normals: np.ndarray, *, values, lut, vmin: float, vmax: float, base_rgb, nan_rgb,
+          light: np.ndarray, ambient: float, diffuse: float, specular: float,
+          shininess: float) -> np.ndarray:
+    """Rasterize the triangles and write the shaded colour of every pixel they cover into
+    `image`; returns the z-buffer.
+
+    :func:`rasterize`, then :func:`interpolate` (and :func:`scalar_rgb`) and :func:`shade`,
+    or the same pixel by pixel by the compiled kernels where they are worth loading (the
+    same to the last bit of the specular power).
+
+    Parameters
+    ----------
+    image : ndarray of shape (3, H * W), float32
+        Planar RGB in [0, 1], written where a triangle is seen.
+    width : int
+        W, pixels.
+    xy, depth, faces
+        As for :func:`rasterize`.
+    normals : ndarray of shape (N, 3)
+        Unit vertex normals in camera coordinates.
+    values : ndarray of shape (N, 3) or (N, 1), or None
+        Vertex RGB in [0, 1]; or scalars, looked up in `lut` (L, 3) over [`vmin`, `vmax`]
+        (NaN: `nan_rgb`); None: every triangle is `base_rgb`.
+    light, ambient, diffuse, specular, shininess
+        As for :func:`shade`.
+
+    Returns
+    -------
+    ndarray of shape (H * W,)
+        Depth of the nearest fragment of each pixel, ``-inf`` where nothing is drawn.
+    """
+    height = image.shape[1] // width
+    kernels = kernels_for(len(faces))
+    if kernels is None:
+        frags = rasterize(xy, depth, faces, width, height)
+        if values is None:
+            base = np.broadcast_to(np.float32(base_rgb)[:, None], (3, len(frags.pixel)))
+        else:
+            base = interpolate(values, faces, frags)
+        if lut is not None:
+            base = scalar_rgb(base[0], lut, vmin, vmax, nan_rgb=nan_rgb)
+        image[:, frags.pixel] = shade(normals, faces, frags, base, light=light,
+                                      ambient=ambient, diffuse=diffuse, specular=specular,
+                                      shininess=shininess)
+        return frags.depth
+    planes = _Planes.of(xy, depth, faces)
+    zbuf, fbuf = planes.zbuffer(width, height)
+    kernels[1](fbuf, width, planes.a, planes.u, planes.v, faces, planes.front,
+           np.ascontiguousarray(normals, dtype=np.float32),
+           None if values is None else np.ascontiguousarray(values, dtype=float),
+           None if lut is None else np.ascontiguousarray(lut, dtype=float), float(vmin),
+           float(vmax),
+           np.asarray(nan_rgb, dtype=float), np.float32(base_rgb), light, _half_vector(light),
+           ambient, diffuse, specular, shininess, image)
+    return zbuf
 
 
 def interpolate(values: np.ndarray, faces: np.ndarray, frags: Fragments) -> np.ndarray:
@@ -185,10 +317,8 @@ def shade(normals: np.ndarray, faces: np.ndarray, frags: Fragments, base: np.nda
     nx, ny, nz = interpolate(normals.astype(np.float32), faces, frags)
     norm = np.sqrt(nx * nx + ny * ny + nz * nz)
     norm *= np.where(np.take(frags.front, frags.face), 1.0, -1.0).astype(np.float32)
-    half = light + [0.0, 0.0, 1.0]
-    half /= np.linalg.norm(half)
     cosines = []
-    for d in (light, half):
+    for d in (light, _half_vector(light)):
         dot = nx * np.float32(d[0]) + ny * np.float32(d[1]) + nz * np.float32(d[2])
         cosines.append(np.divide(dot, norm, where=norm != 0,
                                  out=np.full(len(dot), d[2], dtype=np.float32)))
@@ -198,6 +328,12 @@ def shade(normals: np.ndarray, faces: np.ndarray, frags: Fragments, base: np.nda
     rgb = base.astype(np.float32) * (np.float32(ambient) + np.float32(diffuse) * lambert)
     rgb += spec
     return np.clip(rgb, 0.0, 1.0, out=rgb)
+
+
+def _half_vector(light: np.ndarray) -> np.ndarray:
+    """Blinn-Phong's half-vector of the unit `light` direction and the view (+z), (3,)."""
+    half = light + [0.0, 0.0, 1.0]
+    return half / np.linalg.norm(half)
 
 
 def scalar_rgb(values: np.ndarray, lut: np.ndarray, vmin: float, vmax: float, *,

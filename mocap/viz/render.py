@@ -1,4 +1,4 @@
-"""Shaded pictures of face meshes: a small, fast software renderer (NumPy, no GPU).
+"""Shaded pictures of face meshes: a small, fast software renderer (NumPy or numba, no GPU).
 
 :func:`render_mesh` draws a triangle mesh with an orthographic :class:`Camera`,
 a z-buffer, per-pixel interpolated vertex normals, Lambert + ambient +
@@ -40,8 +40,8 @@ from mocap.util.atomic import atomic_path
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positive_float
 from mocap.viz import _raster
 
-__all__ = ["VIEWS", "HIDDEN_POINTS", "Camera", "Lighting", "render_mesh", "colorbar",
-           "image_grid", "save_png"]
+__all__ = ["VIEWS", "HIDDEN_POINTS", "Camera", "Lighting", "render_mesh", "compiled_renders",
+           "colorbar", "image_grid", "save_png"]
 
 #: Named views of :meth:`Camera.fit` (any 3x3 rotation is accepted too).
 VIEWS = ("front", "side", "three_quarter")
@@ -338,11 +338,12 @@ def render_mesh(vertices, faces, *, view="front", size=None, camera: Camera | No
 
     Notes
     -----
-    Vectorized scan conversion (see :mod:`mocap.viz._raster`) at `supersample`
-    times the size; nearest fragment per pixel by a scatter-max z-buffer;
-    normals, colours and scalars interpolated per pixel with barycentric
-    coordinates (scalars are mapped after interpolation, so colour bands are
-    exact); two-sided lighting; box-filter downsampling.
+    Scan conversion (see :mod:`mocap.viz._raster`: vectorized, or compiled
+    where numba is loaded) at `supersample` times the size; nearest fragment
+    per pixel by a z-buffer; normals, colours and scalars interpolated per
+    pixel with barycentric coordinates (scalars are mapped after
+    interpolation, so colour bands are exact); two-sided lighting; box-filter
+    downsampling.
     """
     vertices = _as_vertices(vertices, "vertices")
     faces = _as_faces(faces, len(vertices))
@@ -365,26 +366,33 @@ def render_mesh(vertices, faces, *, view="front", size=None, camera: Camera | No
     cam = camera.zoomed(factor)
     width, height = cam.size
     proj = cam.project(vertices)
-    frags = _raster.rasterize(proj[:, :2], proj[:, 2], faces, width, height)
-    if values is None:
-        base = np.broadcast_to(np.float32(_DEFAULT_RGB)[:, None], (3, len(frags.pixel)))
-    else:
-        base = _raster.interpolate(values, faces, frags)
-    if lut is not None:
-        base = _raster.scalar_rgb(base[0], lut, lo, hi, nan_rgb=_NAN_RGB)
-    normals = vertex_normals(vertices, faces) @ cam.rotation.T
-    rgb = _raster.shade(normals, faces, frags, base, light=np.asarray(lighting.direction),
-                        ambient=lighting.ambient, diffuse=lighting.diffuse,
-                        specular=lighting.specular, shininess=lighting.shininess)
     image = np.ones((3, width * height), dtype=np.float32)      # one plane per channel
-    image[:, frags.pixel] = rgb
+    zbuf = _raster.paint(image, width, proj[:, :2], proj[:, 2], faces,
+                         vertex_normals(vertices, faces) @ cam.rotation.T, values=values,
+                         lut=lut, vmin=lo, vmax=hi, base_rgb=_DEFAULT_RGB, nan_rgb=_NAN_RGB,
+                         light=np.asarray(lighting.direction), ambient=lighting.ambient,
+                         diffuse=lighting.diffuse, specular=lighting.specular,
+                         shininess=lighting.shininess)
     if points is not None:
         diag = np.linalg.norm(np.ptp(vertices, axis=0))
-        _raster.draw_points(image, frags.depth, cam.project(points), point_colors, cam.size,
+        _raster.draw_points(image, zbuf, cam.project(points), point_colors, cam.size,
                             radius=point_radius * factor, rim=factor, rim_rgb=_RIM_RGB,
                             hidden=hidden_points, tolerance=_POINT_DEPTH_REL * diag)
     image = _raster.downsample(image.reshape(3, height, width), factor)
     return np.round(image * 255).astype(np.uint8)
+
+
+def compiled_renders(n_renders: int, n_faces: int) -> bool:
+    """Whether the next `n_renders` renders of a mesh of `n_faces` triangles are drawn by the
+    compiled z-buffer and shading (numba: the ``speed`` extra), loading numba for them when
+    they pay for it (a video's frames; about 0.35 s to load, 0.6 µs saved a triangle).
+
+    Without this, :func:`render_mesh` loads it only for a mesh large enough on its own, and
+    uses it in any process that has loaded it (e.g. for a fit). The pictures are the same
+    either way (to the last bit of the specular power: see :mod:`mocap.viz._raster`).
+    """
+    n = as_int(n_renders, "n_renders", minimum=0) * as_int(n_faces, "n_faces", minimum=0)
+    return _raster.kernels_for(n) is not None
 
 
 def colorbar(*, vmin: float, vmax: float, cmap="viridis", height: int = 300, width: int = 90,
