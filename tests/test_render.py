@@ -125,6 +125,23 @@ def test_of_triangles_at_the_same_depth_the_last_drawn_is_seen(raster_by):
     np.testing.assert_array_equal(frags.face, 2)
 
 
+def test_triangles_far_off_the_image_draw_nothing_or_all_of_it(raster_by):
+    """Vertices 1e20 px away (beyond int64 once rounded to rows and columns): triangles
+    wholly above, below, left or right of the image draw nothing, and one around it covers
+    every pixel."""
+    far, width, height = 1e20, 40, 30
+    outside = [[(-far, -far), (far, -far), (0.0, -far / 2)],           # above
+               [(-far, 2 * far), (far, 2 * far), (0.0, far)],          # below
+               [(-far, -far), (-far / 2, 0.0), (-far, far)],           # left
+               [(2 * far, -far), (far, 0.0), (2 * far, far)]]          # right
+    xy = np.array(outside, dtype=float).reshape(-1, 2)
+    faces = np.arange(len(xy)).reshape(-1, 3)
+    assert len(_raster.rasterize(xy, np.zeros(len(xy)), faces, width, height).pixel) == 0
+    around = np.array([(-far, -far), (far, -far), (0.0, far)])
+    frags = _raster.rasterize(around, np.zeros(3), np.array([[0, 1, 2]]), width, height)
+    np.testing.assert_array_equal(frags.pixel, np.arange(width * height))
+
+
 # ---------------------------------------------------------------- geometry oracles
 
 @pytest.mark.parametrize("supersample", [1, 2, 3])

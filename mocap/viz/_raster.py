@@ -73,8 +73,9 @@ def _rows(y: list, live: np.ndarray, height: int):
     """(triangle, row) pairs of the pixel rows whose centres cross each live triangle."""
     lo = np.ceil(np.minimum(np.minimum(y[0], y[1]), y[2])[live] - 0.5)
     hi = np.floor(np.maximum(np.maximum(y[0], y[1]), y[2])[live] - 0.5)
-    lo = np.maximum(lo, 0).astype(np.int64)
-    hi = np.minimum(hi, height - 1).astype(np.int64)
+    # clamped to the image before they become integers: a vertex far off it would overflow
+    lo = np.clip(lo, 0.0, float(height)).astype(np.int64)
+    hi = np.clip(hi, -1.0, height - 1.0).astype(np.int64)
     n = np.maximum(hi - lo + 1, 0)
     tri = np.repeat(live, n)
     row = np.repeat(lo, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
@@ -93,8 +94,10 @@ def _spans(a, u, v, tri, row, width: int):
         np.maximum(left, np.where(ut > 0, x0 - _X_EPS, -1.0), out=left)
         np.minimum(right, np.where(ut < 0, x0 + _X_EPS, float(width)), out=right)
         flat_ok &= (ut != 0) | (c >= -_EDGE_EPS)
-    first = np.ceil(left - 0.5).astype(np.int64).clip(0, None)
-    last = np.floor(right - 0.5).astype(np.int64).clip(None, width - 1)
+    # clamped to the image before they become integers: a span end far off the image (a
+    # nearly horizontal edge) would overflow int64
+    first = np.maximum(np.ceil(np.minimum(left, float(width)) - 0.5), 0.0).astype(np.int64)
+    last = np.minimum(np.floor(np.maximum(right, -1.0) - 0.5), width - 1.0).astype(np.int64)
     return first, np.where(flat_ok, np.maximum(last - first + 1, 0), 0)
 
 

@@ -42,10 +42,12 @@ def scan_triangles(live, y, a, u, v, za, zu, zv, width, height, x_eps, edge_eps,
         Its triangle (-1 for none), updated: of fragments at the same depth, the last.
     """
     for t in live:
+        # rows clamped to the image before they become integers (as NumPy's): a vertex far
+        # off it would overflow int64
         top = min(min(y[0, t], y[1, t]), y[2, t])
         bottom = max(max(y[0, t], y[1, t]), y[2, t])
-        first_row = max(np.int64(np.ceil(top - 0.5)), 0)
-        last_row = min(np.int64(np.floor(bottom - 0.5)), height - 1)
+        first_row = np.int64(min(max(np.ceil(top - 0.5), 0.0), float(height)))
+        last_row = np.int64(max(min(np.floor(bottom - 0.5), height - 1.0), -1.0))
         for row in range(first_row, last_row + 1):
             cy = row + 0.5
             left, right = -1.0, float(width)
@@ -59,8 +61,8 @@ def scan_triangles(live, y, a, u, v, za, zu, zv, width, height, x_eps, edge_eps,
                 flat_ok &= (ut != 0) | (c >= -edge_eps)
             if not flat_ok:
                 continue
-            first = max(np.int64(np.ceil(left - 0.5)), 0)
-            last = min(np.int64(np.floor(right - 0.5)), width - 1)
+            first = np.int64(max(np.ceil(min(left, float(width)) - 0.5), 0.0))
+            last = np.int64(min(np.floor(max(right, -1.0) - 0.5), width - 1.0))
             z0 = za[t] + zu[t] * (first + 0.5) + zv[t] * cy
             dz = zu[t]
             base = row * width + first
