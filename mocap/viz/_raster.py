@@ -191,8 +191,9 @@ class _Planes:
         fbuf = np.full(width * height, -1, dtype=np.int64)
         kernels = kernels_for(len(self.live))
         if kernels is not None:
-            kernels[0](self.live, self.y, self.a, self.u, self.v, self.za, self.zu, self.zv, width,
-                   height, _X_EPS, _EDGE_EPS, zbuf, fbuf)
+            scan = kernels[0]
+            scan(self.live, self.y, self.a, self.u, self.v, self.za, self.zu, self.zv, width,
+                 height, _X_EPS, _EDGE_EPS, zbuf, fbuf)
         else:
             _scan_triangles(self.live, self.y, self.a, self.u, self.v, self.za, self.zu,
                             self.zv, width, height, zbuf, fbuf)
@@ -274,13 +275,14 @@ def paint(image: np.ndarray, width: int, xy: np.ndarray, depth: np.ndarray, face
         return frags.depth
     planes = _Planes.of(xy, depth, faces)
     zbuf, fbuf = planes.zbuffer(width, height)
-    kernels[1](fbuf, width, planes.a, planes.u, planes.v, faces, planes.front,
-           np.ascontiguousarray(normals, dtype=np.float32),
-           None if values is None else np.ascontiguousarray(values, dtype=float),
-           None if lut is None else np.ascontiguousarray(lut, dtype=float), float(vmin),
-           float(vmax),
-           np.asarray(nan_rgb, dtype=float), np.float32(base_rgb), light, _half_vector(light),
-           ambient, diffuse, specular, shininess, image)
+    shade_pixels = kernels[1]
+    shade_pixels(fbuf, width, planes.a, planes.u, planes.v, faces, planes.front,
+                 np.ascontiguousarray(normals, dtype=np.float32),
+                 None if values is None else np.ascontiguousarray(values, dtype=float),
+                 None if lut is None else np.ascontiguousarray(lut, dtype=float),
+                 float(vmin), float(vmax), np.asarray(nan_rgb, dtype=float),
+                 np.float32(base_rgb), light, _half_vector(light), ambient, diffuse, specular,
+                 shininess, image)
     return zbuf
 
 

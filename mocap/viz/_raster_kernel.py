@@ -164,6 +164,8 @@ def _colour(values, corners, bary, lut, vmin, vmax, nan_rgb,
     if np.isnan(value):
         return np.float32(nan_rgb[0]), np.float32(nan_rgb[1]), np.float32(nan_rgb[2])
     share = (value - vmin) / (vmax - vmin) if vmax > vmin else 0.5
+    if np.isnan(share):             # inf / inf: NumPy's nan_to_num makes it 0
+        share = 0.0
     index = np.int64(min(max(share * (lut.shape[0] - 1) + 0.5, 0.0), lut.shape[0] - 1.0))
     return np.float32(lut[index, 0]), np.float32(lut[index, 1]), np.float32(lut[index, 2])
 
