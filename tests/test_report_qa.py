@@ -11,6 +11,7 @@ import re
 
 import numpy as np
 import pytest
+from tolerances import RENDER_KERNEL_LEVELS
 
 from fit.demo import DEMO_MAX_GAP, make_demo_session
 from fit.pipeline.holdout import held_out_fits, time_blocked_splits
@@ -265,6 +266,34 @@ def test_mesh_renders_show_the_face_and_the_red_markers(demo):
         assert ((r > 150) & (g < 60) & (b < 60)).sum() > 200          # the markers
         shaded = (np.abs(r - g) < 20) & (r > 60) & (r < 235)          # grey-ish skin
         assert shaded.sum() > 10000 or key != "mesh-WD"
+
+
+def test_mesh_renders_are_drawn_here_where_this_process_renders_them_compiled(
+        demo, tmp_path, monkeypatch):
+    """Where this process has the compiled rasterizer (compiled_renders), the report draws
+    its mesh figures itself while the helpers draw the others; else it queues them. The
+    pictures are the same (to the specular power's last bit)."""
+    import cv2
+
+    import fit.report as report_module
+
+    queued, submit = [], FigureQueue.submit
+    monkeypatch.setattr(FigureQueue, "submit",
+                        lambda self, fn, *a, **k: queued.append(fn.__name__)
+                        or submit(self, fn, *a, **k))
+    pictures = {}
+    for here in (True, False):
+        monkeypatch.setattr(report_module, "compiled_renders", lambda *a, here=here: here)
+        queued.clear()
+        with FigureQueue(helpers=1) as figures:
+            files = demo["result"].report(tmp_path / str(here), figures=figures)
+        assert queued.count("plot_mesh_frames") == (0 if here else 4)
+        assert "plot_alpha" in queued
+        pictures[here] = {f.name: cv2.imread(str(f)).astype(int) for f in files
+                          if "-mesh-" in f.name}
+    assert len(pictures[True]) == 4 and pictures[True].keys() == pictures[False].keys()
+    for name, image in pictures[True].items():
+        assert np.abs(image - pictures[False][name]).max() <= RENDER_KERNEL_LEVELS
 
 
 # ---------------------------------------------------------------- the page

@@ -19,7 +19,7 @@ from fit.metrics import alpha_origin, reconstruction_errors
 from fit.report.extremes import take_extremes
 from fit.report.figure_queue import FigureQueue
 from fit.report.html import Figure, Section, Video, ingest_stats, write_report
-from fit.report.mesh_views import mesh_cameras, plot_mesh_frames
+from fit.report.mesh_views import MESH_VIEWS, mesh_cameras, plot_mesh_frames
 from fit.report.plots import plot_alpha, plot_error_heatmap, plot_held_out, plot_marker_errors
 from fit.report.retarget_qa import (
     cross_validation_section,
@@ -30,6 +30,7 @@ from fit.report.retarget_qa import (
 from fit.report.video import VIDEO_SUFFIX, write_overlay_video
 from fit.report.views import plot_frame_views, plottable_positions
 from mocap.errors import InputError
+from mocap.viz.render import compiled_renders
 
 __all__ = ["build_report"]
 
@@ -339,14 +340,19 @@ def _mesh_section(take, neutral, results, worst, space, markerset, out, files, n
         distances[basis] = np.linalg.norm(gap, axis=2) * space.mm_per_unit
     every = np.concatenate([d.ravel() for d in distances.values()])
     vmax = max(float(np.percentile(every, 99.0)), 0.5)
+    renders = (sum(len(frames) for frames in chosen.values()) + _MESH_RETARGETED) \
+        * len(MESH_VIEWS)
+    # drawn here where this process renders by the compiled rasterizer (a helper would by
+    # NumPy, about twice as slow), while the helpers draw the figures queued so far
+    render = _draw_here if compiled_renders(renders, len(space.faces)) else draw
     items = []
     for basis, frames in chosen.items():
         index = [t for t, _ in frames]
-        draw(plot_mesh_frames, space.basis_mesh(basis, index), space.faces,
-             out(f"mesh-{basis}"), captions=[c for _, c in frames], cameras=cameras,
-             markers=markers(index), colors=distances[basis], vmax=vmax,
-             color_label="mm to W.D",
-             title=f"{basis} mesh at its worst frames and the take's extremes")
+        render(plot_mesh_frames, space.basis_mesh(basis, index), space.faces,
+               out(f"mesh-{basis}"), captions=[c for _, c in frames], cameras=cameras,
+               markers=markers(index), colors=distances[basis], vmax=vmax,
+               color_label="mm to W.D",
+               title=f"{basis} mesh at its worst frames and the take's extremes")
         items.append(Figure(files[f"mesh-{basis}"], f"{basis}: the reconstructed mesh",
                             "Front and side of the mesh this basis gives (what the exports "
                             "play), coloured by each vertex's distance to the retargeted mesh "
@@ -362,12 +368,17 @@ def _mesh_section(take, neutral, results, worst, space, markerset, out, files, n
             seen.add(t)
             frames.append((t, caption))
     index = [t for t, _ in frames]
-    draw(plot_mesh_frames, space.retargeted_mesh(index), space.faces, out("mesh-WD"),
-         captions=[c for _, c in frames], cameras=cameras, markers=markers(index),
-         title="The retargeted mesh W.D at the same frames")
+    render(plot_mesh_frames, space.retargeted_mesh(index), space.faces, out("mesh-WD"),
+           captions=[c for _, c in frames], cameras=cameras, markers=markers(index),
+           title="The retargeted mesh W.D at the same frames")
     items.append(Figure(files["mesh-WD"], "W·D: the retargeted mesh",
                         "The mesh motion every basis is fitted to: if the mouth stays shut "
                         "here while the red markers open it, no basis can open it."))
     return Section("Mesh-space QA", text="The meshes themselves, where a marker-space figure "
                    "cannot see: a basis can match every marker and still deform the face "
                    "wrongly between them.", items=tuple(items))
+
+
+def _draw_here(function, *args, **kwargs) -> None:
+    """Draw the figure ``function(*args, **kwargs)`` in this process, now."""
+    function(*args, **kwargs)
