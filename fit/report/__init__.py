@@ -344,7 +344,7 @@ def _mesh_section(take, neutral, results, worst, space, markerset, out, files, n
         * len(MESH_VIEWS)
     # drawn here where this process renders by the compiled rasterizer (a helper would by
     # NumPy, about twice as slow), while the helpers draw the figures queued so far
-    render = _draw_here if compiled_renders(renders, len(space.faces)) else draw
+    render = _draw_now if compiled_renders(renders, len(space.faces)) else draw
     items = []
     for basis, frames in chosen.items():
         index = [t for t, _ in frames]
@@ -379,6 +379,6 @@ def _mesh_section(take, neutral, results, worst, space, markerset, out, files, n
                    "wrongly between them.", items=tuple(items))
 
 
-def _draw_here(function, *args, **kwargs) -> None:
+def _draw_now(function, *args, **kwargs) -> None:
     """Draw the figure ``function(*args, **kwargs)`` in this process, now."""
     function(*args, **kwargs)
