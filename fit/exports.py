@@ -21,7 +21,7 @@ from fit.solve.weights import WeightSolution
 from mocap.errors import FileFormatError, InputError
 from mocap.mesh.mesh import Mesh
 from mocap.util.atomic import atomic_path
-from mocap.util.float_text import csv_lines
+from mocap.util.float_text import write_csv_lines
 from mocap.util.npz import NotFiniteError, read_npz, write_npz
 from mocap.util.validation import as_float_array, as_int, as_positive_float, surely_finite
 
@@ -101,8 +101,7 @@ def write_weights_csv(path, weights, names, *, rate: float, first_frame: int = 1
     header = table.iloc[:0].to_csv(lineterminator="\n")          # quoted as needed
     with atomic_path(path, inputs=inputs) as tmp, open(tmp, "wb") as fh:
         fh.write(header.encode("utf-8"))
-        for lines in csv_lines(table.index.to_numpy(), table.to_numpy(dtype=np.float64)):
-            fh.write(lines)
+        write_csv_lines(fh, table.index.to_numpy(), table.to_numpy(dtype=np.float64))
 
 
 def read_weights_csv(path) -> pd.DataFrame:

@@ -7,7 +7,13 @@ import pytest
 from helpers import kernel_or_numpy, numba_cannot_cache
 
 from mocap.util import float_text
-from mocap.util.float_text import FIELD_WIDTH, _shortest_digits, csv_lines, float_fields
+from mocap.util.float_text import (
+    FIELD_WIDTH,
+    _shortest_digits,
+    csv_lines,
+    float_fields,
+    write_csv_lines,
+)
 
 N = 40_000
 
@@ -144,6 +150,20 @@ def test_a_wide_table_is_written_a_few_rows_at_a_time(lines_by, monkeypatch):
     blocks = list(csv_lines(np.arange(3), wide))
     assert [block.count(b"\n") for block in blocks] == [1, 1, 1]
     assert b"".join(blocks) == _percent_lines(np.arange(3), wide)
+
+
+def test_written_lines_are_the_percent_format_in_blocks_from_one_buffer(lines_by, monkeypatch,
+                                                                      tmp_path):
+    """write_csv_lines writes each block from the memory it is made in (the compiled kernel
+    makes every block in one buffer): the file holds every block as it was made, the text
+    of %d and %r."""
+    monkeypatch.setattr(float_text, "_CELLS_PER_BLOCK", 1000)
+    rng = np.random.default_rng(6)
+    cells = rng.normal(size=(400, 9)) * 10.0 ** rng.integers(-5, 8, (400, 9))
+    index = np.arange(400) + 1
+    with open(tmp_path / "lines.csv", "wb") as fh:
+        write_csv_lines(fh, index, cells)
+    assert (tmp_path / "lines.csv").read_bytes() == _percent_lines(index, cells)
 
 
 def test_no_lines_for_no_rows(lines_by):

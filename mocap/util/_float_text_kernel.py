@@ -29,8 +29,9 @@ _POW2 = np.ldexp(1.0, np.arange(_POW2_FIRST, 8))
 _PAIRS = np.ascontiguousarray(float_text._GROUPS[:100, 2:])
 
 
-def csv_block(index, cells, out) -> bytes:
-    """The CSV lines of a block of rows, as :func:`mocap.util.float_text.csv_lines` writes.
+def csv_block(index, cells, out) -> np.ndarray:
+    """The CSV lines of a block of rows, as :func:`mocap.util.float_text.csv_lines` writes,
+    as the view of `out` they are written into.
 
     Parameters
     ----------
@@ -45,7 +46,7 @@ def csv_block(index, cells, out) -> bytes:
     kinds = np.empty(values.size, np.uint8)
     shortest_digits(values, digits, exponents, kinds)
     texts, lengths = float_text._repr_fields(values[kinds == REPR])
-    return out[:lines(index, cells, digits, exponents, kinds, texts, lengths, out)].tobytes()
+    return out[:lines(index, cells, digits, exponents, kinds, texts, lengths, out)]
 
 
 @numba.njit(cache=True, nogil=True)
