@@ -22,6 +22,7 @@ import pandas as pd
 from mocap.errors import InputError, MarkerError
 from mocap.util.arrays import read_only
 from mocap.util.optional import compiled, compiled_if_worth
+from mocap.util.order_statistics import nan_column_percentiles, percentile
 from mocap.util.validation import as_choice, as_float_array, as_int, as_positions
 
 __all__ = ["ReconstructionErrors", "reconstruction_errors", "alpha_origin", "summary_frame",
@@ -294,20 +295,14 @@ def reconstruction_errors(captured, reconstructed, neutral, *, origin=None,
     marker_mean = marker_sums[0] / np.maximum(n_frames_valid, 1)
     marker_rms = np.sqrt(marker_sums[1] / np.maximum(n_frames_valid, 1))
     marker_max = np.fmax.reduce(errors, axis=0)             # NaN for a marker never counted
-    # along the rows of the transpose: each marker's errors are then contiguous to partition
-    if valid.all():
-        marker_p95 = np.percentile(errors.T, 95, axis=1)
-    else:
-        counted = errors.T[n_frames_valid > 0]
-        marker_p95 = np.full(n_markers, np.nan)
-        marker_p95[n_frames_valid > 0] = np.nanpercentile(counted, 95, axis=1)
+    marker_p95 = nan_column_percentiles(errors, 95)         # NaN for a marker never counted
 
     n_samples = int(n_valid.sum())
     all_err = errors[valid]
     total_err, total_pos, total_disp = sums.sum(axis=1)
     mean, top = (all_err.mean(), all_err.max()) if n_samples else (np.nan, np.nan)
     # (after the mean and the largest: the percentile partitions all_err in place)
-    p95 = np.percentile(all_err, 95, overwrite_input=True) if n_samples else np.nan
+    p95 = percentile(all_err, 95, overwrite_input=True) if n_samples else np.nan
     totals = {
         "alpha": float(_ratio(total_err, total_pos)),
         "alpha_mean": float(np.nanmean(alpha)) if has.any() else np.nan,

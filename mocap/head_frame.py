@@ -28,7 +28,7 @@ from mocap.stabilize import ROBUST_GUARD_DEG, Stabilization, stabilize
 from mocap.stable_markers import StableMarkers, find_stable_markers
 from mocap.take import Take, as_take
 from mocap.util.arrays import read_only
-from mocap.util.medians import nan_column_medians
+from mocap.util.order_statistics import nan_column_medians
 from mocap.util.validation import as_choice
 
 __all__ = ["STABILIZATIONS", "HeadFrame", "FaceMotion", "find_head_frame", "face_motion",

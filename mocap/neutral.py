@@ -17,7 +17,7 @@ import numpy as np
 from mocap.errors import InputError, MarkerError
 from mocap.take import Take, as_take
 from mocap.util.arrays import read_only
-from mocap.util.medians import nan_column_medians
+from mocap.util.order_statistics import nan_column_medians
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["Neutral", "find_neutral", "neutral_pose", "pick_neutral_frame",

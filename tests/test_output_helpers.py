@@ -7,7 +7,6 @@ import os
 import shutil
 import struct
 import subprocess
-import warnings
 import zipfile
 import zlib
 
@@ -17,7 +16,6 @@ import pytest
 from mocap.util import npz
 from mocap.util.atomic import preallocate
 from mocap.util.extremes import column_extremes
-from mocap.util.medians import nan_column_medians
 
 
 @pytest.mark.parametrize("shape", [(1, 3), (2, 3), (3, 1), (7, 5), (1000, 53), (1023, 3),
@@ -50,40 +48,6 @@ def test_column_extremes_of_float32_and_nan_and_views():
 def test_column_extremes_need_a_row():
     with pytest.raises(ValueError, match="at least one row"):
         column_extremes(np.zeros((0, 3)))
-
-
-@pytest.mark.parametrize("n_rows", [1, 2, 3, 4, 7, 600, 601, 35_000])
-def test_nan_column_medians_are_numpys(n_rows):
-    """Odd and even counts, columns with gaps of every length, all-NaN columns, ties."""
-    rng = np.random.default_rng(n_rows)
-    values = rng.normal(size=(n_rows, 9))
-    values[:, 7] = np.round(values[:, 7])                       # ties
-    for column in range(1, 6):                                  # 0 .. all of it missing
-        values[rng.random(n_rows) < column / 5, column] = np.nan
-    values[:, 8] = np.nan
-    before = values.copy()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)         # numpy's all-NaN warning
-        expected = np.nanmedian(values, axis=0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")                          # ours warns of nothing
-        medians = nan_column_medians(values[:, ::-1])[::-1]     # a strided view
-    np.testing.assert_array_equal(medians, expected)
-    np.testing.assert_array_equal(values, before)
-
-
-def test_nan_column_medians_of_positions_are_a_pose():
-    rng = np.random.default_rng(5)
-    positions = rng.normal(size=(40, 6, 3))
-    positions[rng.random((40, 6)) < 0.3] = np.nan               # missing samples
-    np.testing.assert_array_equal(nan_column_medians(positions),
-                                  np.nanmedian(positions, axis=0))
-
-
-def test_nan_column_medians_need_rows():
-    with pytest.raises(ValueError, match="rows"):
-        nan_column_medians(np.zeros(3))
-    assert np.isnan(nan_column_medians(np.zeros((0, 2)))).all()   # no rows, no median
 
 
 def test_preallocated_file_holds_what_is_written(tmp_path):

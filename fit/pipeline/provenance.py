@@ -17,6 +17,7 @@ import numpy as np
 from fit.pipeline.config import STAGE_TABLES
 from fit.pipeline.manifest import package_versions, sha256_path
 from fit.report.html import Table
+from mocap.util.order_statistics import percentile
 
 __all__ = ["take_provenance", "stage_grades"]
 
@@ -107,7 +108,7 @@ def take_provenance(result, *, inputs=None) -> dict:
             "head markers": ", ".join(stab.head_markers),
             "noise (mm)": stab.noise,
             "residual median / 95th percentile / max (mm)":
-                " / ".join(f"{v:.3f}" for v in np.percentile(finite, [50, 95, 100]))
+                " / ".join(f"{v:.3f}" for v in percentile(finite, [50, 95, 100]))
                 if finite.size else "–",
             "frames without a head fit": int((~np.asarray(stab.valid)).sum()),
             "slips": len(stab.slips)}

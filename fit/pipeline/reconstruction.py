@@ -69,7 +69,7 @@ from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
 from mocap.units import mm_per_unit
 from mocap.util.float_text import compiled_lines_ready
-from mocap.util.medians import nan_column_medians
+from mocap.util.order_statistics import nan_column_medians
 
 __all__ = ["Reconstruction", "SharedReconstruction", "PreparedTake", "ReconstructionResult"]
 

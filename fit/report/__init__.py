@@ -30,6 +30,7 @@ from fit.report.retarget_qa import (
 from fit.report.video import VIDEO_SUFFIX, write_overlay_video
 from fit.report.views import plot_frame_views, plottable_positions
 from mocap.errors import InputError
+from mocap.util.order_statistics import percentile
 from mocap.viz.render import compiled_renders
 
 __all__ = ["build_report"]
@@ -46,7 +47,7 @@ def _shared_scales(results) -> tuple[float, float]:
     for r in results.values():
         finite = r.errors[np.isfinite(r.errors)]
         if finite.size:
-            tops.append(np.percentile(finite, 99.5))
+            tops.append(percentile(finite, 99.5, overwrite_input=True))
         bars.append(np.nanmax(r.marker_p95) if np.isfinite(r.marker_p95).any() else 0.0)
     return (max(tops) if tops else 1.0), 1.08 * max(max(bars), 1e-6)
 
@@ -339,7 +340,7 @@ def _mesh_section(take, neutral, results, worst, space, markerset, out, files, n
         gap = space.basis_mesh(basis, index) - space.retargeted_mesh(index)
         distances[basis] = np.linalg.norm(gap, axis=2) * space.mm_per_unit
     every = np.concatenate([d.ravel() for d in distances.values()])
-    vmax = max(float(np.percentile(every, 99.0)), 0.5)
+    vmax = max(percentile(every, 99.0, overwrite_input=True), 0.5)
     renders = (sum(len(frames) for frames in chosen.values()) + _MESH_RETARGETED) \
         * len(MESH_VIEWS)
     # drawn here where this process renders by the compiled rasterizer (a helper would by

@@ -26,6 +26,7 @@ from fit.report.drawing import (
 )
 from mocap.errors import InputError
 from mocap.util.deprecation import moved_names
+from mocap.util.order_statistics import percentile
 from mocap.viz.figures import distinct_colours
 
 __all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "plot_held_out",
@@ -193,7 +194,7 @@ def plot_error_heatmap(errors: ReconstructionErrors, path, *, markerset=None,
     data = errors.errors[:, order].T
     if vmax is None:
         finite = data[np.isfinite(data)]
-        vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
+        vmax = percentile(finite, 99.5, overwrite_input=True) if finite.size else 1.0
     if data.shape[1] > HEATMAP_COLUMNS:         # more columns than pixels: max-pool
         data = np.fmax.reduceat(data, column_starts(data.shape[1], HEATMAP_COLUMNS), axis=1)
     x, xlabel = _time_axis(errors.n_frames, rate)

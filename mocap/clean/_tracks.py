@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocap.gaps import find_gaps
-from mocap.util.medians import nan_column_medians
+from mocap.util.order_statistics import nan_column_medians
 
 __all__ = ["MIN_STEP_MM", "last_visible", "typical_step", "long_gap_starts"]
 

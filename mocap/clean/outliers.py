@@ -26,7 +26,7 @@ from mocap.gaps import find_gaps
 from mocap.stabilize import stabilize
 from mocap.take import Take, as_take
 from mocap.util.arrays import read_only
-from mocap.util.medians import nan_column_medians
+from mocap.util.order_statistics import nan_column_medians
 from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["REASONS", "ImplausibleRun", "ImplausibleSamples",

@@ -16,7 +16,7 @@ from mocap.clean._tracks import last_visible, long_gap_starts, typical_step
 from mocap.errors import InputError, MarkerError
 from mocap.take import Take, as_take
 from mocap.util.arrays import read_only
-from mocap.util.medians import nan_column_medians
+from mocap.util.order_statistics import nan_column_medians
 from mocap.util.validation import as_int, as_positive_float
 
 __all__ = ["LabelSwap", "find_label_swaps", "fix_label_swaps"]

@@ -39,7 +39,7 @@ from mocap.stable_markers import (
     find_stable_markers,
 )
 from mocap.take import Take, as_take
-from mocap.util.medians import nan_column_medians
+from mocap.util.order_statistics import nan_column_medians
 
 __all__ = ["OpenQuestion", "Inference", "infer_capture", "OFF_FACE_MM", "RIGID_HEAD_MM",
            "UP_DECISIVE"]

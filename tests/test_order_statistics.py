@@ -1,0 +1,134 @@
+"""Medians and percentiles by one selection each, against NumPy's own (the oracle), to the bit."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from mocap.util.order_statistics import nan_column_medians, nan_column_percentiles, percentile
+
+#: Percentiles that reach every branch: the ends, a neighbour weight of exactly 0.5 for
+#: an odd count, weights on either side of it, and the report's.
+QS = (0.0, 1e-9, 12.5, 49.99, 50.0, 95.0, 99.5, 100 - 1e-12, 100.0)
+
+
+def _with_ties_and_gaps(rng, n_rows: int, n_columns: int = 9) -> np.ndarray:
+    """A table whose columns have ties, gaps of every share and one with no value."""
+    values = rng.normal(size=(n_rows, n_columns))
+    values[:, 7] = np.round(values[:, 7])                       # ties
+    for column in range(1, 6):                                  # 0 .. all of it missing
+        values[rng.random(n_rows) < column / 5, column] = np.nan
+    values[:, 8] = np.nan
+    return values
+
+
+@pytest.mark.parametrize("n_rows", [1, 2, 3, 4, 7, 600, 601, 35_000])
+def test_nan_column_medians_are_numpys(n_rows):
+    """Odd and even counts, columns with gaps of every length, all-NaN columns, ties."""
+    values = _with_ties_and_gaps(np.random.default_rng(n_rows), n_rows)
+    before = values.copy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)         # numpy's all-NaN warning
+        expected = np.nanmedian(values, axis=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                          # ours warns of nothing
+        medians = nan_column_medians(values[:, ::-1])[::-1]     # a strided view
+    np.testing.assert_array_equal(medians, expected)
+    np.testing.assert_array_equal(values, before)
+
+
+def test_nan_column_medians_of_positions_are_a_pose():
+    rng = np.random.default_rng(5)
+    positions = rng.normal(size=(40, 6, 3))
+    positions[rng.random((40, 6)) < 0.3] = np.nan               # missing samples
+    np.testing.assert_array_equal(nan_column_medians(positions),
+                                  np.nanmedian(positions, axis=0))
+
+
+def test_nan_column_medians_need_rows():
+    with pytest.raises(ValueError, match="rows"):
+        nan_column_medians(np.zeros(3))
+    assert np.isnan(nan_column_medians(np.zeros((0, 2)))).all()   # no rows, no median
+
+
+@pytest.mark.parametrize("n_rows", [1, 2, 3, 4, 7, 600, 601, 35_000])
+@pytest.mark.parametrize("q", QS)
+def test_nan_column_percentiles_are_numpys(n_rows, q):
+    """Every count of values a column can have (gaps), ties, all-NaN columns, a view."""
+    values = _with_ties_and_gaps(np.random.default_rng(n_rows), n_rows)
+    before = values.copy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        expected = np.nanpercentile(values, q, axis=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ours = nan_column_percentiles(values[:, ::-1], q)[::-1]
+    np.testing.assert_array_equal(ours, expected)
+    np.testing.assert_array_equal(values, before)
+
+
+def test_nan_column_percentiles_of_errors_per_marker():
+    """The metrics' use: each marker's 95th percentile over frames (T, M), of a take
+    without a gap (NumPy's plain percentile) and over the frames that count."""
+    rng = np.random.default_rng(3)
+    errors = np.abs(rng.normal(0.0, 0.3, (3_870, 66)))
+    np.testing.assert_array_equal(nan_column_percentiles(errors, 95),
+                                  np.percentile(errors, 95, axis=0))
+    errors[rng.random(errors.shape) < 0.05] = np.nan
+    np.testing.assert_array_equal(nan_column_percentiles(errors.reshape(-1, 22, 3), 95),
+                                  np.nanpercentile(errors, 95, axis=0).reshape(22, 3))
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 1000, 100_001])
+def test_percentile_is_numpys(n):
+    """Scalars and arrays of q in any order (repeated ones too), ties, any shape."""
+    rng = np.random.default_rng(n)
+    values = rng.normal(size=(n, 1)) * np.array([1.0])
+    values[::3] = np.round(values[::3])
+    for q in QS:
+        assert percentile(values, q) == np.percentile(values, q)
+        assert isinstance(percentile(values, q), float)
+    qs = np.array([[95.0, 0.0, 50.0], [50.0, 99.5, 12.5]])
+    np.testing.assert_array_equal(percentile(values, qs), np.percentile(values, qs))
+    np.testing.assert_array_equal(percentile(values.ravel(), list(QS)),
+                                  np.percentile(values, QS))
+
+
+def test_percentile_overwrites_only_when_asked_and_able():
+    rng = np.random.default_rng(0)
+    values = rng.normal(size=1001)
+    before = values.copy()
+    expected = np.percentile(values, 95)
+    assert percentile(values, 95) == expected
+    np.testing.assert_array_equal(values, before)               # a copy was partitioned
+    assert percentile(values, 95, overwrite_input=True) == expected
+    assert not np.array_equal(values, before)                   # partitioned in place
+    np.testing.assert_array_equal(np.sort(values), np.sort(before))
+    frozen = before.copy()
+    frozen.flags.writeable = False
+    assert percentile(frozen, 95, overwrite_input=True) == expected   # read-only: a copy
+    assert percentile(before[::2], 95, overwrite_input=True) == np.percentile(before[::2], 95)
+
+
+def test_percentile_of_nan_or_infinity_is_numpys_nan():
+    """A NaN or an infinity makes NumPy's percentiles NaN (its interpolation): ours too."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for values in ([1.0, 2.0, np.nan], [np.nan], [1.0, np.inf], [-np.inf, 1.0, 2.0]):
+            for q in (0.0, 50.0, 100.0):
+                assert np.isnan(percentile(values, q)) == np.isnan(np.percentile(values, q))
+                assert np.array_equal(percentile(values, q), np.percentile(values, q),
+                                      equal_nan=True)
+
+
+def test_percentiles_outside_the_range_or_of_nothing_are_refused():
+    with pytest.raises(ValueError, match="range"):
+        percentile([1.0, 2.0], 101)
+    with pytest.raises(ValueError, match="range"):
+        nan_column_percentiles([[1.0], [2.0]], -1)
+    with pytest.raises(ValueError, match="no values"):
+        percentile([], 50)
+    with pytest.raises(ValueError, match="rows"):
+        nan_column_percentiles(np.zeros(3), 50)
