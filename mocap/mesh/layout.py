@@ -273,7 +273,8 @@ class PlacementUnderWeights:
     @on_one_blas_thread
     def __call__(self, weights) -> np.ndarray:
         """Marker positions (T, M, 3), mesh units, for `weights` (T, n)."""
-        weights = as_float_array(weights, "weights", shape=(None, self.shapes.shape[1]))
+        weights = as_float_array(weights, "weights", shape=(None, self.shapes.shape[1]),
+                                 copy=False)                     # only read
         layout, n_near = self.layout, self.rest.shape[1]
         out = np.empty((len(weights), layout.n_markers, 3))
         for first in range(0, len(weights), _FRAMES_PER_PASS):
