@@ -14,7 +14,9 @@ formatting of the same text, number by number: the shortest that reads back exac
 which is not its floor: :mod:`mocap.util.float_text` formats whole arrays, by NumPy in a
 process that has not loaded numba (the table's 1.9M cells do not pay for loading it), by
 its compiled kernel in one that has (``mocap2mesh run``, whose fit loads it); both are
-timed.
+timed. A zip member carries the CRC-32 of its bytes: the npz's CRC-32 alone (zlib's, on
+one thread; the writer sums it on a second thread beside the writes) is printed under it,
+the npz's floor where it takes longer than writing the bytes.
 
 Run: ``python bench/bench_exports.py [--frames 35000]``.
 """
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +87,10 @@ def main() -> None:
                                   fresh=(path, out / "same-bytes.bin"))
         print(f"{name:<32}{data.size / 1e6:>8.1f}{ours:>10.3f}{floor:>12.4f}"
               f"{ours / floor:>8.1f}", flush=True)
+        if path.suffix == ".npz":
+            crc = best_time(lambda: zlib.crc32(data), repeat=3)
+            print(f"{'  its CRC-32 alone':<32}{'':>8}{'':>10}{crc:>12.4f}{ours / crc:>8.1f}"
+                  f"   (zlib {zlib.ZLIB_RUNTIME_VERSION}: the zip format's own pass)")
 
     cells = np.column_stack([np.arange(args.frames) / RATE, weights]).ravel()
     csv_path, write_csv = exports["weights CSV"]
