@@ -93,8 +93,9 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
         clipped to the bounds (one product with (BᵀB)⁻¹; the clipped weights
         whose gradient points inwards are freed), instead of with every
         weight free. Does not change the result, only the work. (The
-        active set of a neighbouring frame is a worse start: with noisy
-        data, weights near a bound flip between frames.) Frames solved
+        active set the previous frame ends in is no reliably better start:
+        with noisy data, weights near a bound flip between frames; it saves
+        iterations on some takes and costs them on others.) Frames solved
         independently only: the smooth solve has a start of its own.
     smoothness : float or "gcv", default 0
         λ ≥ 0: minimize Σ_t ½‖B w_t − d_t‖² + ½ λ Σ_t ‖w_t − w_{t−1}‖² over
