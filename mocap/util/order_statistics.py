@@ -76,8 +76,9 @@ def percentile(values, q, *, overwrite_input: bool = False):
     Parameters
     ----------
     values : array_like
-        Any shape, at least one value; a NaN or an infinity makes every percentile NaN,
-        as NumPy's.
+        Any shape, at least one value. As NumPy's: a NaN makes every percentile NaN, and
+        one whose neighbours hold an infinity is what NumPy's interpolation makes of it
+        (infinite or NaN).
     q : float or array_like of float
         Percentiles, in [0, 100].
     overwrite_input : bool
