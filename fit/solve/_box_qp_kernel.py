@@ -5,10 +5,11 @@ some fifty NumPy calls an iteration (batches of frames by the size of their redu
 system, principal submatrices gathered, an LDLᵀ factorization vectorized over frames, the
 KKT checks), each a pass over (frames, n) arrays, and the monotone phase's frames, few
 but many iterations each, pay those calls at every iteration. Here each frame takes its
-iterations on its own, its arrays in the core's cache: the same iterations (the same
-reduced systems, steps, next states, checks and stopping rules), each reduced system
-factored anew by Cholesky (no bordering). The weights are the same to rounding, not to
-the bit (other summation orders, another factorization).
+iterations on its own, its arrays in the core's cache: from the same start, the same
+iterations (the same reduced systems, steps, next states, checks and stopping rules),
+each reduced system factored anew by Cholesky (no bordering). The weights are the same
+to rounding, not to the bit (other summation orders, another factorization). Going frame
+by frame, a frame can also start from the state the frame before ended in (``trial``).
 
 For an invertible G (its principal submatrices, and those of G⁻¹, are positive
 definite: Cholesky factors them without pivoting, as the NumPy path's LDLᵀ does). A
@@ -26,7 +27,7 @@ __all__ = ["solve_frames"]
 
 @numba.njit(cache=True, nogil=True)
 def solve_frames(G, inverse, lo, hi, lo_value, hi_value, near_lo, near_hi, fixed, c, u,
-                 state, max_iter, every, most, many, tol, refinements, w, n_iter,
+                 state, max_iter, every, most, many, tol, refinements, trial, w, n_iter,
                  kkt):  # pragma: no cover - compiled; tested against the NumPy iterations
     """Both phases of :func:`fit.solve._active_set._solve_from` for every frame, from its
     `state` (T, n) (in place).
@@ -55,6 +56,10 @@ def solve_frames(G, inverse, lo, hi, lo_value, hi_value, near_lo, near_hi, fixed
     refinements : int
         Refinement passes of a reduced solve whose state is optimal but whose KKT
         residual misses `tol` (:attr:`fit.solve._reduced.BoxQP.refinements`).
+    trial : int
+        With frames in time order: frames 1 .. 2·`trial` start in turn from their own
+        state and from the state the frame before ended in, and the other frames from
+        the one of the two that took fewer iterations (0: each from its own).
     w, n_iter, kkt : ndarray of shape (T, n), (T,), (T,)
         Out: the weights (not clipped), iterations, and KKT residual of the converged
         frames (inf for the others).
@@ -66,8 +71,19 @@ def solve_frames(G, inverse, lo, hi, lo_value, hi_value, near_lo, near_hi, fixed
         np.empty(n)
     wt, target, g, scale = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     new = np.empty(n, np.int8)
+    followed = False                    # this frame starts where the one before ended
+    own = theirs = 0                    # iterations of the trial frames from each start
     for t in range(n_frames):
         s, ct, ut = state[t], c[t], u[t]
+        if trial > 0 and t > 0:
+            if 1 <= t - 1 <= 2 * trial:
+                if followed:
+                    theirs += n_iter[t - 1]
+                else:
+                    own += n_iter[t - 1]
+            followed = t % 2 == 0 if t <= 2 * trial else theirs < own
+            if followed:
+                s[:] = state[t - 1]
         n_iter[t], kkt[t] = 0, np.inf
         # the primal-dual phase
         changed = n + 1

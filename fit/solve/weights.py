@@ -92,11 +92,13 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
         Start every frame from the active set of its unconstrained minimizer
         clipped to the bounds (one product with (BᵀB)⁻¹; the clipped weights
         whose gradient points inwards are freed), instead of with every
-        weight free. Does not change the result, only the work. (The
-        active set the previous frame ends in is no reliably better start:
-        with noisy data, weights near a bound flip between frames; it saves
-        iterations on some takes and costs them on others.) Frames solved
-        independently only: the smooth solve has a start of its own.
+        weight free. Does not change the result, only the work. The frames
+        are taken to be in time order: compiled, the first ones of each
+        block also try starting from the active set the frame before ended
+        in, and the others start from whichever took fewer iterations (it
+        takes half as many on a take whose weights rest at 0 in many frames,
+        twice as many on independent frames). Frames solved independently
+        only: the smooth solve has a start of its own.
     smoothness : float or "gcv", default 0
         λ ≥ 0: minimize Σ_t ½‖B w_t − d_t‖² + ½ λ Σ_t ‖w_t − w_{t−1}‖² over
         the whole sequence instead (see :func:`fit.solve.temporal.solve_smooth`);
