@@ -602,6 +602,20 @@ def test_compiled_iterations_are_numpys(kind, bounds, monkeypatch):
 
 
 
+def own_and_trial_starts(basis, data, monkeypatch):
+    """Compiled solves in [0, 1] with every frame from its own start, and with the trial
+    of the frame before's state: both converge, to the same weights bit for bit."""
+    monkeypatch.setattr(active_set, "_compiled_solve", COMPILED_SOLVE)
+    fits = []
+    for trial in (0, active_set._FOLLOW_TRIAL):
+        monkeypatch.setattr(active_set, "_FOLLOW_TRIAL", trial)
+        fits.append(solve_weights(basis, data, lower=0.0, upper=1.0))
+    own, trying = fits
+    assert own.status == trying.status == 0
+    np.testing.assert_array_equal(trying.weights, own.weights)
+    return own, trying
+
+
 @BOTH_PATHS
 @pytest.mark.parametrize("order", ["in time", "shuffled"])
 def test_frames_in_order_start_where_the_frame_before_ended_when_that_pays(
@@ -626,14 +640,7 @@ def test_frames_in_order_start_where_the_frame_before_ended_when_that_pays(
     data += 0.02 * np.random.default_rng(9).standard_normal(data.shape)   # 0.2 mm, in cm
     if order == "shuffled":
         data = data[np.random.default_rng(10).permutation(len(data))]
-    monkeypatch.setattr(active_set, "_compiled_solve", COMPILED_SOLVE)
-    fits = {}
-    for trial in (0, active_set._FOLLOW_TRIAL):
-        monkeypatch.setattr(active_set, "_FOLLOW_TRIAL", trial)
-        fits[trial] = solve_weights(basis, data, lower=0.0, upper=1.0)
-    own, trying = fits.values()
-    assert own.status == trying.status == 0
-    np.testing.assert_array_equal(trying.weights, own.weights)
+    own, trying = own_and_trial_starts(basis, data, monkeypatch)
     if order == "in time":
         assert trying.n_iter.sum() < 0.6 * own.n_iter.sum()
     else:
@@ -653,14 +660,7 @@ def test_frames_that_are_no_sequence_keep_their_own_starts(monkeypatch):
     rng = np.random.default_rng(11)
     basis = make_basis("random", rng)
     data = make_data(basis, rng, n_frames=4000)
-    monkeypatch.setattr(active_set, "_compiled_solve", COMPILED_SOLVE)
-    fits = {}
-    for trial in (0, active_set._FOLLOW_TRIAL):
-        monkeypatch.setattr(active_set, "_FOLLOW_TRIAL", trial)
-        fits[trial] = solve_weights(basis, data, lower=0.0, upper=1.0)
-    own, trying = fits.values()
-    assert own.status == trying.status == 0
-    np.testing.assert_array_equal(trying.weights, own.weights)
+    own, trying = own_and_trial_starts(basis, data, monkeypatch)
     assert trying.n_iter.sum() < 1.05 * own.n_iter.sum()
 
 
