@@ -16,7 +16,9 @@ process that has not loaded numba (the table's 1.9M cells do not pay for loading
 its compiled kernel in one that has (``mocap2mesh run``, whose fit loads it); both are
 timed. A zip member carries the CRC-32 of its bytes: the npz's CRC-32 alone (zlib's, on
 one thread; the writer sums it on a second thread beside the writes) is printed under it,
-the npz's floor where it takes longer than writing the bytes.
+the npz's floor where it takes longer than writing the bytes. The ``.glb``'s floats are
+float32 made from float64 values: as many float64 converted by NumPy a block at a time and
+written are printed under it, the floor of any writer that starts from float64.
 
 Run: ``python bench/bench_exports.py [--frames 35000]``.
 """
@@ -57,6 +59,24 @@ def alternately(fn, floor, *, fresh=()) -> tuple[float, float]:
     return tuple(min(column) for column in zip(*times))
 
 
+#: float64 values converted to float32 and written at a time by :func:`write_converted`.
+CONVERTED_BLOCK = 1 << 20
+
+
+def write_converted(sources: np.ndarray, path: Path) -> None:
+    """Write `sources` (float64) as float32 to `path`, converted a block at a time into one
+    buffer (what a writer whose values are float64 must do before its bytes exist), then
+    remove the file."""
+    block = np.empty(CONVERTED_BLOCK, np.float32)
+    with open(path, "wb") as fh:
+        for first in range(0, len(sources), CONVERTED_BLOCK):
+            part = sources[first:first + CONVERTED_BLOCK]
+            stored = block[:len(part)]
+            np.copyto(stored, part, casting="same_kind")
+            fh.write(stored)
+    path.unlink()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=35_000)
@@ -91,6 +111,13 @@ def main() -> None:
             crc = best_time(lambda: zlib.crc32(data), repeat=3)
             print(f"{'  its CRC-32 alone':<32}{'':>8}{'':>10}{crc:>12.4f}{ours / crc:>8.1f}"
                   f"   (zlib {zlib.ZLIB_RUNTIME_VERSION}: the zip format's own pass)")
+        if path.suffix == ".glb":
+            sources = rng.standard_normal(data.size // 4)
+            converted = best_time(lambda: write_converted(sources, out / "converted.bin"),
+                                  repeat=3)
+            print(f"{'  its floats from float64':<32}{'':>8}{'':>10}{converted:>12.4f}"
+                  f"{ours / converted:>8.1f}   (as many float32 converted by NumPy, "
+                  f"{CONVERTED_BLOCK // 2**20} MB at a time, and written)")
 
     cells = np.column_stack([np.arange(args.frames) / RATE, weights]).ravel()
     csv_path, write_csv = exports["weights CSV"]
