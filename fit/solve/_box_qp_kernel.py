@@ -177,7 +177,7 @@ def _reduced_solve(G, inverse, lo_value, hi_value, c, u, s, w, g, free, bound, m
     if 2 * n_free > n:
         # the Schur complement of G⁻¹: (G⁻¹)_AA λ_A = w_A − u_A, w = u + G⁻¹λ
         for a in range(n_bound):
-            for b in range(a, n_bound):
+            for b in range(a + 1):
                 mat[a, b] = inverse[bound[a], bound[b]]
             rhs[a] = w[bound[a]] - u[bound[a]]
         _factor(mat, n_bound)
@@ -200,7 +200,7 @@ def _reduced_solve(G, inverse, lo_value, hi_value, c, u, s, w, g, free, bound, m
         for j in range(n):
             g[j] -= row[j] * value
     for a in range(n_free):
-        for b in range(a, n_free):
+        for b in range(a + 1):
             mat[a, b] = G[free[a], free[b]]
         rhs[a] = g[free[a]]
     _factor(mat, n_free)
@@ -264,34 +264,38 @@ def _refine(G, inverse, c, s, w, g, path, passes, free, bound, mat, rhs,
 
 @numba.njit(cache=True, nogil=True)
 def _factor(mat, m):  # pragma: no cover - compiled
-    """Cholesky ``UᵀU`` of ``mat[:m, :m]`` in place, from its upper triangle (a pivot that
-    is not positive gives NaN, and the frame's KKT check fails). Row by row of U: each
-    row updates the rows below it along contiguous rows, where column sums would each be
-    one chain of dependent additions."""
-    for j in range(m):
-        pivot = np.sqrt(mat[j, j])
-        mat[j, j] = pivot
-        for k in range(j + 1, m):
-            mat[j, k] /= pivot
-        for i in range(j + 1, m):
-            factor = mat[j, i]
-            for k in range(i, m):
-                mat[i, k] -= factor * mat[j, k]
+    """Cholesky ``LLᵀ`` of ``mat[:m, :m]`` in place, from its lower triangle: L below the
+    diagonal, the reciprocals of L's diagonal on it (a pivot that is not positive gives
+    NaN or inf, and the frame's KKT check fails). Row by row of L, each entry one dot
+    product of two contiguous rows of L and one product by a reciprocal: for the
+    reduced systems' size (m ≤ n / 2, about 24 for 53 shapes) about twice as fast as
+    updating the rows below each new row, whose updates are short and whose divisions
+    cost more than the products."""
+    for i in range(m):
+        for j in range(i):
+            value = mat[i, j]
+            for k in range(j):
+                value -= mat[i, k] * mat[j, k]
+            mat[i, j] = value * mat[j, j]
+        value = mat[i, i]
+        for k in range(i):
+            value -= mat[i, k] * mat[i, k]
+        mat[i, i] = 1.0 / np.sqrt(value)
 
 
 @numba.njit(cache=True, nogil=True)
 def _solve_factored(mat, rhs, m):  # pragma: no cover - compiled
-    """``rhs[:m]`` ← ``(UᵀU)⁻¹ rhs[:m]`` with U from :func:`_factor`."""
-    for k in range(m):                      # Uᵀ y = b
-        rhs[k] /= mat[k, k]
-        value = rhs[k]
-        for i in range(k + 1, m):
-            rhs[i] -= mat[k, i] * value
-    for i in range(m - 1, -1, -1):          # U x = y
+    """``rhs[:m]`` ← ``(LLᵀ)⁻¹ rhs[:m]`` with L from :func:`_factor`, along L's rows."""
+    for i in range(m):                      # L y = b
         value = rhs[i]
-        for k in range(i + 1, m):
+        for k in range(i):
             value -= mat[i, k] * rhs[k]
-        rhs[i] = value / mat[i, i]
+        rhs[i] = value * mat[i, i]
+    for i in range(m - 1, -1, -1):          # Lᵀ x = y
+        value = rhs[i] * mat[i, i]
+        rhs[i] = value
+        for k in range(i):
+            rhs[k] -= mat[i, k] * value
 
 
 @numba.njit(cache=True, nogil=True)
