@@ -328,14 +328,15 @@ def measure_floors(out: Path, take, bound, retargeted, bases, fill, weights) -> 
 def chord_step_floor(fit, problem, layout, vertices, displacements, D) -> tuple[float, float]:
     """The chord steps the exact-centre fit `fit` took per frame beyond its first (the
     linear model's) solve, and one step's floor, s: the two products every step makes
-    of all frames, the vertices the markers read under the weights (the centres' whole
-    cost but placing the markers on them) and the right-hand sides of the moved data
+    of all frames, the vertices the markers read under the weights (the neutral's among
+    them: the centres' whole cost but placing the markers on them) and the right-hand
+    sides of the moved data
     (the solve after them, by a factor of the last step's where the active set holds,
     left out: a lower bound)."""
     free = problem[0]
-    shapes = layout.under_weights(vertices, displacements).shapes             # (3K, n)
-    weights = fit.solution.weights
-    return float(np.mean(fit.n_steps - 1)), best_time(lambda: (shapes @ weights.T, D @ free))
+    operator = layout.under_weights(vertices, displacements).operator         # (3K, n + 1)
+    weights = np.vstack([fit.solution.weights.T, np.ones(len(D))])           # (n + 1, T)
+    return float(np.mean(fit.n_steps - 1)), best_time(lambda: (operator @ weights, D @ free))
 
 
 def lip_seal_floor(retargeted, bases, weights) -> tuple[float, str]:

@@ -168,7 +168,7 @@ class MarkerLayout:
         out = np.empty((len(near), self.n_markers, 3))
         for first in range(0, len(near), _FRAMES_PER_PASS):
             part = np.ascontiguousarray(near[first:first + _FRAMES_PER_PASS].transpose(2, 1, 0))
-            out[first:first + part.shape[-1]] = self._place(part, offset=offset)
+            self._place(part, offset=offset, out=out[first:first + part.shape[-1]])
         return out.reshape(batch + out.shape[1:])
 
     def positions_under_weights(self, neutral, displacements, weights) -> np.ndarray:
@@ -204,27 +204,25 @@ class MarkerLayout:
         if displacements.ndim != 3 or displacements.shape[1:] != (self.n_vertices, 3):
             raise InputError(f"displacements must have shape (n, {self.n_vertices}, 3), got "
                              f"{displacements.shape}")
-        return PlacementUnderWeights(
-            self, neutral[needed].T[:, :, None],
-            displacements[:, needed].transpose(2, 1, 0).reshape(-1, len(displacements)))
+        shapes = displacements[:, needed].transpose(2, 1, 0).reshape(-1, len(displacements))
+        return PlacementUnderWeights(self, np.column_stack([shapes, neutral[needed].T.ravel()]))
 
-    def _place(self, near: np.ndarray, offset: bool = True) -> np.ndarray:
-        """Marker positions (B, M, 3) from the needed vertices ``near``, (3, K, B): compiled
-        when numba is installed (:mod:`mocap.mesh._layout_kernel`, the same bits)."""
+    def _place(self, near: np.ndarray, offset: bool = True, *, out: np.ndarray) -> None:
+        """Marker positions from the needed vertices ``near``, (3, K, B), into `out`
+        (B, M, 3), C-contiguous: compiled when numba is installed
+        (:mod:`mocap.mesh._layout_kernel`, the same bits)."""
         kernel = _compiled_place()
         if kernel is not None:
             _, local, _, incidence, slot, faces, by_face = self._normal_op
-            out = np.empty((near.shape[-1], self.n_markers, 3))
             kernel(np.ascontiguousarray(near), faces, by_face.indptr, by_face.indices,
                    incidence.shape[0], slot, local, self.weights, self.offsets, offset, out)
-            return out
+            return
         local = self._normal_op[1]
-        points = np.einsum("cmkb,mk->bmc", near[:, local], self.weights)       # (B, M, 3)
+        out[:] = np.einsum("cmkb,mk->bmc", near[:, local], self.weights)
         has = self.offsets != 0
         if offset and has.any():
             along = self._normals(near)[:, has]                                # (3, M', B)
-            points[:, has] += (self.offsets[has, None] * along).transpose(2, 1, 0)
-        return points
+            out[:, has] += (self.offsets[has, None] * along).transpose(2, 1, 0)
 
     def _normals(self, near: np.ndarray) -> np.ndarray:
         """Unit normals at the markers (3, M, B) from the needed vertices ``near``, (3, K, B).
@@ -254,34 +252,41 @@ class PlacementUnderWeights:
     weights w (:meth:`MarkerLayout.under_weights`).
 
     Only the vertices the markers and their normals read are formed (no mesh is), by
-    one product with the weights, frames ``_FRAMES_PER_PASS`` at a time (too small a
-    product to split: on one BLAS thread).
+    one product with the weights and a row of ones, frames ``_FRAMES_PER_PASS`` at a time
+    (too small a product to split: on one BLAS thread): the neutral is the operator's
+    last column, so that the product adds it (a pass over the vertices less).
 
     Attributes
     ----------
     layout : MarkerLayout
-    rest : ndarray of shape (3, K, 1), mesh units
-        The neutral's K vertices the markers read, coordinate-major.
-    shapes : ndarray of shape (3 K, n), mesh units
-        The shapes at those vertices, one column per shape.
+    operator : ndarray of shape (3 K, n + 1), mesh units
+        The shapes at the K vertices the markers read, one column per shape, and those
+        vertices of the neutral as the last column; rows coordinate-major.
     """
 
     layout: MarkerLayout
-    rest: np.ndarray
-    shapes: np.ndarray
+    operator: np.ndarray
+
+    @property
+    def n_shapes(self) -> int:
+        """n, the shapes the weights weigh."""
+        return self.operator.shape[1] - 1
 
     @on_one_blas_thread
     def __call__(self, weights) -> np.ndarray:
         """Marker positions (T, M, 3), mesh units, for `weights` (T, n)."""
-        weights = as_float_array(weights, "weights", shape=(None, self.shapes.shape[1]),
-                                 copy=False)                     # only read
-        layout, n_near = self.layout, self.rest.shape[1]
-        out = np.empty((len(weights), layout.n_markers, 3))
+        n = self.n_shapes
+        weights = as_float_array(weights, "weights", shape=(None, n), copy=False)  # only read
+        out = np.empty((len(weights), self.layout.n_markers, 3))
+        # a pass's weights, as columns, over a row of ones (the neutral's)
+        augmented = np.empty((n + 1, min(len(weights), _FRAMES_PER_PASS)))
+        augmented[n] = 1.0
         for first in range(0, len(weights), _FRAMES_PER_PASS):
             part = weights[first:first + _FRAMES_PER_PASS]
-            near = (self.shapes @ part.T).reshape(3, n_near, len(part))        # (3, K, B)
-            near += self.rest
-            out[first:first + len(part)] = layout._place(near)
+            columns = augmented[:, :len(part)]
+            columns[:n] = part.T
+            near = (self.operator @ columns).reshape(3, -1, len(part))         # (3, K, B)
+            self.layout._place(near, out=out[first:first + len(part)])
         return out
 
 
