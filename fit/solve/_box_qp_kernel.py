@@ -193,12 +193,14 @@ def _reduced_solve(G, inverse, lo_value, hi_value, c, u, s, w, g, free, bound, m
         for a in range(n_bound):
             g[bound[a]] = rhs[a]
         return 1
-    # directly: G_FF w_F = c_F − G_FA w_A, then the gradient G w − c
+    # directly: G_FF w_F = c_F − G_FA w_A (the weights bound at 0 add nothing), then the
+    # gradient G w − c
     g[:] = c
     for b in range(n_bound):
         row, value = G[bound[b]], w[bound[b]]
-        for j in range(n):
-            g[j] -= row[j] * value
+        if value != 0.0:
+            for j in range(n):
+                g[j] -= row[j] * value
     for a in range(n_free):
         for b in range(a + 1):
             mat[a, b] = G[free[a], free[b]]
