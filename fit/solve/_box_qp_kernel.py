@@ -270,9 +270,9 @@ def _factor(mat, m):  # pragma: no cover - compiled
     diagonal, the reciprocals of L's diagonal on it (a pivot that is not positive gives
     NaN or inf, and the frame's KKT check fails). Row by row of L, each entry one dot
     product of two contiguous rows of L and one product by a reciprocal: for the
-    reduced systems' size (m ≤ n / 2, about 24 for 53 shapes) about twice as fast as
-    updating the rows below each new row, whose updates are short and whose divisions
-    cost more than the products."""
+    reduced systems' size (m ≤ n / 2, the smaller of the free and the bound set) about
+    twice as fast as updating the rows below each new row, whose updates are short and
+    whose divisions cost more than the products."""
     for i in range(m):
         for j in range(i):
             value = mat[i, j]
