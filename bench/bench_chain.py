@@ -285,7 +285,7 @@ def measure_floors(out: Path, take, bound, retargeted, bases, fill, weights) -> 
         exact_h = best_time(lambda: exact.append(solve_at_marker_centres(
             layout, retargeted.mesh.vertices, H.displacements, tangent,
             retargeted.displacements, lower=H.lower, upper=H.upper)), repeat=1)
-    steps, step_floor = chord_step_floor(exact[-1], problems[list(bases.bases).index("H")],
+    steps, step_floor = chord_step_floor(exact[-1], problems[list(bases.bases).index("H")][0],
                                          layout, retargeted.mesh.vertices, H.displacements, D)
     floors["fit (H, QE, PCA)"] = (best_time(final_solves),
                                   f"per basis, each frame's system at the answer's active set "
@@ -325,15 +325,13 @@ def measure_floors(out: Path, take, bound, retargeted, bases, fill, weights) -> 
     return floors
 
 
-def chord_step_floor(fit, problem, layout, vertices, displacements, D) -> tuple[float, float]:
+def chord_step_floor(fit, free, layout, vertices, displacements, D) -> tuple[float, float]:
     """The chord steps the exact-centre fit `fit` took per frame beyond its first (the
-    linear model's) solve, and one step's floor, s: the two products every step makes
-    of all frames, the vertices the markers read under the weights (the neutral's among
-    them: the centres' whole cost but placing the markers on them) and the right-hand
-    sides of the moved data
-    (the solve after them, by a factor of the last step's where the active set holds,
-    left out: a lower bound)."""
-    free = problem[0]
+    linear model's) solve, and one step's floor, s: the two products every step makes of
+    all frames, the vertices the markers read under the weights (the neutral's among them:
+    the centres' whole cost but placing the markers on them) and the moved data's
+    right-hand sides ``D @ free`` (the solve after them, by a factor of the last step's
+    where the active set holds, left out: a lower bound)."""
     operator = layout.under_weights(vertices, displacements).operator         # (3K, n + 1)
     weights = np.vstack([fit.solution.weights.T, np.ones(len(D))])           # (n + 1, T)
     return float(np.mean(fit.n_steps - 1)), best_time(lambda: (operator @ weights, D @ free))

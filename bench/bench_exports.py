@@ -117,7 +117,7 @@ def main() -> None:
                                   repeat=3)
             print(f"{'  its floats from float64':<32}{'':>8}{'':>10}{converted:>12.4f}"
                   f"{ours / converted:>8.1f}   (as many float32 converted by NumPy, "
-                  f"{CONVERTED_BLOCK // 2**20} MB at a time, and written)")
+                  f"{CONVERTED_BLOCK:,} at a time, and written)")
 
     cells = np.column_stack([np.arange(args.frames) / RATE, weights]).ravel()
     csv_path, write_csv = exports["weights CSV"]
