@@ -269,10 +269,10 @@ def _factor(mat, m):  # pragma: no cover - compiled
     """Cholesky ``LLᵀ`` of ``mat[:m, :m]`` in place, from its lower triangle: L below the
     diagonal, the reciprocals of L's diagonal on it (a pivot that is not positive gives
     NaN or inf, and the frame's KKT check fails). Row by row of L, each entry one dot
-    product of two contiguous rows of L and one product by a reciprocal: for the
-    reduced systems' size (m ≤ n / 2, the smaller of the free and the bound set) about
-    twice as fast as updating the rows below each new row, whose updates are short and
-    whose divisions cost more than the products."""
+    product of two contiguous rows of L and one product by a reciprocal, rather than
+    updates of the rows below each new row: for the reduced systems' size (m ≤ n / 2, the
+    smaller of the free and the bound set) those updates are short, and a division costs
+    more than a product."""
     for i in range(m):
         for j in range(i):
             value = mat[i, j]

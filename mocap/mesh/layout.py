@@ -218,7 +218,7 @@ class MarkerLayout:
                    incidence.shape[0], slot, local, self.weights, self.offsets, offset, out)
             return
         local = self._normal_op[1]
-        out[:] = np.einsum("cmkb,mk->bmc", near[:, local], self.weights)
+        np.einsum("cmkb,mk->bmc", near[:, local], self.weights, out=out)
         has = self.offsets != 0
         if offset and has.any():
             along = self._normals(near)[:, has]                                # (3, M', B)
