@@ -25,10 +25,13 @@ differs from the least-squares fit of c by the second order of the offset.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, fields
 
 import numpy as np
 
+from fit.solve._active_set import BoxQP, solve_box_qp
+from fit.solve._problem import as_bounds
 from fit.solve.gcv import SMOOTHNESS_RULES, gcv_smoothness
 from fit.solve.weights import WeightSolution, as_smoothness, solve_weights
 from mocap.errors import InputError
@@ -130,11 +133,15 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
     if smoothness in SMOOTHNESS_RULES:
         smoothness = gcv_smoothness(basis.reshape(n, -1).T, data.reshape(T, -1))
     placement = layout.under_weights(neutral, displacements)
-    model = _CentreModel(placement, basis, placement(np.zeros((1, n)))[0], lower, upper)
+    model = _CentreModel.build(placement, basis, lower, upper)
     steps = _ChordSteps.empty(T, n, layout.n_markers)
     if smoothness > 0:
         ranks = [_smooth_chord_steps(model, data, smoothness, tol, max_steps, steps)]
     else:
+        if model.qp.singular:       # as solve_weights says it (the smooth solve goes through it)
+            warnings.warn(f"the basis has rank {model.qp.rank} < {n} shapes: weights along "
+                          "its null space are the minimum-norm reduced solution",
+                          RuntimeWarning, stacklevel=2)
         # frames are independent: pieces of them step on the BLAS's threads, each writing
         # its rows of the result (no copy of the pieces' results in one thread after)
         def piece(first):
@@ -164,9 +171,10 @@ _FRAMES_PER_EVALUATION = 512
 
 @dataclass(frozen=True)
 class _CentreModel:
-    """The centres' model: ``centres(w) = c(w) − c(0)`` and the bounds.
+    """The centres' model: ``centres(w) = c(w) − c(0)``, the bounds, and the linear
+    model's box QP (G = BᵀB of the tangent B, the bounds).
 
-    Both evaluations share pieces of the frames among the worker threads (one
+    The evaluations share pieces of the frames among the worker threads (one
     thread inside a piece of an independent-frame fit, whose work is already shared).
     """
 
@@ -175,22 +183,41 @@ class _CentreModel:
     rest: np.ndarray
     lower: object
     upper: object
+    qp: BoxQP
+
+    @classmethod
+    def build(cls, placement: PlacementUnderWeights, basis: np.ndarray, lower,
+              upper) -> "_CentreModel":
+        """The model of `placement` with the tangent `basis` (n, M, 3) and the bounds."""
+        n = len(basis)
+        flat = basis.reshape(n, -1)
+        return cls(placement, basis, placement(np.zeros((1, n)))[0], lower, upper,
+                   BoxQP.build(flat @ flat.T, *as_bounds(lower, upper, n)))
 
     def centres(self, w: np.ndarray) -> np.ndarray:
         """``c(w) − c(0)`` of the weights `w` (T, n), (T, M, 3)."""
-        return self._by_pieces(self._centres, w)
+        return self._by_pieces(self._centres, w, self.rest.shape)
 
     def nonlinear(self, w: np.ndarray) -> np.ndarray:
         """``r(w) = c(w) − c(0) − B w`` of the weights `w` (T, n), (T, M, 3)."""
         return self._by_pieces(
-            lambda part: self._centres(part) - np.tensordot(part, self.basis, axes=1), w)
+            lambda part: self._centres(part) - np.tensordot(part, self.basis, axes=1), w,
+            self.rest.shape)
+
+    def projected(self, w: np.ndarray) -> np.ndarray:
+        """``Bᵀ(c(w) − c(0))`` of the weights `w` (T, n), (T, n): the centres on the
+        tangent's columns, each piece's while its centres are in cache."""
+        flat = self.basis.reshape(len(self.basis), -1)
+        return self._by_pieces(
+            lambda part: self._centres(part).reshape(len(part), -1) @ flat.T, w,
+            (len(self.basis),))
 
     def _centres(self, w: np.ndarray) -> np.ndarray:
         return self.placement(w) - self.rest
 
-    def _by_pieces(self, function, w: np.ndarray) -> np.ndarray:
-        """``function(w)`` (T, M, 3), pieces of the frames of `w` (T, n) on the threads."""
-        out = np.empty((len(w), *self.rest.shape))
+    def _by_pieces(self, function, w: np.ndarray, shape: tuple) -> np.ndarray:
+        """``function(w)`` (T, *shape), pieces of the frames of `w` (T, n) on the threads."""
+        out = np.empty((len(w), *shape))
 
         def piece(first):
             rows = slice(first, first + _FRAMES_PER_EVALUATION)
@@ -232,42 +259,53 @@ class _ChordSteps:
         self.cost[:] = 0.5 * np.einsum("tmc,tmc->t", residual, residual)
 
 
+#: KKT tolerance of each chord step's solve (:func:`fit.solve.weights.solve_weights`' own).
+_SOLVE_TOL = 1e-9
+
+
 def _chord_steps(model: _CentreModel, data, tol, max_steps, out: _ChordSteps) -> int:
     """The chord steps of independent frames `data` (T, M, 3) from zero weights (whose
     first step is the linear model's solve), written into `out` (T frames); return the
     basis' rank. A frame's solve starts from the active set of its mixed iterate, which
-    extrapolates the last two; a frame leaves once its step has settled."""
-    basis, lower, upper = model.basis, model.lower, model.upper
-    T, n = len(data), len(basis)
-    x = np.zeros((T, n))
+    extrapolates the last two; a frame leaves once its step has settled.
+
+    Each step solves the box QPs of ``model.qp`` (the linear model's G) with the linear
+    terms of the moved data ``d − r(x)``: ``Bᵀ(d − r(x)) = Bᵀd − Bᵀ(c(x) − c(0)) + G x``,
+    so that only the centres are evaluated, and the frames' terms Bᵀd are formed once.
+    """
+    qp, lower, upper = model.qp, model.lower, model.upper
+    T, n = len(data), qp.n
+    max_iter = 20 * n + 20                      # solve_weights' default
+    linear = data.reshape(T, -1) @ model.basis.reshape(n, -1).T             # Bᵀd, (T, n)
     w, kkt, converged, n_steps, n_iter, step = \
         out.weights, out.kkt, out.converged, out.n_steps, out.n_iter, out.step
     n_steps[:], n_iter[:], step[:] = 0, 0, np.inf
-    rank = n
-    last_x = last_g = None              # the previous iterate and its chord step, for Anderson
-    todo = np.arange(T)
+    # the frames still stepping, their iterates x and (for Anderson) the previous ones
+    # and their chord steps, compacted to those frames
+    todo, x = np.arange(T), np.zeros((T, n))
+    last_x = last_g = None
     for first in (True, *[False] * (max_steps - 1)):
-        xt = x[todo]
-        # r(0) = 0 exactly: a first step from zero weights needs no evaluation
-        nonlinear = 0.0 if first else model.nonlinear(xt)
-        sol = solve_weights(basis, data[todo] - nonlinear, lower=lower, upper=upper,
-                            start=None if first else xt)
-        g = sol.weights - xt
-        step[todo] = np.abs(g).max(axis=1)
-        w[todo], n_steps[todo], n_iter[todo] = sol.weights, n_steps[todo] + 1, \
-            n_iter[todo] + sol.n_iter
-        kkt[todo], converged[todo], rank = sol.kkt_residual, sol.converged, min(rank, sol.rank)
-        x[todo] = sol.weights if last_g is None else _anderson(
-            sol.weights, g, last_x[todo] + last_g[todo], last_g[todo], lower, upper)
-        if last_g is None:
-            last_x, last_g = np.empty_like(x), np.empty_like(x)
-        last_x[todo], last_g[todo] = xt, g
-        moving = step[todo] > tol
+        if first:                               # r(0) = 0: the linear model's solve
+            terms, state = linear, None
+        else:
+            terms = linear[todo] - model.projected(x)
+            terms += x @ qp.G
+            state = qp.state_of(x)
+        weights, iterations, residual, ok = solve_box_qp(
+            qp, terms, tol=_SOLVE_TOL, max_iter=max_iter, warm_start=True, state=state)
+        g = weights - x
+        moved = np.abs(g).max(axis=1)
+        step[todo], w[todo], kkt[todo], converged[todo] = moved, weights, residual, ok
+        n_steps[todo] += 1
+        n_iter[todo] += iterations
+        mixed = weights if last_g is None else _anderson(weights, g, last_x + last_g, last_g,
+                                                         lower, upper)
+        moving = moved > tol
         if not moving.any():
             break
-        todo = todo[moving]
+        todo, x, last_x, last_g = todo[moving], mixed[moving], x[moving], g[moving]
     out.finish(model, w, data)
-    return rank
+    return qp.rank
 
 
 def _smooth_chord_steps(model: _CentreModel, data, smoothness, tol, max_steps,
