@@ -7,8 +7,10 @@ import threading
 import numpy as np
 import pytest
 import threadpoolctl
+from tolerances import SOLVE_OBJECTIVE_REL, SOLVE_SAME_MINIMIZER
 
 import fit.solve._active_set
+import fit.solve.weights
 from fit.report.figure_queue import FigureQueue
 from fit.solve.weights import solve_weights
 from mocap.util.blas import (
@@ -48,6 +50,30 @@ def test_solve_weights_is_the_same_whatever_the_blas_threads():
         two = solve_weights(basis, data, lower=0, upper=1)
         assert blas_threads() == 2
     np.testing.assert_array_equal(two.weights, one.weights)
+
+
+def test_unbounded_solve_shares_its_products_among_threads_with_the_same_bits(monkeypatch):
+    """Without bounds the right-hand sides, the product with G⁻¹ and its check, and the costs
+    go by blocks of frames on the threads (blocks made small here, so that there are many):
+    the same bits on one BLAS thread or two, each frame's least squares (numpy's lstsq) and
+    its cost."""
+    monkeypatch.setattr(fit.solve._active_set, "_BLOCK", 64)
+    monkeypatch.setattr(fit.solve.weights, "_ROWS", 16)
+    rng = np.random.default_rng(4)
+    basis = rng.normal(size=(45, 9))
+    data = rng.normal(size=(700, 45))
+    with threadpoolctl.threadpool_limits(1, user_api="blas"):
+        one = solve_weights(basis, data)
+    with _two_threads():
+        two = solve_weights(basis, data)
+    for field in ("weights", "cost", "kkt_residual"):
+        np.testing.assert_array_equal(getattr(two, field), getattr(one, field))
+    assert one.status == 0, one.message
+    expected = np.linalg.lstsq(basis, data.T, rcond=None)[0].T
+    np.testing.assert_allclose(one.weights, expected, rtol=0, atol=SOLVE_SAME_MINIMIZER)
+    residual = data - expected @ basis.T
+    np.testing.assert_allclose(one.cost, 0.5 * np.einsum("ij,ij->i", residual, residual),
+                               rtol=SOLVE_OBJECTIVE_REL)
 
 
 def test_work_is_shared_among_python_threads_each_on_one_blas_thread():

@@ -383,15 +383,20 @@ def solve_box_qp(qp: BoxQP, c: np.ndarray, *, tol: float, max_iter: int,
     among the BLAS's threads (the same result on any number of them).
     """
     T = len(c)
+    w, n_iter, kkt = np.empty_like(c), np.zeros(T, np.int64), np.empty(T)
     if np.isinf(qp.lo).all() and np.isinf(qp.hi).all():
         # no bound can ever be active: one product with G^-1 (G^+ when singular,
-        # the minimum-norm minimizer), no iteration
+        # the minimum-norm minimizer) and its check, no iteration, by blocks on the threads
         inverse = qp.inverse if qp.inverse is not None else np.linalg.pinv(
             qp.G, rcond=RANK_RTOL, hermitian=True)
-        w = dot(c, inverse)
-        kkt = residual(qp, w, c)
-        return w, np.ones(T, np.int64), kkt, kkt <= tol
-    w, n_iter, kkt = np.empty_like(c), np.zeros(T, np.int64), np.empty(T)
+
+        def product_block(start):
+            part = slice(start, start + _BLOCK)
+            w[part] = dot(c[part], inverse)
+            kkt[part] = residual(qp, w[part], c[part])
+        map_on_blas_threads(product_block, range(0, T, _BLOCK))
+        n_iter[:] = 1
+        return w, n_iter, kkt, kkt <= tol
 
     def solve_block(start):
         part = slice(start, start + _BLOCK)
