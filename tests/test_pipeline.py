@@ -6,6 +6,7 @@ import warnings
 
 import numpy as np
 import pytest
+import threadpoolctl
 from scipy.optimize import lsq_linear
 from tolerances import (
     EXACT_FLOAT64,
@@ -21,6 +22,7 @@ from tolerances import (
     SOLVE_OBJECTIVE_REL,
 )
 
+import fit.pipeline.stages
 import mocap
 from basis.basis_io import load_basis
 from fit.demo import DEMO_MAX_GAP, make_demo_session
@@ -261,6 +263,24 @@ def test_reconstruction_is_neutral_plus_basis_in_mm(chain, fitted, space):
     # back to capture mm through the binding's inverse similarity (independent path)
     expected = binding.to_capture(binding.to_mesh(neutral) + disp_mesh)
     np.testing.assert_allclose(fit.reconstructed["QE"], expected, atol=EXACT_MM)
+
+
+def test_reconstruction_in_tasks_on_threads_is_the_whole_one(chain, fitted, monkeypatch):
+    """The reconstructed markers are made by tasks of frames shared among the threads: with
+    tasks of 7 frames, the same bits on one BLAS thread or two, and the markers of one task
+    to rounding (a product of 7 rows may round otherwise than one of all)."""
+    monkeypatch.setattr(fit.pipeline.stages, "_FRAMES_PER_TASK", 7)
+    args = (chain["take"], chain["bound"], chain["retargeted"], chain["bases"])
+    got = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # QE: rank ≤ m + 1 by construction
+        for threads in (1, 2):
+            with threadpoolctl.threadpool_limits(threads, user_api="blas"):
+                got[threads] = fit_stage(*args, options=FitOptions(space="marker"))
+    for name, markers in fitted["marker"].reconstructed.items():
+        assert len(markers) > 7
+        np.testing.assert_array_equal(got[2].reconstructed[name], got[1].reconstructed[name])
+        np.testing.assert_allclose(got[1].reconstructed[name], markers, rtol=0, atol=EXACT_MM)
 
 
 @pytest.mark.parametrize("bounds", [(-np.inf, np.inf), (0.0, 1.0), (-0.1, 1.1)])

@@ -38,6 +38,7 @@ from mocap.mesh.mouth import find_mouth
 from mocap.retarget.lip_seal import LipSealCheck, check_lip_seal
 from mocap.retarget.retargeting import Retargeting, RetargetOptions, retarget
 from mocap.take import Take
+from mocap.util.blas import map_on_blas_threads
 
 __all__ = ["complete_span", "NamedBasis", "BasisResult", "FitResult", "ingest_stage",
            "bind_stage", "retarget_stage", "basis_stage", "fit_stage", "lip_seal_stage"]
@@ -343,15 +344,37 @@ def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: Basi
                 sol = solve_weights(at_markers[k:], data, lower=lower, upper=upper,
                                     smoothness=options.smoothness)
         full = np.concatenate([np.ones((len(D), k)), sol.weights], axis=1)
-        disp = centres.displacements if centres else np.tensordot(full, at_markers, axes=1)
         solutions[name], weights[name] = sol, full
-        # neutral + disp Rᵀ⁻¹ / s, in place on the one (T, M, 3) product
-        markers = disp @ binding.rotation
-        markers /= binding.scale
-        markers += neutral
-        reconstructed[name] = markers
+        reconstructed[name] = _capture_markers(
+            full, at_markers, centres.displacements if centres else None, binding, neutral)
     return FitResult(solutions=solutions, weights=weights, reconstructed=reconstructed,
                      space=options.space)
+
+
+#: Frames of a task of :func:`_capture_markers` on the worker threads.
+_FRAMES_PER_TASK = 4096
+
+
+def _capture_markers(weights, at_markers, displacements, binding, neutral) -> np.ndarray:
+    """The markers that `weights` (T, n) reconstruct, in capture millimetres, (T, M, 3).
+
+    ``neutral + (B w_t) R / s``, with B `at_markers` (n, M, 3) and the binding's rotation
+    R and scale s, or `displacements` (T, M, 3) instead of ``B w_t`` when given (the exact
+    centres'); in place on each task's rows, tasks shared among the worker threads.
+    """
+    out = np.empty((len(weights), *neutral.shape))
+    flat = at_markers.reshape(len(at_markers), -1)
+
+    def task(first):
+        rows = slice(first, first + _FRAMES_PER_TASK)
+        part = out[rows]
+        moved = displacements[rows] if displacements is not None else \
+            (weights[rows] @ flat).reshape(part.shape)
+        np.matmul(moved, binding.rotation, out=part)
+        part /= binding.scale
+        part += neutral
+    map_on_blas_threads(task, range(0, len(weights), _FRAMES_PER_TASK))
+    return out
 
 
 def lip_seal_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: BasisResult,
