@@ -158,7 +158,9 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
     next iteration changes instead of factoring anew.
 
     The products are of n-wide batches: the solve runs on one BLAS thread
-    (:func:`mocap.util.blas.one_blas_thread`), whatever the BLAS is set to.
+    (:func:`mocap.util.blas.one_blas_thread`), whatever the BLAS is set to, and its
+    blocks of frames (the right-hand sides, the iterations, the costs) are shared among
+    as many Python threads as the BLAS had (the same bits on any number of them).
 
     References
     ----------
