@@ -146,4 +146,4 @@ def pooled_spectrum(operators, moments, *, n_components: int | None,
                     eigenvalues=evals[:n_components], mean=mean.ravel(),
                     total_variance=float(np.trace(small)), n_frames=n_frames,
                     message=f"implicit: eigenproblem of size {3 * k} from "
-                            f"{n_frames} marker frames{takes}")
+                            f"{n_frames} marker frames{takes}", spectrum=evals)

@@ -84,7 +84,8 @@ class RunningMoments:
 class Spectrum:
     """What a PCA routine hands back: flattened components (m, n_features),
     covariance eigenvalues (m,), mean (n_features,), exact trace, frame count,
-    and how it was computed."""
+    how it was computed, and every eigenvalue it found (descending, the m first;
+    None when it found only those)."""
 
     components: np.ndarray
     eigenvalues: np.ndarray
@@ -92,6 +93,7 @@ class Spectrum:
     total_variance: float
     n_frames: int
     message: str
+    spectrum: np.ndarray | None = None
 
 
 def _orth(a: np.ndarray) -> np.ndarray:

@@ -17,13 +17,15 @@ def plot_coverage(model, path, *, thresholds=(0.99, 0.995), title: str | None = 
     Parameters
     ----------
     model : basis.pca.PCAModel or array_like, shape (m,)
-        Its ``coverage()`` (fraction of the total variance), or that coverage.
+        Its ``coverage_curve()`` (fraction of the total variance of every component
+        whose eigenvalue it knows), or that coverage.
     path : str or os.PathLike
     thresholds : sequence of float in (0, 1]
         Drawn as horizontal lines, with the smallest m reaching each marked
         (or "not reached with the m kept").
     """
-    cov = np.asarray(model.coverage() if hasattr(model, "coverage") else model, dtype=float)
+    cov = np.asarray(model.coverage_curve() if hasattr(model, "coverage_curve") else model,
+                     dtype=float)
     thresholds = [float(t) for t in thresholds]
     if not all(0 < t <= 1 for t in thresholds):
         raise InputError(f"thresholds must be in (0, 1], got {thresholds}")
@@ -57,5 +59,5 @@ def plot_coverage(model, path, *, thresholds=(0.99, 0.995), title: str | None = 
         ax.set_xlim(0.5, len(cov) + 0.5)
         ax.set_xlabel("number of components m")
         ax.grid(alpha=0.3, which="both")
-    fig.suptitle(title or f"PCA coverage ({len(cov)} components kept)")
+    fig.suptitle(title or f"PCA coverage of the first {len(cov)} components")
     save_figure(fig, path)

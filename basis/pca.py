@@ -66,6 +66,10 @@ class PCAModel:
         ``"implicit"``, ``"randomized"`` or ``"incremental"``.
     message : str
         How the model was computed.
+    spectrum : ndarray, shape (K,), mesh units², optional
+        Every covariance eigenvalue known (descending, K ≥ m), the kept ones first: the
+        coverage of more components than were kept (:meth:`coverage_curve`), e.g. of a
+        model whose components were computed only up to a coverage. None: the kept ones.
     """
 
     mean: np.ndarray
@@ -75,6 +79,7 @@ class PCAModel:
     n_frames: int
     method: str = "implicit"
     message: str = ""
+    spectrum: np.ndarray | None = None
 
     def __post_init__(self):
         mean = as_float_array(self.mean, "mean", shape=(None, 3), allow_nan=False)
@@ -87,6 +92,12 @@ class PCAModel:
         for name, value in (("mean", mean), ("components", comps), ("eigenvalues", evals)):
             object.__setattr__(self, name, read_only(np.ascontiguousarray(value)))
         object.__setattr__(self, "total_variance", float(self.total_variance))
+        if self.spectrum is not None:
+            spectrum = as_float_array(self.spectrum, "spectrum", ndim=1, allow_nan=False)
+            if len(spectrum) < len(evals) or not np.array_equal(spectrum[:len(evals)], evals):
+                raise InputError(f"spectrum must start with the {len(evals)} eigenvalues of "
+                                 f"the components kept, got {len(spectrum)} values")
+            object.__setattr__(self, "spectrum", read_only(spectrum))
 
     @property
     def n_components(self) -> int:
@@ -98,6 +109,15 @@ class PCAModel:
         if self.total_variance <= 0:
             return np.ones(self.n_components)
         return np.cumsum(self.eigenvalues) / self.total_variance
+
+    def coverage_curve(self) -> np.ndarray:
+        """Cumulative coverage of every component whose eigenvalue is known (:attr:`spectrum`,
+        else the m kept), shape (K,): what keeping more components than m would cover."""
+        if self.spectrum is None:
+            return self.coverage()
+        if self.total_variance <= 0:
+            return np.ones(len(self.spectrum))
+        return np.cumsum(self.spectrum) / self.total_variance
 
     def n_for_coverage(self, threshold: float = 0.995) -> int:
         """Smallest number of components whose coverage reaches `threshold` (0, 1].
@@ -141,7 +161,8 @@ class PCAModel:
         return names, np.concatenate([self.mean[None], self.components * sd[:, None, None]])
 
     def truncate(self, n_components: int) -> "PCAModel":
-        """The model with its first `n_components` components (same total variance)."""
+        """The model with its first `n_components` components (same total variance; the
+        eigenvalues of the others kept in :attr:`spectrum`)."""
         n_components = as_int(n_components, "n_components", minimum=1)
         if n_components > self.n_components:
             raise InputError(f"n_components must be at most {self.n_components}, "
@@ -149,7 +170,8 @@ class PCAModel:
         return PCAModel(mean=self.mean, components=self.components[:n_components],
                         eigenvalues=self.eigenvalues[:n_components],
                         total_variance=self.total_variance, n_frames=self.n_frames,
-                        method=self.method, message=self.message)
+                        method=self.method, message=self.message,
+                        spectrum=self.eigenvalues if self.spectrum is None else self.spectrum)
 
     def sha256(self) -> str:
         """SHA-256 (hex) of the model's numbers: two takes fitted in one basis share it.
@@ -197,7 +219,8 @@ def _model(spec: Spectrum, method: str) -> PCAModel:
     comps *= np.where(comps.max(axis=1) >= -comps.min(axis=1), 1.0, -1.0)[:, None]
     return PCAModel(mean=spec.mean.reshape(-1, 3), components=comps.reshape(len(comps), -1, 3),
                     eigenvalues=spec.eigenvalues, total_variance=spec.total_variance,
-                    n_frames=spec.n_frames, method=method, message=spec.message)
+                    n_frames=spec.n_frames, method=method, message=spec.message,
+                    spectrum=spec.spectrum)
 
 
 def pca_from_operator(operator, displacements, *, n_components: int | None = None) -> PCAModel:

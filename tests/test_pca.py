@@ -17,7 +17,13 @@ from tolerances import (
     PCA_STREAMING_RTOL,
 )
 
-from basis.pca import PCA_METHODS, PCAModel, pca_from_operator, pca_streaming
+from basis.pca import (
+    PCA_METHODS,
+    PCAModel,
+    pca_from_operator,
+    pca_from_operators,
+    pca_streaming,
+)
 from mocap.errors import InputError
 
 METHODS = ("implicit",) + PCA_METHODS
@@ -97,6 +103,45 @@ def test_implicit_full_spectrum_is_exact_when_operator_is_tall():
     _, evals, _, total = dense_pca(xi)
     np.testing.assert_allclose(model.eigenvalues, evals[:15], rtol=PCA_IMPLICIT_RTOL)
     np.testing.assert_allclose(model.coverage()[-1], 1, rtol=PCA_EXACT_RTOL)
+
+
+def test_components_up_to_a_coverage_keep_the_whole_spectrum():
+    """Computed up to a coverage, the model lifts only the components it keeps; every
+    eigenvalue stays in its spectrum, whose coverage curve is the dense SVD's, and its
+    components are the full model's first ones."""
+    operator, disp, xi = make_case(**CASES["signal+noise"])
+    full = pca_from_operator(operator, disp)
+    cut = pca_from_operators([operator], [disp], coverage=0.9)
+    _, evals, _, total = dense_pca(xi)
+    m = cut.n_components
+    assert m == full.n_for_coverage(0.9) < full.n_components
+    np.testing.assert_allclose(cut.components, full.components[:m], rtol=0,
+                               atol=PCA_COMPONENT_DOT)
+    curve = cut.coverage_curve()
+    assert len(curve) >= full.n_components and len(cut.spectrum) == len(curve)
+    # W·D has rank 3M at most: the dense SVD's other eigenvalues are 0 to rounding
+    np.testing.assert_allclose(curve, (np.cumsum(evals) / total)[:len(curve)],
+                               rtol=PCA_IMPLICIT_RTOL)
+    np.testing.assert_array_equal(cut.coverage(), curve[:m])
+    np.testing.assert_array_equal(full.truncate(m).coverage_curve(), full.coverage_curve())
+
+
+def test_a_model_without_spectrum_keeps_its_eigenvalues_when_truncated():
+    model = PCAModel(np.zeros((1, 3)), np.eye(3)[:2, None], [4.0, 1.0], 5.0, 10)
+    assert model.spectrum is None
+    np.testing.assert_array_equal(model.coverage_curve(), [0.8, 1.0])
+    small = model.truncate(1)
+    np.testing.assert_array_equal(small.spectrum, [4.0, 1.0])
+    np.testing.assert_array_equal(small.coverage_curve(), [0.8, 1.0])
+    np.testing.assert_array_equal(small.coverage(), [0.8])
+
+
+def test_model_spectrum_must_start_with_the_kept_eigenvalues():
+    args = (np.zeros((1, 3)), np.eye(3)[:2, None], [4.0, 1.0], 5.0, 10)
+    with pytest.raises(InputError, match="spectrum must start with the 2 eigenvalues"):
+        PCAModel(*args, spectrum=[4.0, 0.5, 0.1])
+    with pytest.raises(InputError, match="spectrum must start with the 2 eigenvalues"):
+        PCAModel(*args, spectrum=[4.0])
 
 
 def test_implicit_ill_conditioned_operator():

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from basis.artist import ArtistBasis
-from basis.pca import PCAModel, pca_from_operator
+from basis.pca import PCAModel, pca_from_operator, pca_from_operators
 from basis.quasi_eigen import QuasiEigenBasis, quasi_eigen
 from fit.pipeline.options import BasisOptions, BindOptions, FitOptions
 from fit.report.retarget_qa import mesh_lip_gaps
@@ -263,7 +263,12 @@ def basis_stage(retargeted: Retargeting, artist: ArtistBasis, *,
         ``PCA`` (the mean, weight fixed at 1, then m unbounded eigenfaces).
     """
     scope = "take" if pca is None else "session"
-    if pca is None:
+    if pca is None and options.pca_components is None:
+        # the components up to the coverage only (the others' eigenvalues are kept for the
+        # coverage plot): the take's QE and PCA need no more
+        pca = pca_from_operators([retargeted.operator.matrix], [retargeted.displacements],
+                                 coverage=options.pca_coverage)
+    elif pca is None:
         pca = pca_from_operator(retargeted.operator.matrix, retargeted.displacements)
     elif pca.mean.shape != (retargeted.mesh.n_vertices, 3):
         raise InputError(f"the session PCA has {len(pca.mean)} vertices, the take's mesh "

@@ -293,7 +293,7 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
         page.append(_mesh_section(take, np.asarray(neutral, float), results, worst, mesh_space,
                                   markerset, out, files, number, draw))
     if pca is not None:
-        draw(plot_coverage, pca.coverage(), out("coverage"))
+        draw(plot_coverage, pca.coverage_curve(), out("coverage"))
         page.append(Section("PCA coverage", items=(Figure(
             files["coverage"], "PCA coverage",
             "The share of the take's mesh motion (variance of W·D) the first k components "
