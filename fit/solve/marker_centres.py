@@ -25,7 +25,6 @@ differs from the least-squares fit of c by the second order of the offset.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -33,7 +32,14 @@ import numpy as np
 from fit.solve._active_set import BoxQP, solve_box_qp
 from fit.solve._problem import as_bounds
 from fit.solve.gcv import SMOOTHNESS_RULES, gcv_smoothness
-from fit.solve.weights import WeightSolution, as_smoothness, solve_weights
+from fit.solve.weights import (
+    DEFAULT_TOL,
+    WeightSolution,
+    as_smoothness,
+    default_max_iter,
+    solve_weights,
+    warn_rank_deficient,
+)
 from mocap.errors import InputError
 from mocap.mesh.layout import MarkerLayout, PlacementUnderWeights
 from mocap.util.blas import map_on_blas_threads
@@ -139,9 +145,7 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
         ranks = [_smooth_chord_steps(model, data, smoothness, tol, max_steps, steps)]
     else:
         if model.qp.singular:       # as solve_weights says it (the smooth solve goes through it)
-            warnings.warn(f"the basis has rank {model.qp.rank} < {n} shapes: weights along "
-                          "its null space are the minimum-norm reduced solution",
-                          RuntimeWarning, stacklevel=2)
+            warn_rank_deficient(model.qp.rank, n)
         # frames are independent: pieces of them step on the BLAS's threads, each writing
         # its rows of the result (no copy of the pieces' results in one thread after)
         def piece(first):
@@ -259,10 +263,6 @@ class _ChordSteps:
         self.cost[:] = 0.5 * np.einsum("tmc,tmc->t", residual, residual)
 
 
-#: KKT tolerance of each chord step's solve (:func:`fit.solve.weights.solve_weights`' own).
-_SOLVE_TOL = 1e-9
-
-
 def _chord_steps(model: _CentreModel, data, tol, max_steps, out: _ChordSteps) -> int:
     """The chord steps of independent frames `data` (T, M, 3) from zero weights (whose
     first step is the linear model's solve), written into `out` (T frames); return the
@@ -275,7 +275,7 @@ def _chord_steps(model: _CentreModel, data, tol, max_steps, out: _ChordSteps) ->
     """
     qp, lower, upper = model.qp, model.lower, model.upper
     T, n = len(data), qp.n
-    max_iter = 20 * n + 20                      # solve_weights' default
+    max_iter = default_max_iter(n)
     linear = data.reshape(T, -1) @ model.basis.reshape(n, -1).T             # Bᵀd, (T, n)
     w, kkt, converged, n_steps, n_iter, step = \
         out.weights, out.kkt, out.converged, out.n_steps, out.n_iter, out.step
@@ -292,7 +292,7 @@ def _chord_steps(model: _CentreModel, data, tol, max_steps, out: _ChordSteps) ->
             terms += x @ qp.G
             state = qp.state_of(x)
         weights, iterations, residual, ok = solve_box_qp(
-            qp, terms, tol=_SOLVE_TOL, max_iter=max_iter, warm_start=True, state=state)
+            qp, terms, tol=DEFAULT_TOL, max_iter=max_iter, warm_start=True, state=state)
         g = weights - x
         moved = np.abs(g).max(axis=1)
         step[todo], w[todo], kkt[todo], converged[todo] = moved, weights, residual, ok

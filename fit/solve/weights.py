@@ -66,10 +66,28 @@ class WeightSolution:
     smoothness: float = 0.0
 
 
+#: solve_weights' KKT tolerance unless told otherwise.
+DEFAULT_TOL = 1e-9
+
+
+def default_max_iter(n_shapes: int) -> int:
+    """solve_weights' iterations of the monotone phase unless told otherwise."""
+    return 20 * n_shapes + 20
+
+
+def warn_rank_deficient(rank: int, n_shapes: int, where: str = "", *,
+                        stacklevel: int = 2) -> None:
+    """Warn that the basis has rank `rank` < `n_shapes` (`where`: on which rows), for the
+    frame `stacklevel` above the caller."""
+    warnings.warn(f"the basis has rank {rank} < {n_shapes} shapes{where}: weights along its "
+                  "null space are the minimum-norm reduced solution", RuntimeWarning,
+                  stacklevel=stacklevel + 1)
+
+
 @on_one_blas_thread
 def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
                   warm_start: bool = True, smoothness: float | str = 0.0,
-                  tol: float = 1e-9, max_iter: int | None = None,
+                  tol: float = DEFAULT_TOL, max_iter: int | None = None,
                   start=None, follow=None) -> WeightSolution:
     """Solve ``min ½‖B w − d_t‖²`` with ``lower ≤ w ≤ upper`` for every frame.
 
@@ -184,7 +202,8 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
         raise InputError("follow needs smoothness: independent frames have no global step")
     if not (isinstance(tol, float | int) and np.isfinite(tol) and tol > 0):
         raise InputError(f"tol must be a positive number, got {tol!r}")
-    max_iter = 20 * n + 20 if max_iter is None else as_int(max_iter, "max_iter", minimum=1)
+    max_iter = default_max_iter(n) if max_iter is None else \
+        as_int(max_iter, "max_iter", minimum=1)
     if smoothness in SMOOTHNESS_RULES:
         smoothness = gcv_smoothness(B, D)
     if start is not None:
@@ -202,11 +221,8 @@ def solve_weights(basis, data, *, lower=-np.inf, upper=np.inf, mask=None,
         qp = BoxQP.build(B[rows].T @ B[rows], lo, hi)
         ranks.append(qp.rank)
         if qp.singular:
-            warnings.warn(
-                f"the basis has rank {qp.rank} < {n} shapes"
-                + ("" if valid is None else f" on the valid rows of frames {_first(frames)}")
-                + ": weights along its null space are the minimum-norm reduced solution",
-                RuntimeWarning, stacklevel=2)
+            warn_rank_deficient(qp.rank, n, "" if valid is None else
+                                f" on the valid rows of frames {_first(frames)}")
         if smoothness > 0:
             moving = None if follow is None else _Moving(follow, B, D)
             w, it, res, _ = solve_smooth(qp, C, smoothness, tol=tol, max_iter=max_iter,
