@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import threading
 
 import numpy as np
@@ -19,6 +20,7 @@ from mocap.util.blas import (
     map_on_blas_threads,
     on_one_blas_thread,
     one_blas_thread,
+    shared_pool,
     worker_threads,
 )
 
@@ -95,6 +97,37 @@ def test_work_is_shared_among_python_threads_each_on_one_blas_thread():
     assert all(blas == 1 and workers == 1 for _, blas, workers in seen)
 
 
+def test_the_threads_are_kept_and_never_share_again():
+    """The same threads serve every call (none is started again); work given to them that
+    would share itself again runs in its thread (no wait on a pool whose threads are all
+    busy waiting)."""
+    with _two_threads():
+        first = map_on_blas_threads(lambda k: threading.get_ident(), range(8))
+        count = threading.active_count()
+        again = map_on_blas_threads(lambda k: threading.get_ident(), range(8))
+        assert threading.active_count() == count
+        assert set(again) <= set(first) and shared_pool(2) is shared_pool(2)
+        inner = map_on_blas_threads(
+            lambda k: (worker_threads(), map_on_blas_threads(lambda j: threading.get_ident(),
+                                                             range(3))), range(2))
+    for workers, idents in inner:
+        assert workers == 1 and len(set(idents)) == 1
+
+
+def test_a_forked_child_makes_its_own_threads():
+    """A child forked after the threads were started (they are not in it) starts its own."""
+    context = multiprocessing.get_context("fork")
+    with _two_threads():
+        map_on_blas_threads(abs, range(4))
+        with context.Pool(1) as pool:
+            assert pool.apply(_shared_squares, (6,)) == [k * k for k in range(6)]
+
+
+def _shared_squares(n):
+    with threadpoolctl.threadpool_limits(2, user_api="blas"):
+        return map_on_blas_threads(lambda k: k * k, range(n))
+
+
 def test_one_blas_thread_runs_the_work_in_the_calling_thread():
     caller = threading.get_ident()
     with threadpoolctl.threadpool_limits(1, user_api="blas"):
@@ -112,6 +145,18 @@ def test_an_error_of_the_work_is_raised_and_the_threads_restored():
         with pytest.raises(ValueError, match="item 2"):
             map_on_blas_threads(item, range(4))
         assert blas_threads() == 2 and worker_threads() == 2
+
+    done = []
+
+    def first_fails(k):
+        if k == 0:
+            raise ValueError("item 0")
+        threading.Event().wait(0.02)
+        done.append(k)
+
+    with _two_threads(), pytest.raises(ValueError, match="item 0"):
+        map_on_blas_threads(first_fails, range(6))
+    assert sorted(done) == [1, 2, 3, 4, 5]          # every item done before the error
 
 
 def test_many_blocks_of_frames_solve_to_the_same_bits_on_any_threads(monkeypatch):

@@ -12,24 +12,30 @@ small enough that taking and handing back the GIL is much of their time; separat
 processes would share it).
 
 Where processes of ours keep cores busy beside this one (the report's figure helpers, the
-other workers of a local pool), the BLAS leaves those cores to them (:class:`CoresTaken`): a BLAS thread that has to wait for
-a busy core holds up every product it shares, and on a 2-core machine with one helper
-drawing, the report's fits took two to seven times longer on two BLAS threads than on one.
+other workers of a local pool), the BLAS leaves those cores to them (:class:`CoresTaken`):
+a BLAS thread that has to wait for a busy core holds up every product it shares, and on a
+2-core machine with one helper drawing, the report's fits took two to seven times longer
+on two BLAS threads than on one.
+
+The Python threads are kept for the process (:func:`shared_pool`): starting a thread and
+waiting for it to run cost 0.2-0.7 ms on a virtual machine, which a fit that shares a few
+milliseconds of work many times over paid at every call.
 """
 
 from __future__ import annotations
 
 import functools
+import os
 import threading
 from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from contextlib import contextmanager
 
 import scipy.linalg  # noqa: F401  (scipy's own BLAS is loaded before the controller looks)
 import threadpoolctl
 
-__all__ = ["CoresTaken", "blas_threads", "map_on_blas_threads", "on_one_blas_thread",
-           "one_blas_thread", "worker_threads"]
+__all__ = ["CoresTaken", "blas_threads", "finished", "map_on_blas_threads",
+           "on_one_blas_thread", "one_blas_thread", "shared_pool", "worker_threads"]
 
 #: Per thread: the BLAS's threads outside this thread's outermost :func:`one_blas_thread`.
 _outside = threading.local()
@@ -49,9 +55,11 @@ def worker_threads() -> int:
     """Python threads that work of many small products may share (at least 1).
 
     The BLAS's threads, as they were outside the calling thread's outermost
-    :func:`one_blas_thread`; 1 in a thread of :func:`map_on_blas_threads` (its
-    work is already shared).
+    :func:`one_blas_thread`; 1 in a thread of :func:`shared_pool` (its work is
+    already shared, and waiting there for the pool's other threads could wait forever).
     """
+    if getattr(_outside, "pooled", False):
+        return 1
     threads = getattr(_outside, "threads", None)
     return threads if threads is not None else blas_threads()
 
@@ -77,15 +85,55 @@ def map_on_blas_threads(function: Callable, items: Iterable) -> list:
     For independent pieces of work made of small products (a few thousand frames of a
     batched solve each): split in pieces that do not depend on the thread count, the
     results are the same, bit for bit, on any number of threads. The first error raised
-    by `function` is raised here.
+    by `function` (in the order of `items`) is raised here, once every item is done.
     """
     items = list(items)
     workers = min(worker_threads(), len(items))
     with one_blas_thread():
         if workers <= 1:
             return [function(item) for item in items]
-        with ThreadPoolExecutor(workers) as pool:
-            return list(pool.map(function, items))
+        return finished([shared_pool(workers).submit(function, item) for item in items])
+
+
+def finished(futures: list) -> list:
+    """The results of `futures`, once all are done; the first error (in their order) raised.
+
+    Waiting for all before raising keeps work of a failed call from running on behind it.
+    """
+    wait(futures)
+    return [future.result() for future in futures]
+
+
+def shared_pool(workers: int) -> ThreadPoolExecutor:
+    """A pool of `workers` Python threads kept for the process (one per count asked for).
+
+    Its threads see one :func:`worker_threads` (work they are given is not shared again).
+    """
+    with _pools_lock:
+        pool = _pools.get(workers)
+        if pool is None:
+            pool = _pools[workers] = ThreadPoolExecutor(
+                workers, thread_name_prefix=f"mocap2mesh-{workers}", initializer=_pooled)
+    return pool
+
+
+def _pooled() -> None:
+    _outside.pooled = True
+
+
+#: The pools of :func:`shared_pool`, by thread count; a forked child starts without them
+#: (their threads are not in it).
+_pools: dict = {}
+_pools_lock = threading.Lock()
+
+
+def _forget_pools() -> None:
+    global _pools_lock
+    _pools.clear()
+    _pools_lock = threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_pools)
 
 
 def on_one_blas_thread(function):
