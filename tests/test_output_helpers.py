@@ -1,36 +1,74 @@
-"""Helpers of the binary writers: column extremes by halving, preallocated files, npz."""
+"""Helpers of the binary writers: column extremes (by halving, or one compiled pass),
+preallocated files, parts written by threads at their offsets, npz."""
 
 from __future__ import annotations
 
 import errno
+import functools
 import os
 import shutil
 import struct
 import subprocess
+import sys
+import threading
 import zipfile
 import zlib
 
 import numpy as np
 import pytest
 
-from mocap.util import npz
+from mocap.util import extremes, npz
 from mocap.util.atomic import preallocate
 from mocap.util.extremes import column_extremes
+from mocap.util.parallel_writes import positional_writer, write_parts
+
+
+@pytest.fixture(params=["NumPy", "compiled"])
+def extremes_by(request, monkeypatch):
+    """Column extremes by NumPy's halving (a process without numba), or by the compiled
+    pass (one that has loaded it), each call of the kernel counted."""
+    calls = []
+    if request.param == "NumPy":
+        monkeypatch.delitem(sys.modules, "numba", raising=False)
+    else:
+        pytest.importorskip("numba", reason="the compiled pass is the speed extra's (numba)")
+        kernel = extremes._compiled_extremes()
+        monkeypatch.setattr(extremes, "_compiled_extremes",
+                            lambda: lambda *args: calls.append(1) or kernel(*args))
+    return request.param, calls
 
 
 @pytest.mark.parametrize("shape", [(1, 3), (2, 3), (3, 1), (7, 5), (1000, 53), (1023, 3),
-                                   (4, 9409, 3), (3, 1, 2), (5, 2, 2), (2, 3, 17, 4)])
-def test_column_extremes_are_numpys(shape):
-    """Every row count (odd ones fold their last row in), batches of tables alike."""
+                                   (4, 9409, 3), (3, 1, 2), (5, 2, 2), (2, 3, 17, 4),
+                                   (70, 64), (33, 65), (129, 1), (0, 5, 3), (5, 2, 0)])
+def test_column_extremes_are_numpys(shape, extremes_by):
+    """Every row count (odd ones fold their last row in; rows after the compiled pass's
+    last whole group of 64 values), batches of tables alike, empty ones too."""
     rng = np.random.default_rng(sum(shape))
     arr = rng.normal(size=shape)
     low, high = column_extremes(arr)
     np.testing.assert_array_equal(low, arr.min(axis=-2))
     np.testing.assert_array_equal(high, arr.max(axis=-2))
     assert low.shape == high.shape == shape[:-2] + shape[-1:]
+    assert low.dtype == high.dtype == arr.dtype
+    by, calls = extremes_by
+    assert bool(calls) == (by == "compiled" and arr.size > 0 and shape[-2] > 1)
 
 
-def test_column_extremes_of_float32_and_nan_and_views():
+@pytest.mark.parametrize("where", [(0, 0), (0, 2), (37, 1), (88, 2), (100, 0)])
+def test_column_extremes_of_nan_anywhere(where, extremes_by):
+    """A NaN in the first row, inside a group of the compiled pass, or after its last
+    whole group makes its column's min and max NaN, and no other column's."""
+    arr = np.random.default_rng(sum(where)).normal(size=(101, 3))
+    arr[where] = np.nan
+    low, high = column_extremes(arr)
+    expected = [j == where[1] for j in range(3)]
+    assert np.isnan(low).tolist() == np.isnan(high).tolist() == expected
+    np.testing.assert_array_equal(low, arr.min(axis=0))
+    np.testing.assert_array_equal(high, arr.max(axis=0))
+
+
+def test_column_extremes_of_float32_and_nan_and_views(extremes_by):
     """A NaN makes its column's extremes NaN (those of the glTF writer's checks)."""
     rng = np.random.default_rng(0)
     arr = rng.normal(size=(101, 4)).astype(np.float32)
@@ -41,7 +79,9 @@ def test_column_extremes_of_float32_and_nan_and_views():
     np.testing.assert_array_equal(high, arr[::2].max(axis=0))
     assert np.isnan(low).tolist() == np.isnan(high).tolist() == [False, True, False, False]
     before = arr.copy()
-    column_extremes(arr)
+    low, high = column_extremes(arr)                      # contiguous: the compiled pass's
+    np.testing.assert_array_equal(low, arr.min(axis=0))
+    np.testing.assert_array_equal(high, arr.max(axis=0))
     np.testing.assert_array_equal(arr, before)             # the input is left as it was
 
 
@@ -75,6 +115,65 @@ def test_preallocation_that_the_file_system_refuses_is_skipped(tmp_path, monkeyp
     monkeypatch.setattr(os, "posix_fallocate", full)
     with open(tmp_path / "c.bin", "wb") as fh, pytest.raises(OSError, match="No space"):
         preallocate(fh, 10)
+
+
+def _parts(sizes, made=None):
+    """Parts of :func:`write_parts` of `sizes` bytes, bytes and made ones in turn, and
+    the bytes they hold one after another; a made part's index goes to `made`."""
+    rng = np.random.default_rng(len(sizes))
+    blobs = [rng.integers(0, 256, size, dtype=np.uint8) for size in sizes]
+
+    def make(i, out):
+        out[:sizes[i]] = blobs[i]
+        if made is not None:
+            made.append(i)
+        return memoryview(out[:sizes[i]])
+    parts = [(size, blob.tobytes() if i % 2 else functools.partial(make, i))
+             for i, (size, blob) in enumerate(zip(sizes, blobs))]
+    return parts, b"".join(blob.tobytes() for blob in blobs)
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3, 9])
+def test_parts_are_written_at_their_offsets_on_any_threads(tmp_path, workers):
+    """After a header written by the file object, on as many threads as asked (more
+    than there are parts too): the file holds the parts in order, the file object's
+    position is where it was."""
+    parts, expected = _parts([5, 1000, 0, 4096, 7, 333, 4096, 1])
+    with open(tmp_path / "a.bin", "wb") as fh:
+        fh.write(b"head")
+        assert write_parts(positional_writer(fh, fh.tell()), parts, workers=workers,
+                           part_bytes=4096) == len(expected)
+        assert fh.tell() == 4
+    assert (tmp_path / "a.bin").read_bytes() == b"head" + expected
+
+
+def test_a_write_that_takes_fewer_bytes_is_carried_on(tmp_path, monkeypatch):
+    parts, expected = _parts([10, 2000, 3])
+    real = os.pwrite
+    monkeypatch.setattr(os, "pwrite", lambda fd, data, at: real(fd, bytes(data[:7]), at))
+    with open(tmp_path / "a.bin", "wb") as fh:
+        write_parts(positional_writer(fh, 0), parts, workers=2, part_bytes=2000)
+    assert (tmp_path / "a.bin").read_bytes() == expected
+
+
+def test_a_failed_part_stops_the_file_once_every_thread_is_done(tmp_path):
+    """The error of a part's making is raised after the other threads have stopped: no
+    part is made behind it. A part of another size than announced is an error."""
+    made = []
+    parts, _ = _parts([100] * 40, made)
+
+    def broken(out):
+        raise ValueError("part 4 is broken")
+    parts[4] = (100, broken)
+    with open(tmp_path / "a.bin", "wb") as fh, pytest.raises(ValueError, match="part 4"):
+        write_parts(positional_writer(fh, 0), parts, workers=3, part_bytes=100)
+    settled = len(made)
+    threading.Event().wait(0.05)
+    assert len(made) == settled
+    parts[4] = (99, parts[6][1])
+    with open(tmp_path / "b.bin", "wb") as fh, \
+            pytest.raises(ValueError, match="part 4 made 100 bytes, not 99"):
+        write_parts(positional_writer(fh, 0), parts, workers=1, part_bytes=100)
 
 
 @pytest.mark.parametrize("chunk_bytes", [100, npz._CHUNK_BYTES])
