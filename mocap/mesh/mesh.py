@@ -577,14 +577,20 @@ def vertex_normals(vertices, faces) -> np.ndarray:
     n = vertices.shape[-2]
     if len(faces) == 0:
         return np.zeros_like(vertices)
-    incidence = sp.csr_matrix((np.ones(faces.size), (faces.ravel(),
-                                                     np.repeat(np.arange(len(faces)), 3))),
-                              shape=(n, len(faces)))
     cross = _face_cross(vertices, faces)                       # (..., F, 3)
-    batch = cross.shape[:-2]
-    flat = np.moveaxis(cross.reshape(-1, len(faces), 3), 1, 0).reshape(len(faces), -1)
-    summed = np.asarray(incidence @ flat).reshape(n, -1, 3)
-    summed = np.moveaxis(summed, 1, 0).reshape(batch + (n, 3))
+    if cross.ndim == 2:
+        # one mesh: each vertex's faces summed in face order, as the product below sums them
+        corners = np.repeat(cross, 3, axis=0)                 # (3F, 3), a face's per corner
+        summed = np.stack([np.bincount(faces.ravel(), corners[:, axis], minlength=n)
+                           for axis in range(3)], axis=1)
+    else:
+        incidence = sp.csr_matrix((np.ones(faces.size), (faces.ravel(),
+                                                         np.repeat(np.arange(len(faces)), 3))),
+                                  shape=(n, len(faces)))
+        batch = cross.shape[:-2]
+        flat = np.moveaxis(cross.reshape(-1, len(faces), 3), 1, 0).reshape(len(faces), -1)
+        summed = np.asarray(incidence @ flat).reshape(n, -1, 3)
+        summed = np.moveaxis(summed, 1, 0).reshape(batch + (n, 3))
     norm = np.linalg.norm(summed, axis=-1, keepdims=True)
     return np.divide(summed, norm, out=np.zeros_like(summed), where=norm > 0)
 
