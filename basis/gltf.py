@@ -34,7 +34,7 @@ units is written unscaled, with a warning.
 from __future__ import annotations
 
 import base64
-import io
+import functools
 import json
 import math
 import struct
@@ -52,7 +52,10 @@ from mocap.errors import InputError
 from mocap.mesh.mesh import Mesh, vertex_normals
 from mocap.units import mm_per_unit
 from mocap.util.atomic import atomic_path, preallocate
+from mocap.util.blas import map_on_blas_threads, worker_threads
 from mocap.util.extremes import column_extremes
+from mocap.util.optional import compiled, numba_loaded
+from mocap.util.parallel_writes import positional_writer, write_parts
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
 __all__ = ["GLTF_FORMATS", "NEGATIVE_SUFFIX", "MorphTargets", "morph_targets", "write_gltf"]
@@ -89,56 +92,112 @@ class _Buffer:
             component = pygltflib.UNSIGNED_INT if arr.dtype == np.uint32 else pygltflib.FLOAT
             data = np.ascontiguousarray(arr, dtype="<u4" if component == pygltflib.UNSIGNED_INT
                                         else "<f4")
-        count, width = data.shape[0], math.prod(data.shape[1:])
-        view = {"buffer": 0, "byteOffset": self.length, "byteLength": data.nbytes}
+        if extremes is None:
+            extremes = column_extremes(data.reshape(data.shape[0], -1))
+        index = self.describe(data.shape, kind, extremes, component=component, target=target)
+        self.chunks.append(data)
+        return index
+
+    def describe(self, shape: tuple, kind: str, extremes, *, component=pygltflib.FLOAT,
+                 target: int | None = None) -> int:
+        """A view of the buffer's next ``4 · prod(shape)`` bytes and its accessor (count
+        ``shape[0]``, min and max the (2, k) `extremes`); return its index. The bytes are
+        the caller's to append to :attr:`chunks` (:meth:`add` does), one chunk for one
+        view or for several views described one after another."""
+        width = math.prod(shape[1:])
+        view = {"buffer": 0, "byteOffset": self.length, "byteLength": 4 * math.prod(shape)}
         if target == _ARRAY_BUFFER:     # every element is 4 bytes: views stay 4-byte aligned
             view["byteStride"] = 4 * width
         if target is not None:
             view["target"] = target
         self.views.append(view)
-        low, high = extremes if extremes is not None else \
-            column_extremes(data.reshape(count, width))
+        low, high = np.asarray(extremes).reshape(2, -1).tolist()
         self.accessors.append({
             "bufferView": len(self.views) - 1, "byteOffset": 0, "componentType": component,
-            "normalized": False, "count": count, "type": kind,
-            "max": np.ravel(high).tolist(), "min": np.ravel(low).tolist()})
-        self.chunks.append(data)
-        self.length += data.nbytes
+            "normalized": False, "count": shape[0], "type": kind, "max": high, "min": low})
+        self.length += view["byteLength"]
         return len(self.accessors) - 1
 
     def write(self, fh) -> None:
-        """Write the buffer's bytes to the binary file `fh`, each array from its own memory."""
-        for chunk in self.chunks:
-            if isinstance(chunk, _Rows):
-                chunk.write(fh)
-            else:
-                fh.write(memoryview(chunk).cast("B"))
+        """Write the buffer's bytes to the binary file `fh` from its position, which is
+        left after them: each array from its own memory, the values of each
+        :class:`_Rows` made a part at a time, the parts shared among the worker threads."""
+        start = fh.tell()
+        write_parts(positional_writer(fh, start), self._parts(), workers=worker_threads(),
+                    part_bytes=_PART_BYTES)
+        fh.seek(start + self.length)
 
     def blob(self) -> bytes:
-        out = io.BytesIO()
-        self.write(out)
-        return out.getvalue()
+        out = bytearray(self.length)
+
+        def write_at(offset: int, data) -> None:
+            out[offset:offset + memoryview(data).nbytes] = data
+        write_parts(write_at, self._parts(), workers=1, part_bytes=_PART_BYTES)
+        return bytes(out)
+
+    def _parts(self) -> list:
+        """The buffer's bytes as parts of :func:`mocap.util.parallel_writes.write_parts`,
+        (size, part) each: each array's memory, and the :class:`_Rows` values of about
+        :data:`_PART_BYTES` at a time (of one or of several consecutive accessors), made
+        when called."""
+        parts, pieces, size = [], [], 0
+        for chunk in self.chunks:
+            if not isinstance(chunk, _Rows):
+                if pieces:
+                    parts.append((size, functools.partial(_made_part, pieces, size)))
+                    pieces, size = [], 0
+                parts.append((chunk.nbytes, memoryview(chunk).cast("B")))
+                continue
+            rows_per_piece = max(1, _PART_BYTES // chunk.row_bytes)
+            for first in range(0, chunk.n_rows, rows_per_piece):
+                rows = slice(first, min(first + rows_per_piece, chunk.n_rows))
+                piece_bytes = (rows.stop - rows.start) * chunk.row_bytes
+                if pieces and size + piece_bytes > _PART_BYTES:
+                    parts.append((size, functools.partial(_made_part, pieces, size)))
+                    pieces, size = [], 0
+                pieces.append((chunk, rows))
+                size += piece_bytes
+        if pieces:
+            parts.append((size, functools.partial(_made_part, pieces, size)))
+        return parts
+
+
+#: Bytes of :class:`_Rows` values made at a time, by one worker thread (cache-sized).
+_PART_BYTES = 1 << 19
+
+
+def _made_part(pieces, size: int, out: np.ndarray) -> memoryview:
+    """The bytes (`size`) of `pieces`, (:class:`_Rows`, slice of its rows) each, in order,
+    made in `out` (uint8, at least `size`)."""
+    part = out[:size].view("<f4")
+    start = 0
+    for rows_of, rows in pieces:
+        n = rows.stop - rows.start
+        rows_of.fill(rows, part[start:start + n * rows_of.row_values].reshape(
+            n, rows_of.row_values))
+        start += n * rows_of.row_values
+    return memoryview(out[:size])
 
 
 @dataclass(frozen=True, eq=False)
 class _Rows:
     """An accessor's float32 values (`shape`) made from the caller's arrays as they are
-    written: ``make(rows)`` forms those of a slice of the `n_rows` source rows, one
-    cache-sized block of `rows_per_block` at a time (no copy of the whole)."""
+    written: ``fill(rows, out)`` writes those of a slice of the `n_rows` source rows
+    (`row_values` floats each) into `out` (rows, row_values) float32 (no copy of the whole).
+    """
 
     shape: tuple
-    make: Callable[[slice], np.ndarray]
+    fill: Callable[[slice, np.ndarray], None]
     n_rows: int
-    rows_per_block: int
+    row_values: int
 
     @property
     def nbytes(self) -> int:
         return 4 * math.prod(self.shape)
 
-    def write(self, fh) -> None:
-        for first in range(0, self.n_rows, self.rows_per_block):
-            block = self.make(slice(first, first + self.rows_per_block))
-            fh.write(memoryview(np.ascontiguousarray(block, dtype="<f4")).cast("B"))
+    @property
+    def row_bytes(self) -> int:
+        return 4 * self.row_values
 
 
 @dataclass(frozen=True, eq=False)
@@ -164,15 +223,21 @@ class MorphTargets:
     shape: np.ndarray
     factor: np.ndarray
 
-    def weights(self, weights, dtype=np.float64) -> np.ndarray:
-        """Target weights (T, K) in [0, 1] of shape weights (T, n), as `dtype` (rounded
-        once, from the float64 quotients)."""
+    def weights(self, weights, dtype=np.float64, *, out=None) -> np.ndarray:
+        """Target weights (T, K) in [0, 1] of shape weights (T, n), as `dtype` or into
+        `out` (T, K) (rounded once, from the float64 quotients)."""
         weights = np.asarray(weights, dtype=float)
-        out = np.empty((len(weights), len(self.shape)), dtype=dtype)
-        # np.take along axis 1 gathers whole rows (C-contiguous), unlike weights[:, shape]
-        np.divide(np.take(weights, self.shape, axis=1), self.factor, out=out,
-                  casting="same_kind")
-        return np.maximum(out, 0.0, out=out)
+        if out is None:
+            out = np.empty((len(weights), len(self.shape)), dtype=dtype)
+        kernel = _compiled_target_weights() if numba_loaded() else None
+        if kernel is not None and out.flags.c_contiguous and out.dtype in (np.float32, float):
+            kernel(weights, self.shape, self.factor, out)
+            return out
+        # the shapes are valid columns: "clip" skips take's bounds check (twice as fast)
+        quotients = np.take(weights, self.shape, axis=1, mode="clip")
+        np.divide(quotients, self.factor, out=quotients)
+        np.copyto(out, np.maximum(quotients, 0.0, out=quotients), casting="same_kind")
+        return out
 
     def shape_weights(self, target_weights) -> np.ndarray:
         """Shape weights (T, n) back from target weights (T, K)."""
@@ -180,6 +245,22 @@ class MorphTargets:
         out = np.zeros((len(target_weights), int(self.shape.max()) + 1))
         np.add.at(out.T, self.shape, (target_weights * self.factor).T)
         return out
+
+
+@functools.cache
+def _compiled_target_weights():
+    """:func:`basis._gltf_kernel.target_weights`, or None (NumPy forms them):
+    :func:`mocap.util.optional.compiled`."""
+    return compiled("basis._gltf_kernel", "target_weights", what="morph-target weights",
+                    fallback="NumPy forms them, half as fast")
+
+
+@functools.cache
+def _compiled_scaled_targets():
+    """:func:`basis._gltf_kernel.scaled_targets`, or None (NumPy scales each target):
+    :func:`mocap.util.optional.compiled`."""
+    return compiled("basis._gltf_kernel", "scaled_targets", what="morph-target displacements",
+                    fallback="NumPy scales each target")
 
 
 def morph_targets(names, weights=None) -> MorphTargets:
@@ -315,8 +396,7 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
                                         first_frame)
     # the stored values are the inputs rounded monotonically, so every large accessor's
     # min and max are those of its input's extremes, rounded the same way
-    shape_range = np.stack(column_extremes(displacements), axis=1)           # (n, 2, 3)
-    weight_range = None if weights is None else column_extremes(weights)
+    shape_range, weight_range, normals = _surveyed(neutral, displacements, weights)
     # extremes are NaN or infinite exactly where a value is: the exact checks name it
     for values, what, extremes in ((displacements, "displacements", shape_range),
                                    (weights, "weights", weight_range)):
@@ -326,17 +406,17 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
                                                                              *weight_range)
     scale = _to_metres(neutral)
 
-    normals = vertex_normals(neutral.vertices, neutral.faces)
-    normals[np.linalg.norm(normals, axis=1) == 0] = (0.0, 0.0, 1.0)
     buf = _Buffer()
     indices = buf.add(neutral.faces.reshape(-1).astype(np.uint32), pygltflib.SCALAR,
                       target=_ELEMENT_ARRAY_BUFFER)
     position = buf.add(_scaled(neutral.vertices, scale), pygltflib.VEC3, target=_ARRAY_BUFFER)
     normal = buf.add(normals, pygltflib.VEC3, target=_ARRAY_BUFFER)
-    morphs = [{"POSITION": buf.add(_scaled_rows(displacements[i], f * scale), pygltflib.VEC3,
-                                   target=_ARRAY_BUFFER,
-                                   extremes=_min_max(_scaled(shape_range[i], f * scale)))}
-              for i, f in zip(targets.shape, targets.factor)]
+    # each target's stored extremes: its shape's extremes scaled and rounded as its values
+    target_range = _scaled(shape_range[targets.shape], targets.factor[:, None, None] * scale)
+    target_range = np.stack([target_range.min(axis=1), target_range.max(axis=1)], axis=1)
+    morphs = [{"POSITION": buf.describe((n_vertices, 3), pygltflib.VEC3, extremes,
+                                        target=_ARRAY_BUFFER)} for extremes in target_range]
+    buf.chunks.append(_target_displacement_rows(displacements, targets, scale))
     record = {"shapes": list(names), "target_shape": targets.shape.tolist(),
               "target_factor": targets.factor.tolist()}
     # the glTF JSON objects, keys in pygltflib's order, empty ones left out as it does
@@ -365,6 +445,30 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
         "buffers": [{"byteLength": buf.length}], "meshes": [mesh],
         "nodes": [{"mesh": 0, "name": name}], "scene": 0, "scenes": [{"nodes": [0]}]})
     _save(gltf, buf, path, [*inputs, neutral.path])
+
+
+def _surveyed(neutral: Mesh, displacements: np.ndarray, weights):
+    """The extremes of each shape's displacements (n, 2, 3) and of each column of
+    `weights` (two (n,); None without weights), and the neutral's unit vertex normals
+    (N, 3), +Z where no face defines one: in pieces, on the worker threads."""
+    def normals():
+        unit = vertex_normals(neutral.vertices, neutral.faces)
+        unit[np.linalg.norm(unit, axis=1) == 0] = (0.0, 0.0, 1.0)
+        return unit
+
+    def shape_extremes(shapes):
+        return np.stack(column_extremes(shapes), axis=1)
+
+    shape_parts = np.array_split(displacements, 2)
+    frame_parts = [] if weights is None else [p for p in np.array_split(weights, 2) if len(p)]
+    done = map_on_blas_threads(lambda task: task(), [
+        normals, *(functools.partial(shape_extremes, p) for p in shape_parts),
+        *(functools.partial(column_extremes, p) for p in frame_parts)])
+    shape_range = np.concatenate(done[1:1 + len(shape_parts)])
+    frame_ends = list(zip(*done[1 + len(shape_parts):]))
+    weight_range = None if weights is None else (np.minimum.reduce(frame_ends[0]),
+                                                np.maximum.reduce(frame_ends[1]))
+    return shape_range, weight_range, done[0]
 
 
 def _animation(weights, rotation, translation, rate, n: int, first_frame):
@@ -419,22 +523,36 @@ def _scaled(values: np.ndarray, factor: float) -> np.ndarray:
     return np.multiply(values, factor, out=out, casting="same_kind")
 
 
-def _scaled_rows(values: np.ndarray, factor: float) -> _Rows:
-    """:func:`_scaled` of `values` (count, 3), formed as it is written."""
-    return _Rows(values.shape, lambda rows: _scaled(values[rows], factor), len(values),
-                 len(values))
+def _target_displacement_rows(displacements: np.ndarray, targets: MorphTargets,
+                              scale: float) -> _Rows:
+    """The displacements of every target, ``displacements[shape[k]] · factor[k] · scale``
+    (:func:`_scaled`), one after another as (K N, 3) rows, formed as they are written."""
+    factor = targets.factor * scale
+    n_vertices = displacements.shape[1]
+    kernel = _compiled_scaled_targets() if numba_loaded() else None
+    if kernel is not None and displacements.flags.c_contiguous:
+        values = displacements.reshape(len(displacements), -1)
+
+        def fill(rows, out):
+            kernel(values, targets.shape, factor, 3 * rows.start, out.reshape(-1))
+    else:
+        def fill(rows, out):
+            for k in range(rows.start // n_vertices, (rows.stop - 1) // n_vertices + 1):
+                first = max(rows.start, k * n_vertices)
+                last = min(rows.stop, (k + 1) * n_vertices)
+                np.multiply(displacements[targets.shape[k], first - k * n_vertices:
+                                          last - k * n_vertices], factor[k],
+                            out=out[first - rows.start:last - rows.start], casting="same_kind")
+    n_rows = len(targets.shape) * n_vertices
+    return _Rows((n_rows, 3), fill, n_rows, 3)
 
 
 def _target_weight_rows(targets: MorphTargets, weights: np.ndarray) -> _Rows:
     """The target weights (T, K) of `weights` (T, n) as one (T K,) accessor, formed as it
-    is written, :data:`_WEIGHT_ROWS` frames at a time."""
+    is written, a few frames at a time."""
     return _Rows((len(weights) * len(targets.shape),),
-                 lambda rows: targets.weights(weights[rows], np.float32), len(weights),
-                 _WEIGHT_ROWS)
-
-
-#: Frames of target weights formed at a time: (T, K) float32 blocks of ~0.4 MB for 53 shapes.
-_WEIGHT_ROWS = 1024
+                 lambda rows, out: targets.weights(weights[rows], out=out), len(weights),
+                 len(targets.shape))
 
 
 def _min_max(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -5,11 +5,13 @@ from __future__ import annotations
 import importlib.util
 import json
 import struct
+import sys
 from pathlib import Path
 
 import numpy as np
 import pygltflib
 import pytest
+import threadpoolctl
 import trimesh
 from helpers import play_gltf, read_gltf_accessor
 from tolerances import FLOAT32_FACE_CM, FLOAT32_REL
@@ -49,6 +51,27 @@ def _grid(units: str | None, n: int = 5) -> Mesh:
     faces = np.concatenate([np.column_stack([i, i + 1, i + n + 1]),
                             np.column_stack([i, i + n + 1, i + n])])
     return Mesh(vertices, faces, units=units)
+
+
+@pytest.fixture(params=["NumPy", "compiled"])
+def values_by(request, monkeypatch):
+    """The file's float32 values formed by NumPy (a process without numba) or by the
+    compiled kernels (one that has loaded it); the kernels' calls counted by name."""
+    calls = []
+    if request.param == "NumPy":
+        monkeypatch.delitem(sys.modules, "numba", raising=False)
+    else:
+        pytest.importorskip("numba", reason="the compiled kernels are the speed extra's")
+        for loader in ("_compiled_target_weights", "_compiled_scaled_targets"):
+            kernel = getattr(gltf_module, loader)()
+            monkeypatch.setattr(gltf_module, loader, lambda kernel=kernel, name=loader: (
+                lambda *args: calls.append(name) or kernel(*args)))
+    return request.param, calls
+
+
+def _target_weights(targets, weights) -> np.ndarray:
+    """The oracle of the stored target weights: NumPy's float64 quotients, clamped, rounded."""
+    return np.maximum(weights[:, targets.shape] / targets.factor, 0.0).astype(np.float32)
 
 
 @pytest.fixture(scope="module")
@@ -109,14 +132,16 @@ def test_ict_face_as_animated_morph_targets(ict_subset, tmp_path):
     assert len(geometry.faces) == ict_subset.neutral.n_faces
 
 
-def test_signed_weights_play_back_inside_the_slider_range(ict_subset, tmp_path, monkeypatch):
+def test_signed_weights_play_back_inside_the_slider_range(ict_subset, tmp_path, monkeypatch,
+                                                         values_by):
     """QE and PCA weights leave [0, 1] (here -40..60): a viewer that clamps every morph
     weight to [0, 1], as Blender's shape-key sliders do, still shows neutral + Σ w e at
-    every key and between keys; the basis reads back unscaled. The target weights are
-    written a few frames at a time (here 7, with a remainder), the same values as formed
-    all at once, and every accessor's min/max (derived from the inputs' extremes for the
-    targets and the weights) is numpy's on the values stored."""
-    monkeypatch.setattr(gltf_module, "_WEIGHT_ROWS", 7)
+    every key and between keys; the basis reads back unscaled. The target weights and
+    displacements are made a small part at a time (here 1000 bytes: 83 vertices, parts
+    that straddle two targets, and a few frames with a remainder), the same values as
+    formed all at once, and every accessor's min/max (derived from the inputs' extremes
+    for the targets and the weights) is numpy's on the values stored."""
+    monkeypatch.setattr(gltf_module, "_PART_BYTES", 1000)
     rng = np.random.default_rng(3)
     weights = rng.normal(0.0, 20.0, (30, ict_subset.n_shapes))
     weights[:, 1] = rng.uniform(0.0, 0.7, 30)            # already inside: left as it is
@@ -125,8 +150,11 @@ def test_signed_weights_play_back_inside_the_slider_range(ict_subset, tmp_path, 
     write_gltf(path, ict_subset.neutral, ict_subset.displacements, ict_subset.names,
                weights=weights, rate=30.0, first_frame=7)
     _check_accessors(pygltflib.GLTF2().load(str(path)))
-    stored = morph_targets(ict_subset.names, weights).weights(weights, np.float32)
+    stored = _target_weights(morph_targets(ict_subset.names, weights), weights)
     np.testing.assert_array_equal(play_gltf(path, clamp=None)["weights"], stored)
+    by, calls = values_by
+    assert set(calls) == (set() if by == "NumPy" else {"_compiled_target_weights",
+                                                        "_compiled_scaled_targets"})
     played = play_gltf(path)
     assert played["weights"].min() >= 0 and played["weights"].max() <= 1
     np.testing.assert_array_equal(played["vertices"], play_gltf(path, clamp=None)["vertices"])
@@ -154,6 +182,49 @@ def test_signed_weights_play_back_inside_the_slider_range(ict_subset, tmp_path, 
     assert back.names == ict_subset.names
     np.testing.assert_allclose(back.displacements, ict_subset.displacements, rtol=0,
                                atol=FLOAT32_FACE_CM)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_target_weights_are_numpys_quotients(values_by, dtype):
+    """Every target weight is max(w / factor, 0) rounded once from the float64 quotient,
+    a NaN kept and -0.0 made 0.0, by either path, bit for bit."""
+    rng = np.random.default_rng(8)
+    weights = rng.normal(0.0, 3.0, (50, 6))
+    weights[3, :] = -0.0
+    weights[4, :] = 0.0
+    weights[5, 2] = np.nan
+    weights[6, 1] = 1e-320                           # its quotients are subnormal or zero
+    targets = morph_targets("abcdef", np.nan_to_num(weights))
+    got = targets.weights(weights, dtype)
+    want = np.maximum(weights[:, targets.shape] / targets.factor, 0.0).astype(dtype)
+    assert got.dtype == dtype
+    np.testing.assert_array_equal(got.view(f"u{got.itemsize}"), want.view(f"u{got.itemsize}"))
+    assert not np.signbit(got[3:5]).any()
+    by, calls = values_by
+    assert bool(calls) == (by == "compiled")
+
+
+def test_the_same_bytes_by_numpy_or_compiled_on_any_threads(ict_subset, tmp_path,
+                                                           monkeypatch):
+    """The file is the same, byte for byte, whether NumPy or the compiled kernels form its
+    values, on one thread or two, and with parts small enough to straddle targets."""
+    rng = np.random.default_rng(9)
+    weights = rng.normal(0.2, 2.0, (300, ict_subset.n_shapes))
+
+    def written(name, threads):
+        with threadpoolctl.threadpool_limits(threads, user_api="blas"):
+            write_gltf(tmp_path / name, ict_subset.neutral, ict_subset.displacements,
+                       ict_subset.names, weights=weights, rate=30.0)
+        return (tmp_path / name).read_bytes()
+
+    monkeypatch.setattr(gltf_module, "_PART_BYTES", 4096)
+    with monkeypatch.context() as numpy_only:
+        numpy_only.delitem(sys.modules, "numba", raising=False)
+        first = written("numpy.glb", 1)
+        assert written("numpy2.glb", 2) == first
+    pytest.importorskip("numba", reason="the compiled kernels are the speed extra's")
+    assert written("compiled.glb", 1) == first
+    assert written("compiled2.glb", 2) == first
 
 
 def test_morph_targets_refuse_a_negative_name_that_is_taken():
