@@ -54,7 +54,6 @@ from mocap.units import mm_per_unit
 from mocap.util.atomic import atomic_path, preallocate
 from mocap.util.blas import map_on_blas_threads, worker_threads
 from mocap.util.extremes import column_extremes
-from mocap.util.optional import compiled, numba_loaded
 from mocap.util.parallel_writes import positional_writer, write_parts
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
@@ -229,10 +228,6 @@ class MorphTargets:
         weights = np.asarray(weights, dtype=float)
         if out is None:
             out = np.empty((len(weights), len(self.shape)), dtype=dtype)
-        kernel = _compiled_target_weights() if numba_loaded() else None
-        if kernel is not None and out.flags.c_contiguous and out.dtype in (np.float32, float):
-            kernel(weights, self.shape, self.factor, out)
-            return out
         # the shapes are valid columns: "clip" skips take's bounds check (twice as fast)
         quotients = np.take(weights, self.shape, axis=1, mode="clip")
         np.divide(quotients, self.factor, out=quotients)
@@ -245,22 +240,6 @@ class MorphTargets:
         out = np.zeros((len(target_weights), int(self.shape.max()) + 1))
         np.add.at(out.T, self.shape, (target_weights * self.factor).T)
         return out
-
-
-@functools.cache
-def _compiled_target_weights():
-    """:func:`basis._gltf_kernel.target_weights`, or None (NumPy forms them):
-    :func:`mocap.util.optional.compiled`."""
-    return compiled("basis._gltf_kernel", "target_weights", what="morph-target weights",
-                    fallback="NumPy forms them, half as fast")
-
-
-@functools.cache
-def _compiled_scaled_targets():
-    """:func:`basis._gltf_kernel.scaled_targets`, or None (NumPy scales each target):
-    :func:`mocap.util.optional.compiled`."""
-    return compiled("basis._gltf_kernel", "scaled_targets", what="morph-target displacements",
-                    fallback="NumPy scales each target")
 
 
 def morph_targets(names, weights=None) -> MorphTargets:
@@ -529,20 +508,13 @@ def _target_displacement_rows(displacements: np.ndarray, targets: MorphTargets,
     (:func:`_scaled`), one after another as (K N, 3) rows, formed as they are written."""
     factor = targets.factor * scale
     n_vertices = displacements.shape[1]
-    kernel = _compiled_scaled_targets() if numba_loaded() else None
-    if kernel is not None and displacements.flags.c_contiguous:
-        values = displacements.reshape(len(displacements), -1)
 
-        def fill(rows, out):
-            kernel(values, targets.shape, factor, 3 * rows.start, out.reshape(-1))
-    else:
-        def fill(rows, out):
-            for k in range(rows.start // n_vertices, (rows.stop - 1) // n_vertices + 1):
-                first = max(rows.start, k * n_vertices)
-                last = min(rows.stop, (k + 1) * n_vertices)
-                np.multiply(displacements[targets.shape[k], first - k * n_vertices:
-                                          last - k * n_vertices], factor[k],
-                            out=out[first - rows.start:last - rows.start], casting="same_kind")
+    def fill(rows, out):
+        for k in range(rows.start // n_vertices, (rows.stop - 1) // n_vertices + 1):
+            first, last = max(rows.start, k * n_vertices), min(rows.stop, (k + 1) * n_vertices)
+            np.multiply(displacements[targets.shape[k], first - k * n_vertices:
+                                      last - k * n_vertices], factor[k],
+                        out=out[first - rows.start:last - rows.start], casting="same_kind")
     n_rows = len(targets.shape) * n_vertices
     return _Rows((n_rows, 3), fill, n_rows, 3)
 

@@ -18,10 +18,7 @@ timed. A zip member carries the CRC-32 of its bytes: the npz's CRC-32 alone (zli
 one thread; the writer sums it on a second thread beside the writes) is printed under it,
 the npz's floor where it takes longer than writing the bytes. The ``.glb``'s floats are
 float32 made from float64 values: as many float64 converted by NumPy a block at a time and
-written are printed under it, the floor of any one thread that starts from float64. The
-``.glb``'s values are formed by NumPy in the table (a process without numba), and timed
-again by the compiled kernels once numba is loaded (``mocap2mesh run``, whose fit loads
-it), new and over an existing file.
+written are printed under it, the floor of any writer that starts from float64.
 
 Run: ``python bench/bench_exports.py [--frames 35000]``.
 """
@@ -44,7 +41,7 @@ from basis.gltf import write_gltf  # noqa: E402
 from fit.exports import write_mesh_sequence, write_weights_csv  # noqa: E402
 from mocap.mesh.mesh import Mesh  # noqa: E402
 from mocap.util.float_text import compiled_lines_ready  # noqa: E402
-from mocap.util.optional import available, numba_loaded  # noqa: E402
+from mocap.util.optional import available  # noqa: E402
 
 RATE = 276.0
 N_SHAPES = 53
@@ -137,19 +134,12 @@ def main() -> None:
         print(f"  {text} text: {ours:.3f} s vs {floor:.3f} s, ratio {ours / floor:.2f}")
     print("aim: npz and glb <= 2x tofile of the same bytes")
 
-    glb_path, write_glb = exports["glb (morph targets + weights)"]
-    over = out / "over.glb"
+    write_glb, over = exports["glb (morph targets + weights)"][1], out / "over.glb"
     write_glb(over)
     data = np.fromfile(over, dtype=np.uint8)
-    text = "compiled kernels" if numba_loaded() else "NumPy (numba is not installed)"
-    print(f"\nglb, its values by the {text}:")
-    ours, floor = alternately(lambda: write_glb(glb_path),
-                              lambda: data.tofile(out / "same-bytes.bin"),
-                              fresh=(glb_path, out / "same-bytes.bin"))
-    print(f"  a new file: {ours:.4f} s vs tofile {floor:.4f} s, ratio {ours / floor:.1f}")
     ours, floor = alternately(lambda: write_glb(over), lambda: data.tofile(over))
-    print(f"  over an existing file (the atomic rename frees the old file, tofile truncates "
-          f"it): {ours:.4f} s vs tofile {floor:.4f} s, ratio {ours / floor:.1f}")
+    print(f"\nover an existing file (the atomic rename frees the old file, tofile truncates "
+          f"it): glb {ours:.3f} s vs tofile {floor:.4f} s, ratio {ours / floor:.1f}")
 
 
 if __name__ == "__main__":

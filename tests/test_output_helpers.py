@@ -1,5 +1,5 @@
-"""Helpers of the binary writers: column extremes (by halving, or one compiled pass),
-preallocated files, parts written by threads at their offsets, npz."""
+"""Helpers of the binary writers: column extremes by halving, preallocated files, parts
+written by threads at their offsets, npz."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import os
 import shutil
 import struct
 import subprocess
-import sys
 import threading
 import zipfile
 import zlib
@@ -17,33 +16,18 @@ import zlib
 import numpy as np
 import pytest
 
-from mocap.util import extremes, npz
+from mocap.util import npz
 from mocap.util.atomic import preallocate
 from mocap.util.extremes import column_extremes
 from mocap.util.parallel_writes import positional_writer, write_parts
 
 
-@pytest.fixture(params=["NumPy", "compiled"])
-def extremes_by(request, monkeypatch):
-    """Column extremes by NumPy's halving (a process without numba), or by the compiled
-    pass (one that has loaded it), each call of the kernel counted."""
-    calls = []
-    if request.param == "NumPy":
-        monkeypatch.delitem(sys.modules, "numba", raising=False)
-    else:
-        pytest.importorskip("numba", reason="the compiled pass is the speed extra's (numba)")
-        kernel = extremes._compiled_extremes()
-        monkeypatch.setattr(extremes, "_compiled_extremes",
-                            lambda: lambda *args: calls.append(1) or kernel(*args))
-    return request.param, calls
-
-
 @pytest.mark.parametrize("shape", [(1, 3), (2, 3), (3, 1), (7, 5), (1000, 53), (1023, 3),
                                    (4, 9409, 3), (3, 1, 2), (5, 2, 2), (2, 3, 17, 4),
                                    (70, 64), (33, 65), (129, 1), (0, 5, 3), (5, 2, 0)])
-def test_column_extremes_are_numpys(shape, extremes_by):
-    """Every row count (odd ones fold their last row in; rows after the compiled pass's
-    last whole group of 64 values), batches of tables alike, empty ones too."""
+def test_column_extremes_are_numpys(shape):
+    """Every row count (odd ones fold their last row in), batches of tables alike, empty
+    ones too."""
     rng = np.random.default_rng(sum(shape))
     arr = rng.normal(size=shape)
     low, high = column_extremes(arr)
@@ -51,14 +35,12 @@ def test_column_extremes_are_numpys(shape, extremes_by):
     np.testing.assert_array_equal(high, arr.max(axis=-2))
     assert low.shape == high.shape == shape[:-2] + shape[-1:]
     assert low.dtype == high.dtype == arr.dtype
-    by, calls = extremes_by
-    assert bool(calls) == (by == "compiled" and arr.size > 0 and shape[-2] > 1)
 
 
 @pytest.mark.parametrize("where", [(0, 0), (0, 2), (37, 1), (88, 2), (100, 0)])
-def test_column_extremes_of_nan_anywhere(where, extremes_by):
-    """A NaN in the first row, inside a group of the compiled pass, or after its last
-    whole group makes its column's min and max NaN, and no other column's."""
+def test_column_extremes_of_nan_anywhere(where):
+    """A NaN in the first row, the last, an odd one folded in or any other makes its
+    column's min and max NaN, and no other column's."""
     arr = np.random.default_rng(sum(where)).normal(size=(101, 3))
     arr[where] = np.nan
     low, high = column_extremes(arr)
@@ -68,7 +50,7 @@ def test_column_extremes_of_nan_anywhere(where, extremes_by):
     np.testing.assert_array_equal(high, arr.max(axis=0))
 
 
-def test_column_extremes_of_float32_and_nan_and_views(extremes_by):
+def test_column_extremes_of_float32_and_nan_and_views():
     """A NaN makes its column's extremes NaN (those of the glTF writer's checks)."""
     rng = np.random.default_rng(0)
     arr = rng.normal(size=(101, 4)).astype(np.float32)
@@ -79,7 +61,7 @@ def test_column_extremes_of_float32_and_nan_and_views(extremes_by):
     np.testing.assert_array_equal(high, arr[::2].max(axis=0))
     assert np.isnan(low).tolist() == np.isnan(high).tolist() == [False, True, False, False]
     before = arr.copy()
-    low, high = column_extremes(arr)                      # contiguous: the compiled pass's
+    low, high = column_extremes(arr)
     np.testing.assert_array_equal(low, arr.min(axis=0))
     np.testing.assert_array_equal(high, arr.max(axis=0))
     np.testing.assert_array_equal(arr, before)             # the input is left as it was

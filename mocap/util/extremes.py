@@ -3,19 +3,12 @@
 NumPy's ``a.min(axis=-2)`` of a (R, c) array with few columns walks the rows c values
 at a time (a (9409, 3) mesh or a (35,000, 53) weight table: 10-20 times slower than a
 pass over the same bytes). Halving the rows instead, ``minimum(a[:h], a[h:2h])``, is a
-contiguous pass over whole blocks of rows at every step: about two passes in all. In a
-process that has loaded numba (the ``speed`` extra), one compiled pass takes both
-(:mod:`mocap.util._extremes_kernel`): a third of the time.
+contiguous pass over whole blocks of rows at every step: about two passes in all.
 """
 
 from __future__ import annotations
 
-import functools
-import math
-
 import numpy as np
-
-from mocap.util.optional import compiled, numba_loaded
 
 __all__ = ["column_extremes"]
 
@@ -37,14 +30,6 @@ def column_extremes(arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"column_extremes needs at least one row, got shape {arr.shape}")
     if arr.shape[-2] == 1:
         return arr[..., 0, :].copy(), arr[..., 0, :].copy()
-    kernel = _compiled_extremes() if numba_loaded() else None
-    if kernel is not None and arr.dtype in _COMPILED_TYPES and arr.flags.c_contiguous \
-            and arr.size:
-        batch, columns = arr.shape[:-2], arr.shape[-1]
-        low, high = (np.empty(batch + (columns,), arr.dtype) for _ in range(2))
-        kernel(arr.reshape(math.prod(batch), -1), columns, low.reshape(-1, columns),
-               high.reshape(-1, columns))
-        return low, high
     half = arr.shape[-2] // 2
     scratch = np.empty(arr.shape[:-2] + (half, arr.shape[-1]), arr.dtype)  # one for both
     return _halved(arr, np.minimum, scratch), _halved(arr, np.maximum, scratch)
@@ -62,15 +47,3 @@ def _halved(arr: np.ndarray, op: np.ufunc, scratch: np.ndarray) -> np.ndarray:
             op(folded[..., :1, :], rows[..., -1:, :], out=folded[..., :1, :])
         rows, out = folded, folded
     return rows[..., 0, :].copy()
-
-
-#: The types the compiled pass takes (others are halved by NumPy).
-_COMPILED_TYPES = (np.dtype(np.float64), np.dtype(np.float32))
-
-
-@functools.cache
-def _compiled_extremes():
-    """:func:`mocap.util._extremes_kernel.column_extremes_of_rows`, or None (NumPy halves
-    the rows): :func:`mocap.util.optional.compiled`."""
-    return compiled("mocap.util._extremes_kernel", "column_extremes_of_rows",
-                    what="column extremes", fallback="NumPy halves the rows, three times slower")
