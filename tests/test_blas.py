@@ -101,12 +101,19 @@ def test_the_threads_are_kept_and_never_share_again():
     """The same threads serve every call (none is started again); work given to them that
     would share itself again runs in its thread (no wait on a pool whose threads are all
     busy waiting)."""
+    meeting = threading.Barrier(2, timeout=30)
+
+    def met(k):
+        meeting.wait()                  # both threads of the pool run
+        return threading.get_ident()
+
     with _two_threads():
-        first = map_on_blas_threads(lambda k: threading.get_ident(), range(8))
+        first = set(map_on_blas_threads(met, range(2)))
         count = threading.active_count()
-        again = map_on_blas_threads(lambda k: threading.get_ident(), range(8))
-        assert threading.active_count() == count
-        assert set(again) <= set(first) and shared_pool(2) is shared_pool(2)
+        for _ in range(5):
+            assert set(map_on_blas_threads(met, range(2))) == first
+        assert len(first) == 2 and threading.active_count() == count
+        assert shared_pool(2) is shared_pool(2)
         inner = map_on_blas_threads(
             lambda k: (worker_threads(), map_on_blas_threads(lambda j: threading.get_ident(),
                                                              range(3))), range(2))
