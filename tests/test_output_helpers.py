@@ -138,6 +138,17 @@ def test_a_write_that_takes_fewer_bytes_is_carried_on(tmp_path, monkeypatch):
     assert (tmp_path / "a.bin").read_bytes() == expected
 
 
+def test_parts_are_written_where_there_is_no_pwrite(tmp_path, monkeypatch):
+    """Without ``os.pwrite`` (Windows), the parts are written by seeks and writes, one
+    thread at a time: the same file."""
+    parts, expected = _parts([5, 1000, 0, 4096, 7, 333, 4096, 1])
+    monkeypatch.delattr(os, "pwrite")
+    with open(tmp_path / "a.bin", "wb") as fh:
+        fh.write(b"head")
+        write_parts(positional_writer(fh, fh.tell()), parts, workers=3, part_bytes=4096)
+    assert (tmp_path / "a.bin").read_bytes() == b"head" + expected
+
+
 def test_a_failed_part_stops_the_file_once_every_thread_is_done(tmp_path):
     """The error of a part's making is raised after the other threads have stopped: no
     part is made behind it. A part of another size than announced is an error."""

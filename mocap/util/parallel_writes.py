@@ -91,8 +91,18 @@ def write_parts(write_at: Callable[[int, memoryview], None], parts: Sequence, *,
 def positional_writer(fh, start: int) -> Callable[[int, memoryview], None]:
     """``write_at(offset, data)`` for :func:`write_parts`: `data` at ``start + offset`` of
     the open binary file `fh` (flushed first), by ``os.pwrite`` (the file's own position is
-    left where it was)."""
+    left where it was); where there is no ``os.pwrite`` (Windows), by a seek and a write,
+    one thread at a time (the file's position is then left after the last part written).
+    """
     fh.flush()
+    if not hasattr(os, "pwrite"):
+        lock = threading.Lock()
+
+        def write_at(offset: int, data) -> None:
+            with lock:
+                fh.seek(start + offset)
+                fh.write(data)
+        return write_at
     fd = fh.fileno()
 
     def write_at(offset: int, data) -> None:
