@@ -126,13 +126,14 @@ class _Buffer:
                     part_bytes=_PART_BYTES)
         fh.seek(start + self.length)
 
-    def blob(self) -> bytes:
+    def blob(self) -> bytearray:
+        """The buffer's bytes in memory (for a ``.gltf``'s data URI)."""
         out = bytearray(self.length)
 
         def write_at(offset: int, data) -> None:
             out[offset:offset + memoryview(data).nbytes] = data
         write_parts(write_at, self._parts(), workers=1, part_bytes=_PART_BYTES)
-        return bytes(out)
+        return out
 
     def _parts(self) -> list:
         """The buffer's bytes as parts of :func:`mocap.util.parallel_writes.write_parts`,
