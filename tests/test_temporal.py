@@ -453,6 +453,29 @@ def test_whole_sequence_solves_nearby_states_through_one_factor(ridge, monkeypat
     assert len(factors) == 3
 
 
+def test_a_reserved_buffer_holds_the_first_factor():
+    """``reserve`` allocates the factor's buffer on a thread: the first solve factors into
+    that very buffer (no second one) and solves as the dense reduced system does; a solve
+    right after ``reserve`` waits for it."""
+    rng = np.random.default_rng(15)
+    T, n = 25, 4
+    a = rng.standard_normal((2 * n, n))
+    band = fit.solve._smooth._Band(a.T @ a, 0.6, 0.0)
+    state = rng.choice(np.array([-1, 0, 0, 1], np.int8), size=(T, n))
+    rhs = np.where(state == 0, rng.standard_normal(state.shape), 0.0).ravel()
+    whole = fit.solve._smooth._WholeFactor(band, T)
+    whole.reserve()
+    x = whole.solve(state, rhs)
+    reserved = whole.factor
+    assert reserved.shape == (n + 1, T * n) and reserved.flags.f_contiguous
+    expected = np.linalg.solve(_dense_reduced_hessian(band, state), rhs)
+    np.testing.assert_allclose(x, expected, rtol=0,
+                               atol=SOLVE_SAME_MINIMIZER * np.abs(expected).max())
+    np.testing.assert_array_equal(whole.solve(state, rhs), x)
+    whole.solve(np.where(state == 0, 1, 0).astype(np.int8), np.zeros(T * n))  # refactored
+    assert whole.factor is reserved
+
+
 def test_a_prepared_factor_solves_as_one_made_at_the_solve(monkeypatch):
     """``prepare`` factors a state far from the kept factor on a thread of its own: the
     solve then uses that factor (no second factorization) and gives the same bits; a
