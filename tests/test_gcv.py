@@ -13,8 +13,21 @@ from tolerances import (
     GCV_VS_UNSMOOTHED,
 )
 
+import fit.solve.gcv
 from fit.solve.gcv import gcv_score, gcv_smoothness
 from fit.solve.weights import solve_weights
+
+
+@pytest.fixture(params=["numpy", "compiled"])
+def score_sums(request, monkeypatch):
+    """The scores' terms summed by NumPy, or by the compiled loop (whatever the size)."""
+    if request.param == "numpy":
+        monkeypatch.setattr(fit.solve.gcv, "compiled_if_worth", lambda loader, work, worth: None)
+    else:
+        pytest.importorskip("numba", reason="the compiled sums need the speed extra (numba)")
+        monkeypatch.setattr(fit.solve.gcv, "compiled_if_worth",
+                            lambda loader, work, worth: loader())
+    return request.param
 
 
 def dense_gcv(basis, data, lam):
@@ -38,7 +51,7 @@ def smooth_truth(rng, T, n, lo=0.0, hi=1.0):
 
 
 @pytest.mark.parametrize("rank", [None, 2])
-def test_score_matches_dense_influence_matrix(rank):
+def test_score_matches_dense_influence_matrix(rank, score_sums):
     rng = np.random.default_rng(3 if rank is None else 4)
     T, n, K = 7, 3, 6
     basis = rng.standard_normal((K, n))
@@ -51,7 +64,7 @@ def test_score_matches_dense_influence_matrix(rank):
                                rtol=GCV_SCORE_RTOL)
 
 
-def test_chosen_smoothness_minimizes_dense_gcv():
+def test_chosen_smoothness_minimizes_dense_gcv(score_sums):
     rng = np.random.default_rng(5)
     T, n, K = 12, 3, 5
     basis = rng.standard_normal((K, n))
@@ -65,6 +78,46 @@ def test_chosen_smoothness_minimizes_dense_gcv():
     assert 0 < best < len(grid) - 1           # an interior minimum, so the test means something
     np.testing.assert_allclose(gcv_smoothness(basis, data), np.exp(ref.x),
                                rtol=GCV_ARGMIN_RTOL)
+
+
+def test_compiled_sums_are_numpys_to_rounding():
+    """The compiled loop's two sums are NumPy's to rounding, from no smoothing to a λ that
+    flattens every direction, for one direction or many."""
+    from fit.solve._gcv_kernel import gcv_sums
+
+    rng = np.random.default_rng(8)
+    for T, r in [(1, 1), (50, 1), (3870, 53)]:
+        mu = 4.0 * np.sin(np.pi * np.arange(T) / (2 * T)) ** 2
+        eig = np.sort(10.0 ** rng.uniform(-6, 2, r))
+        power = rng.exponential(size=(T, r))
+        for lam in (0.0, 1e-9, 0.8, 1e4):
+            np.testing.assert_allclose(gcv_sums(lam * mu, eig, power),
+                                       fit.solve.gcv._sums(lam * mu, eig, power),
+                                       rtol=1e-12, atol=0)
+
+
+def test_gcv_without_numbas_cache_is_scored_by_numpy(monkeypatch):
+    """Where numba can keep its compiled code nowhere, NumPy sums the scores, with a
+    warning saying so, and the same λ is chosen (to the rounding of the sums)."""
+    from helpers import numba_cannot_cache
+
+    pytest.importorskip("numba", reason="the compiled sums need the speed extra (numba)")
+    rng = np.random.default_rng(9)
+    basis = rng.standard_normal((6, 3))
+    data = smooth_truth(rng, 40, 3) @ basis.T + 0.3 * rng.standard_normal((40, 6))
+    monkeypatch.setattr(fit.solve.gcv, "compiled_if_worth", lambda loader, work, worth: loader())
+    fit.solve.gcv._compiled_sums.cache_clear()
+    expected = gcv_smoothness(basis, data)
+    numba_cannot_cache(monkeypatch, "fit.solve._gcv_kernel")
+    fit.solve.gcv._compiled_sums.cache_clear()
+    try:
+        with pytest.warns(UserWarning, match="compiled GCV score is off .*no locator"):
+            got = gcv_smoothness(basis, data)
+        assert fit.solve.gcv._compiled_sums() is None
+    finally:
+        monkeypatch.undo()
+        fit.solve.gcv._compiled_sums.cache_clear()
+    np.testing.assert_allclose(got, expected, rtol=1e-9)
 
 
 @pytest.mark.parametrize("noise", [0.05, 0.3])

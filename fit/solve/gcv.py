@@ -13,10 +13,13 @@ choosing a good ridge parameter", Technometrics 21 (1979).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from fit.solve._active_set import RANK_RTOL
 from fit.solve._smooth import Spectrum
+from mocap.util.optional import compiled, compiled_if_worth
 
 __all__ = ["SMOOTHNESS_RULES", "gcv_score", "gcv_smoothness"]
 
@@ -30,6 +33,10 @@ _GRID = 61
 #: to _SPAN_HIGH · Λ_max / μ_1 (every weight curve all but constant), Λ the
 #: eigenvalues of G and μ_1 the lowest nonzero frequency of the take.
 _SPAN_LOW, _SPAN_HIGH = 1e-3, 1e3
+#: Frequencies × directions of a problem for which loading numba (about half a second,
+#: once a process) pays for itself in its scores (about 2 ns saved each, 80 scores a
+#: choice of λ); in a process that has loaded it, the compiled sums serve any problem.
+_TERMS_WORTH_COMPILING = 3_000_000
 
 
 class _Score:
@@ -49,22 +56,37 @@ class _Score:
         fitted = (C @ np.linalg.pinv(G, rcond=RANK_RTOL, hermitian=True)) @ basis.T
         self.base = float(np.sum((data - fitted) ** 2))
         self.n_obs = data.size
+        self.sums = compiled_if_worth(_compiled_sums, self.power.size,
+                                      _TERMS_WORTH_COMPILING) or _sums
 
     def __call__(self, lam: float) -> float:
-        # with a_k = λ μ_k and q_kj = 1 / (Λ_j + a_k): 1 − influence = a_k q_kj, so
-        # RSS = base + Σ_k a_k² Σ_j power_kj q_kj² and tr A = Σ_j Λ_j Σ_k q_kj
-        a = lam * self.mu
-        q = np.add.outer(a, self.eig)
-        np.reciprocal(q, out=q)
-        trace = float(self.eig @ q.sum(axis=0))
-        np.square(q, out=q)
-        rss = self.base + float(np.square(a) @ np.einsum("kj,kj->k", self.power, q))
-        return self.n_obs * rss / (self.n_obs - trace) ** 2
+        trace, weighted = self.sums(lam * self.mu, self.eig, self.power)
+        return self.n_obs * (self.base + weighted) / (self.n_obs - trace) ** 2
 
     def span(self) -> tuple[float, float]:
         eig, mu = self.eig, self.mu
         lowest = mu[1] if len(mu) > 1 else 1.0
         return _SPAN_LOW * eig[0] / 4.0, _SPAN_HIGH * eig[-1] / lowest
+
+
+def _sums(a, eig, power) -> tuple[float, float]:
+    """tr A(λ) and the RSS less its part outside the span, from ``a`` = λ μ (T,), Λ (r,)
+    and the power (T, r): :func:`fit.solve._gcv_kernel.gcv_sums` by NumPy."""
+    # with q_kj = 1 / (Λ_j + a_k): 1 − influence = a_k q_kj, so
+    # RSS = base + Σ_k a_k² Σ_j power_kj q_kj² and tr A = Σ_j Λ_j Σ_k q_kj
+    q = np.add.outer(a, eig)
+    np.reciprocal(q, out=q)
+    trace = float(eig @ q.sum(axis=0))
+    np.square(q, out=q)
+    return trace, float(np.square(a) @ np.einsum("kj,kj->k", power, q))
+
+
+@functools.cache
+def _compiled_sums():
+    """:func:`fit.solve._gcv_kernel.gcv_sums`, or None (NumPy sums the scores' terms):
+    :func:`mocap.util.optional.compiled`."""
+    return compiled("fit.solve._gcv_kernel", "gcv_sums", what="GCV score",
+                    fallback="NumPy sums its terms, about a third as fast")
 
 
 def gcv_score(basis, data, smoothness) -> np.ndarray:
