@@ -23,8 +23,7 @@ def score_sums(request, monkeypatch):
     """The scores' terms summed by NumPy, or by the compiled loop (whatever the size)."""
     if request.param == "numpy":
         monkeypatch.setattr(fit.solve.gcv, "compiled_if_worth", lambda loader, work, worth: None)
-    else:
-        pytest.importorskip("numba", reason="the compiled sums need the speed extra (numba)")
+    else:                           # (the tests install the speed extra: numba)
         monkeypatch.setattr(fit.solve.gcv, "compiled_if_worth",
                             lambda loader, work, worth: loader())
     return request.param
@@ -101,7 +100,6 @@ def test_gcv_without_numbas_cache_is_scored_by_numpy(monkeypatch):
     warning saying so, and the same λ is chosen (to the rounding of the sums)."""
     from helpers import numba_cannot_cache
 
-    pytest.importorskip("numba", reason="the compiled sums need the speed extra (numba)")
     rng = np.random.default_rng(9)
     basis = rng.standard_normal((6, 3))
     data = smooth_truth(rng, 40, 3) @ basis.T + 0.3 * rng.standard_normal((40, 6))
