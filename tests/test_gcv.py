@@ -24,6 +24,7 @@ def score_sums(request, monkeypatch):
     if request.param == "numpy":
         monkeypatch.setattr(fit.solve.gcv, "compiled_if_worth", lambda loader, work, worth: None)
     else:                           # (the tests install the speed extra: numba)
+        assert fit.solve.gcv._compiled_sums() is not None
         monkeypatch.setattr(fit.solve.gcv, "compiled_if_worth",
                             lambda loader, work, worth: loader())
     return request.param
