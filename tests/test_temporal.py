@@ -466,14 +466,18 @@ def test_a_reserved_buffer_holds_the_first_factor():
     whole = fit.solve._smooth._WholeFactor(band, T)
     whole.reserve()
     x = whole.solve(state, rhs)
-    reserved = whole.factor
-    assert reserved.shape == (n + 1, T * n) and reserved.flags.f_contiguous
+    assert whole.factor.shape == (n + 1, T * n) and whole.factor.flags.f_contiguous
+    again = fit.solve._smooth._WholeFactor(band, T)
+    again.reserve()
+    again.wait()
+    reserved = again.factor
+    np.testing.assert_array_equal(again.solve(state, rhs), x)
+    assert again.factor is reserved
     expected = np.linalg.solve(_dense_reduced_hessian(band, state), rhs)
     np.testing.assert_allclose(x, expected, rtol=0,
                                atol=SOLVE_SAME_MINIMIZER * np.abs(expected).max())
-    np.testing.assert_array_equal(whole.solve(state, rhs), x)
-    whole.solve(np.where(state == 0, 1, 0).astype(np.int8), np.zeros(T * n))  # refactored
-    assert whole.factor is reserved
+    again.solve(np.where(state == 0, 1, 0).astype(np.int8), np.zeros(T * n))  # refactored
+    assert again.factor is reserved
 
 
 def test_a_prepared_factor_solves_as_one_made_at_the_solve(monkeypatch):
