@@ -39,7 +39,7 @@ solve, so that the steps and the active-set iteration converge together
 instead of one full iteration per step. The whole sequence's factor is kept
 while the state stays near it, so a step that keeps the state costs two
 triangular solves; a new state's factor, or the columns that border the kept
-one for a state near it, form on a thread of its own while `follow` works
+one for a state near it, form on another thread while `follow` works
 (neither the factorization nor the solves hold the GIL), since the state, not
 the terms, decides them. The factor's buffer itself is allocated, and its pages
 first touched, on such a thread while the ADMM start is computed.
@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,7 +57,7 @@ import scipy.linalg
 
 from fit.solve._active_set import RANK_RTOL, BoxQP, kkt_residual
 from fit.solve._banded_cholesky import cho_solve_banded_upper, cholesky_banded_upper
-from mocap.util.blas import worker_threads
+from mocap.util.blas import shared_pool, worker_threads
 from mocap.util.optional import compiled
 
 #: Frames either side of a state change that settle it locally.
@@ -320,7 +319,7 @@ class _WholeFactor:
         self._pending = None
 
     def reserve(self) -> None:
-        """Allocate the factor's buffer and touch its pages on a thread of its own, beside
+        """Allocate the factor's buffer and touch its pages on another thread, beside
         the caller's work until :meth:`prepare`, :meth:`solve` or :meth:`wait`: the first
         touch of (n + 1)·T·n floats is page faults (90 MB for 3,870 frames of 53 shapes),
         which a virtual machine can make ten times slower than writing the bytes."""
@@ -334,13 +333,11 @@ class _WholeFactor:
         self._run(touched)
 
     def _run(self, work) -> None:
-        """Start `work` on a thread of its own (:meth:`wait` waits for it)."""
-        pool = ThreadPoolExecutor(1)
-        self._pending = pool.submit(work)
-        pool.shutdown(wait=False)           # its thread ends with the work
+        """Start `work` on a thread kept for the process (:meth:`wait` waits for it)."""
+        self._pending = shared_pool(1).submit(work)
 
     def prepare(self, state) -> None:
-        """Start what the solve of ``state`` (T, n) will need on a thread of its own: a
+        """Start what the solve of ``state`` (T, n) will need on another thread: a
         factorization of its own, or, for a state a few variables from the factored one,
         the columns that border the kept factor (:meth:`_column`) that are not kept yet.
         Both run without the GIL (:mod:`fit.solve._banded_cholesky`), beside the caller's
