@@ -75,7 +75,6 @@ import os
 import resource
 import subprocess
 import sys
-import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -84,7 +83,7 @@ import igl
 import numpy as np
 import scipy.linalg
 import scipy.sparse
-from _common import REPO, best_time, report_floor, shared_data
+from _common import REPO, best_time, report_floor, scratch_directory, shared_data
 from scipy.interpolate import RBFInterpolator
 from scipy.optimize import least_squares, lsq_linear
 
@@ -397,7 +396,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=35_000)
     parser.add_argument("--naive-frames", type=int, default=200)
     args = parser.parse_args()
-    out = Path(tempfile.mkdtemp(prefix="bench_chain_"))
+    out = scratch_directory("bench_chain_")
     artist, markerset, sim_take = simulate(args.frames, out / "take.c3d")
     mesh = artist.neutral
     landmarks = load_mesh_landmarks(REPO / "tests" / "ict_landmarks.toml", mesh)

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import zlib
 from pathlib import Path
 
@@ -37,7 +36,7 @@ import numpy as np
 import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import best_time, shared_data  # noqa: E402
+from _common import best_time, scratch_directory, shared_data  # noqa: E402
 
 from basis.gltf import write_gltf  # noqa: E402
 from fit.exports import write_mesh_sequence, write_weights_csv  # noqa: E402
@@ -89,7 +88,7 @@ def main() -> None:
     displacements = rng.normal(0.0, 0.1, (N_SHAPES, neutral.n_vertices, 3))   # cm
     weights = rng.normal(0.3, 0.5, (args.frames, N_SHAPES))
     names = [f"shape_{i:02d}" for i in range(N_SHAPES)]
-    out = Path(tempfile.mkdtemp(prefix="bench_exports_"))
+    out = scratch_directory("bench_exports_")
     print(f"{args.frames} frames, {N_SHAPES} shapes, ICT face {neutral.n_vertices} vertices")
 
     exports = {

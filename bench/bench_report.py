@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import tempfile
 import time
 import warnings
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from _common import REPO, report_floor  # noqa: E402
+from _common import REPO, report_floor, scratch_directory  # noqa: E402
 from bench_chain import simulate  # noqa: E402
 
 import fit.report.drawing  # noqa: E402
@@ -91,7 +90,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=35_000)
     parser.add_argument("--repeat", type=int, default=2)
     options = parser.parse_args()
-    out = Path(tempfile.mkdtemp(prefix="bench_report_"))
+    out = scratch_directory("bench_report_")
     args = inputs(options.frames, out)
     take = args["take"]
     print(f"take: {take.n_frames} frames, {take.n_markers} face markers, bases "
@@ -112,7 +111,6 @@ def main() -> None:
     print(f"\nfloor (PNG pixels encoded + HTML bytes written): {floor:.2f} s")
     print(f"build_report: {best:.2f} s = {best / floor:.1f}× the floor (aim: 3 s; the rest "
           "beside the figures: the errors of fit.metrics, the HTML)")
-    print(f"outputs in {out}")
 
 
 if __name__ == "__main__":

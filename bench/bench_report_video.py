@@ -19,7 +19,6 @@ Usage: ``python bench/bench_report_video.py``. Timings under load are noisy.
 from __future__ import annotations
 
 import os
-import tempfile
 import time
 from functools import partial
 from pathlib import Path
@@ -29,6 +28,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+from _common import scratch_directory  # noqa: E402
 
 import mocap  # noqa: E402
 from fit.demo import make_demo_session  # noqa: E402
@@ -57,7 +57,7 @@ def mp4v_baseline(n_frames: int, size: tuple, path: Path) -> None:
 
 
 def main() -> None:
-    work = Path(tempfile.mkdtemp(prefix="bench-video-"))
+    work = scratch_directory("bench-video-")
     session = make_demo_session(work / "session", seconds=20.0)
     markerset = load_markerset(session.paths["markerset"])
     face = stabilize(mocap.read(session.paths["capture"]), markerset.head).take

@@ -21,13 +21,12 @@ Usage: ``python bench/bench_session_basis.py [--takes 3] [--seconds 8]``.
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
-from _common import REPO, best_time, peak_memory_mb, shared_data
+from _common import REPO, best_time, peak_memory_mb, scratch_directory, shared_data
 from scipy.linalg import subspace_angles, svd
 
 import mocap
@@ -77,7 +76,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=8.0)
     args = parser.parse_args()
     root = shared_data()
-    out = Path(tempfile.mkdtemp(prefix="bench_session_"))
+    out = scratch_directory("bench_session_")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         artist, markerset, paths = make_takes(root, args.takes, args.seconds, out)
