@@ -222,8 +222,8 @@ def read_floor(path: Path) -> tuple[float, str]:
         positions = np.empty((n_frames, n_points, 3))
         positions[...] = words[:, :4 * n_points].reshape(n_frames, n_points, 4)[:, :, :3]
         return positions
-    return best_time(read_and_widen), (f"its {path.stat().st_size / 1e6:.0f} MB mapped and "
-                                       f"their coordinates widened into float64")
+    return best_time(read_and_widen), (f"the file's {path.stat().st_size / 1e6:.0f} MB mapped, "
+                                       f"its coordinates widened to float64")
 
 
 def measure_floors(out: Path, take, bound, retargeted, bases, fill, weights) -> dict:
