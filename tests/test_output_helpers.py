@@ -169,14 +169,17 @@ def test_a_failed_part_stops_the_file_once_every_thread_is_done(tmp_path):
         write_parts(positional_writer(fh, 0), parts, workers=1, part_bytes=100)
 
 
+@pytest.mark.parametrize("crc32", [npz.crc32, zlib.crc32], ids=["writer's", "stdlib"])
 @pytest.mark.parametrize("chunk_bytes", [100, npz._CHUNK_BYTES])
-def test_npz_holds_what_np_savez_writes(tmp_path, monkeypatch, chunk_bytes):
+def test_npz_holds_what_np_savez_writes(tmp_path, monkeypatch, chunk_bytes, crc32):
     """Member by member the bytes of ``np.savez`` of the arrays as stored (C order, the
     stored dtype by ``astype``): summed where they are written (small members) or on
     the helper thread, converted in chunks of a few rows (with a remainder) or, rows
     longer than a chunk, of elements; a Fortran-ordered array reads back the same; the
-    CRC-32 set in each local header; the file ends where the archive does."""
+    CRC-32 set in each local header, by zlib-ng's (the speed extra) as by the standard
+    library's; the file ends where the archive does."""
     monkeypatch.setattr(npz, "_CHUNK_BYTES", chunk_bytes)
+    monkeypatch.setattr(npz, "crc32", crc32)
     rng = np.random.default_rng(0)
     arrays = dict(weights=rng.normal(size=(101, 7)), faces=np.arange(30).reshape(10, 3),
                   names=np.array(["jawOpen", "eyeBlink_L"]), units=np.array("cm"),
@@ -214,6 +217,15 @@ def test_npz_holds_what_np_savez_writes(tmp_path, monkeypatch, chunk_bytes):
     if shutil.which("unzip"):        # an independent reader of zip64
         subprocess.run(["unzip", "-tq", tmp_path / "ours.npz"], check=True,
                        capture_output=True)
+
+
+def test_npz_sums_by_zlib_ng_where_the_speed_extra_is_installed():
+    """The writer's CRC-32 is zlib-ng's when the speed extra brought it (the tests install
+    it), and the same number as zlib's."""
+    zlib_ng = pytest.importorskip("zlib_ng.zlib_ng", reason="the speed extra is not installed")
+    assert npz.crc32 is zlib_ng.crc32
+    data = np.random.default_rng(0).bytes(3 << 20)
+    assert npz.crc32(data[1:], npz.crc32(data[:1])) == zlib.crc32(data)
 
 
 def test_npz_refuses_python_objects(tmp_path):

@@ -6,6 +6,8 @@ headers) without its copy of every array's bytes, converting an array to the dty
 is stored in chunk by chunk as it goes (no whole converted copy), into a file whose
 size is reserved first. A second thread sums each member's CRC-32 while its bytes are
 written, and checks them finite where asked (the caller then needs no pass of its own).
+The CRC-32 is zlib-ng's where the ``speed`` extra installed it (folded by carry-less
+multiplication, over ten times as fast; the same value), else the standard library's.
 
 One reader for takes, bases, masks, mesh sequences, gesture clips and capture
 truths, so that each refuses a foreign or damaged file the same way: the
@@ -34,6 +36,11 @@ from mocap.util.atomic import preallocate
 from mocap.util.budget import check_allocation
 from mocap.util.files import open_input
 from mocap.util.validation import surely_finite
+
+try:                                # the speed extra
+    from zlib_ng.zlib_ng import crc32
+except ImportError:
+    from zlib import crc32
 
 __all__ = ["read_npz", "read_npz_with_meta", "write_npz", "NotFiniteError"]
 
@@ -150,7 +157,7 @@ class _Archive:
         `dtype` in C order."""
         file_name, offset = (name + ".npy").encode(), self.fh.tell()
         size = len(header) + arr.size * dtype.itemsize
-        crc = _RunningCrc(zlib.crc32(header), check=finite and dtype.kind in "fc")
+        crc = _RunningCrc(crc32(header), check=finite and dtype.kind in "fc")
         self.members.append((name, file_name, offset, size, crc))
         self.fh.write(_local_header(file_name, size))
         self.fh.write(header)
@@ -235,7 +242,7 @@ class _RunningCrc:
         if self.check and not (surely_finite(chunk) or np.isfinite(chunk).all()):
             self.value = None
             return
-        self.value = zlib.crc32(_raw(chunk), self.value)
+        self.value = crc32(_raw(chunk), self.value)
 
 
 def _local_header(name: bytes, size: int) -> bytes:
