@@ -30,7 +30,16 @@ from fit.report.drawing import (
 from fit.report.figure_queue import FigureQueue
 from fit.report.html import render_report
 from fit.report.ingest_plots import GapChart, HeadResiduals, plot_gaps, plot_head_residuals
-from fit.report.plots import HEATMAP_COLUMNS, bar_collection, plot_error_heatmap, region_groups
+from fit.report.plots import (
+    HEATMAP_COLUMNS,
+    bar_collection,
+    error_axis_top,
+    plot_error_heatmap,
+    plot_error_heatmaps,
+    plot_marker_error_charts,
+    plot_marker_errors,
+    region_groups,
+)
 from fit.report.video import MAX_AUTO_FPS, write_overlay_video
 from fit.report.views import CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_views, view_axes
 from mocap.errors import InputError
@@ -439,6 +448,64 @@ def test_the_heatmap_of_a_real_marker_set_has_a_pixel_per_column(ict_markerset, 
     image_width = saturated[-1] - saturated[0] + 1        # the colour bar is not saturated here
     assert image.shape[1] <= IMAGE_WIDTH_PX
     assert image_width >= HEATMAP_COLUMNS
+
+
+def _bases_of_one_take(labels, n_frames: int = 900) -> dict:
+    """Errors of three made-up bases of one take: missing samples, errors of other sizes, and
+    a marker that one basis never reconstructs (its bars are left out)."""
+    rng = np.random.default_rng(7)
+    captured = rng.normal(0, 20, (n_frames, len(labels), 3))
+    captured[100:160, 3] = np.nan
+    results = {}
+    for k, name in enumerate(("H", "QE", "PCA")):
+        reconstructed = captured + rng.normal(0, 0.5 + k, captured.shape)
+        if name == "PCA":
+            reconstructed[:, 5] = np.nan
+        results[name] = reconstruction_errors(captured, reconstructed, np.zeros((len(labels), 3)),
+                                              labels=labels, name=name)
+    return results
+
+
+def test_each_bases_charts_laid_out_once_are_the_charts_drawn_anew(ict_markerset, tmp_path):
+    """The heatmaps and per-marker charts of three bases drawn on one figure, laid out for the
+    first: each PNG has the pixels of the chart drawn alone (on the same scales), though
+    their errors, titles and numbers of bars differ."""
+    results = _bases_of_one_take(ict_markerset.face_markers)
+    vmax, ymax = 4.0, error_axis_top(results)
+    assert ymax == pytest.approx(1.08 * max(np.nanmax(r.marker_p95) for r in results.values()))
+    plot_error_heatmaps(results, {b: tmp_path / f"heat-{b}.png" for b in results},
+                        markerset=ict_markerset, rate=120.0, vmax=vmax)
+    plot_marker_error_charts({b: r.per_frame() for b, r in results.items()},
+                             {b: tmp_path / f"bars-{b}.png" for b in results},
+                             markerset=ict_markerset)
+    for b, errors in results.items():
+        plot_error_heatmap(errors, tmp_path / "heat.png", markerset=ict_markerset, rate=120.0,
+                           vmax=vmax)
+        plot_marker_errors(errors, tmp_path / "bars.png", markerset=ict_markerset, ymax=ymax)
+        for kind in ("heat", "bars"):
+            alone = cv2.imread(str(tmp_path / f"{kind}.png"))
+            together = cv2.imread(str(tmp_path / f"{kind}-{b}.png"))
+            assert together.shape == alone.shape and np.array_equal(together, alone), (kind, b)
+    first = cv2.imread(str(tmp_path / "heat-H.png"))
+    assert not np.array_equal(first, cv2.imread(str(tmp_path / "heat-QE.png")))
+
+
+def test_charts_of_several_bases_must_be_of_one_take(ict_markerset, tmp_path):
+    labels = ict_markerset.face_markers
+    results = _bases_of_one_take(labels)
+    other = _bases_of_one_take(labels[::-1])["QE"]
+    shorter = _bases_of_one_take(labels, n_frames=800)["QE"]
+    for odd, match in ((other, "'QE' is of other markers than 'H'"),
+                       (shorter, "'QE' has 800 frames, 'H' 900")):
+        with pytest.raises(InputError, match=match):
+            plot_error_heatmaps({"H": results["H"], "QE": odd},
+                                {"H": tmp_path / "a.png", "QE": tmp_path / "b.png"})
+    with pytest.raises(InputError, match="other markers"):
+        plot_marker_error_charts({"H": results["H"], "QE": other},
+                                 {"H": tmp_path / "a.png", "QE": tmp_path / "b.png"})
+    plot_marker_error_charts({"H": results["H"], "QE": shorter},      # frames not drawn
+                             {"H": tmp_path / "a.png", "QE": tmp_path / "b.png"})
+    assert (tmp_path / "b.png").exists()
 
 
 def _sample_chart(fig):

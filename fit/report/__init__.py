@@ -20,7 +20,13 @@ from fit.report.extremes import take_extremes
 from fit.report.figure_queue import FigureQueue
 from fit.report.html import Figure, Section, Video, ingest_stats, write_report
 from fit.report.mesh_views import MESH_VIEWS, mesh_cameras, plot_mesh_frames
-from fit.report.plots import plot_alpha, plot_error_heatmap, plot_held_out, plot_marker_errors
+from fit.report.plots import (
+    error_axis_top,
+    plot_alpha,
+    plot_error_heatmaps,
+    plot_held_out,
+    plot_marker_error_charts,
+)
 from fit.report.retarget_qa import (
     cross_validation_section,
     lip_seal_section,
@@ -43,13 +49,12 @@ _MESH_RETARGETED = 6
 
 def _shared_scales(results) -> tuple[float, float]:
     """One colour scale (heatmaps) and one error axis (per-marker bars) for every basis, mm."""
-    tops, bars = [], []
+    tops = []
     for r in results.values():
         finite = r.errors[np.isfinite(r.errors)]
         if finite.size:
             tops.append(percentile(finite, 99.5, overwrite_input=True))
-        bars.append(np.nanmax(r.marker_p95) if np.isfinite(r.marker_p95).any() else 0.0)
-    return (max(tops) if tops else 1.0), 1.08 * max(max(bars), 1e-6)
+    return (max(tops) if tops else 1.0), error_axis_top(results)
 
 
 def _given_errors(errors: Mapping, basis: str, take, neutral, origin):
@@ -248,11 +253,12 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
         "tagged with their frame numbers; a log axis is used when the bases differ by more "
         "than 10×."),)))
     vmax, ymax = _shared_scales(results)
+    # each chart of every basis in one figure, laid out once
+    draw(plot_error_heatmaps, results, {b: out(f"heatmap-{b}") for b in results},
+         markerset=markerset, rate=take.rate, vmax=vmax)
+    draw(plot_marker_error_charts, {b: r.per_frame() for b, r in results.items()},
+         {b: out(f"markers-{b}") for b in results}, markerset=markerset, ymax=ymax)
     for basis, res in results.items():
-        draw(plot_error_heatmap, res, out(f"heatmap-{basis}"), markerset=markerset,
-             rate=take.rate, vmax=vmax)
-        draw(plot_marker_errors, res.per_frame(), out(f"markers-{basis}"), markerset=markerset,
-             ymax=ymax)
         items = [
             Figure(files[f"heatmap-{basis}"], f"{basis}: error per marker and frame",
                    f"Rows are markers grouped by region, columns time; colour is the error "

@@ -3,7 +3,8 @@ as typed (PNG).
 
 :func:`report_figure` gives a figure to draw on and writes its pixels when the block ends
 (:func:`mocap.viz.figures.draw_png`: one draw), with plain text without a pass over the
-figure's artists (labels come from files: ``$\\frac{a}{$`` is drawn as typed).
+figure's artists (labels come from files: ``$\\frac{a}{$`` is drawn as typed);
+:func:`report_figures` one written several times, laid out once (a chart of each basis).
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from matplotlib.transforms import ScaledTranslation
 from mocap.viz.figures import draw_png, new_figure
 
 __all__ = ["DPI", "PAGE_WIDTH", "PAGE_WIDTH_PX", "FIGURE_MARGIN_PX", "IMAGE_WIDTH_PX",
-           "report_figure", "plain_log_axis", "column_starts", "line_envelope", "label_ticks"]
+           "report_figure", "report_figures", "plain_log_axis", "column_starts", "line_envelope",
+           "label_ticks"]
 
 #: Widest the report page's body gets, CSS pixels.
 PAGE_WIDTH_PX = 1400
@@ -53,11 +55,38 @@ def report_figure(path, width: float, height: float):
     matplotlib.figure.Figure
         Constrained layout, on an Agg canvas.
     """
+    with report_figures(width, height) as (fig, write):
+        yield fig
+        write(path)
+
+
+@contextmanager
+def report_figures(width: float, height: float):
+    """A new figure of `width` × `height` inches written to several PNGs as it changes.
+
+    ``write(path)`` draws the figure as it is then. The first write lays it out (constrained
+    layout); the later ones keep that layout and skip its cost, about half of a chart's
+    drawing. So between writes the figure may change only in what its layout does not
+    depend on (an image's pixels, bars under a fixed axis, a title's text): each PNG then
+    holds the pixels of the figure drawn anew for it (:func:`report_figure`). Every text
+    is plain, as there.
+
+    Yields
+    ------
+    fig : matplotlib.figure.Figure
+        Constrained layout until the first write, on an Agg canvas.
+    write : callable
+        ``write(path)``: the PNG of the figure as it is now (written atomically).
+    """
     with rc_context({"text.parse_math": False}):
         fig = new_figure(width, height)
         fig.set_dpi(DPI)
-        yield fig
-        draw_png(fig, path, dpi=DPI)
+
+        def write(path) -> None:
+            draw_png(fig, path, dpi=DPI)
+            fig.set_layout_engine("none")       # the positions the layout gave stay
+
+        yield fig, write
 
 
 def label_ticks(ax, positions, labels, *, axis: str = "y", **text) -> None:

@@ -23,14 +23,16 @@ from fit.report.drawing import (
     line_envelope,
     plain_log_axis,
     report_figure,
+    report_figures,
 )
 from mocap.errors import InputError
 from mocap.util.deprecation import moved_names
 from mocap.util.order_statistics import percentile
 from mocap.viz.figures import distinct_colours
 
-__all__ = ["plot_alpha", "plot_error_heatmap", "plot_marker_errors", "plot_held_out",
-           "region_groups", "region_colours", "bar_collection", "HEATMAP_COLUMNS"]
+__all__ = ["plot_alpha", "plot_error_heatmap", "plot_error_heatmaps", "plot_marker_errors",
+           "plot_marker_error_charts", "plot_held_out", "error_axis_top", "region_groups",
+           "region_colours", "bar_collection", "HEATMAP_COLUMNS"]
 
 #: Most columns of an error heatmap: fewer than its pixels across at the page's width (about
 #: 1,000 with the marker names, region names and colour bar beside it), so that drawing the
@@ -190,31 +192,75 @@ def plot_error_heatmap(errors: ReconstructionErrors, path, *, markerset=None,
     columns, each the largest error of its frames (so that resampling the
     image hides no error), grey only where every one of its frames is excluded.
     """
-    order, groups = region_groups(errors.labels, markerset)
-    data = errors.errors[:, order].T
+    name = errors.name or "reconstruction"
+    plot_error_heatmaps({name: errors}, {name: path}, markerset=markerset, rate=rate,
+                        vmax=vmax, titles=None if title is None else {name: title})
+
+
+def plot_error_heatmaps(results: Mapping, paths: Mapping, *, markerset=None,
+                        rate: float | None = None, vmax: float | None = None,
+                        titles: Mapping | None = None) -> None:
+    """:func:`plot_error_heatmap` of each of several reconstructions of one take, on one
+    colour scale: one PNG each, the figure laid out once (:func:`report_figures`).
+
+    Parameters
+    ----------
+    results : mapping of name to ReconstructionErrors
+        Of the same markers and frames.
+    paths : mapping of name to str or os.PathLike
+        The PNG of each.
+    markerset, rate
+        As for :func:`plot_error_heatmap`.
+    vmax : float, optional
+        Top of the colour scale, mm; default the 99.5th percentile of all their errors.
+    titles : mapping of name to str, optional
+
+    Raises
+    ------
+    InputError
+        Results of other markers or frames than the first's.
+    """
+    results = _of_one_take(results, "error heatmaps")
+    first = next(iter(results.values()))
+    order, groups = region_groups(first.labels, markerset)
     if vmax is None:
-        finite = data[np.isfinite(data)]
+        finite = np.concatenate([e.errors[np.isfinite(e.errors)] for e in results.values()])
         vmax = percentile(finite, 99.5, overwrite_input=True) if finite.size else 1.0
-    if data.shape[1] > HEATMAP_COLUMNS:         # more columns than pixels: max-pool
-        data = np.fmax.reduceat(data, column_starts(data.shape[1], HEATMAP_COLUMNS), axis=1)
-    x, xlabel = _time_axis(errors.n_frames, rate)
+    cmap = colormaps["magma"].with_extremes(bad="#b0b0b0")
+    colours = ScalarMappable(Normalize(0, vmax), cmap)
+
+    def pixels(errors: ReconstructionErrors) -> np.ndarray:
+        """The heatmap's RGBA (M, columns), coloured here at the data's size: matplotlib
+        would colour the image at its size on the page, 20 times the pixels
+        (nearest-neighbour, so the same colours either way)."""
+        data = errors.errors[:, order].T
+        if data.shape[1] > HEATMAP_COLUMNS:         # more columns than pixels: max-pool
+            data = np.fmax.reduceat(data, column_starts(data.shape[1], HEATMAP_COLUMNS),
+                                    axis=1)
+        return colours.to_rgba(np.ma.masked_invalid(data), bytes=True)
+
+    x, xlabel = _time_axis(first.n_frames, rate)
     step = x[1] - x[0] if len(x) > 1 else 1.0
     n = len(order)
-    with report_figure(path, PAGE_WIDTH, min(max(3.5, 0.17 * n + 1.8), 14.0)) as fig:
+    image = None
+    with report_figures(PAGE_WIDTH, min(max(3.5, 0.17 * n + 1.8), 14.0)) as (fig, write):
         ax = fig.add_subplot()
-        cmap = colormaps["magma"].with_extremes(bad="#b0b0b0")
-        colours = ScalarMappable(Normalize(0, vmax), cmap)
-        # coloured here, at the data's size: matplotlib would colour the image at its size on
-        # the page, 20 times the pixels (nearest-neighbour, so the same colours either way)
-        ax.imshow(colours.to_rgba(np.ma.masked_invalid(data), bytes=True), aspect="auto",
-                  interpolation="nearest", extent=(x[0], x[-1] + step, n - 0.5, -0.5))
-        label_ticks(ax, range(n), [errors.labels[i] for i in order],
-                    fontsize=max(4, min(8, 400 // max(n, 1))))
-        _region_labels_right(ax, groups)
-        ax.set_xlabel(xlabel)
-        fig.colorbar(colours, ax=ax, label="error (mm)", extend="max", pad=0.01, fraction=0.05)
-        ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker and frame "
-                              f"(RMS {errors.totals['rms_mm']:.2f} mm; grey = missing)")
+        for name, errors in results.items():
+            if image is None:
+                image = ax.imshow(pixels(errors), aspect="auto", interpolation="nearest",
+                                  extent=(x[0], x[-1] + step, n - 0.5, -0.5))
+                label_ticks(ax, range(n), [first.labels[i] for i in order],
+                            fontsize=max(4, min(8, 400 // max(n, 1))))
+                _region_labels_right(ax, groups)
+                ax.set_xlabel(xlabel)
+                fig.colorbar(colours, ax=ax, label="error (mm)", extend="max", pad=0.01,
+                             fraction=0.05)
+            else:
+                image.set_data(pixels(errors))
+            ax.set_title((titles or {}).get(name) or
+                         f"{errors.name or 'reconstruction'}: error per marker and frame "
+                         f"(RMS {errors.totals['rms_mm']:.2f} mm; grey = missing)")
+            write(paths[name])
 
 
 def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
@@ -228,43 +274,111 @@ def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
     markerset : mocap.markerset.MarkerSet, optional
         Regions; without it all markers share one colour.
     ymax : float, optional
-        Top of the error axis, mm (one scale for every basis of a report).
+        Top of the error axis, mm (one scale for every basis of a report); default
+        :func:`error_axis_top`.
     """
-    order, groups = region_groups(errors.labels, markerset)
+    name = errors.name or "reconstruction"
+    plot_marker_error_charts({name: errors}, {name: path}, markerset=markerset, ymax=ymax,
+                             titles=None if title is None else {name: title})
+
+
+def plot_marker_error_charts(results: Mapping, paths: Mapping, *, markerset=None,
+                             ymax: float | None = None, titles: Mapping | None = None) -> None:
+    """:func:`plot_marker_errors` of each of several reconstructions of one take, on one
+    error axis: one PNG each, the figure laid out once (:func:`report_figures`).
+
+    Parameters
+    ----------
+    results : mapping of name to ReconstructionErrors
+        Of the same markers (their per-frame statistics are enough:
+        :meth:`~fit.metrics.ReconstructionErrors.per_frame`).
+    paths : mapping of name to str or os.PathLike
+    markerset
+        As for :func:`plot_marker_errors`.
+    ymax : float, optional
+        Top of the error axis, mm; default :func:`error_axis_top` of them all.
+    titles : mapping of name to str, optional
+
+    Raises
+    ------
+    InputError
+        Results of other markers than the first's.
+    """
+    results = _of_one_take(results, "per-marker error charts", frames=False)
+    first = next(iter(results.values()))
+    order, groups = region_groups(first.labels, markerset)
     gap = 0.8
     pos = np.concatenate([np.arange(start, stop) + gap * k
                           for k, (_, start, stop) in enumerate(groups)])
     colours = region_colours(groups)
-    with report_figure(path, _marker_chart_width(len(pos), len(groups), gap), 5.0) as fig:
+    # every bar in one collection, the wide pale ones first (under the narrow ones)
+    at, widths = np.concatenate([pos, pos]), np.repeat([0.8, 0.45], len(pos))
+    faces = np.concatenate([colours * [1, 1, 1, 0.35], colours])
+    bars = None
+    with report_figures(_marker_chart_width(len(pos), len(groups), gap), 5.0) as (fig, write):
         ax = fig.add_subplot()
-        # Every bar in one collection, the wide pale ones first (under the narrow ones).
-        ax.add_collection(bar_collection(
-            np.concatenate([pos, pos]),
-            np.concatenate([errors.marker_p95[order], errors.marker_mean[order]]),
-            np.repeat([0.8, 0.45], len(pos)),
-            np.concatenate([colours * [1, 1, 1, 0.35], colours])))
-        label_ticks(ax, pos, [errors.labels[i] for i in order], axis="x", rotation=70,
-                    ha="right", rotation_mode="anchor", fontsize=7)
-        sec = ax.secondary_xaxis("top")
-        sec.set_xticks([(pos[start] + pos[stop - 1]) / 2 for _, start, stop in groups],
-                       labels=[name.replace("_", " ") for name, _, _ in groups], fontsize=8,
-                       rotation=30, ha="left", rotation_mode="anchor")
-        sec.tick_params(length=0)
-        between = [pos[start] - 0.5 - gap / 2 for _, start, _ in groups[1:]]
-        ax.add_collection(LineCollection([[(x, 0), (x, 1)] for x in between], colors="grey",
-                                         linewidths=0.6, linestyles=":",
-                                         transform=ax.get_xaxis_transform()), autolim=False)
-        ax.set_xlim(pos[0] - 0.8, pos[-1] + 0.8)
-        ax.set_ylabel("error (mm)")
-        if ymax is not None:
-            ax.set_ylim(0, ymax)
-        fig.legend(handles=[Patch(color="grey", alpha=0.35, label="95th percentile (wide, pale)"),
-                            Patch(color="grey", label="mean (narrow)")],
-                   loc="outside lower center", ncol=2, fontsize=8, frameon=False)
-        ax.grid(axis="y", alpha=0.3)
-        ax.set_title(title or f"{errors.name or 'reconstruction'}: error per marker "
-                              f"(mean {errors.totals['mean_mm']:.2f} mm, "
-                              f"95th percentile {errors.totals['p95_mm']:.2f} mm)")
+        for name, errors in results.items():
+            lengths = np.concatenate([errors.marker_p95[order], errors.marker_mean[order]])
+            if bars is None:
+                bars = ax.add_collection(bar_collection(at, lengths, widths, faces))
+                _marker_chart_axes(ax, fig, pos, groups, gap, [first.labels[i] for i in order],
+                                   error_axis_top(results) if ymax is None else ymax)
+            else:
+                bars.set_verts(_bar_corners(at, lengths, widths)[0])
+                bars.set_facecolor(faces[np.isfinite(lengths)])
+            ax.set_title((titles or {}).get(name) or
+                         f"{errors.name or 'reconstruction'}: error per marker "
+                         f"(mean {errors.totals['mean_mm']:.2f} mm, "
+                         f"95th percentile {errors.totals['p95_mm']:.2f} mm)")
+            write(paths[name])
+
+
+def _marker_chart_axes(ax, fig, pos, groups, gap: float, labels, ymax: float) -> None:
+    """What every per-marker chart of a take shares: the markers' names below, the regions'
+    above and dotted lines between them, the error axis to `ymax`, the legend."""
+    label_ticks(ax, pos, labels, axis="x", rotation=70, ha="right", rotation_mode="anchor",
+                fontsize=7)
+    sec = ax.secondary_xaxis("top")
+    sec.set_xticks([(pos[start] + pos[stop - 1]) / 2 for _, start, stop in groups],
+                   labels=[name.replace("_", " ") for name, _, _ in groups], fontsize=8,
+                   rotation=30, ha="left", rotation_mode="anchor")
+    sec.tick_params(length=0)
+    between = [pos[start] - 0.5 - gap / 2 for _, start, _ in groups[1:]]
+    ax.add_collection(LineCollection([[(x, 0), (x, 1)] for x in between], colors="grey",
+                                     linewidths=0.6, linestyles=":",
+                                     transform=ax.get_xaxis_transform()), autolim=False)
+    ax.set_xlim(pos[0] - 0.8, pos[-1] + 0.8)
+    ax.set_ylabel("error (mm)")
+    ax.set_ylim(0, ymax)
+    fig.legend(handles=[Patch(color="grey", alpha=0.35, label="95th percentile (wide, pale)"),
+                        Patch(color="grey", label="mean (narrow)")],
+               loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+    ax.grid(axis="y", alpha=0.3)
+
+
+def error_axis_top(results: Mapping) -> float:
+    """Top of the per-marker charts' error axis for all `results` (name to
+    ReconstructionErrors), mm: 8 % above the largest 95th percentile of a marker."""
+    tops = [np.nanmax(r.marker_p95) for r in results.values() if np.isfinite(r.marker_p95).any()]
+    return 1.08 * max(max(tops, default=0.0), 1e-6)
+
+
+def _of_one_take(results: Mapping, what: str, *, frames: bool = True) -> dict:
+    """`results` (name to ReconstructionErrors), checked to share the first's markers (and
+    frames): the charts of several share its layout."""
+    results = dict(results)
+    if not results:
+        raise InputError(f"{what}: give at least one ReconstructionErrors")
+    first_name, first = next(iter(results.items()))
+    for name, errors in results.items():
+        if tuple(errors.labels) != tuple(first.labels):
+            raise InputError(f"{what}: {name!r} is of other markers than {first_name!r} "
+                             f"({', '.join(errors.labels[:3])}... against "
+                             f"{', '.join(first.labels[:3])}...): give the charts of one take")
+        if frames and errors.n_frames != first.n_frames:
+            raise InputError(f"{what}: {name!r} has {errors.n_frames} frames, {first_name!r} "
+                             f"{first.n_frames}: give the charts of one take")
+    return results
 
 
 def _marker_chart_width(n_markers: int, n_groups: int, gap: float) -> float:
@@ -297,17 +411,22 @@ def bar_collection(at, lengths, widths, colours, *, horizontal: bool = False) ->
     matplotlib.collections.PolyCollection
         For ``Axes.add_collection``; the length axis sticks to 0 as with ``Axes.bar``.
     """
+    corners, keep = _bar_corners(at, lengths, widths, horizontal=horizontal)
+    bars = PolyCollection(corners, facecolors=colours[keep], edgecolors="none", linewidths=0)
+    (bars.sticky_edges.x if horizontal else bars.sticky_edges.y).append(0)
+    return bars
+
+
+def _bar_corners(at, lengths, widths, *, horizontal: bool = False):
+    """The corners (B', 4, 2) of the bars of :func:`bar_collection`, and which of the B
+    bars they are (those of finite length)."""
     keep = np.isfinite(lengths)
     at, lengths, half = at[keep], lengths[keep], widths[keep] / 2
     zero = np.zeros_like(at)
     corners = np.stack([np.column_stack(c) for c in ((at - half, zero), (at - half, lengths),
                                                      (at + half, lengths), (at + half, zero))],
                        axis=1)
-    if horizontal:
-        corners = corners[:, :, ::-1]
-    bars = PolyCollection(corners, facecolors=colours[keep], edgecolors="none", linewidths=0)
-    (bars.sticky_edges.x if horizontal else bars.sticky_edges.y).append(0)
-    return bars
+    return (corners[:, :, ::-1] if horizontal else corners), keep
 
 
 def plot_held_out(in_sample: dict, held_out: dict, path, *, label: str) -> None:
