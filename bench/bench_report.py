@@ -72,19 +72,22 @@ def report(args: dict, out: Path, figures: FigureQueue | None = None) -> dict:
 
 
 def figure_seconds(args: dict, out: Path) -> dict:
-    """Seconds from each report figure's creation to its PNG written, keyed by the file's
-    name: the report once more, with :mod:`fit.report.drawing` timed (the coverage plot of
-    :mod:`basis` is drawn without it)."""
-    seconds, started = {}, []
+    """Seconds from each report figure's creation (or its previous PNG: a figure written for
+    each basis) to its PNG written, keyed by the file's name: the report once more, with
+    :mod:`fit.report.drawing` timed (the coverage plot of :mod:`basis` is drawn without it)."""
+    seconds, since = {}, {}
     new_figure, draw_png = fit.report.drawing.new_figure, fit.report.drawing.draw_png
 
     def start(*size):
-        started.append(time.perf_counter())
-        return new_figure(*size)
+        fig = new_figure(*size)
+        since[id(fig)] = time.perf_counter()
+        return fig
 
     def end(fig, path, **options):
         draw_png(fig, path, **options)
-        seconds[Path(path).name] = time.perf_counter() - started.pop()
+        now = time.perf_counter()
+        seconds[Path(path).name] = now - since[id(fig)]
+        since[id(fig)] = now
 
     fit.report.drawing.new_figure, fit.report.drawing.draw_png = start, end
     try:
