@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from matplotlib.colors import ListedColormap
+from matplotlib.colors import to_rgba
 from matplotlib.patches import Patch
 
 from fit.report.drawing import DPI, column_starts, label_ticks, line_envelope, report_figure
@@ -19,6 +19,9 @@ _STATE_COLOURS = {"present": "#d9d9d9", "missing": "#202020",
                   "spline": "#1f77b4", "rigid": "#2ca02c", "pca": "#d62728"}
 #: The states of the gap chart, in the order of its codes.
 _STATES = ("present", "missing", *FILL_METHODS)
+#: The RGBA (uint8) of each code of the gap chart.
+_STATE_RGBA = (np.array([to_rgba(_STATE_COLOURS[n]) for n in _STATES]) * 255).round() \
+    .astype(np.uint8)
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,12 +88,13 @@ def plot_gaps(take: Take | GapChart, path, *, title: str | None = None) -> None:
     chart = take if isinstance(take, GapChart) else GapChart.of(take)
     n_markers = len(chart.labels)
     counts = chart.counts
-    cmap = ListedColormap([_STATE_COLOURS[n] for n in _STATES])
     height = min(max(3.0, 0.16 * n_markers + 1.6), 14.0)
     with report_figure(path, 11, height) as fig:
         ax = fig.add_subplot()
-        ax.imshow(chart.codes, aspect="auto", interpolation="nearest", cmap=cmap,
-                  vmin=-0.5, vmax=len(_STATES) - 0.5,
+        # coloured here, a state's colour for each code, at the chart's size: matplotlib
+        # would map the codes at the image's size on the page (nearest-neighbour, so the
+        # same colours either way), several hundred times the pixels
+        ax.imshow(_STATE_RGBA[chart.codes], aspect="auto", interpolation="nearest",
                   extent=(*chart.times, n_markers - 0.5, -0.5))
         label_ticks(ax, range(n_markers), chart.labels,
                     fontsize=max(4, min(8, 400 // max(n_markers, 1))))
