@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import pickle
 import struct
+import warnings
 import zlib
 from pathlib import Path
 
@@ -32,6 +33,7 @@ from fit.report.html import render_report
 from fit.report.ingest_plots import GapChart, HeadResiduals, plot_gaps, plot_head_residuals
 from fit.report.plots import (
     HEATMAP_COLUMNS,
+    HeatmapColumns,
     bar_collection,
     error_axis_top,
     plot_error_heatmap,
@@ -488,6 +490,35 @@ def test_each_bases_charts_laid_out_once_are_the_charts_drawn_anew(ict_markerset
             assert together.shape == alone.shape and np.array_equal(together, alone), (kind, b)
     first = cv2.imread(str(tmp_path / "heat-H.png"))
     assert not np.array_equal(first, cv2.imread(str(tmp_path / "heat-QE.png")))
+    # what the report sends a figure helper: the heatmaps' columns, the same pictures
+    columns = {b: HeatmapColumns.of(r) for b, r in results.items()}
+    plot_error_heatmaps(columns, {b: tmp_path / f"cols-{b}.png" for b in results},
+                        markerset=ict_markerset, rate=120.0, vmax=vmax)
+    for b in results:
+        assert np.array_equal(cv2.imread(str(tmp_path / f"cols-{b}.png")),
+                              cv2.imread(str(tmp_path / f"heat-{b}.png"))), b
+
+
+def test_heatmap_columns_keep_each_columns_largest_error():
+    """A long take's heatmap columns: each marker's largest error over the frames of each
+    column (NaN where all are missing), the default colour scale the 99.5th percentile of
+    every error (numpy's), and a pickle a fraction of the errors' size."""
+    labels = [f"m{i}" for i in range(6)]
+    errors = _bases_of_one_take(labels, n_frames=5 * HEATMAP_COLUMNS + 37)["QE"]
+    heatmap = HeatmapColumns.of(errors)
+    assert heatmap.columns.shape == (6, HEATMAP_COLUMNS)
+    starts = np.linspace(0, errors.n_frames, HEATMAP_COLUMNS, endpoint=False).astype(int)
+    stops = np.r_[starts[1:], errors.n_frames]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)         # all-NaN columns
+        expected = np.stack([np.nanmax(errors.errors[a:b], axis=0)
+                             for a, b in zip(starts, stops)], axis=1)
+    np.testing.assert_array_equal(heatmap.columns, expected)
+    assert np.isnan(heatmap.columns[3]).any()                     # the gap of marker 3
+    finite = errors.errors[np.isfinite(errors.errors)]
+    assert heatmap.top == np.percentile(finite, 99.5)
+    assert heatmap.n_frames == errors.n_frames
+    assert len(pickle.dumps(heatmap)) < len(pickle.dumps(errors)) / 4
 
 
 def test_charts_of_several_bases_must_be_of_one_take(ict_markerset, tmp_path):

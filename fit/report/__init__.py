@@ -21,6 +21,7 @@ from fit.report.figure_queue import FigureQueue
 from fit.report.html import Figure, Section, Video, ingest_stats, write_report
 from fit.report.mesh_views import MESH_VIEWS, mesh_cameras, plot_mesh_frames
 from fit.report.plots import (
+    HeatmapColumns,
     error_axis_top,
     plot_alpha,
     plot_error_heatmaps,
@@ -45,16 +46,6 @@ __all__ = ["build_report"]
 _MESH_WORST = 3
 #: At most this many frames in the W·D renders.
 _MESH_RETARGETED = 6
-
-
-def _shared_scales(results) -> tuple[float, float]:
-    """One colour scale (heatmaps) and one error axis (per-marker bars) for every basis, mm."""
-    tops = []
-    for r in results.values():
-        finite = r.errors[np.isfinite(r.errors)]
-        if finite.size:
-            tops.append(percentile(finite, 99.5, overwrite_input=True))
-    return (max(tops) if tops else 1.0), error_axis_top(results)
 
 
 def _given_errors(errors: Mapping, basis: str, take, neutral, origin):
@@ -252,9 +243,11 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
         "One curve per basis on one axis; circles mark each basis's worst frames (by RMS), "
         "tagged with their frame numbers; a log axis is used when the bases differ by more "
         "than 10×."),)))
-    vmax, ymax = _shared_scales(results)
-    # each chart of every basis in one figure, laid out once
-    draw(plot_error_heatmaps, results, {b: out(f"heatmap-{b}") for b in results},
+    # one colour scale and one error axis for every basis, each chart of every basis in
+    # one figure laid out once, given what it shows (not every sample's error)
+    heatmaps = {b: HeatmapColumns.of(r) for b, r in results.items()}
+    vmax, ymax = max(h.top for h in heatmaps.values()), error_axis_top(results)
+    draw(plot_error_heatmaps, heatmaps, {b: out(f"heatmap-{b}") for b in results},
          markerset=markerset, rate=take.rate, vmax=vmax)
     draw(plot_marker_error_charts, {b: r.per_frame() for b, r in results.items()},
          {b: out(f"markers-{b}") for b in results}, markerset=markerset, ymax=ymax)

@@ -4,6 +4,7 @@ per-marker errors by region."""
 from __future__ import annotations
 
 import textwrap
+from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
@@ -30,7 +31,8 @@ from mocap.util.deprecation import moved_names
 from mocap.util.order_statistics import percentile
 from mocap.viz.figures import distinct_colours
 
-__all__ = ["plot_alpha", "plot_error_heatmap", "plot_error_heatmaps", "plot_marker_errors",
+__all__ = ["plot_alpha", "plot_error_heatmap", "plot_error_heatmaps", "HeatmapColumns",
+           "plot_marker_errors",
            "plot_marker_error_charts", "plot_held_out", "error_axis_top", "region_groups",
            "region_colours", "bar_collection", "HEATMAP_COLUMNS"]
 
@@ -197,6 +199,48 @@ def plot_error_heatmap(errors: ReconstructionErrors, path, *, markerset=None,
                         vmax=vmax, titles=None if title is None else {name: title})
 
 
+@dataclass(frozen=True, eq=False)
+class HeatmapColumns:
+    """What an error heatmap shows of a reconstruction: its errors in at most
+    :data:`HEATMAP_COLUMNS` columns of frames, small enough to send to a figure helper
+    (:class:`fit.report.figure_queue.FigureQueue`).
+
+    Attributes
+    ----------
+    name : str
+    labels : tuple of str
+        The M markers.
+    columns : ndarray, shape (M, C), mm
+        Per marker, the largest error of each column's frames (so that drawing the
+        image at its size on the page hides no error), NaN where every one of its frames
+        is excluded; one column a frame for a take of at most HEATMAP_COLUMNS frames.
+    top : float
+        The 99.5th percentile of all its errors, mm (1 without any): the colour scale's
+        default top.
+    rms_mm : float
+    n_frames : int
+    """
+
+    name: str
+    labels: tuple
+    columns: np.ndarray
+    top: float
+    rms_mm: float
+    n_frames: int
+
+    @classmethod
+    def of(cls, errors: ReconstructionErrors) -> HeatmapColumns:
+        """The heatmap's columns of `errors`."""
+        data = errors.errors.T
+        finite = data[np.isfinite(data)]
+        top = percentile(finite, 99.5, overwrite_input=True) if finite.size else 1.0
+        if data.shape[1] > HEATMAP_COLUMNS:         # more columns than pixels: max-pool
+            data = np.fmax.reduceat(data, column_starts(data.shape[1], HEATMAP_COLUMNS),
+                                    axis=1)
+        return cls(errors.name, tuple(errors.labels), np.ascontiguousarray(data), float(top),
+                   float(errors.totals["rms_mm"]), errors.n_frames)
+
+
 def plot_error_heatmaps(results: Mapping, paths: Mapping, *, markerset=None,
                         rate: float | None = None, vmax: float | None = None,
                         titles: Mapping | None = None) -> None:
@@ -205,14 +249,15 @@ def plot_error_heatmaps(results: Mapping, paths: Mapping, *, markerset=None,
 
     Parameters
     ----------
-    results : mapping of name to ReconstructionErrors
+    results : mapping of name to ReconstructionErrors or HeatmapColumns
         Of the same markers and frames.
     paths : mapping of name to str or os.PathLike
         The PNG of each.
     markerset, rate
         As for :func:`plot_error_heatmap`.
     vmax : float, optional
-        Top of the colour scale, mm; default the 99.5th percentile of all their errors.
+        Top of the colour scale, mm; default the largest of their 99.5th percentiles
+        (:attr:`HeatmapColumns.top`).
     titles : mapping of name to str, optional
 
     Raises
@@ -220,34 +265,26 @@ def plot_error_heatmaps(results: Mapping, paths: Mapping, *, markerset=None,
     InputError
         Results of other markers or frames than the first's.
     """
-    results = _of_one_take(results, "error heatmaps")
+    results = _of_one_take({name: r if isinstance(r, HeatmapColumns) else HeatmapColumns.of(r)
+                            for name, r in results.items()}, "error heatmaps")
     first = next(iter(results.values()))
     order, groups = region_groups(first.labels, markerset)
     if vmax is None:
-        finite = np.concatenate([e.errors[np.isfinite(e.errors)] for e in results.values()])
-        vmax = percentile(finite, 99.5, overwrite_input=True) if finite.size else 1.0
-    cmap = colormaps["magma"].with_extremes(bad="#b0b0b0")
-    colours = ScalarMappable(Normalize(0, vmax), cmap)
-
-    def pixels(errors: ReconstructionErrors) -> np.ndarray:
-        """The heatmap's RGBA (M, columns), coloured here at the data's size: matplotlib
-        would colour the image at its size on the page, 20 times the pixels
-        (nearest-neighbour, so the same colours either way)."""
-        data = errors.errors[:, order].T
-        if data.shape[1] > HEATMAP_COLUMNS:         # more columns than pixels: max-pool
-            data = np.fmax.reduceat(data, column_starts(data.shape[1], HEATMAP_COLUMNS),
-                                    axis=1)
-        return colours.to_rgba(np.ma.masked_invalid(data), bytes=True)
-
+        vmax = max(r.top for r in results.values())
+    # coloured here, at the columns' size: matplotlib would colour the image at its size on
+    # the page, 20 times the pixels (nearest-neighbour, so the same colours either way)
+    colours = ScalarMappable(Normalize(0, vmax),
+                             colormaps["magma"].with_extremes(bad="#b0b0b0"))
     x, xlabel = _time_axis(first.n_frames, rate)
     step = x[1] - x[0] if len(x) > 1 else 1.0
     n = len(order)
     image = None
     with report_figures(PAGE_WIDTH, min(max(3.5, 0.17 * n + 1.8), 14.0)) as (fig, write):
         ax = fig.add_subplot()
-        for name, errors in results.items():
+        for name, heatmap in results.items():
+            pixels = colours.to_rgba(np.ma.masked_invalid(heatmap.columns[order]), bytes=True)
             if image is None:
-                image = ax.imshow(pixels(errors), aspect="auto", interpolation="nearest",
+                image = ax.imshow(pixels, aspect="auto", interpolation="nearest",
                                   extent=(x[0], x[-1] + step, n - 0.5, -0.5))
                 label_ticks(ax, range(n), [first.labels[i] for i in order],
                             fontsize=max(4, min(8, 400 // max(n, 1))))
@@ -256,10 +293,10 @@ def plot_error_heatmaps(results: Mapping, paths: Mapping, *, markerset=None,
                 fig.colorbar(colours, ax=ax, label="error (mm)", extend="max", pad=0.01,
                              fraction=0.05)
             else:
-                image.set_data(pixels(errors))
+                image.set_data(pixels)
             ax.set_title((titles or {}).get(name) or
-                         f"{errors.name or 'reconstruction'}: error per marker and frame "
-                         f"(RMS {errors.totals['rms_mm']:.2f} mm; grey = missing)")
+                         f"{heatmap.name or 'reconstruction'}: error per marker and frame "
+                         f"(RMS {heatmap.rms_mm:.2f} mm; grey = missing)")
             write(paths[name])
 
 
@@ -364,8 +401,8 @@ def error_axis_top(results: Mapping) -> float:
 
 
 def _of_one_take(results: Mapping, what: str, *, frames: bool = True) -> dict:
-    """`results` (name to ReconstructionErrors), checked to share the first's markers (and
-    frames): the charts of several share its layout."""
+    """`results` (name to ReconstructionErrors or HeatmapColumns), checked to share the
+    first's markers (and frames): the charts of several share its layout."""
     results = dict(results)
     if not results:
         raise InputError(f"{what}: give at least one ReconstructionErrors")
