@@ -228,6 +228,25 @@ def test_the_compiled_gap_is_loaded_for_frames_that_pay_for_it(demo_face, monkey
     assert used == [1]
 
 
+@pytest.mark.parametrize("n_up", [0, 1, 3, 4, 5, 8, 11])
+def test_the_compiled_gap_is_the_least_pair_distance_bit_for_bit(n_up):
+    """The compiled loop (upper points four at a time, then the rest) against every pair's
+    ``(dx·dx + dy·dy) + dz·dz`` in NumPy and its least: the same bits, for any number of
+    upper points, and NaN in a frame with a coordinate that is not finite."""
+    kernel = pytest.importorskip("mocap.mesh._mouth_kernel", reason="numba is not installed")
+    rng = np.random.default_rng(n_up)
+    x = rng.normal(0.0, 5.0, (40, n_up + 9, 3)) + [0.0, -50.0, 100.0]
+    x[7, 0, 1] = np.nan
+    x[11, -1, 2] = np.inf
+    d = x[:, :n_up, None, :] - x[:, None, n_up:, :]                  # (T, up, low, 3)
+    pairs = (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]) + d[..., 2] * d[..., 2]
+    expected = pairs.reshape(len(x), -1).min(axis=1, initial=np.inf)
+    expected[~np.isfinite(x).all(axis=(1, 2))] = np.nan
+    got = np.empty(len(x))
+    kernel.least_squared_distances(x, n_up, got)
+    np.testing.assert_array_equal(got, expected)
+
+
 def test_numba_without_a_cache_folder_measures_the_gap_with_numpy_and_a_warning(
         demo_face, monkeypatch):
     """numba raises RuntimeError when it can write its compiled code nowhere (a read-only
