@@ -233,7 +233,7 @@ def test_the_compiled_gap_is_the_least_pair_distance_bit_for_bit(n_up):
     """The compiled loop (upper points four at a time, then the rest) against every pair's
     ``(dx·dx + dy·dy) + dz·dz`` in NumPy and its least: the same bits, for any number of
     upper points, and NaN in a frame with a coordinate that is not finite."""
-    from mocap.mesh._mouth_kernel import least_squared_distances      # the speed extra
+    from mocap.mesh._mouth_kernel import least_squared_distances  # the speed extra
     rng = np.random.default_rng(n_up)
     x = rng.normal(0.0, 5.0, (40, n_up + 9, 3)) + [0.0, -50.0, 100.0]
     x[7, 0, 1] = np.nan
