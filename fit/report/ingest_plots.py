@@ -20,8 +20,8 @@ _STATE_COLOURS = {"present": "#d9d9d9", "missing": "#202020",
 #: The states of the gap chart, in the order of its codes.
 _STATES = ("present", "missing", *FILL_METHODS)
 #: The RGBA (uint8) of each code of the gap chart.
-_STATE_RGBA = (np.array([to_rgba(_STATE_COLOURS[n]) for n in _STATES]) * 255).round() \
-    .astype(np.uint8)
+_STATE_RGBA = np.round(255 * np.array([to_rgba(_STATE_COLOURS[n])
+                                       for n in _STATES])).astype(np.uint8)
 
 
 @dataclass(frozen=True, eq=False)

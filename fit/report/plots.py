@@ -32,9 +32,8 @@ from mocap.util.order_statistics import percentile
 from mocap.viz.figures import distinct_colours
 
 __all__ = ["plot_alpha", "plot_error_heatmap", "plot_error_heatmaps", "HeatmapColumns",
-           "plot_marker_errors",
-           "plot_marker_error_charts", "plot_held_out", "error_axis_top", "region_groups",
-           "region_colours", "bar_collection", "HEATMAP_COLUMNS"]
+           "plot_marker_errors", "plot_marker_error_charts", "plot_held_out", "error_axis_top",
+           "region_groups", "region_colours", "bar_collection", "HEATMAP_COLUMNS"]
 
 #: Most columns of an error heatmap: fewer than its pixels across at the page's width (about
 #: 1,000 with the marker names, region names and colour bar beside it), so that drawing the
