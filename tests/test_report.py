@@ -521,6 +521,25 @@ def test_heatmap_columns_keep_each_columns_largest_error():
     assert len(pickle.dumps(heatmap)) < len(pickle.dumps(errors)) / 4
 
 
+def test_charts_whose_titles_differ_in_height_are_laid_out_apart(tmp_path):
+    """A title of two lines among titles of one: its chart gets its own layout, and every
+    PNG is still the chart drawn alone."""
+    labels = [f"m{i}" for i in range(6)]
+    results = _bases_of_one_take(labels, n_frames=300)
+    titles = {"H": "one line", "QE": "two\nlines", "PCA": "one line again"}
+    plot_error_heatmaps(results, {b: tmp_path / f"heat-{b}.png" for b in results}, vmax=3.0,
+                        titles=titles)
+    plot_marker_error_charts(results, {b: tmp_path / f"bars-{b}.png" for b in results},
+                             ymax=5.0, titles=titles)
+    for b, errors in results.items():
+        plot_error_heatmap(errors, tmp_path / "heat.png", vmax=3.0, title=titles[b])
+        plot_marker_errors(errors, tmp_path / "bars.png", ymax=5.0, title=titles[b])
+        for kind in ("heat", "bars"):
+            alone = cv2.imread(str(tmp_path / f"{kind}.png"))
+            together = cv2.imread(str(tmp_path / f"{kind}-{b}.png"))
+            assert together.shape == alone.shape and np.array_equal(together, alone), (kind, b)
+
+
 def test_charts_of_several_bases_must_be_of_one_take(ict_markerset, tmp_path):
     labels = ict_markerset.face_markers
     results = _bases_of_one_take(labels)

@@ -67,9 +67,9 @@ def report_figures(width: float, height: float):
     ``write(path)`` draws the figure as it is then. The first write lays it out (constrained
     layout); the later ones keep that layout and skip its cost, about half of a chart's
     drawing. So between writes the figure may change only in what its layout does not
-    depend on (an image's pixels, bars under a fixed axis, a title's text): each PNG then
-    holds the pixels of the figure drawn anew for it (:func:`report_figure`). Every text
-    is plain, as there.
+    depend on (an image's pixels, bars under a fixed axis, a title's words but not its
+    number of lines): each PNG then holds the pixels of the figure drawn anew for it
+    (:func:`report_figure`). Every text is plain, as there.
 
     Yields
     ------

@@ -277,26 +277,30 @@ def plot_error_heatmaps(results: Mapping, paths: Mapping, *, markerset=None,
     x, xlabel = _time_axis(first.n_frames, rate)
     step = x[1] - x[0] if len(x) > 1 else 1.0
     n = len(order)
-    image = None
-    with report_figures(PAGE_WIDTH, min(max(3.5, 0.17 * n + 1.8), 14.0)) as (fig, write):
-        ax = fig.add_subplot()
-        for name, heatmap in results.items():
-            pixels = colours.to_rgba(np.ma.masked_invalid(heatmap.columns[order]), bytes=True)
-            if image is None:
-                image = ax.imshow(pixels, aspect="auto", interpolation="nearest",
-                                  extent=(x[0], x[-1] + step, n - 0.5, -0.5))
-                label_ticks(ax, range(n), [first.labels[i] for i in order],
-                            fontsize=max(4, min(8, 400 // max(n, 1))))
-                _region_labels_right(ax, groups)
-                ax.set_xlabel(xlabel)
-                fig.colorbar(colours, ax=ax, label="error (mm)", extend="max", pad=0.01,
-                             fraction=0.05)
-            else:
-                image.set_data(pixels)
-            ax.set_title((titles or {}).get(name) or
-                         f"{heatmap.name or 'reconstruction'}: error per marker and frame "
-                         f"(RMS {heatmap.rms_mm:.2f} mm; grey = missing)")
-            write(paths[name])
+    titles = {name: (titles or {}).get(name) or
+              f"{heatmap.name or 'reconstruction'}: error per marker and frame "
+              f"(RMS {heatmap.rms_mm:.2f} mm; grey = missing)"
+              for name, heatmap in results.items()}
+    for names in _same_layouts(titles):
+        image = None
+        with report_figures(PAGE_WIDTH, min(max(3.5, 0.17 * n + 1.8), 14.0)) as (fig, write):
+            ax = fig.add_subplot()
+            for name in names:
+                pixels = colours.to_rgba(np.ma.masked_invalid(results[name].columns[order]),
+                                         bytes=True)
+                if image is None:
+                    image = ax.imshow(pixels, aspect="auto", interpolation="nearest",
+                                      extent=(x[0], x[-1] + step, n - 0.5, -0.5))
+                    label_ticks(ax, range(n), [first.labels[i] for i in order],
+                                fontsize=max(4, min(8, 400 // max(n, 1))))
+                    _region_labels_right(ax, groups)
+                    ax.set_xlabel(xlabel)
+                    fig.colorbar(colours, ax=ax, label="error (mm)", extend="max", pad=0.01,
+                                 fraction=0.05)
+                else:
+                    image.set_data(pixels)
+                ax.set_title(titles[name])
+                write(paths[name])
 
 
 def plot_marker_errors(errors: ReconstructionErrors, path, *, markerset=None,
@@ -350,23 +354,39 @@ def plot_marker_error_charts(results: Mapping, paths: Mapping, *, markerset=None
     # every bar in one collection, the wide pale ones first (under the narrow ones)
     at, widths = np.concatenate([pos, pos]), np.repeat([0.8, 0.45], len(pos))
     faces = np.concatenate([colours * [1, 1, 1, 0.35], colours])
-    bars = None
-    with report_figures(_marker_chart_width(len(pos), len(groups), gap), 5.0) as (fig, write):
-        ax = fig.add_subplot()
-        for name, errors in results.items():
-            lengths = np.concatenate([errors.marker_p95[order], errors.marker_mean[order]])
-            if bars is None:
-                bars = ax.add_collection(bar_collection(at, lengths, widths, faces))
-                _marker_chart_axes(ax, fig, pos, groups, gap, [first.labels[i] for i in order],
-                                   error_axis_top(results) if ymax is None else ymax)
-            else:
-                bars.set_verts(_bar_corners(at, lengths, widths)[0])
-                bars.set_facecolor(faces[np.isfinite(lengths)])
-            ax.set_title((titles or {}).get(name) or
-                         f"{errors.name or 'reconstruction'}: error per marker "
-                         f"(mean {errors.totals['mean_mm']:.2f} mm, "
-                         f"95th percentile {errors.totals['p95_mm']:.2f} mm)")
-            write(paths[name])
+    ymax = error_axis_top(results) if ymax is None else ymax
+    titles = {name: (titles or {}).get(name) or
+              f"{errors.name or 'reconstruction'}: error per marker "
+              f"(mean {errors.totals['mean_mm']:.2f} mm, "
+              f"95th percentile {errors.totals['p95_mm']:.2f} mm)"
+              for name, errors in results.items()}
+    width = _marker_chart_width(len(pos), len(groups), gap)
+    for names in _same_layouts(titles):
+        bars = None
+        with report_figures(width, 5.0) as (fig, write):
+            ax = fig.add_subplot()
+            for name in names:
+                errors = results[name]
+                lengths = np.concatenate([errors.marker_p95[order], errors.marker_mean[order]])
+                if bars is None:
+                    bars = ax.add_collection(bar_collection(at, lengths, widths, faces))
+                    _marker_chart_axes(ax, fig, pos, groups, gap,
+                                       [first.labels[i] for i in order], ymax)
+                else:
+                    bars.set_verts(_bar_corners(at, lengths, widths)[0])
+                    bars.set_facecolor(faces[np.isfinite(lengths)])
+                ax.set_title(titles[name])
+                write(paths[name])
+
+
+def _same_layouts(titles: Mapping) -> list:
+    """The names of `titles` (name to title) in groups whose charts share a layout, in
+    order: those whose titles have as many lines (a chart's layout depends on its title's
+    height, not on its words)."""
+    groups = {}
+    for name, title in titles.items():
+        groups.setdefault(title.count("\n"), []).append(name)
+    return list(groups.values())
 
 
 def _marker_chart_axes(ax, fig, pos, groups, gap: float, labels, ymax: float) -> None:
