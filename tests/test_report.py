@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import dataclasses
 import pickle
 import struct
 import warnings
@@ -521,12 +522,15 @@ def test_heatmap_columns_keep_each_columns_largest_error():
     assert len(pickle.dumps(heatmap)) < len(pickle.dumps(errors)) / 4
 
 
-def test_charts_whose_titles_differ_in_height_are_laid_out_apart(tmp_path):
-    """A title of two lines among titles of one: its chart gets its own layout, and every
+def test_charts_whose_titles_shape_their_layout_are_laid_out_apart(tmp_path):
+    """A title of two lines among titles of one gets its own layout; one wider than the
+    charts' axes does not need one (constrained layout leaves a title's width out): every
     PNG is still the chart drawn alone."""
     labels = [f"m{i}" for i in range(6)]
     results = _bases_of_one_take(labels, n_frames=300)
-    titles = {"H": "one line", "QE": "two\nlines", "PCA": "one line again"}
+    results["H2"] = dataclasses.replace(results["H"], name="H2")
+    titles = {"H": "one line", "QE": "two\nlines", "PCA": "one line again",
+              "H2": "a title far wider than the axes of these charts " * 4}
     plot_error_heatmaps(results, {b: tmp_path / f"heat-{b}.png" for b in results}, vmax=3.0,
                         titles=titles)
     plot_marker_error_charts(results, {b: tmp_path / f"bars-{b}.png" for b in results},
