@@ -277,11 +277,11 @@ def plot_error_heatmaps(results: Mapping, paths: Mapping, *, markerset=None,
     x, xlabel = _time_axis(first.n_frames, rate)
     step = x[1] - x[0] if len(x) > 1 else 1.0
     n = len(order)
-    titles = {name: (titles or {}).get(name) or
-              f"{heatmap.name or 'reconstruction'}: error per marker and frame "
-              f"(RMS {heatmap.rms_mm:.2f} mm; grey = missing)"
-              for name, heatmap in results.items()}
-    for names in _same_layouts(titles):
+    headings = {name: (titles or {}).get(name) or
+                f"{heatmap.name or 'reconstruction'}: error per marker and frame "
+                f"(RMS {heatmap.rms_mm:.2f} mm; grey = missing)"
+                for name, heatmap in results.items()}
+    for names in _same_layouts(headings):
         image = None
         with report_figures(PAGE_WIDTH, min(max(3.5, 0.17 * n + 1.8), 14.0)) as (fig, write):
             ax = fig.add_subplot()
@@ -299,7 +299,7 @@ def plot_error_heatmaps(results: Mapping, paths: Mapping, *, markerset=None,
                                  fraction=0.05)
                 else:
                     image.set_data(pixels)
-                ax.set_title(titles[name])
+                ax.set_title(headings[name])
                 write(paths[name])
 
 
@@ -355,13 +355,13 @@ def plot_marker_error_charts(results: Mapping, paths: Mapping, *, markerset=None
     at, widths = np.concatenate([pos, pos]), np.repeat([0.8, 0.45], len(pos))
     faces = np.concatenate([colours * [1, 1, 1, 0.35], colours])
     ymax = error_axis_top(results) if ymax is None else ymax
-    titles = {name: (titles or {}).get(name) or
-              f"{errors.name or 'reconstruction'}: error per marker "
-              f"(mean {errors.totals['mean_mm']:.2f} mm, "
-              f"95th percentile {errors.totals['p95_mm']:.2f} mm)"
-              for name, errors in results.items()}
+    headings = {name: (titles or {}).get(name) or
+                f"{errors.name or 'reconstruction'}: error per marker "
+                f"(mean {errors.totals['mean_mm']:.2f} mm, "
+                f"95th percentile {errors.totals['p95_mm']:.2f} mm)"
+                for name, errors in results.items()}
     width = _marker_chart_width(len(pos), len(groups), gap)
-    for names in _same_layouts(titles):
+    for names in _same_layouts(headings):
         bars = None
         with report_figures(width, 5.0) as (fig, write):
             ax = fig.add_subplot()
@@ -375,7 +375,7 @@ def plot_marker_error_charts(results: Mapping, paths: Mapping, *, markerset=None
                 else:
                     bars.set_verts(_bar_corners(at, lengths, widths)[0])
                     bars.set_facecolor(faces[np.isfinite(lengths)])
-                ax.set_title(titles[name])
+                ax.set_title(headings[name])
                 write(paths[name])
 
 
