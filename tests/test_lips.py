@@ -17,7 +17,7 @@ from mocap import InputError
 from mocap.markerset import MarkerSet
 from mocap.mesh.mesh import Mesh
 from mocap.mesh.mouth import MouthOpening, find_mouth
-from mocap.retarget.lip_seal import check_lip_seal, contradicts, lip_witness
+from mocap.retarget.lip_seal import LipWitness, check_lip_seal, contradicts, lip_witness
 
 # ---------------------------------------------------------------- the mouth of a mesh
 
@@ -292,6 +292,20 @@ def test_the_lip_witness_prefers_landmarks_then_regions():
         lip_witness(_markerset(), ("u1", "u2", "c"))
     with pytest.raises(InputError, match=r"positions must have shape \(any, 5, 3\)"):
         regions.distance(np.zeros((2, 4, 3)))
+
+
+def test_the_lip_witness_on_its_own_markers_measures_what_it_measures_on_all():
+    labels = ("c", "l2", "u1", "x", "u2", "l1")
+    x = np.random.default_rng(3).normal(0.0, 5.0, (7, len(labels), 3))
+    for witness in (lip_witness(_markerset(), labels),
+                    lip_witness(_markerset(upper_lip_top="u2", lower_lip_bottom="l1"), labels),
+                    # one marker in both groups: gathered once
+                    LipWitness((2, 4), (4, 5), labels, "regions")):
+        own = witness.own_markers()
+        assert len(set(own.labels)) == len(own.labels) < len(labels)
+        columns = [labels.index(label) for label in own.labels]
+        np.testing.assert_array_equal(own.distance(x[:, columns]), witness.distance(x))
+        assert own.describe() == witness.describe()
 
 
 # ---------------------------------------------------------------- the check

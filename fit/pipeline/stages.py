@@ -402,8 +402,10 @@ def lip_seal_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases:
     mouth, witness = retargeted.mouth, retargeted.lip_witness
     if mouth is None or witness is None:
         return None
-    face = take.select(retargeted.labels)
-    rest = bound.neutral_pose(face.positions)
+    # the witness's markers only: their rest pose is the same columns of the face's
+    witness = witness.own_markers()
+    lips = take.select(witness.labels)
+    rest = bound.neutral_pose(lips.positions)
     mm_per_unit = 1.0 / bound.binding.scale
     neutral = retargeted.mesh.vertices
     gaps = mesh_lip_gaps(mouth, neutral, mm_per_unit=mm_per_unit,
@@ -411,7 +413,7 @@ def lip_seal_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases:
                          displacements=retargeted.displacements,
                          bases={name: (basis.displacements, fitted.weights[name])
                                 for name, basis in bases.bases.items()})
-    return check_lip_seal(witness.distance(face.positions), gaps,
+    return check_lip_seal(witness.distance(lips.positions), gaps,
                           rest_distance=float(witness.distance(rest[None])[0]),
                           rest_gap=mm_per_unit * float(mouth.gap(neutral[mouth.vertex_ids])),
                           first_frame=take.first_frame, witness=witness.describe())

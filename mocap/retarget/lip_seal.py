@@ -64,6 +64,14 @@ class LipWitness:
             return ", ".join(self.labels[i] for i in idx)
         return f"upper lip: {names(self.upper)}; lower lip: {names(self.lower)} ({self.source})"
 
+    def own_markers(self) -> "LipWitness":
+        """The same witness over its own markers only (`labels` cut to them, upper first):
+        a take's distance from those columns alone, without gathering its other markers."""
+        own = tuple(dict.fromkeys(self.labels[i] for i in self.upper + self.lower))
+        column = {label: i for i, label in enumerate(own)}
+        return LipWitness(tuple(column[self.labels[i]] for i in self.upper),
+                          tuple(column[self.labels[i]] for i in self.lower), own, self.source)
+
     def distance(self, positions) -> np.ndarray:
         """Distance (T,) between the upper and lower markers' centroids, unit of `positions`.
 
