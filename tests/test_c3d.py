@@ -9,6 +9,7 @@ import warnings
 import ezc3d
 import numpy as np
 import pytest
+import threadpoolctl
 from tolerances import C3D_ANALOG_FLOOR, C3D_VS_EZC3D_MM, EXACT_FLOAT64, FLOAT32_REL
 
 from mocap import Take
@@ -17,6 +18,7 @@ from mocap.io._c3d_numbers import BYTE_ORDERS
 from mocap.io.c3d import read_c3d, read_c3d_parameters, write_c3d
 from mocap.take import Analog
 from mocap.units import mm_per_unit
+from mocap.util.blas import worker_threads
 
 # Files ezc3d 1.7.2 opens with their points (it fails on the MIPS files,
 # Dance.c3d, facial-sing.c3d and bad_parameter_section.c3d; it segfaults on the
@@ -450,6 +452,26 @@ def test_chunked_reading_agrees_with_ezc3d(shared_data, name, tiny_chunks):
     if analogs.size:
         np.testing.assert_allclose(take.analog.values, analogs, rtol=FLOAT32_REL,
                                    atol=C3D_ANALOG_FLOOR)
+
+
+@pytest.mark.parametrize("name", ["c3d-samples/sample_02/dec_real.c3d",
+                                  "c3d-samples/sample_16/basketball.c3d",
+                                  "captures/facial-sing.c3d", "vicon-nexus/markers.c3d"])
+def test_chunks_decoded_on_two_threads_give_what_one_thread_gives(shared_data, name,
+                                                                 tiny_chunks):
+    """The chunks shared among two worker threads (each writing its rows, each releasing
+    its pages, a page another still reads among them): the same take, bit for bit."""
+    path = shared_data / name
+    takes = []
+    for threads in (1, 2):
+        with threadpoolctl.threadpool_limits(threads, user_api="blas"):
+            assert worker_threads() == threads
+            takes.append(_quiet_read(path))
+    one, two = takes
+    np.testing.assert_array_equal(two.positions, one.positions)
+    np.testing.assert_array_equal(two.missing, one.missing)
+    if one.analog is not None:
+        np.testing.assert_array_equal(two.analog.values, one.analog.values)
 
 
 def test_summary_streams_the_gaps_of_every_corpus_file(shared_data, tiny_chunks):

@@ -3,11 +3,12 @@
 The header and the parameters both describe the data section and either may
 be wrong in files in the wild: :func:`plan_layout` weighs them against the file
 size before anything is allocated. :func:`decode_frames` then decodes the
-frames in chunks (each chunk vectorized with ``numpy.frombuffer``) straight
-into the arrays it returns, from a memory map whose pages it releases as it
-goes: a read holds one float64 copy of the positions and one chunk of the
-file. :func:`scan_missing` counts missing samples and gaps the same way
-without keeping the positions at all.
+frames in chunks (each chunk vectorized with ``numpy.frombuffer``, the chunks
+shared among the worker threads) straight into the arrays it returns, from a
+memory map whose pages it releases as it goes: a read holds one float64 copy
+of the positions and a chunk of the file per thread. :func:`scan_missing`
+counts missing samples and gaps the same way without keeping the positions at
+all.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from mocap.gaps import find_gaps
 from mocap.io._c3d_header import BLOCK, Header
 from mocap.io._c3d_numbers import float32
 from mocap.io._c3d_params import Parameters
+from mocap.util.blas import map_on_blas_threads
 
 __all__ = ["Layout", "plan_layout", "decode_frames", "scan_missing", "CHUNK_BYTES"]
 
@@ -224,7 +226,8 @@ def _release(buf, start: int, stop: int) -> None:
     """Drop the pages of bytes [start, stop) of a memory map from this process's memory.
 
     The file's pages stay in the system's cache; only the process's resident
-    set shrinks, so a read holds no more of the file than one chunk.
+    set shrinks, so a read holds no more of the file than the chunks it is decoding.
+    A page another thread still reads is mapped again from the cache.
     """
     advise = getattr(buf, "madvise", None)
     dontneed = getattr(mmap, "MADV_DONTNEED", None)
@@ -235,27 +238,32 @@ def _release(buf, start: int, stop: int) -> None:
         advise(dontneed, start, min(stop, len(buf)) - start)
 
 
-def _chunks(buf, layout: Layout, order: str, frames_per_chunk: int | None = None):
-    """The frames in chunks: ``(first, words)``, words of shape (c, words per frame).
-
-    Words are a view of `buf` in the file's own type (float32 or int16), or
-    float64 for DEC floats; a chunk's pages of a memory-mapped `buf` are
-    released when the next chunk is asked for.
-    """
-    per_frame = 4 * layout.n_points + layout.analog_words
+def _spans(layout: Layout, frames_per_chunk: int | None = None) -> list:
+    """The chunks of frames, ``(first, count)``: :data:`CHUNK_BYTES` of file each, or
+    `frames_per_chunk` frames."""
     step = frames_per_chunk or max(1, CHUNK_BYTES // layout.frame_bytes)
-    endian = ">" if order == "mips" else "<"
+    return [(first, min(step, layout.n_frames - first))
+            for first in range(0, layout.n_frames, step)]
+
+
+def _words(buf, layout: Layout, order: str, first: int, count: int) -> np.ndarray:
+    """The words of frames ``first`` to ``first + count``, (count, words per frame): a view
+    of `buf` in the file's own type (float32 or int16), or float64 for DEC floats."""
+    per_frame = 4 * layout.n_points + layout.analog_words
+    start = layout.offset + first * layout.frame_bytes
     kind = "f4" if layout.storage == "float" else "i2"
-    for first in range(0, layout.n_frames, step):
-        count = min(step, layout.n_frames - first)
-        start = layout.offset + first * layout.frame_bytes
-        if order == "dec" and kind == "f4":
-            words = float32(buf[start:start + count * layout.frame_bytes], order)
-        else:
-            words = np.frombuffer(buf, dtype=endian + kind, count=count * per_frame,
-                                  offset=start)
-        yield first, words.reshape(count, per_frame)
-        _release(buf, start, start + count * layout.frame_bytes)
+    if order == "dec" and kind == "f4":
+        words = float32(buf[start:start + count * layout.frame_bytes], order)
+    else:
+        words = np.frombuffer(buf, dtype=(">" if order == "mips" else "<") + kind,
+                              count=count * per_frame, offset=start)
+    return words.reshape(count, per_frame)
+
+
+def _release_frames(buf, layout: Layout, first: int, count: int) -> None:
+    """:func:`_release` of the bytes of frames ``first`` to ``first + count``."""
+    start = layout.offset + first * layout.frame_bytes
+    _release(buf, start, start + count * layout.frame_bytes)
 
 
 def _missing(points) -> np.ndarray:
@@ -301,17 +309,19 @@ def decode_frames(buf, layout: Layout, order: str, *, factor: float = 1.0):
 
     Notes
     -----
-    Memory: the two outputs, plus one chunk (:data:`CHUNK_BYTES` of file) and
-    its missing mask: the words are scaled and widened to float64 straight
-    into the output.
+    Memory: the two outputs, plus a chunk (:data:`CHUNK_BYTES` of file) and its
+    missing mask per worker thread: the words are scaled and widened to float64
+    straight into the output.
     """
     n, m = layout.n_frames, layout.n_points
     xyz = np.empty((n, m, 3))
     per, channels = layout.analog_per_frame, layout.n_channels
     analog = np.empty((n * per, channels))
     scale = factor * (1.0 if layout.storage == "float" else layout.scale)
-    for first, words in _chunks(buf, layout, order):
-        count = len(words)
+
+    def decode(span):
+        first, count = span
+        words = _words(buf, layout, order, first, count)
         points = words[:, :4 * m].reshape(count, m, 4)
         out = xyz[first:first + count]
         out[...] = points[:, :, :3]                 # widened to float64 in place
@@ -322,6 +332,10 @@ def decode_frames(buf, layout: Layout, order: str, *, factor: float = 1.0):
         out.reshape(-1, 3)[np.flatnonzero(_missing_widened(points, out))] = np.nan
         values = words[:, 4 * m:4 * m + channels * per]
         analog[first * per:(first + count) * per] = values.reshape(count * per, channels)
+        _release_frames(buf, layout, first, count)
+    # the chunks shared among the worker threads: each writes its own rows (NumPy's casts
+    # and comparisons run without the GIL); the same arrays on any number of threads
+    map_on_blas_threads(decode, _spans(layout))
     return xyz, analog
 
 
@@ -340,8 +354,9 @@ def scan_missing(buf, layout: Layout, order: str, *, frames_per_chunk: int | Non
     missing = np.zeros(m, dtype=np.int64)
     longest = np.zeros(m, dtype=np.int64)
     carry = np.zeros(m, dtype=np.int64)          # a run still open at the chunk's end
-    for _, words in _chunks(buf, layout, order, frames_per_chunk):
-        mask = _missing(words[:, :4 * m].reshape(len(words), m, 4))
+    for first, count in _spans(layout, frames_per_chunk):
+        words = _words(buf, layout, order, first, count)
+        mask = _missing(words[:, :4 * m].reshape(count, m, 4))
         missing += mask.sum(axis=0)
         gaps = find_gaps(mask)
         lengths = gaps.length + np.where(gaps.start == 0, carry[gaps.marker], 0)
@@ -349,4 +364,5 @@ def scan_missing(buf, layout: Layout, order: str, *, frames_per_chunk: int | Non
         carry = np.zeros(m, dtype=np.int64)
         open_end = gaps.stop == len(mask)
         carry[gaps.marker[open_end]] = lengths[open_end]
+        _release_frames(buf, layout, first, count)
     return missing, longest
