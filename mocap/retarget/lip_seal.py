@@ -81,7 +81,8 @@ class LipWitness:
             Positions (or rest pose plus displacements) of the `labels` markers.
             NaN propagates.
         """
-        x = as_float_array(positions, "positions", shape=(None, len(self.labels), 3))
+        x = as_float_array(positions, "positions", shape=(None, len(self.labels), 3),
+                           copy=False)             # only read
         upper = x[:, list(self.upper)].mean(axis=1)
         lower = x[:, list(self.lower)].mean(axis=1)
         return np.linalg.norm(upper - lower, axis=-1)

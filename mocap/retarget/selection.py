@@ -294,8 +294,12 @@ def _lip_frames(geometry, d, mouth, witness, mm_per_unit, open_mm):
         return None
     if witness.labels != geometry.labels:
         raise InputError("witness must refer to the geometry's markers")
-    rest = mm_per_unit * witness.distance(geometry.centers[None])[0]
-    opening = mm_per_unit * witness.distance(geometry.centers + d) - rest
+    # the witness's markers only (the same distances): no (T, M, 3) sum of every marker
+    own = witness.own_markers()
+    columns = [geometry.labels.index(label) for label in own.labels]
+    centers = geometry.centers[columns]
+    rest = mm_per_unit * own.distance(centers[None])[0]
+    opening = mm_per_unit * own.distance(centers + d[:, columns]) - rest
     open_mm = marker_open_mm(rest, open_mm=open_mm, open_span=OPEN_SPAN)
     frames = np.flatnonzero(opening >= open_mm)
     if not len(frames):
