@@ -44,7 +44,14 @@ from fit.report.plots import (
     region_groups,
 )
 from fit.report.video import MAX_AUTO_FPS, write_overlay_video
-from fit.report.views import CAPTURED_COLOUR, RECONSTRUCTED_COLOUR, plot_frame_views, view_axes
+from fit.report.views import (
+    CAPTURED_COLOUR,
+    RECONSTRUCTED_COLOUR,
+    FrameViews,
+    plot_frame_views,
+    plot_views_of_bases,
+    view_axes,
+)
 from mocap.errors import InputError
 from mocap.stabilize import stabilize
 from mocap.take import FILL_METHODS, Take
@@ -498,6 +505,43 @@ def test_each_bases_charts_laid_out_once_are_the_charts_drawn_anew(ict_markerset
     for b in results:
         assert np.array_equal(cv2.imread(str(tmp_path / f"cols-{b}.png")),
                               cv2.imread(str(tmp_path / f"heat-{b}.png"))), b
+
+
+def test_each_bases_views_on_one_scale_laid_out_once_are_the_views_drawn_anew(sing_case,
+                                                                              tmp_path):
+    """The views of several bases, each at its own frames (markers missing in one), drawn on
+    one figure laid out for the first: each PNG has the pixels of the views laid out for
+    themselves (drawn first), though views of fewer frames or a title of two lines need
+    layouts of their own; views of as many frames share one scale (one size)."""
+    ms, face, recs, neutral = sing_case
+    rng = np.random.default_rng(4)
+    bases = {**recs, "PCA": face.positions + rng.normal(0.0, 1.5, face.positions.shape)}
+    frames = {"H": [400, 120, 515], "QE": [398, 30, 250], "PCA": [9, 300, 590], "two": [1, 2],
+              "tall": [5, 6, 7]}
+    captured = face.positions.copy()
+    captured[30, :4] = np.nan
+    views = {name: FrameViews(captured[t], bases.get(name, recs["H"])[t], np.array(t) + 7,
+                              title=f"{name}: views" + ("\nof two lines" if name == "tall" else
+                                                        "")) for name, t in frames.items()}
+
+    def draw(order, prefix):
+        plot_views_of_bases({b: views[b] for b in order},
+                            {b: tmp_path / f"{prefix}-{b}.png" for b in order},
+                            neutral=neutral, labels=face.labels, markerset=ms)
+    draw(list(views), "together")
+    sizes = {b: cv2.imread(str(tmp_path / f"together-{b}.png")).shape for b in views}
+    assert sizes["H"] == sizes["QE"] == sizes["PCA"] == sizes["tall"] != sizes["two"]
+    for b in views:
+        draw([b, *(other for other in views if other != b)], f"{b}-first")
+        alone = cv2.imread(str(tmp_path / f"{b}-first-{b}.png"))
+        together = cv2.imread(str(tmp_path / f"together-{b}.png"))
+        assert np.array_equal(together, alone), b
+    assert not np.array_equal(cv2.imread(str(tmp_path / "together-H.png")),
+                              cv2.imread(str(tmp_path / "together-QE.png")))
+    with pytest.raises(InputError, match=r"views 'odd': captured and reconstructed must have "
+                                         r"shape \(2, "):
+        plot_views_of_bases({"odd": FrameViews(captured[:2], captured[:3], np.arange(2))},
+                            {"odd": tmp_path / "odd.png"}, neutral=neutral, labels=face.labels)
 
 
 def test_heatmap_columns_keep_each_columns_largest_error():

@@ -35,7 +35,7 @@ from fit.report.retarget_qa import (
     plot_lip_seal,
 )
 from fit.report.video import VIDEO_SUFFIX, write_overlay_video
-from fit.report.views import plot_frame_views, plottable_positions
+from fit.report.views import FrameViews, plot_views_of_bases, plottable_positions
 from mocap.errors import InputError
 from mocap.util.order_statistics import percentile
 from mocap.viz.render import compiled_renders
@@ -170,16 +170,20 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         results, worst = {}, {}
         captured = plottable_positions(take.positions, "captured", labels=take.labels,
                                        first_frame=number)
-        for basis, rec in reconstructions.items():   # each basis's views drawn meanwhile
+        views, view_paths = {}, {}
+        for basis, rec in reconstructions.items():
             results[basis] = (reconstruction_errors(take.positions, rec, neutral,
                                                     origin=origin, labels=take.labels,
                                                     name=basis)
                               if errors is None else _given_errors(errors, basis, take,
                                                                    neutral, origin))
             worst[basis] = results[basis].worst_frames(n_worst, separation=separation)
-            _submit_views(queue.submit, captured, rec, worst[basis], basis,
-                          out(f"views-{basis}"), neutral=neutral, labels=take.labels,
-                          markerset=markerset, exaggerate=exaggerate, first_frame=number)
+            views[basis] = _worst_views(captured, rec, worst[basis], basis, labels=take.labels,
+                                        exaggerate=exaggerate, first_frame=number)
+            view_paths[basis] = out(f"views-{basis}")
+        # every basis's views on one scale, in one figure laid out once
+        queue.submit(plot_views_of_bases, views, view_paths, neutral=neutral,
+                     labels=take.labels, markerset=markerset, exaggerate=exaggerate)
         first = next(iter(results.values()))
         if video:
             encoding = encoder.submit(
@@ -262,7 +266,7 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
                    "its 95th percentile; the same axis for every basis."),
             Figure(files[f"views-{basis}"], f"{basis}: worst frames, front and side",
                    "Red: captured markers; blue: reconstructed; black lines join them "
-                   "(the error vectors); grey: the rest pose.")]
+                   "(the error vectors); grey: the rest pose; one scale for every basis.")]
         page.append(Section(f"{basis}: marker-space errors", items=tuple(items)))
     if video:
         page.insert(2 if pictures else 1, Section("Overlay video", items=(Video(
@@ -300,18 +304,16 @@ def _figures(take, neutral, results, worst, reconstructions, out, files, number,
     return held_out, held, page
 
 
-def _submit_views(draw, captured, reconstructed, frames, basis: str, path, *, neutral, labels,
-                  markerset, exaggerate: float, first_frame: int) -> None:
-    """Give `draw` the views of `basis` at its 3 worst `frames`, with only those frames."""
+def _worst_views(captured, reconstructed, frames, basis: str, *, labels, exaggerate: float,
+                 first_frame: int) -> FrameViews:
+    """What the views of `basis` show: its 3 worst `frames`, only those frames."""
     shown = np.asarray(frames[:3])
     reconstructed = plottable_positions(reconstructed, "reconstructed", labels=labels,
                                         first_frame=first_frame)
-    draw(plot_frame_views, captured[shown], reconstructed[shown], np.arange(shown.size), path,
-         neutral=neutral, labels=labels, markerset=markerset, exaggerate=exaggerate,
-         numbers=shown + first_frame,
-         title=f"{basis}: captured (red) vs reconstructed (blue) at the worst frames"
-               + (f", errors ×{exaggerate:g}" if exaggerate != 1 else "")
-               + "; front: subject's left on the right")
+    return FrameViews(captured[shown], reconstructed[shown], shown + first_frame,
+                      title=f"{basis}: captured (red) vs reconstructed (blue) at the worst "
+                            f"frames" + (f", errors ×{exaggerate:g}" if exaggerate != 1 else "")
+                            + "; front: subject's left on the right")
 
 
 def _mesh_section(take, neutral, results, worst, space, markerset, out, files, number,

@@ -3,15 +3,19 @@ side views with error vectors, as Figure 4 of the quasi-eigen faces paper (PNG).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
+
 import numpy as np
 from matplotlib.collections import LineCollection
 
-from fit.report.drawing import PAGE_WIDTH, report_figure
+from fit.report.drawing import PAGE_WIDTH, report_figures
 from mocap.errors import InputError
 from mocap.util.validation import as_float_array, as_positions
 from mocap.viz.figures import MAX_PLOT_MM, plottable
 
-__all__ = ["view_axes", "plot_frame_views", "plottable_positions"]
+__all__ = ["view_axes", "FrameViews", "plot_frame_views", "plot_views_of_bases",
+           "plottable_positions"]
 
 #: Inches per mm of the views at most (a few frames of a small face).
 _SCALE = 0.028
@@ -90,6 +94,29 @@ class _NoLandmarks:
     landmarks: dict = {}
 
 
+@dataclass(frozen=True, eq=False)
+class FrameViews:
+    """What one figure of views shows: some frames of a take, captured and reconstructed.
+
+    Attributes
+    ----------
+    captured, reconstructed : ndarray of shape (F, M, 3), mm
+        Head-stabilized positions at the F frames, NaN where missing (not drawn).
+    numbers : ndarray of int, shape (F,)
+        The frames' numbers, in the panels' titles.
+    captions : sequence of str, optional
+        A caption per frame; default its RMS error.
+    title : str, optional
+        The figure's; default what the colours mean.
+    """
+
+    captured: np.ndarray
+    reconstructed: np.ndarray
+    numbers: np.ndarray
+    captions: tuple | None = None
+    title: str | None = None
+
+
 def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=None,
                      markerset=None, exaggerate: float = 1.0, first_frame: int = 0,
                      names=None, numbers=None, title: str | None = None) -> None:
@@ -133,51 +160,122 @@ def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=N
     if numbers.shape != frames.shape:
         raise InputError(f"numbers must give one frame number per frame ({frames.size}), "
                          f"got {numbers.shape}")
-    labels = tuple(str(i) for i in range(captured.shape[1])) if labels is None else labels
+    shown = FrameViews(captured[frames], reconstructed[frames], numbers,
+                       None if names is None else tuple(names), title)
+    plot_views_of_bases({"": shown}, {"": path}, neutral=neutral, labels=labels,
+                        markerset=markerset, exaggerate=exaggerate)
+
+
+def plot_views_of_bases(views: Mapping, paths: Mapping, *, neutral, labels=None,
+                        markerset=None, exaggerate: float = 1.0) -> None:
+    """:func:`plot_frame_views` of several reconstructions of one take, each at its own
+    frames, on one scale: one PNG each, the figures of as many frames laid out once
+    (:func:`~fit.report.drawing.report_figures`).
+
+    Parameters
+    ----------
+    views : mapping of name to FrameViews
+        Of the markers of `neutral`.
+    paths : mapping of name to str or os.PathLike
+        The PNG of each.
+    neutral, labels, markerset, exaggerate
+        As for :func:`plot_frame_views`.
+
+    Raises
+    ------
+    InputError
+        Views of other markers than `neutral`'s, captured and reconstructed of other
+        shapes, a number per frame missing, values beyond any capture.
+    """
+    labels = tuple(str(i) for i in range(len(neutral))) if labels is None else labels
     axes3 = view_axes(neutral, labels, markerset)
     neutral = np.asarray(neutral, dtype=float)
     centre = np.nanmean(neutral, axis=0)               # screen origin: the rest centroid
     rest = (neutral - centre) @ axes3.T
-    cap = (captured[frames] - centre) @ axes3.T        # (F, M, 3) screen coordinates
-    rec = cap + exaggerate * (reconstructed[frames] - captured[frames]) @ axes3.T
-    every = np.concatenate([rest[None], cap, rec]).reshape(-1, 3)
-    lo, hi = np.nanmin(every, axis=0) - 4, np.nanmax(every, axis=0) + 4
+    screen = {name: _on_screen(view, name, labels, centre, axes3, exaggerate)
+              for name, view in views.items()}
+    every = np.concatenate([rest[None], *(np.concatenate(s) for s in screen.values())])
+    lo, hi = np.nanmin(every.reshape(-1, 3), axis=0) - 4, np.nanmax(every.reshape(-1, 3),
+                                                                       axis=0) + 4
+    groups = {}     # figures of as many frames, and titles of as many lines, share a layout
+    for name, view in views.items():
+        lines = [text.count("\n") for text in (view.title or "", *(view.captions or ()))]
+        groups.setdefault((len(view.numbers), *lines), []).append(name)
+    for names in groups.values():
+        _draw_views({name: (views[name], *screen[name]) for name in names}, paths, rest, lo,
+                    hi, exaggerate)
+
+
+def _on_screen(view: FrameViews, name: str, labels, centre, axes3, exaggerate):
+    """The screen coordinates (F, M, 3) of a view's captured markers and of its
+    reconstructed ones (the error vectors exaggerated), checked."""
+    captured = plottable_positions(view.captured, "captured", labels=labels, first_frame=0)
+    reconstructed = plottable_positions(view.reconstructed, "reconstructed", labels=labels,
+                                        first_frame=0)
+    shape = (len(view.numbers), len(labels), 3)
+    if captured.shape != shape or reconstructed.shape != shape:
+        raise InputError(f"views {name!r}: captured and reconstructed must have shape "
+                         f"{shape} (a frame number each), got {captured.shape} and "
+                         f"{reconstructed.shape}")
+    cap = (captured - centre) @ axes3.T
+    return cap, cap + exaggerate * (reconstructed - captured) @ axes3.T
+
+
+def _draw_views(views: Mapping, paths: Mapping, rest, lo, hi, exaggerate) -> None:
+    """Views of frames, as many in each, on the axes extents `lo` to `hi` (screen mm): the
+    figure laid out for the first, its markers, errors and titles replaced for the others.
+    `views` maps a name to (FrameViews, captured, reconstructed on screen)."""
+    first = next(iter(views.values()))[0]
+    n_frames = len(first.numbers)
     span = hi - lo
     # Inches per mm: the frames' views fill the page's width, at most _SCALE; the dots' areas
     # scale with it, so that they keep their size against the face.
-    scale = min(_SCALE, (PAGE_WIDTH - 1.2) / (len(frames) * (span[0] + span[2])))
+    scale = min(_SCALE, (PAGE_WIDTH - 1.2) / (n_frames * (span[0] + span[2])))
     dot = (scale / _SCALE) ** 2
     scale_text = "" if exaggerate == 1 else f", error vectors ×{exaggerate:g}"
-    with report_figure(path, 1.2 + scale * len(frames) * (span[0] + span[2]),
-                       scale * span[1] + 1.6) as fig:
-        grid = fig.subplots(1, 2 * len(frames), sharey=True,
-                            width_ratios=[span[0], span[2]] * len(frames))
-        for k, t in enumerate(frames):
-            err = np.linalg.norm(reconstructed[t] - captured[t], axis=1)
-            caption = (names[k] if names is not None
-                       else f"RMS {np.sqrt(np.nanmean(err ** 2)):.2f} mm")
-            for ax, h, view in ((grid[2 * k], 0, "front"), (grid[2 * k + 1], 2, "side")):
-                ax.scatter(rest[:, h], rest[:, 1], s=10 * dot, color="#cccccc", zorder=1)
-                segs = np.stack([cap[k][:, [h, 1]], rec[k][:, [h, 1]]], axis=1)
-                ax.add_collection(LineCollection(segs, colors="black", linewidths=0.8,
-                                                 zorder=2))
-                ax.scatter(cap[k][:, h], cap[k][:, 1], s=28 * dot, color=CAPTURED_COLOUR,
-                           zorder=3, label="captured")
-                ax.scatter(rec[k][:, h], rec[k][:, 1], s=10 * dot, color=RECONSTRUCTED_COLOUR,
-                           zorder=3, label="reconstructed")
-                ax.set_xlim(lo[h], hi[h])
-                ax.set_ylim(lo[1], hi[1])
-                ax.set_aspect("equal")
-                ax.tick_params(labelsize=7)
-                ax.set_xlabel(f"{view} (mm)", fontsize=8)
-            grid[2 * k].set_title(f"frame {numbers[k]}: {caption}", fontsize=9, loc="left")
+    with report_figures(1.2 + scale * n_frames * (span[0] + span[2]),
+                        scale * span[1] + 1.6) as (fig, write):
+        grid = fig.subplots(1, 2 * n_frames, sharey=True,
+                            width_ratios=[span[0], span[2]] * n_frames)
+        for ax, h, view in zip(grid, (0, 2) * n_frames, ("front", "side") * n_frames):
+            ax.scatter(rest[:, h], rest[:, 1], s=10 * dot, color="#cccccc", zorder=1)
+            ax.set_xlim(lo[h], hi[h])
+            ax.set_ylim(lo[1], hi[1])
+            ax.set_aspect("equal")
+            ax.tick_params(labelsize=7)
+            ax.set_xlabel(f"{view} (mm)", fontsize=8)
         grid[0].set_ylabel("up (mm)", fontsize=8)
-        handles, texts = grid[0].get_legend_handles_labels()
-        fig.legend(handles, texts, loc="outside lower center", ncol=2, fontsize=8,
-                   frameon=False, markerscale=1 / np.sqrt(dot))
-        fig.suptitle(title or f"Captured (red) vs reconstructed (blue){scale_text}; grey: "
-                              "rest pose. Front: subject's left on the right; side: face to "
-                              "the right", fontsize=10)
+        drawn, heading = [], None       # the markers and errors of the view drawn last
+        for name, (shown, cap, rec) in views.items():
+            for artist in drawn:
+                artist.remove()
+            drawn = []
+            for k in range(n_frames):
+                for ax, h in ((grid[2 * k], 0), (grid[2 * k + 1], 2)):
+                    segs = np.stack([cap[k][:, [h, 1]], rec[k][:, [h, 1]]], axis=1)
+                    drawn += [
+                        ax.add_collection(LineCollection(segs, colors="black",
+                                                         linewidths=0.8, zorder=2)),
+                        ax.scatter(cap[k][:, h], cap[k][:, 1], s=28 * dot,
+                                   color=CAPTURED_COLOUR, zorder=3, label="captured"),
+                        ax.scatter(rec[k][:, h], rec[k][:, 1], s=10 * dot,
+                                   color=RECONSTRUCTED_COLOUR, zorder=3, label="reconstructed")]
+                err = np.linalg.norm(shown.reconstructed[k] - shown.captured[k], axis=1)
+                caption = (shown.captions[k] if shown.captions is not None
+                           else f"RMS {np.sqrt(np.nanmean(err ** 2)):.2f} mm")
+                grid[2 * k].set_title(f"frame {shown.numbers[k]}: {caption}", fontsize=9,
+                                      loc="left")
+            title = shown.title or (f"Captured (red) vs reconstructed (blue){scale_text}; "
+                                    "grey: rest pose. Front: subject's left on the right; "
+                                    "side: face to the right")
+            if heading is None:
+                handles, texts = grid[0].get_legend_handles_labels()
+                fig.legend(handles, texts, loc="outside lower center", ncol=2, fontsize=8,
+                           frameon=False, markerscale=1 / np.sqrt(dot))
+                heading = fig.suptitle(title, fontsize=10)
+            else:                       # (suptitle again would move it from its laid-out place)
+                heading.set_text(title)
+            write(paths[name])
 
 
 def plottable_positions(values, name: str, *, labels, first_frame: int) -> np.ndarray:
