@@ -374,6 +374,8 @@ def test_unreadable_path(tmp_path):
     (Take(("a" * 300,), np.zeros((2, 1, 3)), 100.0), "longer than 255 bytes"),
     (Take(("a",), np.zeros((2, 1, 3)), 100.0,
           analog=Analog(np.zeros((5, 1)), 250.0, ("x",), ("V",))), "whole number of samples"),
+    *((Take(("a", "b"), np.array([[[0.0, big, 0.0], [np.nan] * 3], [[0.0] * 3] * 2]), 100.0),
+       "positions exceed the float32 range") for big in (1e39, -1e39)),
 ])
 def test_writer_rejects_what_c3d_cannot_hold(tmp_path, take, match):
     with pytest.raises(InputError, match=match):

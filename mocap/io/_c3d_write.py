@@ -112,7 +112,8 @@ _CHUNK_FRAMES_BYTES = 16 << 20     # bytes of frames encoded at a time
 
 
 def _frames(take: Take, per_frame: int):
-    """The data section in chunks of frames (bytes), each encoded vectorized."""
+    """The data section in chunks of frames (little-endian float32 arrays, bytes-like),
+    each encoded vectorized."""
     n, m = take.n_frames, take.n_markers
     limit = np.finfo(np.float32).max
     values = None if not per_frame else take.analog.values
@@ -123,22 +124,27 @@ def _frames(take: Take, per_frame: int):
     for first in range(0, n, step):
         stop = min(n, first + step)
         positions = take.positions[first:stop]
-        missing = np.isnan(positions[:, :, 0])
-        if np.nanmax(np.abs(positions), initial=0.0) > limit:
+        # the extremes without NaN (a missing sample is NaN in x, y and z), no temporary
+        if max(np.fmax.reduce(positions, axis=None, initial=-np.inf),
+               -np.fmin.reduce(positions, axis=None, initial=np.inf)) > limit:
             raise InputError("positions exceed the float32 range of a C3D file")
         words = np.empty((stop - first, width), dtype="<f4")
         points = words[:, :4 * m].reshape(stop - first, m, 4)
-        points[:, :, :3] = np.where(missing[:, :, None], 0.0, positions)
+        points[:, :, :3] = positions                    # narrowed in place
+        missing = np.isnan(positions[:, :, 0])
         points[:, :, 3] = np.where(missing, -1.0, 0.0)
+        # xyz 0 where missing, by flat indices: a boolean mask's assignment visits every sample
+        points.reshape(-1, 4)[np.flatnonzero(missing), :3] = 0.0
         if values is not None:
             words[:, 4 * m:] = values[first * per_frame:stop * per_frame].reshape(
                 stop - first, -1)
-        yield words.tobytes()
+        yield words                     # written from its own memory (no copy into bytes)
 
 
 def encode_c3d(take: Take):
     """The bytes of a C3D file holding `take` (see :func:`mocap.io.c3d.write_c3d`), in
-    pieces: the header and parameter blocks, then the frames a chunk at a time.
+    bytes-like pieces: the header and parameter blocks (bytes), then the frames a chunk at
+    a time (float32 arrays).
 
     Raises
     ------
