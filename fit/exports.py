@@ -73,15 +73,23 @@ def weights_frame(weights, names, *, rate: float, first_frame: int = 1) -> pd.Da
     DataFrame
         Index ``frame`` (int64), columns ``time`` (s) then the shape names (float64).
     """
-    weights = _weights(weights)
+    frames, cells, names = _weights_table(weights, names, rate=rate, first_frame=first_frame)
+    return pd.DataFrame(cells, columns=["time", *names], index=pd.Index(frames, name="frame"),
+                        copy=False)
+
+
+def _weights_table(weights, names, *, rate: float, first_frame: int) -> tuple:
+    """:func:`weights_frame`'s frame numbers (T,) int64, its cells (T, 1 + n) float64
+    (the times, then the weights: one new array) and the shape names, checked."""
+    weights = _weights(weights, copy=False)             # only read, into the new cells
     names = list(as_shape_names(names, weights.shape[1], against="weights",
                                 reserved=_COLUMNS))
     rate = as_positive_float(rate, "rate")
     first_frame = as_int(first_frame, "first_frame")
-    frames = first_frame + np.arange(len(weights), dtype=np.int64)
-    table = pd.DataFrame(weights, columns=names, index=pd.Index(frames, name="frame"))
-    table.insert(0, "time", np.arange(len(weights)) / rate)
-    return table
+    cells = np.empty((len(weights), 1 + weights.shape[1]))
+    cells[:, 0] = np.arange(len(weights)) / rate
+    cells[:, 1:] = weights
+    return first_frame + np.arange(len(weights), dtype=np.int64), cells, names
 
 
 def write_weights_csv(path, weights, names, *, rate: float, first_frame: int = 1,
@@ -97,11 +105,12 @@ def write_weights_csv(path, weights, names, *, rate: float, first_frame: int = 1
     InputError
         Shapes, names or NaN as in :func:`weights_frame`; the file cannot be written.
     """
-    table = weights_frame(weights, names, rate=rate, first_frame=first_frame)
-    header = table.iloc[:0].to_csv(lineterminator="\n")          # quoted as needed
+    frames, cells, names = _weights_table(weights, names, rate=rate, first_frame=first_frame)
+    header = pd.DataFrame(columns=[*_COLUMNS, *names]).to_csv(  # quoted as needed
+        index=False, lineterminator="\n")
     with atomic_path(path, inputs=inputs) as tmp, open(tmp, "wb") as fh:
         fh.write(header.encode("utf-8"))
-        write_csv_lines(fh, table.index.to_numpy(), table.to_numpy(dtype=np.float64))
+        write_csv_lines(fh, frames, cells)
 
 
 def read_weights_csv(path) -> pd.DataFrame:
