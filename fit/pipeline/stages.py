@@ -208,7 +208,8 @@ def bind_stage(take: Take, markerset: MarkerSet, mesh: Mesh, mesh_landmarks, *,
 def retarget_stage(take: Take, bound: BoundTake, mesh: Mesh, markerset: MarkerSet,
                    options: RetargetOptions = RetargetOptions(), *,
                    mesh_landmarks=None) -> Retargeting:
-    """Face-marker displacements (mesh units) and the RBF operator W (:func:`mocap.retarget.retargeting.retarget`).
+    """Face-marker displacements (mesh units) and the RBF operator W
+    (:func:`mocap.retarget.retargeting.retarget`).
 
     Parameters
     ----------
@@ -304,9 +305,10 @@ def fit_stage(take: Take, bound: BoundTake, retargeted: Retargeting, bases: Basi
 
     Notes
     -----
-    Marker space: B = basis sampled at the bound markers (:func:`fit.solve.marker_basis.marker_basis`:
-    binding face ids and barycentric coordinates; for H, lifted by the
-    binding's skin offset), d_t = marker displacements; mesh space: see
+    Marker space: B = basis sampled at the bound markers
+    (:func:`fit.solve.marker_basis.marker_basis`: binding face ids and barycentric
+    coordinates; for H, lifted by the binding's skin offset), d_t = marker
+    displacements; mesh space: see
     :func:`fit.solve.mesh_space.solve_mesh_space`. With ``moving_average`` the displacements are
     averaged over time first (the reconstruction is then compared with the
     captured, unaveraged markers). Reconstructed markers are the bound rest

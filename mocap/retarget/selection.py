@@ -184,7 +184,8 @@ def _spacing(geometry: MarkerGeometry) -> float:
 
 def select_variant(geometry: MarkerGeometry, displacements, *,
                    regions: Mapping[str, Sequence] | None, mm_per_unit: float,
-                   distances: Sequence[str] = DISTANCES, use_regions: Sequence[bool] = (False, True),
+                   distances: Sequence[str] = DISTANCES,
+                   use_regions: Sequence[bool] = (False, True),
                    smoothing: float = 0.0, region_width: float | None = None,
                    mouth=None, witness=None, open_mm: float = OPEN_MM,
                    fraction: float = SHUT_FRACTION) -> RetargetSelection:
