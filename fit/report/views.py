@@ -160,6 +160,7 @@ def plot_frame_views(captured, reconstructed, frames, path, *, neutral, labels=N
     if numbers.shape != frames.shape:
         raise InputError(f"numbers must give one frame number per frame ({frames.size}), "
                          f"got {numbers.shape}")
+    labels = tuple(str(i) for i in range(captured.shape[1])) if labels is None else labels
     shown = FrameViews(captured[frames], reconstructed[frames], numbers,
                        None if names is None else tuple(names), title)
     plot_views_of_bases({"": shown}, {"": path}, neutral=neutral, labels=labels,
