@@ -196,8 +196,8 @@ def plot_views_of_bases(views: Mapping, paths: Mapping, *, neutral, labels=None,
     screen = {name: _on_screen(view, name, labels, centre, axes3, exaggerate)
               for name, view in views.items()}
     every = np.concatenate([rest[None], *(np.concatenate(s) for s in screen.values())])
-    lo, hi = np.nanmin(every.reshape(-1, 3), axis=0) - 4, np.nanmax(every.reshape(-1, 3),
-                                                                       axis=0) + 4
+    every = every.reshape(-1, 3)
+    lo, hi = np.nanmin(every, axis=0) - 4, np.nanmax(every, axis=0) + 4
     groups = {}     # figures of as many frames, and titles of as many lines, share a layout
     for name, view in views.items():
         lines = [text.count("\n") for text in (view.title or "", *(view.captions or ()))]
