@@ -14,7 +14,8 @@ maximum resident set size. Then the same take goes through ``mocap2mesh run`` in
 fresh process, as a user runs it (2 mm skin offset, no video): its wall time (the
 issue's aim, 20 s) and the stages its manifest records, which add to the ones above
 the report's held-out fits, mesh renders and further figures, and the cost of a fresh
-process's first touches of its memory.
+process's first touches of its memory. NumPy's huge-page advice is set as the command
+sets it (:mod:`mocap.util.hugepages`), for the stages, their floors and ``run`` alike.
 
 Floors, timed in the same run on the same arrays: what each stage cannot go
 under.
@@ -117,6 +118,7 @@ from mocap.mesh.layout import load_marker_layout
 from mocap.synth.capture import simulate_capture
 from mocap.synth.performance import read_performance
 from mocap.util.float_text import compiled_lines_ready, csv_lines
+from mocap.util.hugepages import configure_hugepage_advice
 
 
 def simulate(frames: int, path: Path):
@@ -418,13 +420,17 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=35_000)
     parser.add_argument("--naive-frames", type=int, default=200)
     args = parser.parse_args()
+    # as the mocap2mesh command does it: the stages, their floors and `run` alike
+    advice = "off, this guest reports free pages" if configure_hugepage_advice() \
+        else "as NumPy sets it"
     out = scratch_directory("bench_chain_")
     artist, markerset, sim_take = simulate(args.frames, out / "take.c3d")
     mesh = artist.neutral
     landmarks = load_mesh_landmarks(REPO / "tests" / "ict_landmarks.toml", mesh)
     print(f"take: {sim_take.n_frames} frames, {sim_take.n_markers} markers "
           f"({len(markerset.face_markers)} face), {int(sim_take.missing.sum())} missing "
-          f"samples; ICT face {mesh.n_vertices} vertices, {artist.n_shapes} shapes")
+          f"samples; ICT face {mesh.n_vertices} vertices, {artist.n_shapes} shapes; "
+          f"NumPy's huge-page advice {advice}")
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     times = {}
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from fit.cli import commands
 from mocap.errors import Mocap2MeshError
+from mocap.util.hugepages import configure_hugepage_advice
 
 __all__ = ["main", "COMMANDS", "build_parser", "full_parser"]
 
@@ -142,7 +143,12 @@ def console() -> None:  # pragma: no cover - the installed entry point
     them. So are the command's own at its end, which the interpreter's exit would walk
     again in its last collections. Exit handlers, the flushing of stdout and stderr and
     the objects freed by reference counting go on as before.
+
+    On a virtual machine that reports its free memory to the host, NumPy's huge-page advice
+    is turned off for the command and the processes it starts
+    (:func:`mocap.util.hugepages.configure_hugepage_advice`).
     """
+    configure_hugepage_advice()
     argv = sys.argv[1:]
     gc.disable()
     try:
