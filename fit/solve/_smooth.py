@@ -52,7 +52,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.fft
 import scipy.linalg
 
 from fit.solve._active_set import RANK_RTOL, BoxQP, kkt_residual
@@ -95,18 +94,25 @@ class Spectrum:
     # the n columns' transforms are shared among the worker threads (each column's result
     # is the same on any number of them)
     def transform(self, c):
-        return scipy.fft.dct(c @ self.vec, type=2, norm="ortho", axis=0,
-                             workers=worker_threads())
+        return _fft().dct(c @ self.vec, type=2, norm="ortho", axis=0,
+                          workers=worker_threads())
 
     def inverse(self, spectral):
-        return scipy.fft.idct(spectral, type=2, norm="ortho", axis=0,
-                              workers=worker_threads()) @ self.vec.T
+        return _fft().idct(spectral, type=2, norm="ortho", axis=0,
+                           workers=worker_threads()) @ self.vec.T
 
     def denominators(self, lam):
         """Λ_j + λ μ_k, (T, n), and where it counts as nonzero (a pseudo-inverse elsewhere)."""
         denom = self.eig[None, :] + lam * self.mu[:, None]
         floor = RANK_RTOL * max(self.eig[-1], np.finfo(float).tiny)
         return denom, denom > floor
+
+
+def _fft():
+    """:mod:`scipy.fft`, imported on first use: a fit without temporal smoothness does not
+    pay for its import (50 ms with :mod:`scipy.special`)."""
+    import scipy.fft
+    return scipy.fft
 
 
 def unbounded(spectrum: Spectrum, spectral, lam):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 
 def fill_spline(positions: np.ndarray, visible: np.ndarray, target: int,
@@ -33,6 +32,10 @@ def fill_spline(positions: np.ndarray, visible: np.ndarray, target: int,
     are extrapolated with the end polynomial pieces: the caller only asks for
     them when extrapolation was requested.
     """
+    # here: the automatic fill takes a spline last, so a run rarely needs scipy.interpolate,
+    # whose import (with scipy.optimize) costs 75 ms
+    from scipy.interpolate import CubicSpline
+
     known = np.flatnonzero(visible[:, target])
     if len(known) < 2:
         return np.full((len(frames), 3), np.nan)
