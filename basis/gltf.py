@@ -44,7 +44,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pygltflib
 from scipy.spatial.transform import Rotation
 
 from basis.basis_io import as_shape_names
@@ -66,7 +65,14 @@ NEGATIVE_SUFFIX = ".neg"
 #: The weight range every importer gives a morph target (Blender's default slider range).
 PLAYBACK_RANGE = (0.0, 1.0)
 
+# glTF 2.0's codes (the specification's, as pygltflib names them): buffer view targets,
+# accessor component types and types, the triangle primitive mode, linear interpolation,
+# and the GLB header's magic, version and chunk types
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+_FLOAT, _UNSIGNED_INT = 5126, 5125
+_SCALAR, _VEC3, _VEC4 = "SCALAR", "VEC3", "VEC4"
+_TRIANGLES, _LINEAR = 4, "LINEAR"
+_GLB_MAGIC, _GLB_VERSION, _CHUNK_JSON, _CHUNK_BIN = b"glTF", 2, b"JSON", b"BIN\0"
 #: Bytes of the GLB header (magic, version, length) and of a chunk header (length, type).
 _GLB_HEADER, _CHUNK_HEADER = 12, 8
 
@@ -86,10 +92,10 @@ class _Buffer:
         accessor; return its index. `extremes`: the (2, k) min and max of its stored
         values, when known without reading them (a :class:`_Rows` needs them)."""
         if isinstance(arr, _Rows):
-            data, component = arr, pygltflib.FLOAT
+            data, component = arr, _FLOAT
         else:
-            component = pygltflib.UNSIGNED_INT if arr.dtype == np.uint32 else pygltflib.FLOAT
-            data = np.ascontiguousarray(arr, dtype="<u4" if component == pygltflib.UNSIGNED_INT
+            component = _UNSIGNED_INT if arr.dtype == np.uint32 else _FLOAT
+            data = np.ascontiguousarray(arr, dtype="<u4" if component == _UNSIGNED_INT
                                         else "<f4")
         if extremes is None:
             extremes = column_extremes(data.reshape(data.shape[0], -1))
@@ -97,7 +103,7 @@ class _Buffer:
         self.chunks.append(data)
         return index
 
-    def describe(self, shape: tuple, kind: str, extremes, *, component=pygltflib.FLOAT,
+    def describe(self, shape: tuple, kind: str, extremes, *, component=_FLOAT,
                  target: int | None = None) -> int:
         """A view of the buffer's next ``4 · prod(shape)`` bytes and its accessor (count
         ``shape[0]``, min and max the (2, k) `extremes`); return its index. The bytes are
@@ -387,38 +393,38 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
     scale = _to_metres(neutral)
 
     buf = _Buffer()
-    indices = buf.add(neutral.faces.reshape(-1).astype(np.uint32), pygltflib.SCALAR,
+    indices = buf.add(neutral.faces.reshape(-1).astype(np.uint32), _SCALAR,
                       target=_ELEMENT_ARRAY_BUFFER)
-    position = buf.add(_scaled(neutral.vertices, scale), pygltflib.VEC3, target=_ARRAY_BUFFER)
-    normal = buf.add(normals, pygltflib.VEC3, target=_ARRAY_BUFFER)
+    position = buf.add(_scaled(neutral.vertices, scale), _VEC3, target=_ARRAY_BUFFER)
+    normal = buf.add(normals, _VEC3, target=_ARRAY_BUFFER)
     # each target's stored extremes: its shape's extremes scaled and rounded as its values
     target_range = _scaled(shape_range[targets.shape], targets.factor[:, None, None] * scale)
     target_range = np.stack([target_range.min(axis=1), target_range.max(axis=1)], axis=1)
-    morphs = [{"POSITION": buf.describe((n_vertices, 3), pygltflib.VEC3, extremes,
+    morphs = [{"POSITION": buf.describe((n_vertices, 3), _VEC3, extremes,
                                         target=_ARRAY_BUFFER)} for extremes in target_range]
     buf.chunks.append(_target_displacement_rows(displacements, targets, scale))
     record = {"shapes": list(names), "target_shape": targets.shape.tolist(),
               "target_factor": targets.factor.tolist()}
     # the glTF JSON objects, keys in pygltflib's order, empty ones left out as it does
     primitive = {"attributes": {"POSITION": position, "NORMAL": normal}, "indices": indices,
-                 "mode": pygltflib.TRIANGLES, "targets": morphs}
+                 "mode": _TRIANGLES, "targets": morphs}
     mesh = {"extras": {"targetNames": list(targets.names), "mocap2mesh": record},
             "primitives": [primitive], "weights": [0.0] * len(targets.names), "name": name}
     gltf = {"accessors": buf.accessors}
     if times is not None:
-        time = buf.add(times, pygltflib.SCALAR)
+        time = buf.add(times, _SCALAR)
         outputs = [] if weights is None else [
-            ("weights", buf.add(_target_weight_rows(targets, weights), pygltflib.SCALAR,
+            ("weights", buf.add(_target_weight_rows(targets, weights), _SCALAR,
                                 extremes=_min_max(targets.weights(np.stack(weight_range),
                                                                  np.float32).reshape(-1, 1))))]
         if motion is not None:
-            outputs += [("rotation", buf.add(motion[0], pygltflib.VEC4)),
-                        ("translation", buf.add(_scaled(motion[1], scale), pygltflib.VEC3))]
+            outputs += [("rotation", buf.add(motion[0], _VEC4)),
+                        ("translation", buf.add(_scaled(motion[1], scale), _VEC3))]
         gltf["animations"] = [{
             "extras": {"rate": float(rate), "first_frame": int(first_frame)}, "name": name,
             "channels": [{"sampler": i, "target": {"node": 0, "path": path}}
                          for i, (path, _) in enumerate(outputs)],
-            "samplers": [{"input": time, "interpolation": pygltflib.ANIM_LINEAR, "output": out}
+            "samplers": [{"input": time, "interpolation": _LINEAR, "output": out}
                          for _, out in outputs]}]
     gltf.update({
         "asset": {"generator": "mocap2mesh", "version": "2.0"}, "bufferViews": buf.views,
@@ -557,11 +563,10 @@ def _save_glb(gltf: dict, buf: _Buffer, path: Path) -> None:
     text = _json(gltf, separators=(",", ":")).encode("ascii")
     text += b" " * (-(_GLB_HEADER + len(text)) % 4)
     size = _GLB_HEADER + 2 * _CHUNK_HEADER + len(text) + buf.length
-    header = struct.pack("<4sIII4s", pygltflib.MAGIC, pygltflib.GLTF_VERSION, size,
-                         len(text), pygltflib.JSON.encode("ascii"))
+    header = struct.pack("<4sIII4s", _GLB_MAGIC, _GLB_VERSION, size, len(text), _CHUNK_JSON)
     with open(path, "wb") as fh:
         preallocate(fh, size)
         fh.write(header)
         fh.write(text)
-        fh.write(struct.pack("<I4s", buf.length, pygltflib.BIN.encode("ascii")))
+        fh.write(struct.pack("<I4s", buf.length, _CHUNK_BIN))
         buf.write(fh)
