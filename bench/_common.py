@@ -20,6 +20,19 @@ REPO = Path(__file__).resolve().parent.parent
 FACIAL_SING_MAX_GAP = 200
 
 
+def memory_as_the_command() -> str:
+    """Set this process's memory as the ``mocap2mesh`` command sets it
+    (:func:`mocap.util.process_memory.configure_process_memory`), for the code timed and its
+    floors alike; what was set, in words."""
+    from mocap.util.process_memory import configure_process_memory
+
+    changed = configure_process_memory()
+    said = [what for key, what in (("kept_freed_memory", "freed memory kept"),
+                                   ("hugepage_advice_off", "NumPy's huge-page advice off"))
+            if changed[key]]
+    return "memory as the command sets it: " + (", ".join(said) or "as the system has it")
+
+
 def shared_data() -> Path:
     """``$MOCAP2MESH_SHARED_DATA`` or ``../shared/data``; exit with a message if absent."""
     env = os.environ.get("MOCAP2MESH_SHARED_DATA")

@@ -14,8 +14,8 @@ maximum resident set size. Then the same take goes through ``mocap2mesh run`` in
 fresh process, as a user runs it (2 mm skin offset, no video): its wall time (the
 issue's aim, 20 s) and the stages its manifest records, which add to the ones above
 the report's held-out fits, mesh renders and further figures, and the cost of a fresh
-process's first touches of its memory. NumPy's huge-page advice is set as the command
-sets it (:mod:`mocap.util.hugepages`), for the stages, their floors and ``run`` alike.
+process's first touches of its memory. The process's memory is set as the command sets it
+(:mod:`mocap.util.process_memory`), for the stages, their floors and ``run`` alike.
 
 Floors, timed in the same run on the same arrays: what each stage cannot go
 under.
@@ -85,7 +85,14 @@ import igl
 import numpy as np
 import scipy.linalg
 import scipy.sparse
-from _common import REPO, best_time, report_floor, scratch_directory, shared_data
+from _common import (
+    REPO,
+    best_time,
+    memory_as_the_command,
+    report_floor,
+    scratch_directory,
+    shared_data,
+)
 from scipy.interpolate import RBFInterpolator
 from scipy.optimize import least_squares, lsq_linear
 
@@ -118,7 +125,6 @@ from mocap.mesh.layout import load_marker_layout
 from mocap.synth.capture import simulate_capture
 from mocap.synth.performance import read_performance
 from mocap.util.float_text import compiled_lines_ready, csv_lines
-from mocap.util.hugepages import configure_hugepage_advice
 
 
 def simulate(frames: int, path: Path):
@@ -420,9 +426,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=35_000)
     parser.add_argument("--naive-frames", type=int, default=200)
     args = parser.parse_args()
-    # as the mocap2mesh command does it: the stages, their floors and `run` alike
-    advice = "off, this guest reports free pages" if configure_hugepage_advice() \
-        else "as NumPy sets it"
+    memory = memory_as_the_command()
     out = scratch_directory("bench_chain_")
     artist, markerset, sim_take = simulate(args.frames, out / "take.c3d")
     mesh = artist.neutral
@@ -430,7 +434,7 @@ def main() -> None:
     print(f"take: {sim_take.n_frames} frames, {sim_take.n_markers} markers "
           f"({len(markerset.face_markers)} face), {int(sim_take.missing.sum())} missing "
           f"samples; ICT face {mesh.n_vertices} vertices, {artist.n_shapes} shapes; "
-          f"NumPy's huge-page advice {advice}")
+          f"{memory}")
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     times = {}
 

@@ -45,12 +45,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-from _common import REPO, shared_data  # noqa: E402
+from _common import REPO, memory_as_the_command, shared_data  # noqa: E402
 
 import mocap  # noqa: E402
 from fit.cli.main import main as cli  # noqa: E402
 from mocap.synth.capture import load_capture_truth  # noqa: E402
-from mocap.util.hugepages import configure_hugepage_advice  # noqa: E402
 
 OUT = REPO / "bench" / "out" / "fit-options"
 MAX_GAP_FRAMES = 60
@@ -120,9 +119,7 @@ PAIRS = 3
 
 
 def main() -> None:
-    # as the mocap2mesh command does it (this script calls its main in-process)
-    advice = "off, this guest reports free pages" if configure_hugepage_advice() \
-        else "as NumPy sets it"
+    memory = memory_as_the_command()      # this script calls the command's main in-process
     root = shared_data()
     OUT.mkdir(parents=True, exist_ok=True)
     capture, truth_path = simulate(root)
@@ -131,8 +128,7 @@ def main() -> None:
     print(f"alex_rom_4 onto ICT: {truth.n_frames} frames at {truth.rate:g} Hz (2 s neutral "
           f"lead-in), 60 face markers, 0.2 mm noise, 40 gaps; mocap2mesh run per option set, "
           f"bind.frame = 'hold', marker space, H in [0, 1]; "
-          f"BLAS threads {os.environ['OPENBLAS_NUM_THREADS']}; NumPy's huge-page advice "
-          f"{advice}\n")
+          f"BLAS threads {os.environ['OPENBLAS_NUM_THREADS']}; {memory}\n")
     # the exact and GCV fits alternated PAIRS times first: the aim compares them
     paired = {label: [] for label in ("exact", "smoothness GCV")}
     for _ in range(PAIRS):

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from fit.cli import commands
 from mocap.errors import Mocap2MeshError
-from mocap.util.hugepages import configure_hugepage_advice
+from mocap.util.process_memory import configure_process_memory
 
 __all__ = ["main", "COMMANDS", "build_parser", "full_parser"]
 
@@ -144,11 +144,11 @@ def console() -> None:  # pragma: no cover - the installed entry point
     again in its last collections. Exit handlers, the flushing of stdout and stderr and
     the objects freed by reference counting go on as before.
 
-    On a virtual machine that reports its free memory to the host, NumPy's huge-page advice
-    is turned off for the command and the processes it starts
-    (:func:`mocap.util.hugepages.configure_hugepage_advice`).
+    The command and the processes it starts keep the memory they free for reuse, and on a
+    virtual machine that reports its free memory to the host, NumPy's huge-page advice is
+    off (:func:`mocap.util.process_memory.configure_process_memory`).
     """
-    configure_hugepage_advice()
+    configure_process_memory()
     argv = sys.argv[1:]
     gc.disable()
     try:

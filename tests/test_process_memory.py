@@ -1,16 +1,81 @@
-"""NumPy's huge-page advice: off on a guest that reports free pages, left alone elsewhere."""
+"""A process's memory: freed memory kept by glibc; NumPy's huge-page advice off on a guest
+that reports free pages; a user's own settings left alone."""
 
 import os
 import subprocess
 import sys
+import textwrap
 
 import pytest
 
-from mocap.util import hugepages
-from mocap.util.hugepages import ADVICE_VARIABLE, configure_hugepage_advice, reports_free_pages
+from mocap.util import process_memory
+from mocap.util.process_memory import (
+    ADVICE_VARIABLE,
+    KEPT_MEMORY,
+    configure_hugepage_advice,
+    configure_process_memory,
+    keep_freed_memory,
+    reports_free_pages,
+)
 
-numpy_switch = hugepages._advice_module()
-pytestmark = pytest.mark.skipif(numpy_switch is None, reason="this numpy has no huge-page switch")
+numpy_switch = process_memory._advice_module()
+needs_switch = pytest.mark.skipif(numpy_switch is None,
+                                  reason="this numpy has no huge-page switch")
+on_glibc = pytest.mark.skipif(process_memory._glibc_mallopt() is None,
+                              reason="glibc's allocator only")
+
+#: A child process: 100 MB made and freed; prints how much its resident memory fell.
+_FREED = textwrap.dedent("""
+    import os, sys
+    import numpy as np
+    from mocap.util.process_memory import keep_freed_memory
+    if sys.argv[1] == "here":
+        assert keep_freed_memory({})
+    def resident():
+        return int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    block = np.ones(100 << 17)
+    before = resident()
+    del block
+    print((before - resident()) / 2**20)
+""")
+
+
+def _fall_mb(how: str, env) -> float:
+    """MB the resident memory of a child fell by when it freed 100 MB."""
+    out = subprocess.run([sys.executable, "-c", _FREED, how], env=env, capture_output=True,
+                         text=True, check=True)
+    return float(out.stdout)
+
+
+def _plain_environment():
+    return {k: v for k, v in os.environ.items()
+            if k not in [name for name, _, _ in KEPT_MEMORY] and k != "GLIBC_TUNABLES"}
+
+
+@on_glibc
+def test_freed_memory_is_kept_here_and_in_the_processes_started_after():
+    plain = _plain_environment()
+    assert _fall_mb("plain", plain) > 90            # glibc's own: unmapped when freed
+    assert _fall_mb("here", plain) < 10             # mallopt in the process itself
+    environ = dict(plain)
+    assert keep_freed_memory(environ)
+    assert {name: environ[name] for name, _, _ in KEPT_MEMORY} == \
+        {name: str(value) for name, _, value in KEPT_MEMORY}
+    assert _fall_mb("plain", environ) < 10          # a process started with it
+
+
+@pytest.mark.parametrize("setting", [{"MALLOC_TRIM_THRESHOLD_": "65536"},
+                                     {"MALLOC_MMAP_THRESHOLD_": "131072"},
+                                     {"GLIBC_TUNABLES": "glibc.malloc.trim_threshold=65536"}])
+def test_a_users_allocator_settings_are_left_as_they_are(setting):
+    environ = dict(setting)
+    assert not keep_freed_memory(environ)
+    assert environ == setting
+
+
+def test_configure_says_what_it_changed():
+    changed = configure_process_memory({"MALLOC_TRIM_THRESHOLD_": "65536", ADVICE_VARIABLE: "1"})
+    assert changed == {"kept_freed_memory": False, "hugepage_advice_off": False}
 
 
 def _device(root, name, kind, features):
@@ -59,6 +124,7 @@ def test_unreadable_sysfs_is_no_reporting(tmp_path):
     assert not reports_free_pages(tmp_path)
 
 
+@needs_switch
 def test_the_advice_goes_off_here_and_in_the_processes_started_after(tmp_path, advice):
     _device(tmp_path, "virtio0", 0x5, _features(5))
     environ = {k: v for k, v in os.environ.items() if k != ADVICE_VARIABLE}
@@ -74,6 +140,7 @@ def test_the_advice_goes_off_here_and_in_the_processes_started_after(tmp_path, a
         assert child({k: v for k, v in environ.items() if k != ADVICE_VARIABLE}) == "True"
 
 
+@needs_switch
 @pytest.mark.parametrize("set_by_user", ["1", "0"])
 def test_a_users_setting_is_left_as_it_is(tmp_path, advice, set_by_user):
     _device(tmp_path, "virtio0", 0x5, _features(5))
@@ -83,6 +150,7 @@ def test_a_users_setting_is_left_as_it_is(tmp_path, advice, set_by_user):
     assert advice() is True
 
 
+@needs_switch
 def test_without_reporting_nothing_changes(tmp_path, advice):
     _device(tmp_path, "virtio0", 0x5, _features(1, 2))
     environ = {}
