@@ -156,3 +156,23 @@ def test_without_reporting_nothing_changes(tmp_path, advice):
     environ = {}
     assert not configure_hugepage_advice(environ, devices=tmp_path)
     assert environ == {} and advice() is True
+
+
+def test_the_command_sets_up_its_memory_as_it_starts():
+    """The console entry point configures the memory before it runs the command: the
+    command sees the allocator's variables (on glibc) and the advice's (on a reporting
+    guest) that :func:`configure_process_memory` sets."""
+    probe = textwrap.dedent("""
+        import importlib, os, sys
+        cli = importlib.import_module("fit.cli.main")
+        cli.main = lambda argv: print(os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+                                      os.environ.get("NUMPY_MADVISE_HUGEPAGE")) or 0
+        sys.argv = ["mocap2mesh", "--help"]
+        cli.console()
+    """)
+    plain = {k: v for k, v in _plain_environment().items() if k != ADVICE_VARIABLE}
+    seen = subprocess.run([sys.executable, "-c", probe], env=plain, capture_output=True,
+                          text=True, check=True).stdout.split()
+    expected = configure_process_memory(dict(plain))
+    assert seen == [str(KEPT_MEMORY[1][2]) if expected["kept_freed_memory"] else "None",
+                    "0" if expected["hugepage_advice_off"] else "None"]
