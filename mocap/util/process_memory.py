@@ -7,14 +7,16 @@ sets both for the ``mocap2mesh`` command, for itself and the processes it starts
 a user made (in the environment) are left as they are.
 
 **glibc keeps freed memory** (:func:`keep_freed_memory`). glibc maps an array above its
-mmap threshold (at most 32 MB by default) afresh, and unmaps it when it is freed, so the
-next array of that size faults its pages in again. With the threshold at 1 GiB and the
-trim threshold at 1 GiB, freed memory stays with the process and is handed out again.
+mmap threshold (128 KB, rising to at most 32 MB as such arrays are freed) afresh, and
+unmaps it when it is freed, so the next array of that size faults its pages in again.
+With the mmap and trim thresholds at 1 GiB, freed memory stays with the process and is
+handed out again.
 Two 55 MB arrays made, filled and dropped took 49-55 ms a time, and 17 ms once the memory
-was kept. ``mocap2mesh run`` of a 35,000-frame take spent 1.1 s in the kernel instead
-of 1.5-1.6 s, and took 9.4-9.5 s instead of 9.6-9.8 s (three alternated pairs); its peak
-memory grew by 2-3 %. Three such takes in one process: 32.4 -> 29.0 s, the peak 1.20 GB
-either way, so the kept memory is reused from take to take.
+was kept. ``mocap2mesh run`` of a 35,000-frame take, three alternated pairs: 9.7-9.8 ->
+9.3-9.5 s, its time in the kernel 1.3-1.6 -> 1.1-1.2 s, its peak memory 1.14 -> 1.16-1.17 GB.
+Three such takes in one process, two pairs: 32.0-32.4 -> 29.9-30.4 s, the kernel's time
+5.9-6.3 -> 3.1-3.4 s, the peak 1.19-1.21 -> 1.21-1.23 GB: the kept memory serves take after
+take.
 
 **NumPy's huge-page advice** (:func:`configure_hugepage_advice`). On Linux NumPy asks for
 transparent huge pages for every array of 4 MB and more (``madvise(MADV_HUGEPAGE)``). On
@@ -150,7 +152,7 @@ def configure_hugepage_advice(environ=None, *, devices: Path = VIRTIO_DEVICES) -
     numpy_switch = _advice_module()
     if ADVICE_VARIABLE in environ or numpy_switch is None or not reports_free_pages(devices):
         return False
-    numpy_switch._set_madvise_hugepage(False)
+    numpy_switch._set_madvise_hugepage(False)     # what the variable sets as numpy imports
     environ[ADVICE_VARIABLE] = "0"
     return True
 
