@@ -48,8 +48,9 @@ def _fall_mb(how: str, env) -> float:
 
 
 def _plain_environment():
+    """This environment without any setting of glibc's allocator."""
     return {k: v for k, v in os.environ.items()
-            if k not in [name for name, _, _ in KEPT_MEMORY] and k != "GLIBC_TUNABLES"}
+            if k not in process_memory._MALLOC_SETTINGS and k != "GLIBC_TUNABLES"}
 
 
 @on_glibc
