@@ -53,8 +53,7 @@ _F_REPORTING = 5                # feature bit: the guest reports free pages to t
 #: parameter (malloc.h) and the value, bytes.
 KEPT_MEMORY = (("MALLOC_MMAP_THRESHOLD_", -3, 1 << 30), ("MALLOC_TRIM_THRESHOLD_", -1, 1 << 30))
 #: Environment variables by which a user has set glibc's allocator: then it is left alone.
-_MALLOC_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_",
-                    "MALLOC_MMAP_MAX_")
+_MALLOC_SETTINGS = (*(name for name, _, _ in KEPT_MEMORY), "MALLOC_TOP_PAD_", "MALLOC_MMAP_MAX_")
 
 
 def configure_process_memory(environ=None) -> dict:
