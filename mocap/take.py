@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextvars
 import copy
 import dataclasses
 from dataclasses import dataclass, field
@@ -13,7 +14,8 @@ from mocap.errors import InputError, MarkerError
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
-__all__ = ["Take", "SourceInfo", "Analog", "FILL_METHODS", "fill_code", "as_take"]
+__all__ = ["Take", "SourceInfo", "Analog", "FILL_METHODS", "fill_code", "as_take",
+           "take_of_checked_samples"]
 
 #: Gap-filling methods a sample can have been filled by. ``Take.filled`` holds
 #: 0 for a sample that was captured (or is still missing) and ``i + 1`` for a
@@ -152,7 +154,6 @@ class Take:
         labels = tuple(str(s) for s in self.labels)
         positions = as_float_array(self.positions, "positions", shape=(None, None, 3),
                                    copy=not _immutable(self.positions), check_finite=False)
-        suspect, samples = _not_finite_samples(positions)
         if len(labels) != positions.shape[1]:
             raise InputError(f"take has {positions.shape[1]} markers but "
                              f"{len(labels)} labels")
@@ -161,12 +162,8 @@ class Take:
             if label in seen:
                 raise MarkerError(label, "label appears more than once in the take")
             seen.add(label)
-        nan = np.isnan(samples)
-        partial = nan.any(axis=1) & ~nan.all(axis=1)
-        if partial.any():
-            t, m = (int(index[np.argmax(partial)]) for index in suspect)
-            raise MarkerError(labels[m], f"frame index {t} has some coordinates NaN and "
-                                         "others not; a missing sample is NaN in x, y and z")
+        if not _SAMPLES_CHECKED.get():
+            _check_samples(positions, labels)
         if self.filled is None:
             filled = np.zeros(positions.shape[:2], dtype=np.uint8)
         else:
@@ -254,7 +251,8 @@ class Take:
         try:
             return self.labels.index(label)
         except ValueError:
-            raise MarkerError(label, f"not in the take (markers: {', '.join(self.labels)})") from None
+            raise MarkerError(label, f"not in the take (markers: "
+                                     f"{', '.join(self.labels)})") from None
 
     def indices(self, labels) -> np.ndarray:
         """Columns of several markers, shape (len(labels),)."""
@@ -289,6 +287,36 @@ class Take:
     def replace(self, **changes) -> "Take":
         """A new take with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
+
+
+#: Set while :func:`take_of_checked_samples` makes a take whose samples its maker checked.
+_SAMPLES_CHECKED = contextvars.ContextVar("samples_checked", default=False)
+
+
+def take_of_checked_samples(labels, positions, rate, **fields) -> Take:
+    """``Take(labels, positions, rate, **fields)`` of `positions` whose maker has made every
+    sample either finite or NaN in all three coordinates (as the C3D decoder does while
+    it widens each chunk): validated as any take, but its samples not read a second time.
+
+    For readers that guarantee it by construction; anything else makes a :class:`Take`.
+    """
+    token = _SAMPLES_CHECKED.set(True)
+    try:
+        return Take(labels, positions, rate, **fields)
+    finally:
+        _SAMPLES_CHECKED.reset(token)
+
+
+def _check_samples(positions: np.ndarray, labels: tuple) -> None:
+    """InputError for an infinite coordinate of `positions` (T, M, 3), MarkerError for a
+    sample with some coordinates NaN and others not."""
+    suspect, samples = _not_finite_samples(positions)
+    nan = np.isnan(samples)
+    partial = nan.any(axis=1) & ~nan.all(axis=1)
+    if partial.any():
+        t, m = (int(index[np.argmax(partial)]) for index in suspect)
+        raise MarkerError(labels[m], f"frame index {t} has some coordinates NaN and "
+                                     "others not; a missing sample is NaN in x, y and z")
 
 
 def _not_finite_samples(positions: np.ndarray) -> tuple:

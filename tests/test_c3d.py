@@ -435,6 +435,9 @@ def test_a_coordinate_not_finite_makes_its_sample_missing(tmp_path, tiny_chunks,
         missing = (words[:, :, 3] < 0) | ~np.isfinite(words[:, :, :3]).all(axis=2)
     assert 0 < missing.sum() < missing.size
     np.testing.assert_array_equal(back.missing, missing)
+    # the take trusts the decoder's samples: NaN in all three coordinates or finite
+    assert np.isnan(back.positions[missing]).all()
+    assert np.isfinite(back.positions[~missing]).all()
     np.testing.assert_array_equal(back.positions[~missing],
                                   words[:, :, :3][~missing].astype(float)
                                   * mm_per_unit(unit.strip()))

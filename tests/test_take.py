@@ -5,6 +5,7 @@ import pytest
 
 from mocap import InputError, MarkerError, Take
 from mocap.gaps import find_gaps
+from mocap.take import take_of_checked_samples
 
 
 def test_take_copies_and_freezes_positions():
@@ -55,6 +56,28 @@ def test_take_validation_agrees_with_a_check_of_every_sample(specials):
     assert outcomes >= {"partial", "valid"}
     overflowing = np.full((1, 1, 3), 1e308)
     np.testing.assert_array_equal(Take(("a",), overflowing, rate=50).positions, overflowing)
+
+
+def test_a_take_of_checked_samples_is_validated_but_for_its_samples():
+    """The readers' constructor leaves the samples to its caller and checks the rest as
+    Take does; a take made after it in the same thread checks its samples again."""
+    pos = np.zeros((3, 2, 3))
+    pos[1, 1] = np.nan
+    made = take_of_checked_samples(("a", "b"), pos, 50.0, first_frame=4)
+    checked = Take(("a", "b"), pos, rate=50, first_frame=4)
+    np.testing.assert_array_equal(made.positions, checked.positions)
+    assert (made.labels, made.rate, made.first_frame) == (checked.labels, 50.0, 4)
+    assert not made.positions.flags.writeable
+    with pytest.raises(MarkerError, match="more than once"):
+        take_of_checked_samples(("a", "a"), pos, 50.0)
+    with pytest.raises(InputError, match="2 markers but 1 labels"):
+        take_of_checked_samples(("a",), pos, 50.0)
+    with pytest.raises(InputError, match="rate must be positive"):
+        take_of_checked_samples(("a", "b"), pos, 0.0)
+    pos[2, 0, 1] = np.nan
+    take_of_checked_samples(("a", "b"), pos, 50.0)      # its maker's word, not re-read
+    with pytest.raises(MarkerError, match="'a': frame index 2 has some coordinates NaN"):
+        Take(("a", "b"), pos, rate=50)
 
 
 def test_take_rejects_duplicate_labels_and_bad_rate():

@@ -17,7 +17,7 @@ from mocap.io._c3d_data import decode_frames, plan_layout, scan_missing
 from mocap.io._c3d_header import BLOCK, locate_parameters, parse_header
 from mocap.io._c3d_params import Parameters, parse_parameters
 from mocap.io._c3d_write import encode_c3d
-from mocap.take import Analog, SourceInfo, Take, as_take
+from mocap.take import Analog, SourceInfo, Take, as_take, take_of_checked_samples
 from mocap.units import mm_per_unit
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
@@ -209,9 +209,11 @@ def _decode(buf, path, notes: list) -> Take:
     _check_budget(layout, path)
     # float64: even the largest float32 or scaled int16 stays finite in mm
     xyz, raw_analog = decode_frames(buf, layout, order, factor=factor)
-    # read-only: the take keeps this array as it is, no second copy of the positions
-    return Take(labels, read_only(xyz), rate, first_frame=layout.first_frame, source=source,
-                analog=_analog(raw_analog, params, layout, rate, notes))
+    # read-only: the take keeps this array as it is, no second copy of the positions; its
+    # samples were made finite or NaN as each chunk was widened, not read again
+    return take_of_checked_samples(labels, read_only(xyz), rate, first_frame=layout.first_frame,
+                                   source=source,
+                                   analog=_analog(raw_analog, params, layout, rate, notes))
 
 
 def summarize_c3d(path) -> C3DSummary:
