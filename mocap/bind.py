@@ -521,7 +521,7 @@ def bind_take(take, markerset, mesh: Mesh, mesh_landmarks: Mapping[str, int], *,
         raise InputError(f"stabilize must be one of {BIND_STABILIZATIONS}, got {stabilize!r}")
     take = markerset.own_labels(take)
     markerset.check_labels(take.labels, source=take.source.path or "the take")
-    take = take.select(markerset.markers)
+    labels = tuple(markerset.markers)       # read where they are in the take, not copied
     picked = frame in neutrals.PICKED_FRAMES
     if not picked:
         frame = as_int(frame, "frame", minimum=0)
@@ -530,14 +530,14 @@ def bind_take(take, markerset, mesh: Mesh, mesh_landmarks: Mapping[str, int], *,
         head = find_head_frame(take, markerset, method=stabilize, robust=robust,
                                guard_deg=guard_deg).stabilization
     in_head = take if head is None else head.take
-    on_face = neutrals.find_neutral(in_head.select(markerset.face_markers), frame)
+    on_face = neutrals.find_neutral(in_head, frame, labels=markerset.face_markers)
     index = on_face.frame
-    neutral = neutrals.find_neutral(in_head, index, window=on_face.window)
+    neutral = neutrals.find_neutral(in_head, index, labels=labels, window=on_face.window)
     pose = neutral.pose
     if head is not None and not head_frame:
-        pose = (take.positions[index] if neutral.window == 1 else
+        pose = (take.positions[index, take.indices(labels)] if neutral.window == 1 else
                 apply_transform(head.rotation[index], head.translation[index], pose))
-    binding = bind_markers(pose, take.labels, markerset.landmarks, mesh, mesh_landmarks,
+    binding = bind_markers(pose, labels, markerset.landmarks, mesh, mesh_landmarks,
                            icp=icp, skin_offset=skin_offset, max_distance_warn=max_distance_warn)
     return BoundTake(binding=binding, frame=neutral.frame, window=neutral.window)
 

@@ -32,7 +32,8 @@ PICKED_FRAMES = ("auto", "hold")
 HOLD_S = 0.5
 
 
-def pick_neutral_frame(positions, *, method: str = "median", rate: float | None = None) -> int:
+def pick_neutral_frame(positions, *, method: str = "median", rate: float | None = None,
+                       markers=None) -> int:
     """The frame of a take closest to its rest pose.
 
     Parameters
@@ -46,6 +47,9 @@ def pick_neutral_frame(positions, *, method: str = "median", rate: float | None 
         least ``HOLD_S`` seconds.
     rate : float, Hz
         Frame rate; needed by "hold".
+    markers : array_like of int, optional
+        The markers (indices into axis 1 of `positions`) to pick on, read where they
+        are (no copy of their tracks); default all.
 
     Returns
     -------
@@ -81,20 +85,26 @@ def pick_neutral_frame(positions, *, method: str = "median", rate: float | None 
     positions = as_float_array(positions, "positions", shape=(None, None, 3), copy=False)
     if method not in NEUTRAL_METHODS:
         raise InputError(f"method must be one of {NEUTRAL_METHODS}, got {method!r}")
+    picked = slice(None) if markers is None else _as_markers(markers, positions.shape[1])
+    columns = (3 * np.arange(positions.shape[1])[picked, None] + np.arange(3)).reshape(-1)
     blocks = [slice(first, first + _FRAMES_PER_BLOCK)        # cache-sized, no (T, M, 3) temp
               for first in range(0, len(positions), _FRAMES_PER_BLOCK)]
-    complete = np.concatenate([~np.isnan(positions[b]).any(axis=(1, 2)) for b in blocks]) \
-        if blocks else np.zeros(0, bool)
+    # per block, a (t, M) table of each marker's coordinate sums (NaN where it is missing)
+    # or squared offsets, then its picked markers' columns: a 2-D gather, not a (T, M, 3) one
+    complete = np.concatenate([~np.isnan(_sample_sums(positions[b])[:, picked]).any(axis=1)
+                               for b in blocks]) if blocks else np.zeros(0, bool)
     if not complete.any():
         raise InputError("no frame has every marker visible; fill gaps first or select "
                          "markers")
     if method == "hold":
-        return _first_hold(positions, rate)
-    rest = nan_column_medians(positions)
+        return _first_hold(positions.reshape(len(positions), -1), columns, complete, rate)
+    rest = np.zeros(positions.shape[1:])
+    rest[picked] = nan_column_medians(positions, columns).reshape(-1, 3)
     squared = np.empty(len(positions))          # NaN where a marker is missing
     for b in blocks:
         offset = positions[b] - rest
-        squared[b] = np.einsum("tmc,tmc->t", offset, offset)
+        offset *= offset
+        squared[b] = _sample_sums(offset)[:, picked].sum(axis=1)
     return int(np.argmin(np.where(complete, squared, np.inf)))
 
 
@@ -102,7 +112,26 @@ def pick_neutral_frame(positions, *, method: str = "median", rate: float | None 
 _FRAMES_PER_BLOCK = 256
 
 
-def resolve_neutral_frame(positions, frame, *, rate: float | None = None) -> int:
+def _as_markers(markers, n_markers: int) -> np.ndarray:
+    """`markers` as a 1-D array of marker indices below `n_markers`; InputError if not."""
+    picked = np.asarray(markers)
+    if picked.ndim != 1 or not (picked.size == 0 or np.issubdtype(picked.dtype, np.integer)):
+        raise InputError(f"markers must be a 1-D array of marker indices, got shape "
+                         f"{picked.shape} dtype {picked.dtype}")
+    if picked.size and (picked.min() < 0 or picked.max() >= n_markers):
+        raise InputError(f"markers must index the {n_markers} markers, got "
+                         f"{picked.min()}..{picked.max()}")
+    return picked.astype(np.intp)
+
+
+def _sample_sums(block: np.ndarray) -> np.ndarray:
+    """Each sample's coordinate sum (t, M) of positions (t, M, 3), NaN where it is missing
+    (by one BLAS product: a reduction over the last three is several times slower)."""
+    return (block.reshape(-1, 3) @ np.ones(3)).reshape(block.shape[:2])
+
+
+def resolve_neutral_frame(positions, frame, *, rate: float | None = None,
+                          markers=None) -> int:
     """A neutral-frame option (``--frame``, ``bind.frame``) as a frame index.
 
     Parameters
@@ -116,6 +145,8 @@ def resolve_neutral_frame(positions, frame, *, rate: float | None = None) -> int
         ``"hold"`` (method "hold").
     rate : float, Hz, optional
         Frame rate of `positions`; needed by "hold".
+    markers : array_like of int, optional
+        The markers a frame is picked on (:func:`pick_neutral_frame`); default all.
 
     Returns
     -------
@@ -128,9 +159,9 @@ def resolve_neutral_frame(positions, frame, *, rate: float | None = None) -> int
         An index below 0 or not an integer; the errors of :func:`pick_neutral_frame`.
     """
     if frame == "auto":
-        return pick_neutral_frame(positions, rate=rate)
+        return pick_neutral_frame(positions, rate=rate, markers=markers)
     if frame == "hold":
-        return pick_neutral_frame(positions, method="hold", rate=rate)
+        return pick_neutral_frame(positions, method="hold", rate=rate, markers=markers)
     return as_int(frame, "frame", minimum=0)
 
 
@@ -159,34 +190,36 @@ def hold_window(rate: float) -> int:
 _HOLD_BLOCK_BYTES = 1 << 21
 
 
-def _first_hold(positions, rate) -> int:
-    """The middle frame of the first still window (see :func:`pick_neutral_frame`)."""
+def _first_hold(table, columns, complete, rate) -> int:
+    """The middle frame of the first still window (see :func:`pick_neutral_frame`) of the
+    `columns` (3M,) of `table` (T, 3 × markers), whose frames `complete` (T,) have all
+    M markers."""
     if rate is None:
         raise InputError("method 'hold' needs the take's frame rate")
     window = hold_window(rate)
-    if len(positions) < window:
+    if len(table) < window:
         raise InputError(f"a neutral hold is {HOLD_S} s ({window} frames); the take has "
-                         f"only {len(positions)}")
+                         f"only {len(table)}")
     # spread of every coordinate over the window centred on each frame, by
     # cumulative sums (about the median pose, for accuracy), summed over the
     # coordinates a cache-sized block of them at a time; windows with an
     # incomplete frame in them do not count
-    table = positions.reshape(len(positions), -1)
-    medians = nan_column_medians(table)
+    medians = nan_column_medians(table, columns)
     spread = np.zeros(len(table) - window + 1)
     width = max(1, _HOLD_BLOCK_BYTES // (8 * (len(table) + 1)))
-    for first in range(0, table.shape[1], width):
-        block = np.nan_to_num(table[:, first:first + width] - medians[first:first + width])
+    for first in range(0, len(columns), width):
+        part = slice(first, first + width)
+        block = np.nan_to_num(table[:, columns[part]] - medians[part])
         sums, squares = (np.zeros((len(block) + 1, block.shape[1])) for _ in range(2))
         np.cumsum(block, axis=0, out=sums[1:])
         np.cumsum(block * block, axis=0, out=squares[1:])
         mean = (sums[window:] - sums[:-window]) / window
         var = (squares[window:] - squares[:-window]) / window - mean ** 2
         spread += np.maximum(var, 0.0).sum(axis=1)
-    stillness = np.sqrt(spread / positions.shape[1])
-    gaps = np.cumsum(np.r_[0, np.isnan(positions).any(axis=(1, 2))])
+    stillness = np.sqrt(spread / (len(columns) // 3))
+    gaps = np.cumsum(np.r_[0, ~complete])
     stillness[gaps[window:] > gaps[:-window]] = np.nan
-    centre = np.arange(window // 2, len(positions) - window // 2)
+    centre = np.arange(window // 2, len(table) - window // 2)
     if np.isnan(stillness).all():
         raise InputError(f"no {window} consecutive frames have every marker visible: "
                          "fill gaps before looking for a neutral hold")
@@ -294,15 +327,16 @@ def find_neutral(take: Take, frame="auto", *, labels=None, window: int | None = 
     """
     take = as_take(take)
     labels = take.labels if labels is None else tuple(labels)
-    positions = take.select(labels).positions
-    index = resolve_neutral_frame(positions, frame, rate=take.rate)
+    markers = take.indices(labels, distinct=True)
+    positions = take.positions                  # the markers read where they are, not copied
+    index = resolve_neutral_frame(positions, frame, rate=take.rate, markers=markers)
     source = take.source.path or "the take"
     if index >= take.n_frames:
         raise InputError(f"{source}: neutral frame index {index} is beyond the take's "
                          f"{take.n_frames} frames")
     if window is None:
         window = hold_window(take.rate) if frame == "hold" else 1
-    pose = neutral_pose(positions, index, window)
+    pose = neutral_pose(positions, index, window)[markers]
     missing = np.flatnonzero(np.isnan(pose).any(axis=1))
     if missing.size:
         where = (f"is missing (NaN) in the neutral frame {take.first_frame + index} (index "

@@ -254,9 +254,14 @@ class Take:
             raise MarkerError(label, f"not in the take (markers: "
                                      f"{', '.join(self.labels)})") from None
 
-    def indices(self, labels) -> np.ndarray:
-        """Columns of several markers, shape (len(labels),)."""
-        return np.array([self.index(label) for label in labels], dtype=np.intp)
+    def indices(self, labels, *, distinct: bool = False) -> np.ndarray:
+        """Columns of several markers, shape (len(labels),); with `distinct`, a MarkerError
+        for a label given twice."""
+        idx = np.array([self.index(label) for label in labels], dtype=np.intp)
+        if distinct and len(np.unique(idx)) != len(idx):
+            dup = next(self.labels[i] for i in idx if np.count_nonzero(idx == i) > 1)
+            raise MarkerError(dup, "label appears more than once in the take")
+        return idx
 
     def marker(self, label: str) -> np.ndarray:
         """Trajectory of one marker, a new array of shape (n_frames, 3), mm."""
@@ -269,11 +274,8 @@ class Take:
         The columns of a valid take are valid: they are gathered, not checked
         or copied again.
         """
-        idx = self.indices(labels)
+        idx = self.indices(labels, distinct=True)
         labels = tuple(self.labels[i] for i in idx)
-        if len(set(labels)) != len(labels):
-            dup = next(x for x in labels if labels.count(x) > 1)
-            raise MarkerError(dup, "label appears more than once in the take")
         if labels == self.labels:
             return self
         selected = copy.copy(self)

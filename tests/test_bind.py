@@ -482,6 +482,32 @@ def test_hold_is_the_first_window_as_still_as_twice_the_stillest(block_bytes, mo
     assert 120 <= expected < 150
 
 
+@pytest.mark.parametrize("method", ["median", "hold"])
+def test_picking_on_some_markers_reads_them_where_they_are(method):
+    """`markers` picks on those tracks, as a copy of them would; the other markers' gaps and
+    motion do not count. Oracle: the pick on the copied tracks."""
+    rng = np.random.default_rng(12)
+    rate, n_hold = 60.0, 120
+    _, face = _never_resting_take(rng, rate, n_hold)
+    face[7, 1] = np.nan
+    others = rng.normal(0.0, 50.0, (len(face), 3, 3))          # wild, often missing
+    others[rng.random((len(face), 3)) < 0.3] = np.nan
+    others[::2, 0] = others[1::2, 1] = np.nan                # never both there
+    positions = np.concatenate([others[:, :2], face, others[:, 2:]], axis=1)
+    markers = np.arange(2, 2 + face.shape[1])[::-1]
+    expected = pick_neutral_frame(np.ascontiguousarray(positions[:, markers]), method=method,
+                                  rate=rate)
+    assert pick_neutral_frame(positions, method=method, rate=rate, markers=markers) == expected
+    assert resolve_neutral_frame(positions, "hold" if method == "hold" else "auto", rate=rate,
+                                 markers=markers) == expected
+    with pytest.raises(InputError, match="no frame has every marker visible"):
+        pick_neutral_frame(positions, method=method, rate=rate, markers=[0, 1, 2])
+    with pytest.raises(InputError, match=r"markers must index the \d+ markers"):
+        pick_neutral_frame(positions, markers=[2, positions.shape[1]])
+    with pytest.raises(InputError, match="markers must be a 1-D array"):
+        pick_neutral_frame(positions, markers=[[2, 3]])
+
+
 def test_hold_method_errors():
     positions = np.zeros((20, 3, 3))
     with pytest.raises(InputError, match=r"method must be one of \('median', 'hold'\)"):

@@ -289,3 +289,31 @@ def test_bind_hold_binds_the_mean_pose_of_the_hold(ict_dir, ict_markerset, tmp_p
                                           rf"neutral frame {take.first_frame + frame} "
                                           rf"\(index {frame}\) of .*led.c3d"):
         find_neutral(stabilize(holed, markerset.head).take, frame, window=window)
+
+
+@pytest.mark.parametrize("frame", ["auto", 40])
+def test_bind_take_reads_the_markers_where_the_take_has_them(simulated_capture, ict_markerset,
+                                                             ict_mesh, ict_landmarks, frame):
+    """A take whose markers come in another order, among markers of no set (wild, often
+    missing), binds as the take of the set's markers in the set's order does."""
+    from mocap.bind import bind_take
+    from mocap.take import Take
+
+    capture, _ = simulated_capture
+    take = mocap.read(capture).select(ict_markerset.markers)
+    rng = np.random.default_rng(2)
+    order = rng.permutation(take.n_markers)
+    strangers = rng.normal(0.0, 300.0, (take.n_frames, 4, 3))
+    strangers[rng.random((take.n_frames, 4)) < 0.5] = np.nan
+    foreign = Take(tuple(take.labels[i] for i in order) + ("x1", "x2", "x3", "x4"),
+                   np.concatenate([take.positions[:, order], strangers], axis=1), take.rate,
+                   first_frame=take.first_frame)
+    bound = [bind_take(t, ict_markerset, ict_mesh, ict_landmarks, frame=frame,
+                       skin_offset=2.0) for t in (take, foreign)]
+    assert (bound[1].frame, bound[1].window) == (bound[0].frame, bound[0].window)
+    ours, theirs = (b.binding for b in bound)
+    assert ours.labels == theirs.labels == tuple(ict_markerset.markers)
+    np.testing.assert_array_equal(theirs.face_ids, ours.face_ids)
+    np.testing.assert_array_equal(theirs.barycentric, ours.barycentric)
+    np.testing.assert_array_equal(theirs.rotation, ours.rotation)
+    assert theirs.scale == ours.scale

@@ -47,6 +47,18 @@ def test_nan_column_medians_of_positions_are_a_pose():
                                   np.nanmedian(positions, axis=0))
 
 
+@pytest.mark.parametrize("n_rows", [5, 35_000])
+def test_nan_column_medians_of_picked_columns_are_numpys_of_those_columns(n_rows):
+    """Columns picked in any order, some twice, across several blocks of the table."""
+    values = _with_ties_and_gaps(np.random.default_rng(n_rows + 1), n_rows)
+    positions = np.concatenate([values, values[:, ::-1]], axis=1)[:, :18].reshape(n_rows, 6, 3)
+    columns = np.array([17, 3, 4, 5, 0, 8, 8, 12, 1, 16, 2])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)         # numpy's all-NaN warning
+        expected = np.nanmedian(positions.reshape(n_rows, -1)[:, columns], axis=0)
+    np.testing.assert_array_equal(nan_column_medians(positions, columns), expected)
+
+
 def test_nan_column_medians_need_rows():
     with pytest.raises(ValueError, match="rows"):
         nan_column_medians(np.zeros(3))

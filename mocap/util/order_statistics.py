@@ -21,19 +21,22 @@ import numpy as np
 __all__ = ["nan_column_medians", "nan_column_percentiles", "percentile"]
 
 
-def nan_column_medians(values) -> np.ndarray:
+def nan_column_medians(values, columns=None) -> np.ndarray:
     """Median over the rows of `values` (T, ...) of its non-NaN entries, shape (...).
 
     The values of ``np.nanmedian(values, axis=0)`` (the mean of the two middle
     values of an even count), NaN where there is no value, and no warning for
     it. E.g. the per-marker median pose (M, 3) of positions (T, M, 3).
 
+    `columns` (K,), int, optional: only these columns of the rows flattened, ``values.reshape(T,
+    -1)[:, columns]``, each gathered as it is read (no copy of the table), shape (K,).
+
     Examples
     --------
     >>> nan_column_medians([[1.0, np.nan], [4.0, np.nan], [2.0, np.nan], [3.0, 5.0]]).tolist()
     [2.5, 5.0]
     """
-    return _per_column(values, _middle, "nan_column_medians")
+    return _per_column(values, _middle, "nan_column_medians", columns)
 
 
 def nan_column_percentiles(values, q: float) -> np.ndarray:
@@ -55,19 +58,22 @@ def nan_column_percentiles(values, q: float) -> np.ndarray:
                        "nan_column_percentiles")
 
 
-def _per_column(values, select, what: str) -> np.ndarray:
-    """``select(part, n)`` of each column of `values` (T, ...), (...) (see :func:`_by_count`)."""
+def _per_column(values, select, what: str, columns=None) -> np.ndarray:
+    """``select(part, n)`` of each column of `values` (T, ...), (...), or of the `columns`
+    of its flattened rows, (K,) (see :func:`_by_count`)."""
     values = np.asarray(values, dtype=float)
     if values.ndim < 2:
         raise ValueError(f"{what} needs rows of values, got shape {values.shape}")
     table = values.reshape(len(values), math.prod(values.shape[1:]))
-    out = np.full(table.shape[1], np.nan)
+    picked = None if columns is None else np.asarray(columns, dtype=np.intp).reshape(-1)
+    out = np.full(table.shape[1] if picked is None else len(picked), np.nan)
     # a few columns at a time: the transposed copy of a block stays in the cache
     width = max(1, _BLOCK_BYTES // (8 * max(len(table), 1)))
-    for first in range(0, table.shape[1], width):
+    for first in range(0, len(out), width):
         block = slice(first, first + width)
-        out[block] = _by_count(np.ascontiguousarray(table[:, block].T), select)
-    return out.reshape(values.shape[1:])
+        rows = table.T[block] if picked is None else table.T[picked[block]]
+        out[block] = _by_count(np.ascontiguousarray(rows), select)
+    return out.reshape(values.shape[1:]) if picked is None else out
 
 
 def percentile(values, q, *, overwrite_input: bool = False):
