@@ -130,6 +130,7 @@ from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.mesh.layout import load_marker_layout
 from mocap.synth.capture import simulate_capture
 from mocap.synth.performance import read_performance
+from mocap.util.blas import shared_pool
 from mocap.util.float_text import compiled_lines_ready, csv_lines
 
 
@@ -457,12 +458,14 @@ def run_chain(source: Path, out: Path, artist, markerset, landmarks, max_gap: in
 
         def exports():
             # as `mocap2mesh run` does: the CSVs (text) queued first, for the figure helpers,
-            # or written here after the others where the fit loaded the compiled CSV text
+            # or written on a thread here meanwhile where the fit loaded the compiled CSV text
             here = compiled_lines_ready()
-            csvs = [(write_weights_csv, out / f"weights-{name}.csv", fitted.weights[name],
-                     b.names) for name, b in bases.bases.items()]
+            csvs = [(out / f"weights-{name}.csv", fitted.weights[name], b.names)
+                    for name, b in bases.bases.items()]
             for task in csvs if not here else ():
-                figures.submit(*task, rate=take.rate)
+                figures.submit(write_weights_csv, *task, rate=take.rate)
+            texts = shared_pool(1).submit(lambda: [write_weights_csv(*task, rate=take.rate)
+                                                   for task in csvs]) if here else None
             for name, b in bases.bases.items():
                 w = fitted.weights[name]
                 save_basis(ArtistBasis(b.names, mesh, b.displacements), out / f"basis-{name}.npz",
@@ -471,8 +474,8 @@ def run_chain(source: Path, out: Path, artist, markerset, landmarks, max_gap: in
                                     names=b.names, rate=take.rate)
                 write_gltf(out / f"face-{name}.glb", mesh, b.displacements, b.names, weights=w,
                            rate=take.rate)
-            for write, *args in csvs if here else ():
-                write(*args, rate=take.rate)
+            if texts is not None:
+                texts.result()
             figures.run()
         # as `mocap2mesh run` does: the figure helpers start with the exports, write the
         # weights CSVs, then draw the figures

@@ -45,8 +45,8 @@ def demo(tmp_path_factory):
 @pytest.fixture(params=["helpers", "here"])
 def csv_writer(request, monkeypatch):
     """Where save writes the weights CSVs: queued for the figure helpers (this process has
-    no compiled CSV text loaded), or here after the other files (it has). Returns the
-    list of the functions save queues."""
+    no compiled CSV text loaded), or here, on a thread of its own while it writes the other
+    files (it has). Returns the list of the functions save queues."""
     import fit.pipeline.reconstruction as reconstruction
 
     monkeypatch.setattr(reconstruction, "compiled_lines_ready",
@@ -83,6 +83,14 @@ def test_exports_written_with_a_helper_are_the_same_files(demo, tmp_path, csv_wr
         result.save(tmp_path / "taken", figures=figures)
     assert f"weights-{first}.csv" in str(raised.value)
     assert (tmp_path / "taken" / f"face-{first}.glb").is_file()   # the others written
+    # an error of a binary export: raised once the CSVs are finished, none written behind it
+    (tmp_path / "glb" / f"face-{first}.glb").mkdir(parents=True)
+    with FigureQueue(helpers=1) as figures, pytest.raises(InputError) as raised:
+        result.save(tmp_path / "glb", figures=figures)
+    assert f"face-{first}.glb" in str(raised.value)
+    if where == "here":
+        for path in csvs:
+            assert (tmp_path / "glb" / path.name).read_bytes() == path.read_bytes()
 
 
 def test_exports_left_to_the_helpers_are_written_by_the_queue_s_next_run(demo, tmp_path,

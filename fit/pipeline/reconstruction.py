@@ -68,6 +68,7 @@ from mocap.retarget.lip_seal import LipSealCheck
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
 from mocap.units import mm_per_unit
+from mocap.util.blas import shared_pool
 from mocap.util.float_text import compiled_lines_ready
 from mocap.util.order_statistics import nan_column_medians
 
@@ -432,8 +433,8 @@ class ReconstructionResult:
         `figures` (:class:`~fit.report.figure_queue.FigureQueue`), the weights
         CSVs (text, the slowest to write) are queued first, for its helpers to
         write while this process writes the other files, unless this process
-        has the compiled CSV text loaded (numba, the ``speed`` extra): it then
-        writes them itself, after the others. All are written when this returns,
+        has the compiled CSV text loaded (numba, the ``speed`` extra): a thread of
+        its own then writes them meanwhile. All are written when this returns,
         and the first error is raised here, unless ``wait=False``: the queued
         CSVs are then left to the queue's helpers while this process goes on
         (with the report's work), and the queue's next
@@ -447,21 +448,26 @@ class ReconstructionResult:
         out.mkdir(parents=True, exist_ok=True)
         timing = dict(rate=self.take.rate, first_frame=self.take.first_frame)
         # the CSVs' text by the compiled kernel costs less here than the weights' trip to a
-        # helper and its NumPy formatting there (three times the kernel's time)
+        # helper and its NumPy formatting there (three times the kernel's time); the kernel
+        # lets go of the GIL, so a thread writes them while this one writes the others
         here = compiled_lines_ready()
-        csvs = [(write_weights_csv, out / f"weights-{name}.csv", self.fitted.weights[name],
-                 basis.names) for name, basis in self.bases.bases.items()]
+        csvs = [(out / f"weights-{name}.csv", self.fitted.weights[name], basis.names)
+                for name, basis in self.bases.bases.items()]
         if not here:
             for task in csvs:
-                figures.submit(*task, inputs=inputs, **timing)
+                figures.submit(write_weights_csv, *task, inputs=inputs, **timing)
+        texts = shared_pool(1).submit(
+            lambda: [write_weights_csv(*task, inputs=inputs, **timing) for task in csvs]
+        ) if here else None
         try:
             files = self._save_binary(out, inputs, timing)
-            if here:
-                for write, *args in csvs:
-                    write(*args, inputs=inputs, **timing)
         except BaseException:
             figures.close()     # a CSV a helper is writing is finished, the others dropped
+            if texts is not None:
+                texts.exception()   # waited for: nor does our thread write on behind it
             raise
+        if texts is not None:
+            texts.result()      # its first error
         if wait or not figures.helpers:
             figures.run()
         return files
