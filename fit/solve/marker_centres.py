@@ -164,8 +164,11 @@ def solve_at_marker_centres(layout: MarkerLayout, neutral, displacements, basis,
 
 
 #: Frames that step together in one piece of an independent-frame fit (pieces of a
-#: fixed size: the result does not depend on the thread count).
-_FRAMES_PER_TASK = 4096
+#: fixed size: the result does not depend on the thread count). Small enough that the
+#: pieces share out evenly (35 of a 35,000-frame take: the threads' last round waits for
+#: one short piece, not for a ninth of the take), large enough that each piece's batched
+#: products stay efficient.
+_FRAMES_PER_TASK = 1024
 
 
 #: Frames of one piece of an evaluation of the centre model shared among threads (pieces
