@@ -57,6 +57,8 @@ def test_nan_column_medians_of_picked_columns_are_numpys_of_those_columns(n_rows
         warnings.simplefilter("ignore", RuntimeWarning)         # numpy's all-NaN warning
         expected = np.nanmedian(positions.reshape(n_rows, -1)[:, columns], axis=0)
     np.testing.assert_array_equal(nan_column_medians(positions, columns), expected)
+    with pytest.raises(ValueError, match="columns must index the 18 columns, got 0..18"):
+        nan_column_medians(positions, [0, 18])
 
 
 def test_nan_column_medians_need_rows():

@@ -66,6 +66,10 @@ def _per_column(values, select, what: str, columns=None) -> np.ndarray:
         raise ValueError(f"{what} needs rows of values, got shape {values.shape}")
     table = values.reshape(len(values), math.prod(values.shape[1:]))
     picked = None if columns is None else np.asarray(columns, dtype=np.intp).reshape(-1)
+    if picked is not None and picked.size and not (
+            0 <= picked.min() and picked.max() < table.shape[1]):
+        raise ValueError(f"{what}: columns must index the {table.shape[1]} columns, got "
+                         f"{picked.min()}..{picked.max()}")
     out = np.full(table.shape[1] if picked is None else len(picked), np.nan)
     # a few columns at a time: the transposed copy of a block stays in the cache
     width = max(1, _BLOCK_BYTES // (8 * max(len(table), 1)))
