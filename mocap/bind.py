@@ -27,7 +27,7 @@ from mocap.head_frame import STABILIZATIONS, find_head_frame
 from mocap.mesh.landmarks import check_mesh_landmarks
 from mocap.mesh.layout import MarkerLayout
 from mocap.mesh.mesh import Mesh, degenerate_faces, face_normals
-from mocap.rigid import apply_transform, fit_rigid
+from mocap.rigid import apply_transform, fit_rigid, weighted_fit
 from mocap.stabilize import ROBUST_GUARD_DEG
 from mocap.take import as_take
 from mocap.util.atomic import atomic_path
@@ -392,10 +392,12 @@ def bind_markers(neutral_markers, labels: Sequence[str], marker_landmarks: Mappi
         since_best += 1
         weights = np.zeros(len(points))
         weights[np.argsort(resid, kind="stable")[:n_keep]] = 1.0
+        # points and targets are finite (checked above, and surface points): the fit's own
+        # checks of its inputs are skipped (about 5% of an ICP step)
         if icp_scale:
-            step = fit_rigid(points, target, weights, scale=True)
+            step = weighted_fit(points, target, weights, scale=True)
         else:
-            step = fit_rigid(scale * points, target, weights)
+            step = weighted_fit(scale * points, target, weights)
         if not step.valid:
             break
         rotation, translation = step.rotation, step.translation
