@@ -326,12 +326,14 @@ def write_gltf(path, neutral: Mesh, displacements, names, *, weights=None, rotat
         times ``(first_frame + t) / rate`` s, output: the weights of the
         morph targets of :func:`morph_targets`, in [0, 1], frame after frame)
         targeting the node's ``weights``. No NaN.
-    rotation : array_like of shape (T, 3, 3), optional
+    rotation : array_like of shape (T, 3, 3), or scipy.spatial.transform.Rotation, optional
         Rigid motion of the face in each frame, about the mesh's origin:
         vertex v of frame t is at ``rotation[t] @ v + translation[t]``. Written
         as LINEAR samplers of the node's ``rotation`` (unit quaternions x, y, z,
         w, signs made continuous so that the slerp takes the short way) and
-        ``translation`` (metres). Goes with `translation`.
+        ``translation`` (metres). Goes with `translation`. Matrices are checked
+        (orthonormal, det +1) and converted at each call; a ``Rotation`` of T
+        rotations is taken as it is (several files of one motion convert it once).
     translation : array_like of shape (T, 3), mesh units, optional
     rate : float, optional
         Frame rate, Hz; required with `weights` or a motion, only with them.
@@ -475,24 +477,34 @@ def _animation(weights, rotation, translation, rate, n: int, first_frame):
         counts.append(len(weights))
     motion = None
     if rotation is not None:
-        rotation = as_float_array(rotation, "rotation", shape=(None, 3, 3), allow_nan=False)
-        translation = as_float_array(translation, "translation", shape=(len(rotation), 3),
+        quat = _quaternions(rotation)                       # x, y, z, w: glTF's order
+        translation = as_float_array(translation, "translation", shape=(len(quat), 3),
                                      allow_nan=False)
-        orthogonal = np.einsum("tij,tkj->tik", rotation, rotation)
-        if not (np.allclose(orthogonal, np.eye(3), atol=1e-6)
-                and np.all(np.linalg.det(rotation) > 0)):
-            raise InputError("rotation must hold rotation matrices (orthonormal, det +1)")
-        quat = Rotation.from_matrix(rotation).as_quat()          # x, y, z, w: glTF's order
         turn = np.einsum("ij,ij->i", quat[1:], quat[:-1]) < 0
         quat[1:] *= np.where(np.cumsum(turn) % 2 == 1, -1.0, 1.0)[:, None]
         motion = (quat, translation)
-        counts.append(len(rotation))
+        counts.append(len(quat))
     if counts[0] == 0:
         raise InputError("the animation has no frames")
     if len(set(counts)) > 1:
         raise InputError(f"weights have {counts[0]} frames but the motion {counts[1]}")
     first_frame = as_int(first_frame, "first_frame", minimum=0)
     return (first_frame + np.arange(counts[0])) / rate, weights, motion
+
+
+def _quaternions(rotation) -> np.ndarray:
+    """Unit quaternions (T, 4), x, y, z, w, of rotation matrices (T, 3, 3), checked, or of a
+    :class:`~scipy.spatial.transform.Rotation` of T rotations."""
+    if isinstance(rotation, Rotation):
+        if rotation.single:
+            raise InputError("rotation must hold one rotation a frame, got a single Rotation")
+        return rotation.as_quat()
+    rotation = as_float_array(rotation, "rotation", shape=(None, 3, 3), allow_nan=False)
+    orthogonal = np.einsum("tij,tkj->tik", rotation, rotation)
+    if not (np.allclose(orthogonal, np.eye(3), atol=1e-6)
+            and np.all(np.linalg.det(rotation) > 0)):
+        raise InputError("rotation must hold rotation matrices (orthonormal, det +1)")
+    return Rotation.from_matrix(rotation).as_quat()
 
 
 def _to_metres(neutral: Mesh) -> float:

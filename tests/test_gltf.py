@@ -14,6 +14,7 @@ import pytest
 import threadpoolctl
 import trimesh
 from helpers import play_gltf, read_gltf_accessor
+from scipy.spatial.transform import Rotation
 from tolerances import FLOAT32_FACE_CM, FLOAT32_REL
 
 import basis.gltf as gltf_module
@@ -330,6 +331,11 @@ def test_rigid_motion_animates_the_node_in_metres(tmp_path):
     played = _quat_apply(quat.astype(float), metres[None].astype(float)) + move[:, None]
     want = np.einsum("tij,vj->tvi", rotation, neutral.vertices) + translation[:, None]
     np.testing.assert_allclose(played / _METRES["cm"], want, atol=FLOAT32_FACE_CM * 10)
+    # the same motion as a scipy Rotation (converted once for several files): the same file
+    again = tmp_path / "again.glb"
+    write_gltf(again, neutral, np.zeros((2, 9, 3)), ["a", "b"], weights=np.zeros((n, 2)),
+               rotation=Rotation.from_matrix(rotation), translation=translation, rate=30)
+    assert again.read_bytes() == path.read_bytes()
 
 
 
@@ -392,6 +398,10 @@ def _one(shape: tuple, index: tuple, value: float) -> np.ndarray:
     (dict(rotation=np.tile(np.eye(3), (4, 1, 1)), rate=30), "rotation and translation go"),
     (dict(rotation=np.tile(2 * np.eye(3), (4, 1, 1)), translation=np.zeros((4, 3)), rate=30),
      "rotation must hold rotation matrices"),
+    (dict(rotation=Rotation.identity(), translation=np.zeros((1, 3)), rate=30),
+     "rotation must hold one rotation a frame, got a single Rotation"),
+    (dict(rotation=Rotation.identity(4), translation=np.zeros((5, 3)), rate=30),
+     r"translation must have shape \(4, 3\)"),
     (dict(rotation=np.tile(np.eye(3), (4, 1, 1)), translation=np.zeros((4, 3)), rate=30,
           weights=np.zeros((5, 2))), "weights have 5 frames but the motion 4"),
     (dict(path="face.fbx"), "unknown glTF extension '.fbx'"),
