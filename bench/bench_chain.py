@@ -131,7 +131,7 @@ from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.mesh.layout import load_marker_layout
 from mocap.synth.capture import simulate_capture
 from mocap.synth.performance import read_performance
-from mocap.util.blas import shared_pool
+from mocap.util.blas import run_beside
 from mocap.util.float_text import compiled_lines_ready, csv_lines
 
 
@@ -466,8 +466,8 @@ def run_chain(source: Path, out: Path, artist, markerset, landmarks, max_gap: in
                     for name, b in bases.bases.items()]
             for task in csvs if not here else ():
                 figures.submit(write_weights_csv, *task, rate=take.rate)
-            texts = shared_pool(1).submit(lambda: [write_weights_csv(*task, rate=take.rate)
-                                                   for task in csvs]) if here else None
+            texts = run_beside(lambda: [write_weights_csv(*task, rate=take.rate)
+                                        for task in csvs]) if here else None
             for name, b in bases.bases.items():
                 w = fitted.weights[name]
                 save_basis(ArtistBasis(b.names, mesh, b.displacements), out / f"basis-{name}.npz",

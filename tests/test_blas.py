@@ -20,9 +20,11 @@ from mocap.util.blas import (
     map_on_blas_threads,
     on_one_blas_thread,
     one_blas_thread,
+    run_beside,
     shared_pool,
     worker_threads,
 )
+from mocap.util.parallel_writes import write_parts
 
 
 def _two_threads():
@@ -119,6 +121,35 @@ def test_the_threads_are_kept_and_never_share_again():
                                                              range(3))), range(2))
     for workers, idents in inner:
         assert workers == 1 and len(set(idents)) == 1
+
+
+def test_work_beside_holds_up_no_shared_work():
+    """A long job started beside the caller (a factorization, a file's text) runs on a
+    thread of its own: the shared pools' work (a file's parts on two threads, the products
+    shared among them) goes on meanwhile and ends first; jobs beside run in order, each
+    seeing one worker thread."""
+    release = threading.Event()
+    order = []
+
+    def long_job():
+        assert release.wait(timeout=30), "the shared work waited for the job beside"
+        order.append("long")
+        return worker_threads()
+
+    with _two_threads():
+        job = run_beside(long_job)
+        after = run_beside(order.append, "after")
+        written = {}
+        parts = [(4, bytes([k]) * 4) for k in range(6)]
+        assert write_parts(lambda at, data: written.update({at: bytes(data)}), parts,
+                           workers=2, part_bytes=4) == 24
+        assert b"".join(written[at] for at in sorted(written)) == b"".join(p for _, p in parts)
+        assert map_on_blas_threads(lambda k: k * k, range(4)) == [0, 1, 4, 9]
+        assert not job.done()
+        release.set()
+        assert job.result(timeout=30) == 1
+        after.result(timeout=30)
+    assert order == ["long", "after"]
 
 
 def test_a_forked_child_makes_its_own_threads():

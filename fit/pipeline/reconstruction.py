@@ -28,6 +28,7 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 import mocap
 from basis.artist import ArtistBasis
@@ -68,7 +69,7 @@ from mocap.retarget.lip_seal import LipSealCheck
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
 from mocap.units import mm_per_unit
-from mocap.util.blas import shared_pool
+from mocap.util.blas import run_beside
 from mocap.util.float_text import compiled_lines_ready
 from mocap.util.order_statistics import nan_column_medians
 
@@ -456,7 +457,7 @@ class ReconstructionResult:
         if not here:
             for task in csvs:
                 figures.submit(write_weights_csv, *task, inputs=inputs, **timing)
-        texts = shared_pool(1).submit(
+        texts = run_beside(
             lambda: [write_weights_csv(*task, inputs=inputs, **timing) for task in csvs]
         ) if here else None
         try:
@@ -480,6 +481,7 @@ class ReconstructionResult:
         save_head_motion(self.ingested.head_frame, files[1], inputs=inputs)
         self.binding.save(files[2])
         rotation, translation = self.head_motion
+        turning = Rotation.from_matrix(rotation)  # the .glb files' quaternions, made once
         for name, basis in self.bases.bases.items():
             weights = self.fitted.weights[name]
             paths = [out / f"basis-{name}.npz", out / f"weights-{name}.csv",
@@ -490,7 +492,7 @@ class ReconstructionResult:
                                 names=basis.names, rotation=rotation, translation=translation,
                                 inputs=inputs, **timing)
             write_gltf(paths[3], mesh, basis.displacements, basis.names, weights=weights,
-                       rotation=rotation, translation=translation,
+                       rotation=turning, translation=translation,
                        name=f"{self.name}-{name}", inputs=inputs, **timing)
             files += paths
         return files

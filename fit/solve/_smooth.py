@@ -56,7 +56,7 @@ import scipy.linalg
 
 from fit.solve._active_set import RANK_RTOL, BoxQP, kkt_residual
 from fit.solve._banded_cholesky import cho_solve_banded_upper, cholesky_banded_upper
-from mocap.util.blas import shared_pool, worker_threads
+from mocap.util.blas import run_beside, worker_threads
 from mocap.util.optional import compiled
 
 #: Frames either side of a state change that settle it locally.
@@ -340,7 +340,7 @@ class _WholeFactor:
 
     def _run(self, work) -> None:
         """Start `work` on a thread kept for the process (:meth:`wait` waits for it)."""
-        self._pending = shared_pool(1).submit(work)
+        self._pending = run_beside(work)
 
     def prepare(self, state) -> None:
         """Start what the solve of ``state`` (T, n) will need on another thread: a

@@ -28,14 +28,15 @@ import functools
 import os
 import threading
 from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor, wait
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from contextlib import contextmanager
 
 import scipy.linalg  # noqa: F401  (scipy's own BLAS is loaded before the controller looks)
 import threadpoolctl
 
 __all__ = ["CoresTaken", "blas_threads", "finished", "map_on_blas_threads",
-           "on_one_blas_thread", "one_blas_thread", "shared_pool", "worker_threads"]
+           "on_one_blas_thread", "one_blas_thread", "run_beside", "shared_pool",
+           "worker_threads"]
 
 #: Per thread: the BLAS's threads outside this thread's outermost :func:`one_blas_thread`.
 _outside = threading.local()
@@ -109,20 +110,38 @@ def shared_pool(workers: int) -> ThreadPoolExecutor:
 
     Its threads see one :func:`worker_threads` (work they are given is not shared again).
     """
+    return _kept_pool(workers, "shared")
+
+
+def _kept_pool(workers: int, use: str) -> ThreadPoolExecutor:
+    """The pool of `workers` threads kept for the process for `use`."""
     with _pools_lock:
-        pool = _pools.get(workers)
+        pool = _pools.get((workers, use))
         if pool is None:
-            pool = _pools[workers] = ThreadPoolExecutor(
-                workers, thread_name_prefix=f"mocap2mesh-{workers}", initializer=_pooled)
+            pool = _pools[workers, use] = ThreadPoolExecutor(
+                workers, thread_name_prefix=f"mocap2mesh-{use}-{workers}", initializer=_pooled)
     return pool
+
+
+def run_beside(function: Callable, /, *args, **kwargs) -> Future:
+    """Start ``function(*args, **kwargs)`` on the process's background thread, beside the
+    caller's work (a factorization, a file's text), and return its future.
+
+    A thread kept for the process apart from :func:`shared_pool`'s: work of the pools is
+    shared out and waited for (:func:`map_on_blas_threads`, the parts of a file), and a
+    long job queued on one of their threads would hold up every call that waits for it.
+    Jobs given here run one after another, in order; the thread sees one
+    :func:`worker_threads`.
+    """
+    return _kept_pool(1, "beside").submit(function, *args, **kwargs)
 
 
 def _pooled() -> None:
     _outside.pooled = True
 
 
-#: The pools of :func:`shared_pool`, by thread count; a forked child starts without them
-#: (their threads are not in it).
+#: The pools of :func:`shared_pool` and :func:`run_beside`, by thread count and use; a forked
+#: child starts without them (their threads are not in it).
 _pools: dict = {}
 _pools_lock = threading.Lock()
 
