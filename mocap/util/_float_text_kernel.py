@@ -143,22 +143,30 @@ def _put_int(out, at, value):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _put_digits(scratch, digits):  # pragma: no cover - compiled
-    """Write the 17 digits of `digits` into `scratch` (17,), two at a time."""
+def _put_digits(out, at, digits):  # pragma: no cover - compiled
+    """Write the 17 digits of `digits` at ``out[at:at + 17]``, two at a time."""
     value = np.uint64(digits)
     high = np.uint32(value // np.uint64(1_000_000_000))    # digits 0-7
     low = np.uint32(value - np.uint64(high) * np.uint64(1_000_000_000))  # 8-16
     for pair in range(3, -1, -1):
         rest = high // np.uint32(100)
         two = high - rest * np.uint32(100)
-        scratch[2 * pair], scratch[2 * pair + 1] = _PAIRS[two, 0], _PAIRS[two, 1]
+        out[at + 2 * pair], out[at + 2 * pair + 1] = _PAIRS[two, 0], _PAIRS[two, 1]
         high = rest
     for pair in range(3, -1, -1):
         rest = low // np.uint32(100)
         two = low - rest * np.uint32(100)
-        scratch[9 + 2 * pair], scratch[10 + 2 * pair] = _PAIRS[two, 0], _PAIRS[two, 1]
+        out[at + 9 + 2 * pair], out[at + 10 + 2 * pair] = _PAIRS[two, 0], _PAIRS[two, 1]
         low = rest
-    scratch[8] = 48 + low
+    out[at + 8] = 48 + low
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _significant_end(out, end):  # pragma: no cover - compiled
+    """The end of the digits before ``out[end]`` less their trailing zeros ("0": 48)."""
+    while out[end - 1] == 48:
+        end -= 1
+    return end
 
 
 @numba.njit(cache=True, nogil=True)
@@ -182,7 +190,6 @@ def lines(index, values, digits, exponents, kinds, texts, lengths, out):  # prag
         The bytes written.
     """
     R, C = values.shape
-    scratch = np.empty(17, np.uint8)
     at = 0
     taken = 0
     for row in range(R):
@@ -192,46 +199,40 @@ def lines(index, values, digits, exponents, kinds, texts, lengths, out):  # prag
             out[at] = 44                                # ","
             at += 1
             kind = kinds[k]
-            if kind != REPR and np.signbit(values[row, col]):
-                out[at] = 45                            # "-"
-                at += 1
-            if kind == ZERO:
-                out[at], out[at + 1], out[at + 2] = 48, 46, 48
-                at += 3
-                continue
             if kind == REPR:
                 for c in range(lengths[taken]):
                     out[at + c] = texts[taken, c]
                 at += lengths[taken]
                 taken += 1
                 continue
-            _put_digits(scratch, digits[k])
-            significant = 17
-            while scratch[significant - 1] == 48:       # 48: "0"; the first digit is not
-                significant -= 1
-            e = exponents[k]
-            if e >= 0:                                  # whole part: digits 0..e
-                for pos in range(e + 1):
-                    out[at + pos] = scratch[pos]
-                at += e + 1
-                out[at] = 46
+            if np.signbit(values[row, col]):
+                out[at] = 45                            # "-"
                 at += 1
-                if significant <= e + 1:
-                    out[at] = 48
-                    at += 1
-                else:
-                    for pos in range(e + 1, significant):
-                        out[at] = scratch[pos]
-                        at += 1
-            else:                                       # 0.000ddd
+            if kind == ZERO:
+                out[at], out[at + 1], out[at + 2] = 48, 46, 48
+                at += 3
+                continue
+            # the digits are written where they go (the first is not 0), then cut after
+            # the last significant one
+            e = exponents[k]
+            if e < 0:                                   # 0.000ddd
                 out[at], out[at + 1] = 48, 46
                 at += 2
                 for _ in range(-e - 1):
                     out[at] = 48
                     at += 1
-                for pos in range(significant):
-                    out[at] = scratch[pos]
-                    at += 1
+                _put_digits(out, at, digits[k])
+                at = _significant_end(out, at + 17)
+            else:                                       # digits 0..e, the point, the rest
+                _put_digits(out, at + 1, digits[k])
+                for pos in range(e + 1):
+                    out[at + pos] = out[at + 1 + pos]
+                out[at + e + 1] = 46                    # "."
+                end = _significant_end(out, at + 18)
+                if end == at + e + 2:                   # none after the point: "0"
+                    out[end] = 48
+                    end += 1
+                at = end
         out[at] = 10                                    # "\n"
         at += 1
     return at
