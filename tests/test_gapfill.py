@@ -214,6 +214,30 @@ def test_pca_fill_is_exact_on_low_rank_data(path, monkeypatch):
     assert bool(calls) == (path == "iterative")
 
 
+def test_pca_axes_from_the_scaled_scatter_are_the_standardized_rows_svd():
+    """The window's principal axes, from the scatter of its centred rows scaled after the
+    product, are numpy's SVD of the rows centred, divided by their spread and weighted:
+    the same singular values, the same axes up to sign; a column that does not vary keeps
+    a scale of 1."""
+    rng = np.random.default_rng(4)
+    rows = rng.normal(0.0, 1.0, (300, 9)) @ rng.normal(0.0, 1.0, (9, 9)) + 500.0
+    rows[:, 4] = 123.0                                       # a marker coordinate that stays
+    weight = rng.uniform(0.2, 1.0, 9)
+    mean, scale, sv, axes = _pca_fill._standardized_axes(rows.copy(), weight)
+    np.testing.assert_allclose(mean, rows.mean(axis=0), rtol=EXACT_FLOAT64)
+    spread = rows.std(axis=0)
+    assert scale[4] == 1.0
+    np.testing.assert_allclose(np.delete(scale, 4), np.delete(spread, 4), rtol=1e-12)
+    _, expected_sv, vt = np.linalg.svd((rows - rows.mean(axis=0)) / scale * weight,
+                                       full_matrices=False)
+    # from the scatter's eigenvalues: their squares are exact to rounding
+    np.testing.assert_allclose(sv ** 2, expected_sv ** 2, rtol=0,
+                               atol=EXACT_FLOAT64 * expected_sv[0] ** 2)
+    kept = expected_sv > 1e-6 * expected_sv[0]
+    np.testing.assert_allclose(np.abs(np.sum(axes[:, kept] * vt[kept].T, axis=0)), 1.0,
+                               atol=1e-9)
+
+
 # -- behaviour shared by every method -----------------------------------------------
 @pytest.mark.parametrize("method", FILLING)
 def test_fill_records_codes_and_keeps_captured_samples(method):

@@ -75,14 +75,23 @@ def _moments(flat: np.ndarray, mask: np.ndarray):
     return mean, _scale(std, mean)
 
 
-def _standardized(seen: np.ndarray, weight: np.ndarray):
+def _standardized_axes(seen: np.ndarray, weight: np.ndarray):
     """Column mean and scale (:func:`_scale`) of the complete rows `seen` (frames, cols),
-    and the rows centred, divided by the scale and times `weight`, in `seen`'s memory."""
+    and the singular values and principal axes (:func:`_principal_axes`) of the rows
+    centred, divided by the scale and times `weight`.
+
+    The rows are centred in `seen`'s memory; the scale and the weight are applied to
+    their scatter matrix (its diagonal gives the scale), not to the rows: two passes over
+    them less.
+    """
     mean = seen.mean(axis=0)
     seen -= mean
-    scale = _scale(np.sqrt(np.einsum("ij,ij->j", seen, seen) / len(seen)), mean)
-    seen *= weight / scale
-    return mean, scale, seen
+    scatter = seen.T @ seen
+    scale = _scale(np.sqrt(np.diag(scatter) / len(seen)), mean)
+    factor = weight / scale
+    scatter *= factor
+    scatter *= factor[:, None]
+    return mean, scale, *_eigen_axes(scatter)
 
 
 def _scale(std: np.ndarray, mean: np.ndarray) -> np.ndarray:
@@ -96,7 +105,12 @@ def _principal_axes(centred: np.ndarray):
     From the eigenvectors of the small (n_cols, n_cols) scatter matrix rather
     than an SVD of the tall matrix: one GEMM and a small eigensolve.
     """
-    evals, evecs = np.linalg.eigh(centred.T @ centred)
+    return _eigen_axes(centred.T @ centred)
+
+
+def _eigen_axes(scatter: np.ndarray):
+    """:func:`_principal_axes` from the scatter matrix (n_cols, n_cols)."""
+    evals, evecs = np.linalg.eigh(scatter)
     return np.sqrt(np.clip(evals[::-1], 0.0, None)), evecs[:, ::-1]
 
 
@@ -206,9 +220,8 @@ def fill_pca(positions: np.ndarray, visible: np.ndarray, target: int, start: int
     limit = 3 * len(donors)
     complete = vis.all(axis=1)
     if complete.sum() >= 3 * len(cols):
-        mean, scale, z = _standardized(flat[complete], weight)
+        mean, scale, sv, axes = _standardized_axes(flat[complete], weight)
         mu = np.zeros(flat.shape[1])
-        sv, axes = _principal_axes(z)
         axes = axes[:, :_n_components(sv, limit)].T
     else:
         mask = np.repeat(vis, 3, axis=1)
