@@ -123,6 +123,22 @@ def test_degenerate_faces_warn_and_are_found(tmp_path):
     np.testing.assert_array_equal(degenerate_faces(mesh.vertices, mesh.faces), [1, 2])
 
 
+def test_degenerate_faces_are_trimeshs_zero_areas_on_the_ict_face(ict_mesh):
+    """On the ICT face with triangles collapsed (a corner moved onto another, or onto the
+    middle of the opposite edge; a later move may undo an earlier one's): exactly the
+    faces whose area trimesh measures at or under 1e-12 of the squared box diagonal."""
+    vertices = ict_mesh.vertices.copy()
+    faces = ict_mesh.faces
+    vertices[faces[:20, 1]] = vertices[faces[:20, 0]]
+    vertices[faces[100:120, 2]] = 0.5 * (vertices[faces[100:120, 0]]
+                                         + vertices[faces[100:120, 1]])
+    area = trimesh.Trimesh(vertices, faces, process=False).area_faces
+    diag2 = np.sum(np.ptp(vertices, axis=0) ** 2)
+    expected = np.flatnonzero(2 * area <= 1e-12 * diag2)
+    assert 20 <= len(expected) < 100
+    np.testing.assert_array_equal(degenerate_faces(vertices, faces), expected)
+
+
 @pytest.mark.parametrize("suffix", [s for s in MESH_FORMATS if s != ".obj"])
 def test_ply_and_gltf_keep_vertex_order(ict_mesh, tmp_path, suffix):
     path = tmp_path / f"face{suffix}"

@@ -168,9 +168,16 @@ def degenerate_faces(vertices, faces) -> np.ndarray:
     -------
     ndarray of int64, sorted face ids
     """
-    vertices = np.asarray(vertices, dtype=np.float64)
-    doubled = np.linalg.norm(_face_cross(vertices, np.asarray(faces, np.int64)), axis=-1)
-    diag2 = float(np.sum(np.ptp(vertices, axis=0) ** 2))
+    # one coordinate at a time, each a contiguous row: gathers and products along the
+    # faces (a few times faster than np.cross of gathered (F, 3) rows, the same values)
+    x, y, z = np.array(vertices, dtype=np.float64).reshape(-1, 3).T.copy()
+    first, second, third = np.asarray(faces, np.int64).reshape(-1, 3).T.copy()
+    ax, ay, az = x[first], y[first], z[first]
+    ux, uy, uz = x[second] - ax, y[second] - ay, z[second] - az
+    vx, vy, vz = x[third] - ax, y[third] - ay, z[third] - az
+    cross = (uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+    doubled = np.sqrt(sum(c * c for c in cross))
+    diag2 = float(sum(np.ptp(c) ** 2 for c in (x, y, z))) if len(x) else 0.0
     return np.flatnonzero(doubled <= _DEGENERATE_REL_AREA * diag2)
 
 
