@@ -220,7 +220,9 @@ def _read_obj(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _obj_text(path) -> bytes:
     """The bytes of an OBJ file, line ends as ``\\n``."""
-    return read_input_bytes(path, "mesh").replace(b"\r\n", b"\n")
+    data = read_input_bytes(path, "mesh")
+    # a search for "\r" (memchr) costs a tenth of a replace that finds nothing to replace
+    return data.replace(b"\r\n", b"\n") if b"\r" in data else data
 
 
 def _line_starts(data: bytes) -> np.ndarray:
