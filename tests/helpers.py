@@ -16,9 +16,11 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from mocap.bind import Binding
+from mocap.errors import InputError
 from mocap.markerset import MarkerSet
 from mocap.mesh.layout import make_layout
 from mocap.mesh.mouth import find_mouth
+from mocap.retarget.cross_validation import leave_one_out
 from mocap.rigid import fit_rigid
 
 TESTS_DIR = Path(__file__).resolve().parent
@@ -230,6 +232,19 @@ def layout_binding(layout, labels, *, mm_per_unit: float = 10.0) -> Binding:
                    vertex_ids=layout.vertex_ids[idx], barycentric=layout.weights[idx],
                    distances=np.zeros(len(idx)), rms=0.0, skin_offset=0.0, n_landmarks=0,
                    n_iterations=0, converged=True, message="layout (truth)")
+
+
+def one_variant_at_a_time(geometry, *, epsilons, **options) -> list:
+    """:func:`mocap.retarget.cross_validation.leave_one_out_many` by the per-variant path:
+    ``leave_one_out`` called for each shape parameter alone, an InputError in the place of a
+    variant it raises for. The oracle of the batched path (and its time in the benchmark)."""
+    out = []
+    for epsilon in epsilons:
+        try:
+            out.append(leave_one_out(geometry, epsilon=epsilon, **options))
+        except InputError as exc:
+            out.append(exc)
+    return out
 
 
 #: The ICT layout's lip markers moved off the lips as on a real take from another lab:

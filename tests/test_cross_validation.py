@@ -7,16 +7,19 @@ import warnings
 import numpy as np
 import pytest
 import scipy.sparse as sp
-from helpers import slit_grid
-from tolerances import EXACT_FLOAT64, LOO_VS_REFIT
+from helpers import one_variant_at_a_time, slit_grid
+from tolerances import BATCHED_VS_ONE_AT_A_TIME, EXACT_FLOAT64, LOO_VS_REFIT
 
 from mocap import InputError
+from mocap.retarget import _system
 from mocap.retarget.cross_validation import (
     CrossValidation,
+    LeaveOneOut,
     MarkerGeometry,
     cross_validate,
     gram_matrix,
     leave_one_out,
+    leave_one_out_many,
 )
 from mocap.retarget.rbf import build_rbf_operator
 
@@ -158,6 +161,114 @@ def test_a_marker_the_polynomial_cannot_spare_is_reported(geometry):
     assert set(loo.singular) == {"m0", "m1", "m2", "m3"}
     assert "3 other centers of region 'four' cannot fit the degree-1" in loo.singular["m0"]
     assert np.isnan(loo.matrix[:4]).all() and np.isfinite(loo.matrix[4:]).all()
+
+
+def _assert_same_variants(batched, oracle):
+    """Entry by entry: the same error message, or the same held-out matrices, rows, shifts
+    and singular markers (to rounding)."""
+    assert len(batched) == len(oracle)
+    for got, expected in zip(batched, oracle):
+        assert type(got) is type(expected)
+        if isinstance(expected, InputError):
+            assert str(got) == str(expected)
+            continue
+        assert got.singular == expected.singular and got.region_width == expected.region_width
+        np.testing.assert_allclose(got.matrix, expected.matrix, rtol=BATCHED_VS_ONE_AT_A_TIME,
+                                   atol=BATCHED_VS_ONE_AT_A_TIME)
+        if expected.rows is None:
+            assert got.rows is None
+        else:
+            np.testing.assert_allclose(got.rows, expected.rows, rtol=BATCHED_VS_ONE_AT_A_TIME,
+                                       atol=BATCHED_VS_ONE_AT_A_TIME)
+        assert got.shifts.keys() == expected.shifts.keys()
+        for name, shift in expected.shifts.items():
+            assert got.shifts[name] == pytest.approx(shift, rel=BATCHED_VS_ONE_AT_A_TIME, abs=0)
+
+
+@pytest.mark.parametrize("kernel, epsilons", [
+    ("gaussian", (1.0, 2.0, 3.0, 6.0)),
+    ("inverse_multiquadric", (0.5, 2.0, 8.0)),
+    ("wendland_c2", (0.5, 1.0, 2.0)),
+    ("thin_plate_spline", (None, 2.0)),
+])
+@pytest.mark.parametrize("distance", ["euclidean", "geodesic"])
+@pytest.mark.parametrize("with_regions", [False, True])
+def test_variants_solved_together_equal_each_solved_alone(geometry, kernel, epsilons, distance,
+                                                          with_regions):
+    options = dict(kernel=kernel, distance=distance, vertices=np.arange(0, 60, 3),
+                   regions=REGIONS if with_regions else None,
+                   region_width=WIDTH if with_regions else None)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")               # the geodesic TPS's shift
+        batched = leave_one_out_many(geometry, epsilons=epsilons, **options)
+        oracle = one_variant_at_a_time(geometry, epsilons=epsilons, **options)
+    assert all(isinstance(x, LeaveOneOut) for x in batched)
+    _assert_same_variants(batched, oracle)
+    if kernel != "thin_plate_spline":        # scale-invariant: the shape may not matter
+        # the shape parameter matters: the variants are not one solve repeated
+        assert not np.allclose(batched[0].matrix, batched[-1].matrix)
+
+
+def test_variants_solved_together_keep_each_shift_and_warning(geometry):
+    """Geodesic Gaussians: the wide one is not positive definite and is shifted, alone or
+    in a stack, the narrow one is not."""
+    epsilons = (0.05, 3.0)
+    with pytest.warns(UserWarning, match="not positive definite") as caught:
+        batched = leave_one_out_many(geometry, kernel="gaussian", epsilons=epsilons,
+                                     distance="geodesic")
+    assert len(caught) == 1
+    assert batched[0].shifts["all"] > 0.0 and batched[1].shifts["all"] == 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _assert_same_variants(batched, one_variant_at_a_time(
+            geometry, kernel="gaussian", epsilons=epsilons, distance="geodesic"))
+
+
+def test_variants_solved_together_fail_as_each_alone(geometry):
+    """A bad shape parameter fails its variant only; a polynomial the centers cannot fit,
+    every variant; markers the polynomial cannot spare are reported for each."""
+    batched = leave_one_out_many(geometry, kernel="gaussian", epsilons=(2.0, -1.0, None))
+    assert isinstance(batched[0], LeaveOneOut)
+    assert "epsilon" in str(batched[1]) and "epsilon is required" in str(batched[2])
+    _assert_same_variants(batched, one_variant_at_a_time(
+        geometry, kernel="gaussian", epsilons=(2.0, -1.0, None)))
+    few = {"three": [0, 1, 2], "rest": list(range(3, N_MARKERS))}
+    options = dict(kernel="inverse_multiquadric", degree=1, regions=few, region_width=WIDTH,
+                   support_region=None)
+    batched = leave_one_out_many(geometry, epsilons=(1.0, 2.0), **options)
+    assert all(isinstance(x, InputError) for x in batched)
+    assert "region 'three': 3 centers, but a degree-1 polynomial needs at least 4" in str(
+        batched[0])
+    _assert_same_variants(batched, one_variant_at_a_time(geometry, epsilons=(1.0, 2.0),
+                                                         **options))
+    four = {"four": [0, 1, 2, 3], "rest": list(range(4, N_MARKERS))}
+    options.update(regions=four)
+    batched = leave_one_out_many(geometry, epsilons=(1.0, 2.0), **options)
+    assert [set(x.singular) for x in batched] == [{"m0", "m1", "m2", "m3"}] * 2
+    _assert_same_variants(batched, one_variant_at_a_time(geometry, epsilons=(1.0, 2.0),
+                                                         **options))
+    with pytest.raises(InputError, match="geometry must be a MarkerGeometry"):
+        leave_one_out_many("geometry", epsilons=(1.0,))
+
+
+def test_a_singular_system_of_a_stack_fails_alone():
+    """One singular kernel matrix among three: its error is solve_system's, the others are
+    solved as solve_system solves them."""
+    m = 5
+    kcc = np.stack([np.eye(m), np.zeros((m, m)), 2.0 * np.eye(m)])
+    kxc = RNG.normal(size=(3, 4, m))
+    empty = np.zeros((m, 0)), np.zeros((4, 0))
+    stack = _system.solve_systems("lips", kcc, kxc, *empty, np.zeros(m), -1, False)
+    assert stack.errors[0] is None and stack.errors[2] is None
+    with pytest.raises(InputError) as alone:
+        _system.solve_system("lips", kcc[1], kxc[1], *empty, np.zeros(m), -1, False)
+    assert str(stack.errors[1]) == str(alone.value)
+    assert "region 'lips': the RBF system is singular" in str(alone.value)
+    assert np.isnan(stack.matrix[1]).all()
+    for i in (0, 2):
+        solved = _system.solve_system("lips", kcc[i], kxc[i], *empty, np.zeros(m), -1, False)
+        np.testing.assert_array_equal(stack.matrix[i], solved.matrix)
+        np.testing.assert_array_equal(stack.inverse[i], solved.inverse)
 
 
 def test_sum_squares_from_the_gram_matrix_equals_the_residuals(geometry):

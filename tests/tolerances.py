@@ -478,3 +478,7 @@ TALKING_MESH_CM = 1e-5
 #: A glTF export played back (float32 targets and motion, shapes scaled up to their
 #: largest weight, tens of mm of head motion) against the float64 sequence, mm.
 GLB_PLAYED_MM = 1e-3
+#: The variants of one kernel solved together as stacks (`leave_one_out_many`, the scores of
+#: `kernel = "auto"`) against each solved alone (`leave_one_out`): the same LAPACK and BLAS
+#: routines on the same matrices, so equal but for the rounding of a stacked product; relative.
+BATCHED_VS_ONE_AT_A_TIME = 1e-10

@@ -29,8 +29,8 @@ from mocap.retarget import _system
 from mocap.retarget.rbf import DISTANCES
 from mocap.util.validation import as_choice, as_float_array
 
-__all__ = ["MarkerGeometry", "LeaveOneOut", "leave_one_out", "gram_matrix", "CrossValidation",
-           "cross_validate"]
+__all__ = ["MarkerGeometry", "LeaveOneOut", "leave_one_out", "leave_one_out_many",
+           "gram_matrix", "CrossValidation", "cross_validate"]
 
 #: A held-out marker whose polynomial leverage is this close to 1 leaves the
 #: others unable to fit the polynomial tail: its held-out system is singular.
@@ -264,65 +264,238 @@ def leave_one_out(geometry: MarkerGeometry, *, kernel: str = "thin_plate_spline"
     """
     if not isinstance(geometry, MarkerGeometry):
         raise InputError(f"geometry must be a MarkerGeometry, got {type(geometry).__name__}")
-    m = geometry.n_markers
     kernel, epsilon, degree, smoothing = _system.check_options(kernel, epsilon, degree,
-                                                               smoothing, m)
-    between, to_corners, _ = geometry.distances(distance)
-    extra = np.zeros(0, dtype=np.int64) if vertices is None else np.asarray(vertices)
-    to_extra = geometry.to_vertices(distance, extra)
-    n_corners = to_corners.shape[1]
-    kcc = _k.evaluate(kernel, epsilon * between)
-    kq = _k.evaluate(kernel, epsilon * np.c_[to_corners, to_extra].T)     # (3M + P, M)
-    regularize = distance == "geodesic" or kernel == "bspline_bell"
-    points = geometry.vertices[np.r_[geometry.corners.ravel(), extra]]
-    width = None
-    if regions is None:
-        members = {"all": np.arange(m)}
-        systems = dict(members)
-        blend = np.ones((m, 3, 1))
-        extra_blend = np.ones((len(extra), 1))
-    else:
-        members = as_region_markers(regions, m, labels=geometry.labels)
-        systems = _system.region_subsets(members, support_region)
-        if region_width is None:
-            spacing = between + np.diag(np.full(m, np.inf))
-            region_width = float(np.median(spacing.min(axis=1)))
-        width = region_width
-        blend = _held_out_region_weights(to_corners, members, width)
-        extra_blend = (region_weights(to_extra, members, width=width).weights if len(extra)
-                       else np.zeros((0, len(members))))
-    columns = {name: col for col, name in enumerate(members)}
-    matrix = np.zeros((m, m))
-    rows_out = np.zeros((len(extra), m))
-    singular, shifts = {}, {}
-    for name, subset in systems.items():
-        pc, pq = _system.polynomial(geometry.centers[subset], points, degree)
-        solved = _system.solve_system(name, kcc[np.ix_(subset, subset)], kq[:, subset], pc, pq,
-                                      smoothing[subset], degree, regularize, stacklevel=3,
-                                      condition=False)
-        shifts[name] = solved.shift
-        n_sub = len(subset)
-        col = columns[name]
-        rows_out[:, subset] += extra_blend[:, col, None] * solved.matrix[n_corners:]
-        at_corners = solved.matrix[:n_corners].reshape(m, 3, n_sub)
-        rows = np.sum((geometry.bary * blend[:, :, col])[:, :, None] * at_corners, axis=1)
-        h = solved.inverse[:n_sub]
-        own = rows[subset, np.arange(n_sub)]
-        diag = np.diag(h)
+                                                               smoothing, geometry.n_markers)
+    layout = _Layout.make(geometry, distance, regions, region_width, support_region, vertices)
+    kcc, kq = layout.kernel_matrices(kernel, np.array([epsilon]))
+    matrix, rows_out, singular, shifts = layout.accumulators(1)
+    for name, subset in layout.systems.items():
+        pc, pq = _system.polynomial(geometry.centers[subset], layout.points, degree)
+        solved = _system.solve_system(name, kcc[0][np.ix_(subset, subset)], kq[0][:, subset],
+                                      pc, pq, smoothing[subset], degree,
+                                      layout.regularize(kernel), stacklevel=3, condition=False)
+        shifts[0][name] = solved.shift
+        layout.hold_out(name, subset, pc, degree, solved.matrix[None], solved.inverse[None],
+                        matrix, rows_out, singular)
+    return layout.results(matrix, rows_out, singular, shifts)[0]
+
+
+def leave_one_out_many(geometry: MarkerGeometry, *, kernel: str = "thin_plate_spline",
+                       epsilons: Sequence = (None,), degree: int | None = None,
+                       smoothing=0.0, distance: str = "euclidean",
+                       regions: Mapping[str, Sequence] | None = None,
+                       region_width: float | None = None, support_region: str | None = "other",
+                       vertices=None) -> list:
+    """The held-out prediction matrices of one kernel at several shape parameters.
+
+    What :func:`leave_one_out` gives for each of `epsilons`, the variants solved
+    together: they share the distances, the region weights, the polynomial
+    blocks and their null spaces, and each region's k systems are stacks of
+    (m, m) matrices, so that one NumPy call evaluates the kernels, finds the
+    eigenvalues or solves the systems of all k variants
+    (:func:`mocap.retarget._system.solve_systems`). Each variant's diagonal
+    shift (and its warning), singular markers and result are those of
+    :func:`leave_one_out`, to rounding.
+
+    Parameters
+    ----------
+    geometry : MarkerGeometry
+    kernel : str
+    epsilons : sequence of float or None, length k
+        The shape parameters, 1/mesh units (None: the kernel's default).
+    degree, smoothing, distance, regions, region_width, support_region, vertices
+        As :func:`leave_one_out`, the same for every variant.
+
+    Returns
+    -------
+    list of LeaveOneOut or InputError, length k
+        Entry i: ``leave_one_out(geometry, epsilon=epsilons[i], ...)``, or the
+        :class:`InputError` it raises (bad options, a singular system, a
+        polynomial the centers cannot fit), in the manner of
+        ``asyncio.gather(..., return_exceptions=True)``.
+
+    Raises
+    ------
+    InputError
+        `geometry` is not a MarkerGeometry.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> v = np.array([[0., 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [.5, .5, .2]])
+    >>> f = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    >>> geo = MarkerGeometry(v[f[:, 0]], f, np.tile([1.0, 0, 0], (4, 1)), np.arange(4), v, f,
+    ...                      tuple("abcd"))
+    >>> out = leave_one_out_many(geo, kernel="gaussian", epsilons=[0.5, 1.0, -1.0])
+    >>> [type(x).__name__ for x in out]
+    ['LeaveOneOut', 'LeaveOneOut', 'InputError']
+    >>> bool(np.allclose(out[1].matrix, leave_one_out(geo, kernel="gaussian",
+    ...                                               epsilon=1.0).matrix))
+    True
+    """
+    if not isinstance(geometry, MarkerGeometry):
+        raise InputError(f"geometry must be a MarkerGeometry, got {type(geometry).__name__}")
+    out: list = [None] * len(epsilons)
+    valid, checked = [], None
+    for i, epsilon in enumerate(epsilons):
+        try:
+            checked = _system.check_options(kernel, epsilon, degree, smoothing,
+                                            geometry.n_markers)
+            valid.append((i, checked[1]))
+        except InputError as exc:
+            out[i] = exc
+    if not valid:
+        return out
+    kernel, _, degree, smoothing = checked          # the same for every epsilon
+    index = [i for i, _ in valid]
+    try:
+        layout = _Layout.make(geometry, distance, regions, region_width, support_region,
+                              vertices)
+    except InputError as exc:
+        for i in index:
+            out[i] = exc
+        return out
+    kcc, kq = layout.kernel_matrices(kernel, np.array([e for _, e in valid]))
+    matrix, rows_out, singular, shifts = layout.accumulators(len(valid))
+    failed: list = [None] * len(valid)
+    for name, subset in layout.systems.items():
+        pc, pq = _system.polynomial(geometry.centers[subset], layout.points, degree)
+        try:
+            # every variant, also one already failed in an earlier region (its
+            # first error is the one kept): the stack keeps its shape
+            solved = _system.solve_systems(name, kcc[:, subset[:, None], subset],
+                                           kq[:, :, subset], pc, pq, smoothing[subset],
+                                           degree, layout.regularize(kernel), stacklevel=3)
+        except InputError as exc:                   # the polynomial: every variant's
+            failed = [exc if f is None else f for f in failed]
+            break
+        failed = [f if f is not None else e for f, e in zip(failed, solved.errors)]
+        for j, shift in enumerate(solved.shift):
+            shifts[j][name] = float(shift)
+        layout.hold_out(name, subset, pc, degree, solved.matrix, solved.inverse, matrix,
+                        rows_out, singular)
+    for i, result, error in zip(index, layout.results(matrix, rows_out, singular, shifts),
+                                failed):
+        out[i] = result if error is None else error
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class _Layout:
+    """What every variant of one geometry, distance and region map shares.
+
+    ``points``: the 3M corners of the markers' triangles, then the P vertices
+    asked for (mesh coordinates); ``to_points`` (3M + P, M) their distances to
+    the markers; ``blend`` (M, 3, R) the region weights at each marker's corners
+    with that marker left out, ``extra_blend`` (P, R) at the P vertices.
+    """
+
+    geometry: MarkerGeometry
+    distance: str
+    between: np.ndarray
+    to_points: np.ndarray
+    points: np.ndarray
+    n_corners: int
+    has_extra: bool
+    members: dict
+    systems: dict
+    blend: np.ndarray
+    extra_blend: np.ndarray
+    width: float | None
+
+    @classmethod
+    def make(cls, geometry, distance, regions, region_width, support_region, vertices):
+        """The layout; InputError for a bad distance, region map or vertex ids."""
+        m = geometry.n_markers
+        between, to_corners, _ = geometry.distances(distance)
+        extra = np.zeros(0, dtype=np.int64) if vertices is None else np.asarray(vertices)
+        to_extra = geometry.to_vertices(distance, extra)
+        points = geometry.vertices[np.r_[geometry.corners.ravel(), extra]]
+        width = None
+        if regions is None:
+            members = {"all": np.arange(m)}
+            systems = dict(members)
+            blend = np.ones((m, 3, 1))
+            extra_blend = np.ones((len(extra), 1))
+        else:
+            members = as_region_markers(regions, m, labels=geometry.labels)
+            systems = _system.region_subsets(members, support_region)
+            if region_width is None:
+                spacing = between + np.diag(np.full(m, np.inf))
+                region_width = float(np.median(spacing.min(axis=1)))
+            width = region_width
+            blend = _held_out_region_weights(to_corners, members, width)
+            extra_blend = (region_weights(to_extra, members, width=width).weights if len(extra)
+                           else np.zeros((0, len(members))))
+        return cls(geometry, distance, between, np.c_[to_corners, to_extra].T, points,
+                   to_corners.shape[1], vertices is not None, members, systems, blend,
+                   extra_blend, width)
+
+    def regularize(self, kernel: str) -> bool:
+        """Whether the systems are shifted when not positive definite (as the operator's)."""
+        return self.distance == "geodesic" or kernel == "bspline_bell"
+
+    def kernel_matrices(self, kernel: str, epsilons: np.ndarray) -> tuple:
+        """Kernel matrices (k, M, M) of the markers and rows (k, 3M + P, M) at the points."""
+        scale = epsilons[:, None, None]
+        return (_k.evaluate(kernel, scale * self.between),
+                _k.evaluate(kernel, scale * self.to_points))
+
+    def accumulators(self, k: int) -> tuple:
+        """Zero held-out matrices (k, M, M), rows (k, P, M); k empty dicts of singular
+        markers and of region shifts."""
+        m = self.geometry.n_markers
+        return (np.zeros((k, m, m)), np.zeros((k, len(self.extra_blend), m)),
+                [{} for _ in range(k)], [{} for _ in range(k)])
+
+    def hold_out(self, name, subset, pc, degree, w, inverse, matrix, rows_out,
+                 singular) -> None:
+        """Add region `name`'s share to k variants' held-out rows, in place.
+
+        Parameters
+        ----------
+        name : str
+        subset : ndarray of int, shape (n,)
+            The region system's centers (markers).
+        pc : ndarray of shape (n, q)
+            Its polynomial block.
+        degree : int
+        w : ndarray of shape (k, 3M + P, n)
+            Each variant's operator at the points.
+        inverse : ndarray of shape (k, n + q, n)
+            Each variant's :attr:`mocap.retarget._system.SolvedSystem.inverse`.
+        matrix, rows_out, singular
+            Of :meth:`accumulators`, added to.
+        """
+        g = self.geometry
+        m, n_sub = g.n_markers, len(subset)
+        col = list(self.members).index(name)
+        rows_out[:, :, subset] += self.extra_blend[:, col, None] * w[:, self.n_corners:]
+        at_corners = w[:, :self.n_corners].reshape(len(w), m, 3, n_sub)
+        rows = np.sum((g.bary * self.blend[:, :, col])[:, :, None] * at_corners, axis=2)
+        h = inverse[:, :n_sub]                                             # (k, n, n)
+        own = rows[:, subset, np.arange(n_sub)]                            # (k, n)
+        diag = np.diagonal(h, axis1=1, axis2=2)
         essential = _leverage(pc) > 1.0 - _LEVERAGE_TOL
-        for k in subset[essential | (diag == 0.0)]:
-            where = "" if name == "all" else f" of region {name!r}"
-            singular.setdefault(geometry.labels[k], (
-                f"without it the {n_sub - 1} other centers{where} cannot fit the "
-                f"degree-{degree} polynomial"))
+        where = "" if name == "all" else f" of region {name!r}"
+        for found, cannot in zip(singular, essential | (diag == 0.0)):
+            for k in subset[cannot]:
+                found.setdefault(g.labels[k], (
+                    f"without it the {n_sub - 1} other centers{where} cannot fit the "
+                    f"degree-{degree} polynomial"))
         safe = np.where(diag == 0.0, 1.0, diag)
-        rows[subset] -= (own / safe)[:, None] * h
-        matrix[:, subset] += rows
-    bad = [geometry.labels.index(label) for label in singular]
-    matrix[bad] = np.nan
-    return LeaveOneOut(matrix=matrix, singular=singular, labels=geometry.labels,
-                       region_width=width, shifts=shifts,
-                       rows=None if vertices is None else rows_out)
+        rows[:, subset] -= (own / safe)[:, :, None] * h
+        matrix[:, :, subset] += rows
+
+    def results(self, matrix, rows_out, singular, shifts) -> list:
+        """The k LeaveOneOut of the accumulated rows (NaN rows for singular markers)."""
+        out = []
+        for held, rows, found, shift in zip(matrix, rows_out, singular, shifts):
+            held[[self.geometry.labels.index(label) for label in found]] = np.nan
+            out.append(LeaveOneOut(matrix=held, singular=found, labels=self.geometry.labels,
+                                   region_width=self.width, shifts=shift,
+                                   rows=rows if self.has_extra else None))
+        return out
 
 
 @dataclass(frozen=True, eq=False)
