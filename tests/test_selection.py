@@ -7,16 +7,22 @@ import warnings
 import numpy as np
 import pytest
 import scipy.sparse as sp
-from helpers import ICT_LANDMARKS_TOML, jaw_open_peak_time, layout_binding, off_lip_layout
+from helpers import (
+    ICT_LANDMARKS_TOML,
+    jaw_open_peak_time,
+    layout_binding,
+    off_lip_layout,
+    one_variant_at_a_time,
+)
 from scipy.spatial import cKDTree
-from tolerances import AUTO_VS_TRUTH_BEST
+from tolerances import AUTO_VS_TRUTH_BEST, BATCHED_VS_ONE_AT_A_TIME
 
 from mocap import InputError
 from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.mesh.mouth import find_mouth
 from mocap.retarget import selection
-from mocap.retarget.cross_validation import MarkerGeometry
-from mocap.retarget.lip_seal import check_lip_seal, lip_witness
+from mocap.retarget.cross_validation import MarkerGeometry, leave_one_out
+from mocap.retarget.lip_seal import check_lip_seal, contradicts, lip_witness
 from mocap.retarget.rbf import build_rbf_operator
 from mocap.retarget.retargeting import (
     RetargetOptions,
@@ -169,6 +175,79 @@ def test_off_the_lips_auto_opens_the_mouth_that_tps_keeps_shut(off_lips, ict_bas
     assert (check.mesh_opening("truth")[shut] > check.open_mm).all()   # and only there
     assert check.shut("auto").sum() < 0.1 * shut.sum()
     assert any("the TPS mesh keeps the mouth shut" in m for m in check.messages())
+
+
+def test_variants_scored_together_as_each_alone(off_lips, ict_basis, ict_landmarks,
+                                                monkeypatch):
+    """The grid's variants of one kernel, distance and region map are solved as stacks:
+    every score, lip reading, shift and note, and the choice, are those of the per-variant
+    path (``leave_one_out`` one variant at a time)."""
+    markerset, mesh = off_lips["markerset"], ict_basis.neutral
+    labels = markerset.face_markers
+    geometry = MarkerGeometry.from_binding(off_lips["binding"], mesh, labels)
+    d = marker_displacements(off_lips["take"].select(labels), off_lips["binding"],
+                             neutral_frame=off_lips["neutral"])
+    mouth = find_mouth(mesh, ict_landmarks)
+    lips = [x for r in ("upper_lip", "lower_lip") for x in markerset.regions[r]]
+    kwargs = dict(regions={"upper_lip": list(markerset.regions["upper_lip"]),
+                           "lower_lip": list(markerset.regions["lower_lip"]),
+                           "other": [x for x in labels if x not in lips]},
+                  mm_per_unit=MM_PER_CM, mouth=mouth, witness=lip_witness(markerset, labels))
+    batched = selection.select_variant(geometry, d, **kwargs)
+    with monkeypatch.context() as patch:
+        patch.setattr(selection, "leave_one_out_many", one_variant_at_a_time)
+        alone = selection.select_variant(geometry, d, **kwargs)
+    assert batched.lips_checked and batched.chosen == alone.chosen and batched.rule == alone.rule
+    assert len(batched.candidates) == 88
+    for got, expected in zip(batched.candidates, alone.candidates):
+        assert got.options() == expected.options() and got.note == expected.note
+        assert got.score_mm == pytest.approx(expected.score_mm, rel=BATCHED_VS_ONE_AT_A_TIME,
+                                             nan_ok=True)
+        assert got.shift == pytest.approx(expected.shift, rel=BATCHED_VS_ONE_AT_A_TIME, abs=0)
+        assert got.lips_open == pytest.approx(expected.lips_open, rel=BATCHED_VS_ONE_AT_A_TIME)
+        assert got.lips_shut_frames == expected.lips_shut_frames
+    # what is compared is not trivial: shifted variants, variants that keep the mouth shut
+    assert sum(c.shift > 0.0 for c in batched.candidates) >= 5
+    assert {c.lips_shut_frames == 0 for c in batched.candidates} == {True, False}
+    # the lips of a stack read as each variant's own, from its held-out rows alone
+    neutral, rest, frames, marker_opening, open_mm = selection._lip_frames(
+        geometry, d, mouth, kwargs["witness"], MM_PER_CM, selection.OPEN_MM)
+    for c in batched.candidates:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")               # its shift, if it has one
+            rows = leave_one_out(geometry, kernel=c.kernel, epsilon=c.epsilon,
+                                 distance=c.distance, vertices=mouth.vertex_ids,
+                                 regions=kwargs["regions"] if c.use_regions else None).rows
+        opening = MM_PER_CM * (mouth.gap(neutral + np.matmul(rows, frames)) - rest)
+        assert c.lips_open == pytest.approx(float(np.median(opening / marker_opening)),
+                                            rel=BATCHED_VS_ONE_AT_A_TIME)
+        assert c.lips_shut_frames == int(contradicts(marker_opening, opening,
+                                                     open_mm=open_mm).sum())
+
+
+def test_a_variant_that_cannot_be_solved_is_noted_as_alone(monkeypatch, ict_basis, ict_layout):
+    """Four markers: degree 1 fits them, but not without one (every marker is singular);
+    three: the TPS cannot be solved at all. Batched or not, the same notes."""
+    monkeypatch.setattr(selection, "SHAPES", {"thin_plate_spline": (None,),
+                                              "gaussian": (0.5, 1.0)})
+    for n in (3, 4):
+        labels = ict_layout.labels[6:6 + n]
+        geometry = MarkerGeometry.from_binding(layout_binding(ict_layout, labels),
+                                               ict_basis.neutral, labels)
+        d = np.random.default_rng(n).normal(scale=0.1, size=(5, n, 3))
+        kwargs = dict(regions=None, mm_per_unit=10.0, distances=("euclidean",))
+        batched = selection.select_variant(geometry, d, **kwargs)
+        with monkeypatch.context() as patch:
+            patch.setattr(selection, "leave_one_out_many", one_variant_at_a_time)
+            alone = selection.select_variant(geometry, d, **kwargs)
+        tps = batched.candidates[0]
+        assert np.isnan(tps.score_mm) and tps.note == alone.candidates[0].note
+        assert tps.note.startswith("3 centers, but a degree-1" if n == 3 else
+                                   f"marker {labels[0]!r} cannot be held out")
+        assert [c.score_mm for c in batched.candidates[1:]] == pytest.approx(
+            [c.score_mm for c in alone.candidates[1:]], rel=BATCHED_VS_ONE_AT_A_TIME)
+        assert batched.chosen == alone.chosen == 1 + int(np.argmin(
+            [c.score_mm for c in alone.candidates[1:]]))
 
 
 def test_auto_limited_to_what_the_options_leave_open(off_lips, ict_basis):

@@ -17,11 +17,18 @@ import time
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from itertools import groupby
+from operator import itemgetter
 
 import numpy as np
 
 from mocap.errors import InputError
-from mocap.retarget.cross_validation import MarkerGeometry, gram_matrix, leave_one_out
+from mocap.retarget.cross_validation import (
+    LeaveOneOut,
+    MarkerGeometry,
+    gram_matrix,
+    leave_one_out_many,
+)
 from mocap.retarget.lip_seal import (
     OPEN_MM,
     OPEN_SPAN,
@@ -235,34 +242,19 @@ def select_variant(geometry: MarkerGeometry, displacements, *,
         use_regions = [r for r in use_regions if not r]
     lips = _lip_frames(geometry, d, mouth, witness, mm_per_unit, open_mm)
     candidates = []
-    for kernel, epsilon, distance, with_regions, shape in candidate_grid(
-            spacing, distances=distances, use_regions=use_regions):
-        base = dict(kernel=kernel, epsilon=epsilon, distance=distance,
-                    use_regions=with_regions, shape=shape)
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")          # regularization shifts: scored anyway
-                loo = leave_one_out(geometry, kernel=kernel, epsilon=epsilon,
-                                    smoothing=smoothing, distance=distance,
-                                    regions=regions if with_regions else None,
-                                    region_width=region_width,
-                                    vertices=None if lips is None else mouth.vertex_ids)
-        except InputError as exc:
-            candidates.append(Candidate(**base, score_mm=np.nan, note=str(exc)))
-            continue
-        if loo.singular:
-            label, why = next(iter(loo.singular.items()))
-            candidates.append(Candidate(**base, score_mm=np.nan,
-                                        note=f"marker {label!r} cannot be held out: {why}"))
-            continue
-        score = mm_per_unit * float(np.sqrt(max(loo.sum_squares(gram).sum(), 0.0) / n_samples))
-        lips_open = shut = None
-        if lips is not None:
-            lips_open, shut = _read_lips(loo.rows, mouth, lips, mm_per_unit, fraction)
-        candidates.append(Candidate(**base, score_mm=score if np.isfinite(score) else np.nan,
-                                    lips_open=lips_open, lips_shut_frames=shut,
-                                    shift=max(loo.shifts.values(), default=0.0),
-                                    note="" if np.isfinite(score) else "the score is not finite"))
+    grid = candidate_grid(spacing, distances=distances, use_regions=use_regions)
+    # the variants of one distance, region map and kernel differ only in their shape
+    # parameter: solved together, as stacks (leave_one_out_many)
+    for (kernel, distance, with_regions), family in groupby(grid, key=itemgetter(0, 2, 3)):
+        family = list(family)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")              # regularization shifts: scored anyway
+            results = leave_one_out_many(
+                geometry, kernel=kernel, epsilons=[v[1] for v in family], smoothing=smoothing,
+                distance=distance, regions=regions if with_regions else None,
+                region_width=region_width, vertices=None if lips is None else mouth.vertex_ids)
+        candidates += _family_candidates(family, results, gram, n_samples, mm_per_unit,
+                                         mouth, lips, fraction)
     scores = np.array([c.score_mm for c in candidates])
     if not np.isfinite(scores).any():
         raise InputError("kernel='auto': no retargeting variant could be cross-validated ("
@@ -310,9 +302,51 @@ def _lip_frames(geometry, d, mouth, witness, mm_per_unit, open_mm):
     return neutral, float(mouth.gap(neutral)), d[frames], opening[frames], open_mm
 
 
+def _family_candidates(family, results, gram, n_samples, mm_per_unit, mouth, lips,
+                       fraction) -> list[Candidate]:
+    """The Candidate of each variant of a family from its :func:`leave_one_out_many` result.
+
+    An InputError or a marker that cannot be held out leaves the variant unscored
+    (NaN, with why); the others are scored from the Gram matrix and, with `lips`,
+    their lips read (every variant of the family at once).
+    """
+    scored = [i for i, loo in enumerate(results) if isinstance(loo, LeaveOneOut)
+              and not loo.singular]
+    if lips is not None and scored:
+        lips_open, shut = _read_lips(np.stack([results[i].rows for i in scored]), mouth, lips,
+                                     mm_per_unit, fraction)
+        read = {i: (float(o), int(n)) for i, o, n in zip(scored, lips_open, shut)}
+    else:
+        read = {}
+    out = []
+    for i, ((kernel, epsilon, distance, with_regions, shape), loo) in enumerate(
+            zip(family, results)):
+        base = dict(kernel=kernel, epsilon=epsilon, distance=distance,
+                    use_regions=with_regions, shape=shape)
+        if isinstance(loo, InputError):
+            out.append(Candidate(**base, score_mm=np.nan, note=str(loo)))
+            continue
+        if loo.singular:
+            label, why = next(iter(loo.singular.items()))
+            out.append(Candidate(**base, score_mm=np.nan,
+                                 note=f"marker {label!r} cannot be held out: {why}"))
+            continue
+        score = mm_per_unit * float(np.sqrt(max(loo.sum_squares(gram).sum(), 0.0) / n_samples))
+        lips_open, shut = read.get(i, (None, None))
+        out.append(Candidate(**base, score_mm=score if np.isfinite(score) else np.nan,
+                             lips_open=lips_open, lips_shut_frames=shut,
+                             shift=max(loo.shifts.values(), default=0.0),
+                             note="" if np.isfinite(score) else "the score is not finite"))
+    return out
+
+
 def _read_lips(rows, mouth, lips, mm_per_unit, fraction):
-    """Median mesh-over-marker opening and the number of shut frames of one variant."""
+    """Median mesh-over-marker opening (k,) and number of shut frames (k,) of k variants.
+
+    `rows` (k, P, M): each variant's operator at the lip vertices; `lips`: of
+    :func:`_lip_frames`.
+    """
     neutral, rest, d, marker_opening, open_mm = lips
-    mesh_opening = mm_per_unit * (mouth.gap(neutral + np.matmul(rows, d)) - rest)
+    mesh_opening = mm_per_unit * (mouth.gap(neutral + np.matmul(rows[:, None], d)) - rest)
     shut = contradicts(marker_opening, mesh_opening, open_mm=open_mm, fraction=fraction)
-    return float(np.median(mesh_opening / marker_opening)), int(shut.sum())
+    return np.median(mesh_opening / marker_opening, axis=1), shut.sum(axis=1)
