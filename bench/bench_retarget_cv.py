@@ -1,11 +1,18 @@
 """Benchmark (issue 13, items 1 and 2): retargeting validated without ground truth, and the lips.
 
-Three parts, each printing its figures:
+Four parts, each printing its figures:
 
 * ``speed``: the closed-form leave-one-marker-out residuals against refitting the
   operator without each marker (the naive baseline, one operator per marker), on
   the ICT face (9,409 vertices, 60 markers), side by side; and the cost of
   ``kernel = "auto"`` (88 variants) in :func:`mocap.retarget.retargeting.retarget`.
+* ``auto``: :func:`mocap.retarget.selection.select_variant` (88 variants, lips read) on
+  the same geometry, its variants of one kernel solved together as stacks
+  (:func:`mocap.retarget.cross_validation.leave_one_out_many`) against each solved alone
+  (``leave_one_out`` one variant at a time: ``helpers.one_variant_at_a_time``; the lips are
+  read a kernel's variants at once in both), side by side, with the process's memory as the
+  system has it and then as the command sets it. A 20 s take: the cost is per variant (the
+  displacements enter through their (M, M) Gram matrix and 32 lip frames), not per frame.
 * ``sim``: the ICT face driven by the ARKit performance ``alex_rom_3.csv`` (100 s at
   30 Hz, 0.2 mm noise, head motion), seen by the markers of
   ``tests/ict_marker_layout.toml`` moved off the lips as on the real take of the
@@ -22,7 +29,7 @@ Three parts, each printing its figures:
 * ``sing``: facial-sing.c3d (real, no truth) on the ICT face, TPS and ``auto``: the
   lip-seal warnings and each mesh's widest opening against the lip markers'.
 
-Run: ``python bench/bench_retarget_cv.py [--parts speed sim sing] [--layout off-lips|ict]``.
+Run: ``python bench/bench_retarget_cv.py [--parts speed auto sim sing] [--layout off-lips|ict]``.
 Pictures in ``bench/out/``: ``retarget_cv_lips_<case>.png`` (lip seal), ``retarget_cv_
 markers_<case>.png`` (held-out error per marker), ``retarget_cv_vs_truth_<layout>.png``.
 """
@@ -34,6 +41,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from unittest.mock import patch
 
 import numpy as np
 import scipy.sparse as sp
@@ -42,14 +50,17 @@ from scipy.spatial import cKDTree
 from scipy.stats import spearmanr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import REPO, best_time, shared_data  # noqa: E402
+from _common import REPO, best_time, memory_as_the_command, shared_data  # noqa: E402
 
 sys.path.insert(0, str(REPO / "tests"))
 from helpers import (  # noqa: E402
     ICT_LANDMARKS_TOML,
     ICT_LAYOUT_TOML,
     ICT_MARKERSET_TOML,
+    jaw_open_peak_time,
+    layout_binding,
     off_lip_layout,
+    one_variant_at_a_time,
 )
 
 import mocap  # noqa: E402
@@ -59,10 +70,15 @@ from fit.report.retarget_qa import plot_cross_validation, plot_lip_seal  # noqa:
 from mocap.markerset import load_markerset  # noqa: E402
 from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
 from mocap.mesh.layout import load_marker_layout  # noqa: E402
+from mocap.mesh.mouth import find_mouth  # noqa: E402
+from mocap.retarget import selection  # noqa: E402
 from mocap.retarget.cross_validation import MarkerGeometry, leave_one_out  # noqa: E402
+from mocap.retarget.lip_seal import lip_witness  # noqa: E402
 from mocap.retarget.rbf import build_rbf_operator  # noqa: E402
+from mocap.retarget.retargeting import marker_displacements  # noqa: E402
 from mocap.synth.capture import simulate_capture  # noqa: E402
 from mocap.synth.performance import read_performance  # noqa: E402
+from mocap.take import Take  # noqa: E402
 from mocap.viz.figures import new_figure, save_figure  # noqa: E402
 
 OUT = REPO / "bench" / "out"
@@ -144,6 +160,57 @@ def part_speed(basis, landmarks) -> None:
         print(f"  {name:<18} refit per marker {t_naive:7.2f} s   closed form {t_closed:6.3f} s"
               f"   ratio {t_naive / t_closed:6.0f}x   max difference {diff:.1e}"
               + (f" (diagonal shift {shift:.2g} kept)" if shift else ""))
+
+
+# ---------------------------------------------------------------- auto
+
+def part_auto(basis, landmarks) -> None:
+    mesh = basis.neutral
+    layout = load_marker_layout(ICT_LAYOUT_TOML, mesh)
+    markerset = load_markerset(ICT_MARKERSET_TOML)
+    performance = read_performance(shared_data() / "arkit-performances" / "alex_rom_3.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")                  # TongueOut: no ICT shape
+        sim = simulate_capture(basis, performance, layout, markerset.head, rate=RATE,
+                               start=max(0.0, jaw_open_peak_time(performance) - 10.0),
+                               duration=20.0, noise_mm=0.2, seed=0)
+    truth = sim.truth                                    # in the head frame: no alignment
+    head = np.einsum("tji,tmj->tmi", truth.rotation,
+                     sim.take.positions - truth.translation[:, None])
+    labels = markerset.face_markers
+    face = Take(sim.take.labels, head, rate=RATE).select(labels)
+    binding = layout_binding(layout, labels)
+    neutral = int(np.argmin(np.abs(truth.weights).sum(axis=1)))
+    d = marker_displacements(face, binding, neutral_frame=neutral)
+    geometry = MarkerGeometry.from_binding(binding, mesh, labels)
+    lips = [x for r in ("upper_lip", "lower_lip") for x in markerset.regions[r]]
+    regions = {"upper_lip": list(markerset.regions["upper_lip"]),
+               "lower_lip": list(markerset.regions["lower_lip"]),
+               "other": [x for x in labels if x not in lips]}
+    mouth, witness = find_mouth(mesh, landmarks), lip_witness(markerset, labels)
+
+    def select():
+        return selection.select_variant(geometry, d, regions=regions, mm_per_unit=10.0,
+                                        mouth=mouth, witness=witness)
+
+    def alone():
+        with patch.object(selection, "leave_one_out_many", one_variant_at_a_time):
+            return select()
+
+    together, each = select(), alone()                   # the geodesic distances cached
+    same = (together.chosen == each.chosen and all(
+        np.isclose(a.score_mm, b.score_mm, rtol=1e-10, equal_nan=True) and a.note == b.note
+        for a, b in zip(together.candidates, each.candidates)))
+    print(f"\nauto: select_variant on the ICT face ({geometry.n_markers} markers, "
+          f"{len(together.candidates)} variants, lips read: {together.lips_checked}), a "
+          f"{len(d)}-frame take (the cost is per variant, not per frame); the same scores "
+          f"and choice: {same}")
+    for memory in ("memory as the system has it", memory_as_the_command()):
+        t_each = best_time(alone, repeat=5)
+        t_together = best_time(select, repeat=5)
+        print(f"  {memory}: one variant at a time {t_each * 1e3:6.1f} ms, a kernel's "
+              f"variants together {t_together * 1e3:6.1f} ms, ratio {t_each / t_together:.2f}x "
+              f"({1 - t_together / t_each:.0%} off)")
 
 
 # ---------------------------------------------------------------- the simulation
@@ -385,8 +452,8 @@ def part_sing(basis, landmarks) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--parts", nargs="*", default=["speed", "sim", "sing"],
-                        choices=["speed", "sim", "sing"])
+    parser.add_argument("--parts", nargs="*", default=["speed", "auto", "sim", "sing"],
+                        choices=["speed", "auto", "sim", "sing"])
     parser.add_argument("--layout", choices=["off-lips", "ict"], default="off-lips")
     parser.add_argument("--seconds", type=float, default=100.0, help="simulated capture, s")
     args = parser.parse_args()
@@ -394,6 +461,8 @@ def main() -> None:
     basis, landmarks = _load_ict()
     if "speed" in args.parts:
         part_speed(basis, landmarks)
+    if "auto" in args.parts:
+        part_auto(basis, landmarks)
     if "sim" in args.parts:
         part_sim(basis, landmarks, args.layout, args.seconds)
     if "sing" in args.parts:
