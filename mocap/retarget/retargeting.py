@@ -66,7 +66,8 @@ class RetargetOptions:
         ``1/epsilon``); None for the scale-invariant kernels' default (and
         with ``"auto"``, which chooses it).
     degree : int or None
-        Polynomial degree (-1: none); None for the kernel's default (with ``"auto"``, the only choice).
+        Polynomial degree (-1: none); None for the kernel's default (with ``"auto"``, the
+        only choice).
     smoothing : float
         Added to the kernel matrix diagonal (noisy markers), >= 0.
     distance : str or None
