@@ -123,7 +123,8 @@ def quasi_eigen(pca: PCAModel, artist, *, n_components: int | None = None,
     if n_components is not None:
         pca = pca.truncate(n_components)
     n_vertices = len(pca.mean)
-    artist = as_float_array(artist, "artist", shape=(None, n_vertices, 3), allow_nan=False)
+    artist = as_float_array(artist, "artist", shape=(None, n_vertices, 3), allow_nan=False,
+                            copy=False)                     # only read
     missing = as_choice(missing, "missing", MISSING_POLICIES)
     if isinstance(missing_eps, bool) or not isinstance(missing_eps, (int, float)) \
             or not 0 <= missing_eps < 1:

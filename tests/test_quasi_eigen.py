@@ -32,7 +32,12 @@ def orthogonal_offset(pca, rng):
 def test_matches_brute_force_and_lstsq_projection():
     pca, rng = make_pca(), np.random.default_rng(1)
     artist = rng.normal(size=(4, N_VERTICES, 3))
+    kept = artist.copy()
     qe = quasi_eigen(pca, artist)
+    # the shapes are read where they are, never written or kept
+    np.testing.assert_array_equal(artist, kept)
+    assert not any(np.shares_memory(artist, getattr(qe, name)) for name in
+                   ("displacements", "weights", "relative_move", "max_vertex_move"))
     for i in range(4):
         for j in range(M):
             want = np.dot(pca.components[j].ravel(), (artist[i] - pca.mean).ravel())
