@@ -15,7 +15,12 @@ from mocap.retarget.archive import (
                                     save_npz,
                                     save_obj_sequence,
 )
-from mocap.retarget.cross_validation import CrossValidation, cross_validate, leave_one_out
+from mocap.retarget.cross_validation import (
+                                    CrossValidation,
+                                    cross_validate,
+                                    leave_one_out,
+                                    leave_one_out_many,
+)
 from mocap.retarget.lip_seal import LipSealCheck, check_lip_seal
 from mocap.retarget.rbf import RBFOperator, RBFSolveInfo, build_rbf_operator
 from mocap.retarget.retargeting import (
@@ -35,5 +40,6 @@ __all__ = ["RetargetOptions", "Retargeting", "retarget", "marker_displacements",
            "align_head_frame", "build_retarget_operator", "RBFOperator", "RBFSolveInfo",
            "build_rbf_operator", "KERNELS", "RETARGET_KERNELS", "DISTANCES", "CONTENTS",
            "save_npz", "save_obj_sequence", "is_retargeted_archive", "ArchiveFrames",
-           "CrossValidation", "cross_validate", "leave_one_out", "RetargetSelection",
+           "CrossValidation", "cross_validate", "leave_one_out", "leave_one_out_many",
+           "RetargetSelection",
            "select_variant", "LipSealCheck", "check_lip_seal"]
