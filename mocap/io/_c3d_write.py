@@ -124,13 +124,15 @@ def _frames(take: Take, per_frame: int):
     for first in range(0, n, step):
         stop = min(n, first + step)
         positions = take.positions[first:stop]
-        # the extremes without NaN (a missing sample is NaN in x, y and z), no temporary
-        if max(np.fmax.reduce(positions, axis=None, initial=-np.inf),
-               -np.fmin.reduce(positions, axis=None, initial=np.inf)) > limit:
-            raise InputError("positions exceed the float32 range of a C3D file")
         words = np.empty((stop - first, width), dtype="<f4")
         points = words[:, :4 * m].reshape(stop - first, m, 4)
-        points[:, :, :3] = positions                    # narrowed in place
+        # narrowed in place; a value beyond float32's range overflows the cast, which
+        # checks them as it goes (no pass of its own; a NaN is no overflow)
+        try:
+            with np.errstate(over="raise"):
+                points[:, :, :3] = positions
+        except FloatingPointError:
+            raise InputError("positions exceed the float32 range of a C3D file") from None
         missing = np.isnan(positions[:, :, 0])
         points[:, :, 3] = np.where(missing, -1.0, 0.0)
         # xyz 0 where missing, by flat indices: a boolean mask's assignment visits every sample
