@@ -24,7 +24,7 @@ from tolerances import (
 )
 
 from mocap.errors import InputError
-from mocap.mesh.mesh import load_mesh
+from mocap.mesh.mesh import load_mesh, vertex_normals
 from mocap.viz import _raster
 from mocap.viz.render import (
     HIDDEN_POINTS,
@@ -212,6 +212,20 @@ def test_plane_facing_the_light_is_brighter_than_one_at_60_degrees(raster_by):
 
 # ---------------------------------------------------------------- camera and framing
 
+def test_given_normals_are_the_ones_shaded(ict_mesh):
+    """The vertex normals given (made once for a mesh seen from several views) render the
+    image they would make themselves; other normals shade it otherwise."""
+    normals = vertex_normals(ict_mesh.vertices, ict_mesh.faces)
+    for view in ("front", "side"):
+        own = render_mesh(ict_mesh.vertices, ict_mesh.faces, view=view, size=(160, 200))
+        given = render_mesh(ict_mesh.vertices, ict_mesh.faces, view=view, size=(160, 200),
+                            normals=normals)
+        np.testing.assert_array_equal(given, own)
+    flipped = render_mesh(ict_mesh.vertices, ict_mesh.faces, size=(160, 200),
+                          normals=np.roll(normals, 1, axis=1))
+    assert np.any(flipped != own)
+
+
 def test_shared_framing_puts_unchanged_vertices_at_the_same_pixels():
     base, faces = _grid()
     moved = base.copy()
@@ -375,6 +389,8 @@ GOOD_V, GOOD_F = _square()
     (dict(points=np.zeros((2, 3)), point_colors=np.zeros((3, 3))),
      r"point_colors must have shape \(3,\) or \(2, 3\)"),
     (dict(lighting=(0, 0, 1)), "lighting must be a mocap.viz.render.Lighting"),
+    (dict(normals=np.zeros((3, 3))), r"normals must have shape \(4, 3\)"),
+    (dict(normals=np.full((4, 3), np.nan)), "normals contains NaN"),
 ])
 def test_render_errors(kwargs, match):
     args = dict(vertices=GOOD_V, faces=GOOD_F) | kwargs

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from mocap.errors import InputError
+from mocap.mesh.mesh import vertex_normals
 from mocap.viz.render import (
     Camera,
     colorbar,
@@ -134,12 +135,13 @@ def plot_mesh_frames(vertices, faces, path, *, captions, cameras: dict, markers=
     compiled_renders(len(vertices) * len(MESH_VIEWS), len(faces))    # when they pay for it
     for k, frame in enumerate(vertices):
         points = None if markers is None else np.asarray(markers[k], dtype=float)
+        normals = vertex_normals(frame, faces)                  # once for its views
         for view in MESH_VIEWS:
             images.append(render_mesh(
                 frame, faces, camera=cameras[view],
                 colors=None if colors is None else colors[k], cmap=cmap, vmin=0.0, vmax=vmax,
                 points=points, point_colors=_MARKER_RGB, point_radius=2.5,
-                hidden_points="dim"))
+                hidden_points="dim", normals=normals))
             labels.append(captions[k] if view == MESH_VIEWS[0] else view)
     grid = image_grid(images, labels, ncols=len(MESH_VIEWS) * _FRAMES_PER_ROW, pad=6,
                       font_scale=0.42)

@@ -168,16 +168,10 @@ def degenerate_faces(vertices, faces) -> np.ndarray:
     -------
     ndarray of int64, sorted face ids
     """
-    # one coordinate at a time, each a contiguous row: gathers and products along the
-    # faces (a few times faster than np.cross of gathered (F, 3) rows, the same values)
-    x, y, z = np.array(vertices, dtype=np.float64).reshape(-1, 3).T.copy()
-    first, second, third = np.asarray(faces, np.int64).reshape(-1, 3).T.copy()
-    ax, ay, az = x[first], y[first], z[first]
-    ux, uy, uz = x[second] - ax, y[second] - ay, z[second] - az
-    vx, vy, vz = x[third] - ax, y[third] - ay, z[third] - az
-    cross = (uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    coordinates, cross = _face_cross_rows(vertices, np.asarray(faces, np.int64).reshape(-1, 3))
     doubled = np.sqrt(sum(c * c for c in cross))
-    diag2 = float(sum(np.ptp(c) ** 2 for c in (x, y, z))) if len(x) else 0.0
+    diag2 = float(sum(np.ptp(c) ** 2 for c in coordinates)) if len(vertices) else 0.0
     return np.flatnonzero(doubled <= _DEGENERATE_REL_AREA * diag2)
 
 
@@ -539,6 +533,21 @@ def save_obj(mesh, path, *, faces=None, inputs=()) -> None:
                     fh.write("f " + " ".join(map(str, poly)) + "\n")
 
 
+def _face_cross_rows(vertices: np.ndarray, faces: np.ndarray) -> tuple:
+    """:func:`_face_cross` of one mesh, vertices (N, 3) and faces (F, 3), by coordinate:
+    the vertices' x, y and z rows (N,) each, and the cross products' (F,) each.
+
+    Each coordinate a contiguous row: gathers and products along the faces, a few times
+    faster than ``np.cross`` of gathered (F, 3) rows, the same values to the bit.
+    """
+    x, y, z = vertices.T.copy()
+    first, second, third = faces.T.copy()
+    ax, ay, az = x[first], y[first], z[first]
+    ux, uy, uz = x[second] - ax, y[second] - ay, z[second] - az
+    vx, vy, vz = x[third] - ax, y[third] - ay, z[third] - az
+    return (x, y, z), (uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+
+
 def _face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Unnormalized face normals (…, F, 3): twice the area times the unit normal."""
     a = vertices[..., faces[:, 0], :]
@@ -586,13 +595,14 @@ def vertex_normals(vertices, faces) -> np.ndarray:
     n = vertices.shape[-2]
     if len(faces) == 0:
         return np.zeros_like(vertices)
-    cross = _face_cross(vertices, faces)                       # (..., F, 3)
-    if cross.ndim == 2:
+    if vertices.ndim == 2:
         # one mesh: each vertex's faces summed in face order, as the product below sums them
-        corners = np.repeat(cross, 3, axis=0)                 # (3F, 3), a face's per corner
-        summed = np.stack([np.bincount(faces.ravel(), corners[:, axis], minlength=n)
-                           for axis in range(3)], axis=1)
+        # (each face's cross product repeated for its three corners)
+        _, cross = _face_cross_rows(vertices, faces)
+        summed = np.stack([np.bincount(faces.ravel(), np.repeat(c, 3), minlength=n)
+                           for c in cross], axis=1)
     else:
+        cross = _face_cross(vertices, faces)                   # (..., F, 3)
         incidence = sp.csr_matrix((np.ones(faces.size), (faces.ravel(),
                                                          np.repeat(np.arange(len(faces)), 3))),
                                   shape=(n, len(faces)))

@@ -289,7 +289,8 @@ def render_mesh(vertices, faces, *, view="front", size=None, camera: Camera | No
                 colors=None, cmap="viridis", vmin: float | None = None,
                 vmax: float | None = None, lighting: Lighting = Lighting(),
                 supersample: int = 2, points=None, point_colors=None,
-                point_radius: float = 4.0, hidden_points: str = "hide") -> np.ndarray:
+                point_radius: float = 4.0, hidden_points: str = "hide",
+                normals=None) -> np.ndarray:
     """Render a shaded triangle mesh (and optional points) on a white background.
 
     Parameters
@@ -323,6 +324,10 @@ def render_mesh(vertices, faces, *, view="front", size=None, camera: Camera | No
     hidden_points : str in HIDDEN_POINTS
         Points behind the mesh (by more than 1 % of its bounding-box
         diagonal): not drawn, drawn faded, or drawn like the others.
+    normals : array_like of shape (N, 3), optional
+        The unit vertex normals of `vertices` (default: their
+        :func:`mocap.mesh.mesh.vertex_normals`), for renders of one mesh from
+        several views to make them once.
 
     Returns
     -------
@@ -362,13 +367,15 @@ def render_mesh(vertices, faces, *, view="front", size=None, camera: Camera | No
     values, lut, lo, hi = _vertex_colors(colors, len(vertices), cmap, vmin, vmax)
     if points is not None:
         points, point_colors = _as_points(points, point_colors)
+    normals = vertex_normals(vertices, faces) if normals is None else as_float_array(
+        normals, "normals", shape=vertices.shape, allow_nan=False, copy=False)
 
     cam = camera.zoomed(factor)
     width, height = cam.size
     proj = cam.project(vertices)
     image = np.ones((3, width * height), dtype=np.float32)      # one plane per channel
     zbuf = _raster.paint(image, width, proj[:, :2], proj[:, 2], faces,
-                         vertex_normals(vertices, faces) @ cam.rotation.T, values=values,
+                         normals @ cam.rotation.T, values=values,
                          lut=lut, vmin=lo, vmax=hi, base_rgb=_DEFAULT_RGB, nan_rgb=_NAN_RGB,
                          light=np.asarray(lighting.direction), ambient=lighting.ambient,
                          diffuse=lighting.diffuse, specular=lighting.specular,
