@@ -59,6 +59,7 @@ from helpers import (  # noqa: E402
     ICT_MARKERSET_TOML,
     jaw_open_peak_time,
     layout_binding,
+    lip_regions,
     off_lip_layout,
     one_variant_at_a_time,
 )
@@ -183,10 +184,7 @@ def part_auto(basis, landmarks) -> None:
     neutral = int(np.argmin(np.abs(truth.weights).sum(axis=1)))
     d = marker_displacements(face, binding, neutral_frame=neutral)
     geometry = MarkerGeometry.from_binding(binding, mesh, labels)
-    lips = [x for r in ("upper_lip", "lower_lip") for x in markerset.regions[r]]
-    regions = {"upper_lip": list(markerset.regions["upper_lip"]),
-               "lower_lip": list(markerset.regions["lower_lip"]),
-               "other": [x for x in labels if x not in lips]}
+    regions = lip_regions(markerset, labels)
     mouth, witness = find_mouth(mesh, landmarks), lip_witness(markerset, labels)
 
     def select():
@@ -371,10 +369,7 @@ def part_sim(basis, landmarks, layout_name: str, seconds: float) -> None:
     centers = MarkerGeometry.from_binding(auto.binding, mesh, auto.retargeted.labels).centers
     vertices = np.flatnonzero(cKDTree(centers).query(mesh.vertices)[0] * 10.0 <= FACE_MM)
     labels = auto.retargeted.labels
-    lips = [x for r in ("upper_lip", "lower_lip") for x in markerset.regions[r]]
-    regions = {"upper_lip": list(markerset.regions["upper_lip"]),
-               "lower_lip": list(markerset.regions["lower_lip"]),
-               "other": [x for x in labels if x not in lips]}
+    regions = lip_regions(markerset, labels)
     tic = time.perf_counter()
     errors = _variant_truth_errors(auto, basis, sim.truth, first, vertices, regions)
     selection = auto.retargeted.selection

@@ -234,6 +234,15 @@ def layout_binding(layout, labels, *, mm_per_unit: float = 10.0) -> Binding:
                    n_iterations=0, converged=True, message="layout (truth)")
 
 
+def lip_regions(markerset, labels) -> dict:
+    """The region map of the retargeting's region variants on `labels`: the marker set's
+    upper and lower lip, then ``"other"`` (every other marker of `labels`)."""
+    lips = [x for r in ("upper_lip", "lower_lip") for x in markerset.regions[r]]
+    return {"upper_lip": list(markerset.regions["upper_lip"]),
+            "lower_lip": list(markerset.regions["lower_lip"]),
+            "other": [x for x in labels if x not in lips]}
+
+
 def one_variant_at_a_time(geometry, *, epsilons, **options) -> list:
     """:func:`mocap.retarget.cross_validation.leave_one_out_many` by the per-variant path:
     ``leave_one_out`` called for each shape parameter alone, an InputError in the place of a

@@ -11,6 +11,7 @@ from helpers import (
     ICT_LANDMARKS_TOML,
     jaw_open_peak_time,
     layout_binding,
+    lip_regions,
     off_lip_layout,
     one_variant_at_a_time,
 )
@@ -85,10 +86,7 @@ def ict_auto(ict_basis, ict_layout, ict_markerset, arkit_performance):
     landmarks = load_mesh_landmarks(ICT_LANDMARKS_TOML, mesh)
     result = retarget(take, binding, mesh, ict_markerset, neutral_frame=neutral, align=False,
                       mouth=find_mouth(mesh, landmarks))
-    lips = [x for r in ("upper_lip", "lower_lip") for x in ict_markerset.regions[r]]
-    regions = {"upper_lip": list(ict_markerset.regions["upper_lip"]),
-               "lower_lip": list(ict_markerset.regions["lower_lip"]),
-               "other": [x for x in labels if x not in lips]}
+    regions = lip_regions(ict_markerset, labels)
     return dict(result=result, truth=truth, neutral=neutral, binding=binding, labels=labels,
                 regions=regions)
 
@@ -188,11 +186,8 @@ def test_variants_scored_together_as_each_alone(off_lips, ict_basis, ict_landmar
     d = marker_displacements(off_lips["take"].select(labels), off_lips["binding"],
                              neutral_frame=off_lips["neutral"])
     mouth = find_mouth(mesh, ict_landmarks)
-    lips = [x for r in ("upper_lip", "lower_lip") for x in markerset.regions[r]]
-    kwargs = dict(regions={"upper_lip": list(markerset.regions["upper_lip"]),
-                           "lower_lip": list(markerset.regions["lower_lip"]),
-                           "other": [x for x in labels if x not in lips]},
-                  mm_per_unit=MM_PER_CM, mouth=mouth, witness=lip_witness(markerset, labels))
+    kwargs = dict(regions=lip_regions(markerset, labels), mm_per_unit=MM_PER_CM, mouth=mouth,
+                  witness=lip_witness(markerset, labels))
     batched = selection.select_variant(geometry, d, **kwargs)
     with monkeypatch.context() as patch:
         patch.setattr(selection, "leave_one_out_many", one_variant_at_a_time)
