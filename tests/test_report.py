@@ -430,7 +430,8 @@ def test_long_lines_stroked_in_pieces_draw_the_picture_of_one_stroke(tmp_path):
         return fig
 
     one = figure()
-    with rc_context({"agg.path.chunksize": 0, "text.parse_math": False}):
+    with rc_context({"agg.path.chunksize": 0, "text.parse_math": False,
+                     "text.hinting": "no_hinting"}):      # the text as ours
         one.set_dpi(120)
         one.canvas.draw()
     whole = np.asarray(one.canvas.buffer_rgba())[:, :, :3].astype(int)
@@ -617,7 +618,8 @@ def _sample_chart(fig):
 def test_a_report_figure_has_the_pixels_of_savefig_in_one_draw(tmp_path):
     with report_figure(tmp_path / "once.png", 5, 3) as fig:
         _sample_chart(fig)
-    with rc_context({"text.parse_math": False}):      # the labels as typed, as ours
+    # the labels as typed and their glyphs unhinted, as ours
+    with rc_context({"text.parse_math": False, "text.hinting": "no_hinting"}):
         reference = new_figure(5, 3)
         _sample_chart(reference)
         reference.savefig(tmp_path / "savefig.png", dpi=120)
