@@ -300,11 +300,11 @@ def write_mesh_sequence(path, neutral: Mesh, displacements, weights, *,
     if (rotation is None) != (translation is None):
         raise InputError("rotation and translation go together (the head motion)")
     if rotation is not None:
-        arrays.update(
+        arrays.update(      # only read: not copied
             rotation=as_float_array(rotation, "rotation", shape=(len(weights), 3, 3),
-                                    allow_nan=False),
+                                    allow_nan=False, copy=False),
             translation=as_float_array(translation, "translation", shape=(len(weights), 3),
-                                       allow_nan=False))
+                                       allow_nan=False, copy=False))
     if materialize:
         flat = displacements.reshape(len(displacements), -1)
         out = np.empty((len(weights), neutral.n_vertices, 3), dtype=np.float32)
