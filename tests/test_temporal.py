@@ -394,6 +394,52 @@ def test_band_matrix_is_the_reduced_hessian(n, T, compiled, monkeypatch):
     assert band.matrix(free, deg.astype(float), link).tobytes() == got.tobytes()
 
 
+@pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "numpy"])
+@pytest.mark.parametrize("n, T, share", [(1, 6, 0.7), (4, 1, 0.7), (5, 300, 0.7),
+                                          (6, 40, 1.0), (3, 5, 0.0)])
+def test_free_band_matrix_is_the_free_weights_reduced_hessian(n, T, share, compiled,
+                                                               monkeypatch):
+    """The free weights' band holds the dense oracle's rows and columns of the free
+    weights (frame by frame, in order) in LAPACK's upper form with the fewest bands that
+    hold every nonzero, Fortran-ordered, in the given buffer's first floats; numba's loop
+    writes the same bits as NumPy, the zeros' signs too. Every weight free: the full
+    band; none: an empty one."""
+    if not compiled:
+        monkeypatch.setattr(fit.solve._smooth, "_compiled_free_band", lambda: None)
+    else:
+        assert fit.solve._smooth._compiled_free_band() is not None, \
+            "numba (the speed extra, in .[test]) is missing"
+    rng = np.random.default_rng(n * T + 7)
+    a = rng.standard_normal((2 * n, n))
+    G, lam, ridge = a.T @ a, 0.7, 0.01
+    free = rng.random((T, n)) < share
+    link = rng.random(max(T - 1, 0)) > 0.1
+    deg = (np.r_[0, link] + np.r_[link, 0] if T > 1 else np.zeros(1)).astype(float)
+    band = fit.solve._smooth._Band(G, lam, ridge)
+    buffer = np.full((n + 1) * T * n + 3, np.nan)
+    got = band.free_matrix(free, deg, link, out=buffer)
+    lap = np.diag(deg) - np.diag(link.astype(float), 1) - np.diag(link.astype(float), -1)
+    dense = np.kron(np.eye(T), G) + lam * np.kron(lap, np.eye(n)) + ridge * np.eye(T * n)
+    keep = np.flatnonzero(free.ravel())
+    dense = dense[np.ix_(keep, keep)]
+    rows, cols = np.nonzero(np.triu(dense))
+    kd = int((cols - rows).max(initial=0))
+    assert got.shape == (kd + 1, len(keep)) and got.flags.f_contiguous
+    assert len(keep) == 0 or np.shares_memory(got, buffer)
+    expected = np.zeros((kd + 1, len(keep)))
+    for i, j in zip(*np.triu_indices(len(keep))):
+        if j - i <= kd:
+            expected[kd + i - j, j] = dense[i, j]
+    np.testing.assert_allclose(got, expected, rtol=0, atol=EXACT_FLOAT64 * np.abs(G).max())
+    if share == 1.0:
+        np.testing.assert_array_equal(got, band.matrix(free, deg, link))
+    monkeypatch.setattr(fit.solve._smooth, "_compiled_free_band", lambda: None)
+    assert band.free_matrix(free, deg, link).tobytes() == got.tobytes()
+    with pytest.raises(ValueError, match="flat float64 array of at least"):
+        band.free_matrix(free, deg, link, out=np.empty(got.size - 1)) if got.size else \
+            band.free_matrix(free, deg, link, out=np.empty((1, 1)))
+
+
 def _dense_reduced_hessian(band, state):
     """The whole sequence's reduced Hessian of ``state`` (T, n), dense: the oracle."""
     T, n = state.shape
@@ -454,9 +500,9 @@ def test_whole_sequence_solves_nearby_states_through_one_factor(ridge, monkeypat
 
 
 def test_a_reserved_buffer_holds_the_first_factor():
-    """``reserve`` allocates the factor's buffer on a thread: the first solve factors into
-    that very buffer (no second one) and solves as the dense reduced system does; a solve
-    right after ``reserve`` waits for it."""
+    """``reserve`` allocates the factors' buffer on a thread: the first solve factors the
+    free weights' matrix into that very buffer (no second one) and solves as the dense
+    reduced system does; a solve right after ``reserve`` waits for it."""
     rng = np.random.default_rng(15)
     T, n = 25, 4
     a = rng.standard_normal((2 * n, n))
@@ -466,18 +512,21 @@ def test_a_reserved_buffer_holds_the_first_factor():
     whole = fit.solve._smooth._WholeFactor(band, T)
     whole.reserve()
     x = whole.solve(state, rhs)
-    assert whole.factor.shape == (n + 1, T * n) and whole.factor.flags.f_contiguous
+    kd = whole.band.free_bands(state == 0, np.ones(T - 1, bool))
+    assert whole.factor.shape == (kd + 1, np.count_nonzero(state == 0))
+    assert whole.factor.flags.f_contiguous and np.shares_memory(whole.factor, whole.buffer)
     again = fit.solve._smooth._WholeFactor(band, T)
     again.reserve()
     again.wait()
-    reserved = again.factor
+    reserved = again.buffer
+    assert reserved.size == (n + 1) * T * n
     np.testing.assert_array_equal(again.solve(state, rhs), x)
-    assert again.factor is reserved
+    assert again.buffer is reserved and np.shares_memory(again.factor, reserved)
     expected = np.linalg.solve(_dense_reduced_hessian(band, state), rhs)
     np.testing.assert_allclose(x, expected, rtol=0,
                                atol=SOLVE_SAME_MINIMIZER * np.abs(expected).max())
     again.solve(np.where(state == 0, 1, 0).astype(np.int8), np.zeros(T * n))  # refactored
-    assert again.factor is reserved
+    assert again.buffer is reserved and np.shares_memory(again.factor, reserved)
 
 
 def test_a_prepared_factor_solves_as_one_made_at_the_solve(monkeypatch):

@@ -4,15 +4,18 @@
 of each pair of variables with byte masks and products over pieces of frames, plus two
 strided columns: about twice the time of writing the (n + 1, F·n) floats once, which this
 does, column after column. The same values, bit for bit (the same products by 1.0 or 0.0
-and the same sums), so that the factorization that follows is the same too. A whole take's
-matrix (35,000 frames × 53 weights: 800 MB) is formed for every factorization.
+and the same sums), so that the factorization that follows is the same too.
+:func:`free_band_matrix` writes the matrix of the free weights only
+(:meth:`~fit.solve._smooth._Band.free_matrix`), which the whole sequence's factorizations
+take: a whole take's full matrix is 800 MB at 35,000 frames × 53 weights.
 """
 
 from __future__ import annotations
 
 import numba
+import numpy as np
 
-__all__ = ["band_matrix"]
+__all__ = ["band_matrix", "free_band_matrix"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -51,3 +54,40 @@ def band_matrix(bands, g_diag, ridge, lam, fill, free, deg, link,
                 other = i - (n - r)
                 both = own and other >= 0 and free[t, other]
                 ab[r, j] = bands[i, r - 1] * (1.0 if both else 0.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def free_band_matrix(G, g_diag, ridge, lam, free, deg, link,
+                     ab):  # pragma: no cover - compiled; tested against the NumPy matrix
+    """Write the upper banded reduced Hessian of the free weights only into `ab`.
+
+    As :func:`band_matrix`, but a column per free weight (frame by frame, each frame's in
+    order) and `ab` of shape (kd + 1, N), Fortran-ordered, for N free weights and kd the
+    bands they need (:meth:`fit.solve._smooth._Band.free_bands`); G (n, n) whole.
+    """
+    n_frames, n = free.shape
+    kd = ab.shape[0] - 1
+    before = np.full(n, -1, np.int64)   # each weight's column in the frame before (-1: bound)
+    here = np.full(n, -1, np.int64)
+    own = np.empty(n, np.int64)         # this frame's free weights so far
+    c = 0
+    for t in range(n_frames):
+        tied = t > 0 and link[t - 1]
+        diffusion = lam * deg[t]
+        m = 0
+        for i in range(n):
+            if not free[t, i]:
+                here[i] = -1
+                continue
+            for r in range(kd):
+                ab[r, c] = 0.0
+            ab[kd, c] = (g_diag[i] + ridge) + diffusion
+            for k in range(m):          # the frame's free weights before this one
+                ab[kd - (m - k), c] = G[own[k], i]
+            if tied and before[i] >= 0:
+                ab[kd - (c - before[i]), c] = -lam
+            own[m] = i
+            here[i] = c
+            m += 1
+            c += 1
+        before, here = here, before

@@ -7,8 +7,9 @@ Unbounded, it diagonalizes exactly (:class:`Spectrum`: the DCT-II over frames
 times the eigenvectors of G). In a box, a primal-dual active-set iteration
 over the whole sequence: each step solves the reduced system of one state
 (int8 per weight: -1 at the lower bound, +1 at the upper, 0 free) as one
-banded positive-definite system (bandwidth n, identity rows for the bound
-weights). Two things keep the number of those global solves small:
+banded positive-definite system of the free weights (bandwidth at most n, the
+bound weights at their bound). Two things keep the number of those global solves
+small:
 
 - the start is the active set of a rough solution of the bounded problem by
   ``_ADMM_ITER`` steps of ADMM (the splitting w = z, z in the box), whose
@@ -261,6 +262,70 @@ class _Band:
             piece[:, :, n] = np.where(mask[cols], diag[cols], self.fill).reshape(count, n)
         return ab
 
+    def free_bands(self, free, link) -> int:
+        """kd, the bands above the diagonal that the matrix of the free weights of `free`
+        (F, n) needs (:meth:`free_matrix`; ``link`` (F − 1,) as there), at most n: the
+        farthest of a frame's first and last free weight, and of a free weight and itself
+        in the next, linked frame, in the order of the free weights."""
+        counts = free.sum(axis=1)
+        within = int(counts.max(initial=0)) - 1
+        before = np.cumsum(free, axis=1) - free     # free weights before each, in its frame
+        # a weight's column less its column in the frame before: the free weights from it
+        # on in that frame and those before it in its own
+        tied = free[1:] & free[:-1] & np.asarray(link, dtype=bool)[:, None]
+        apart = (counts[:-1, None] - before[:-1]) + before[1:]
+        return max(within, int(apart[tied].max(initial=0)), 0)
+
+    def free_matrix(self, free, deg, link, out=None):
+        """The reduced Hessian of the free weights only of frames with free mask ``free``
+        (F, n), degrees and ``link`` as :meth:`matrix` takes them: a row and column per
+        free weight, frame by frame, in LAPACK's upper band storage (kd + 1, N) of the
+        fewest bands that hold it (:meth:`free_bands`), Fortran-ordered.
+
+        The bound weights' rows of :meth:`matrix` are the fill on the diagonal alone: left
+        out, the band is about (N / F·n)·(kd / n)² of the work to factor (8,000 frames of
+        the ICT take, 33 of 53 weights free, kd 50: 160 → 107 ms). Written by the compiled loop
+        of :mod:`fit.solve._band_kernel` when numba is there, else by NumPy (the same
+        values, bit for bit); into the first (kd + 1)·N floats of the flat array `out`
+        when given.
+        """
+        free = np.ascontiguousarray(free, dtype=bool)
+        n_free, kd = int(np.count_nonzero(free)), self.free_bands(free, link)
+        size = (kd + 1) * n_free
+        if out is not None and (out.ndim != 1 or out.dtype != np.float64 or len(out) < size):
+            raise ValueError(f"out must be a flat float64 array of at least {size} floats")
+        ab = (np.empty(size) if out is None else out[:size]).reshape((kd + 1, n_free),
+                                                                      order="F")
+        kernel = _compiled_free_band()
+        if kernel is not None:
+            kernel(self.G, self.g_diag, self.ridge, self.lam, free,
+                   np.asarray(deg, dtype=float), np.asarray(link, dtype=bool), ab)
+            return ab
+        n = self.n
+        at = np.flatnonzero(free.ravel())
+        frame, weight = np.divmod(at, n)
+        ab.fill(0.0)
+        ab[kd] = (self.g_diag[weight] + self.ridge) + self.lam * np.asarray(deg)[frame]
+        for d in range(1, kd + 1):          # two free weights of one frame, d columns apart
+            same = np.flatnonzero(frame[d:] == frame[:-d])
+            ab[kd - d, same + d] = self.G[weight[same], weight[same + d]]
+        column = np.full(free.size, -1)
+        column[at] = np.arange(n_free)
+        earlier = column[np.maximum(at - n, 0)]
+        tied = (frame > 0) & (earlier >= 0)
+        tied[tied] &= np.asarray(link, dtype=bool)[frame[tied] - 1]
+        ab[kd - (np.flatnonzero(tied) - earlier[tied]), np.flatnonzero(tied)] = -self.lam
+        return ab
+
+
+@functools.cache
+def _compiled_free_band():
+    """:func:`fit.solve._band_kernel.free_band_matrix`, or None (NumPy forms the matrix):
+    :func:`mocap.util.optional.compiled`."""
+    return compiled("fit.solve._band_kernel", "free_band_matrix",
+                    what="banded matrix of the free weights",
+                    fallback="NumPy forms it, about half as fast")
+
 
 @functools.cache
 def _compiled_band():
@@ -309,6 +374,10 @@ class _WholeFactor:
     """Upper banded Cholesky factor M₀ of the whole sequence's reduced Hessian in one
     state, and the solves of nearby states through it.
 
+    The factor is the one of the free weights' matrix (:meth:`_Band.free_matrix`); the
+    bound weights' rows of the reduced Hessian are the fill on its diagonal, solved as
+    such.
+
     A state whose free set F differs from the factored one's F₀ in a few variables is
     solved by bordering: with the newly bound variables B (free in F₀) and the newly
     freed ones P (bound in F₀), ``x = M₀⁻¹(b̂ − E_B μ − W_P x_P)``, where the columns
@@ -316,27 +385,30 @@ class _WholeFactor:
     the small system that makes ``x_B = 0`` and the rows P hold (``W_Pᵀx + A_PP x_P =
     b_P``). Each variable's ``M₀⁻¹ e_j`` or ``M₀⁻¹ W_j`` is one band solve, kept while
     the factor is; the result's residual is checked. Other states get a factor of their
-    own (one (n + 1, T·n) array, rewritten in place).
+    own (in one buffer of (n + 1)·T·n floats, the most any state's takes, rewritten in
+    place).
     """
 
     def __init__(self, band: _Band, n_frames: int):
         self.band, self.n_frames = band, n_frames
         self.free, self.factor, self.columns = None, None, {}
+        self.buffer = self.at = None    # the factors' memory; the free weights, flat ids
         self._pending = None
 
     def reserve(self) -> None:
-        """Allocate the factor's buffer and touch its pages on another thread, beside
+        """Allocate the factors' buffer and touch its pages on another thread, beside
         the caller's work until :meth:`prepare`, :meth:`solve` or :meth:`wait`: the first
         touch of (n + 1)·T·n floats is page faults (90 MB for 3,870 frames of 53 shapes),
         which a virtual machine can make ten times slower than writing the bytes."""
         self.wait()
-        shape = (self.band.n + 1, self.n_frames * self.band.n)
 
         def touched():
-            factor = np.empty(shape, order="F")
-            factor.fill(0.0)                # (np.zeros would leave the pages untouched)
-            self.factor = factor
+            self.buffer = self._new_buffer()
+            self.buffer.fill(0.0)           # (np.zeros would leave the pages untouched)
         self._run(touched)
+
+    def _new_buffer(self) -> np.ndarray:
+        return np.empty((self.band.n + 1) * self.n_frames * self.band.n)
 
     def _run(self, work) -> None:
         """Start `work` on a thread kept for the process (:meth:`wait` waits for it)."""
@@ -386,13 +458,20 @@ class _WholeFactor:
     def _factor(self, free):
         """Factor the state with the flat free mask ``free`` (T·n,), in the kept buffer."""
         self.free, self.columns = None, {}  # the buffer is about to hold another factor
-        ab = self.band.matrix(free.reshape(self.n_frames, -1), degree(self.n_frames),
-                              np.ones(max(self.n_frames - 1, 0), bool), out=self.factor)
-        self.factor = cholesky_banded_upper(ab)
-        self.free = free
+        if self.buffer is None:
+            self.buffer = self._new_buffer()
+        ab = self.band.free_matrix(free.reshape(self.n_frames, -1), degree(self.n_frames),
+                                   np.ones(max(self.n_frames - 1, 0), bool), out=self.buffer)
+        self.factor = cholesky_banded_upper(ab) if ab.size else ab
+        self.free, self.at = free, np.flatnonzero(free)
 
     def _solve(self, rhs):
-        return cho_solve_banded_upper(self.factor, rhs)
+        """``M₀⁻¹ rhs`` (T·n,): the free weights' through the factor, the bound ones' rows
+        the fill on the diagonal."""
+        x = rhs / self.band.fill
+        if self.at.size:
+            x[self.at] = cho_solve_banded_upper(self.factor, rhs[self.at])
+        return x
 
     def _hessian_column(self, j):
         """Rows and values of column j of the full Hessian A = I ⊗ (G + ridge I) + λ L ⊗ I."""
