@@ -354,50 +354,9 @@ def test_follow_is_refused_without_smoothness_or_with_the_wrong_size():
 
 
 @pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "numpy"])
-@pytest.mark.parametrize("n, T", [(1, 6), (4, 1), (5, 300)])
-def test_band_matrix_is_the_reduced_hessian(n, T, compiled, monkeypatch):
-    """The banded storage holds the reduced Hessian of the dense oracle (I ⊗ G + λ L ⊗ I,
-    bound weights' rows and columns replaced by the fill on the diagonal, a frame not
-    linked to the next one decoupled from it), in LAPACK's upper form, Fortran-ordered;
-    written in small pieces and into a given array alike; by numba's loop the same bits
-    as by NumPy's pieces, the zeros' signs too."""
-    monkeypatch.setattr(fit.solve._smooth, "_PIECE_BYTES", 8 * n * (n + 1) * 7)  # 7 frames
-    if not compiled:
-        monkeypatch.setattr(fit.solve._smooth, "_compiled_band", lambda: None)
-    else:
-        assert fit.solve._smooth._compiled_band() is not None, \
-            "numba (the speed extra, in .[test]) is missing"
-    rng = np.random.default_rng(n * T)
-    a = rng.standard_normal((2 * n, n))
-    G, lam, ridge = a.T @ a, 0.7, 0.01
-    free = rng.random((T, n)) > 0.3
-    link = rng.random(max(T - 1, 0)) > 0.1
-    deg = np.r_[0, link] + np.r_[link, 0] if T > 1 else np.zeros(1)
-    band = fit.solve._smooth._Band(G, lam, ridge)
-    got = band.matrix(free, deg.astype(float), link)
-    lap = np.diag(deg.astype(float)) - np.diag(link.astype(float), 1) \
-        - np.diag(link.astype(float), -1)
-    dense = np.kron(np.eye(T), G) + lam * np.kron(lap, np.eye(n)) + ridge * np.eye(T * n)
-    keep = free.ravel()
-    dense = np.where(np.outer(keep, keep), dense, 0.0)
-    dense[~keep, ~keep] = band.fill
-    expected = np.zeros((n + 1, T * n))
-    for i, j in zip(*np.triu_indices(T * n)):
-        if j - i <= n:
-            expected[n + i - j, j] = dense[i, j]
-    np.testing.assert_allclose(got, expected, rtol=0, atol=EXACT_FLOAT64 * np.abs(dense).max())
-    assert got.flags.f_contiguous
-    out = np.full((n + 1, T * n), np.nan, order="F")
-    assert band.matrix(free, deg.astype(float), link, out=out) is out
-    np.testing.assert_array_equal(out, got)
-    monkeypatch.setattr(fit.solve._smooth, "_compiled_band", lambda: None)
-    assert band.matrix(free, deg.astype(float), link).tobytes() == got.tobytes()
-
-
-@pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "numpy"])
 @pytest.mark.parametrize("n, T, share", [(1, 6, 0.7), (4, 1, 0.7), (5, 300, 0.7),
                                           (6, 40, 1.0), (3, 5, 0.0)])
-def test_free_band_matrix_is_the_free_weights_reduced_hessian(n, T, share, compiled,
+def test_band_matrix_is_the_free_weights_reduced_hessian(n, T, share, compiled,
                                                                monkeypatch):
     """The free weights' band holds the dense oracle's rows and columns of the free
     weights (frame by frame, in order) in LAPACK's upper form with the fewest bands that
@@ -405,9 +364,9 @@ def test_free_band_matrix_is_the_free_weights_reduced_hessian(n, T, share, compi
     writes the same bits as NumPy, the zeros' signs too. Every weight free: the full
     band; none: an empty one."""
     if not compiled:
-        monkeypatch.setattr(fit.solve._smooth, "_compiled_free_band", lambda: None)
+        monkeypatch.setattr(fit.solve._smooth, "_compiled_band", lambda: None)
     else:
-        assert fit.solve._smooth._compiled_free_band() is not None, \
+        assert fit.solve._smooth._compiled_band() is not None, \
             "numba (the speed extra, in .[test]) is missing"
     rng = np.random.default_rng(n * T + 7)
     a = rng.standard_normal((2 * n, n))
@@ -417,7 +376,7 @@ def test_free_band_matrix_is_the_free_weights_reduced_hessian(n, T, share, compi
     deg = (np.r_[0, link] + np.r_[link, 0] if T > 1 else np.zeros(1)).astype(float)
     band = fit.solve._smooth._Band(G, lam, ridge)
     buffer = np.full((n + 1) * T * n + 3, np.nan)
-    got = band.free_matrix(free, deg, link, out=buffer)
+    got = band.matrix(free, deg, link, out=buffer)
     lap = np.diag(deg) - np.diag(link.astype(float), 1) - np.diag(link.astype(float), -1)
     dense = np.kron(np.eye(T), G) + lam * np.kron(lap, np.eye(n)) + ridge * np.eye(T * n)
     keep = np.flatnonzero(free.ravel())
@@ -431,13 +390,11 @@ def test_free_band_matrix_is_the_free_weights_reduced_hessian(n, T, share, compi
         if j - i <= kd:
             expected[kd + i - j, j] = dense[i, j]
     np.testing.assert_allclose(got, expected, rtol=0, atol=EXACT_FLOAT64 * np.abs(G).max())
-    if share == 1.0:
-        np.testing.assert_array_equal(got, band.matrix(free, deg, link))
-    monkeypatch.setattr(fit.solve._smooth, "_compiled_free_band", lambda: None)
-    assert band.free_matrix(free, deg, link).tobytes() == got.tobytes()
+    monkeypatch.setattr(fit.solve._smooth, "_compiled_band", lambda: None)
+    assert band.matrix(free, deg, link).tobytes() == got.tobytes()
     with pytest.raises(ValueError, match="flat float64 array of at least"):
-        band.free_matrix(free, deg, link, out=np.empty(got.size - 1)) if got.size else \
-            band.free_matrix(free, deg, link, out=np.empty((1, 1)))
+        band.matrix(free, deg, link, out=np.empty(got.size - 1)) if got.size else \
+            band.matrix(free, deg, link, out=np.empty((1, 1)))
 
 
 def _dense_reduced_hessian(band, state):
@@ -512,7 +469,7 @@ def test_a_reserved_buffer_holds_the_first_factor():
     whole = fit.solve._smooth._WholeFactor(band, T)
     whole.reserve()
     x = whole.solve(state, rhs)
-    kd = whole.band.free_bands(state == 0, np.ones(T - 1, bool))
+    kd = whole.band.bandwidth(state == 0, np.ones(T - 1, bool))
     assert whole.factor.shape == (kd + 1, np.count_nonzero(state == 0))
     assert whole.factor.flags.f_contiguous and np.shares_memory(whole.factor, whole.buffer)
     again = fit.solve._smooth._WholeFactor(band, T)

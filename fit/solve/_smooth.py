@@ -194,77 +194,23 @@ def _neighbour_sum(w, frames, values=None):
     return out
 
 
-#: Bytes of the piece of frames of the banded matrix formed at a time (its masks and
-#: products stay in cache).
-_PIECE_BYTES = 1 << 21
-
-
 class _Band:
-    """Upper banded storage (n + 1, F·n) of the reduced Hessian of any run of frames.
+    """The reduced Hessian of runs of frames in a state, as the band of its free weights.
 
-    Band k of one frame's G (zero in its first k columns, so a band never
-    couples two frames) is masked by the free weights of each pair of
-    variables k apart, by broadcasting over frames.
+    A bound weight's row and column hold only the fill on the diagonal: the band keeps
+    the free weights alone (:meth:`matrix`), a system of their own.
     """
 
     def __init__(self, G, lam, ridge):
         n = len(G)
         self.G, self.lam, self.n, self.ridge = G, lam, n, ridge
         self.g_diag = np.diag(G).copy()
+        self.G_rows = np.ascontiguousarray(G.T)     # row i: column i of G, contiguous
         self.fill = float(np.mean(self.g_diag)) or 1.0
-        cols = np.arange(n)
-        # [c, r − 1], (n, n − 1): the entry of storage row r (band n − r) in a frame's column c
-        self.bands = np.array([np.where(cols >= k, G[(cols - k) % n, cols], 0.0)
-                               for k in range(n - 1, 0, -1)]).reshape(n - 1, n).T.copy()
 
-    def matrix(self, free, deg, link, out=None):
-        """Banded matrix of frames with free mask ``free`` (F, n), degrees (F,),
-        ``link`` (F − 1,) True where a frame is coupled to the next one.
-
-        Fortran-ordered, so that LAPACK factors it in place (a C-ordered one it
-        would copy whole first), written column by column (each the n + 1
-        entries of one variable, contiguous): by the compiled loop of
-        :mod:`fit.solve._band_kernel` when numba is there, else by pieces of
-        frames (the same values, bit for bit); into `out` (its shape,
-        Fortran-ordered) when given.
-        """
-        n, F = self.n, len(free)
-        ab = np.empty((n + 1, F * n), order="F") if out is None else out
-        if ab.shape != (n + 1, F * n) or not ab.flags.f_contiguous:
-            raise ValueError(f"out must be a Fortran-ordered {(n + 1, F * n)} array")
-        kernel = _compiled_band()
-        if kernel is not None:
-            kernel(self.bands, self.g_diag, self.ridge, self.lam, self.fill,
-                   np.ascontiguousarray(free, dtype=bool), np.asarray(deg, dtype=float),
-                   np.asarray(link, dtype=bool), ab)
-            return ab
-        mask = free.ravel()
-        diag = (self.g_diag[None, :] + self.ridge + self.lam * deg[:, None]).ravel()
-        coupled = np.zeros(mask.size)
-        if F > 1:
-            coupled[n:] = mask[n:] & mask[:-n] & np.repeat(link, n)
-        # [j, r − 1]: whether variable j − (n − r) is free, False before the first frame
-        # (where the bands are 0 too): a sliding window, no copy
-        behind = np.lib.stride_tricks.sliding_window_view(np.r_[np.zeros(n, bool), mask],
-                                                          n - 1)
-        columns = ab.T                                                    # (F·n, n + 1), C
-        per_piece = max(1, _PIECE_BYTES // (8 * n * (n + 1)))
-        for first in range(0, F, per_piece):
-            cols = slice(first * n, min(first + per_piece, F) * n)
-            count = (cols.stop - cols.start) // n
-            piece = columns[cols].reshape(count, n, n + 1)
-            # the bands where both variables of an entry are free (one pass over the
-            # floats; the masks are bytes)
-            both = behind[cols.start + 1:cols.stop + 1].reshape(count, n, n - 1) \
-                & mask[cols].reshape(count, n, 1)
-            np.multiply(self.bands, both, out=piece[:, :, 1:n])
-            piece[:, :, 0] = (-self.lam * coupled[cols]).reshape(count, n)
-            piece[:, :, n] = np.where(mask[cols], diag[cols], self.fill).reshape(count, n)
-        return ab
-
-    def free_bands(self, free, link) -> int:
+    def bandwidth(self, free, link) -> int:
         """kd, the bands above the diagonal that the matrix of the free weights of `free`
-        (F, n) needs (:meth:`free_matrix`; ``link`` (F − 1,) as there), at most n: the
+        (F, n) needs (:meth:`matrix`; ``link`` (F − 1,) as there), at most n: the
         farthest of a frame's first and last free weight, and of a free weight and itself
         in the next, linked frame, in the order of the free weights."""
         counts = free.sum(axis=1)
@@ -276,39 +222,52 @@ class _Band:
         apart = (counts[:-1, None] - before[:-1]) + before[1:]
         return max(within, int(apart[tied].max(initial=0)), 0)
 
-    def free_matrix(self, free, deg, link, out=None):
-        """The reduced Hessian of the free weights only of frames with free mask ``free``
-        (F, n), degrees and ``link`` as :meth:`matrix` takes them: a row and column per
-        free weight, frame by frame, in LAPACK's upper band storage (kd + 1, N) of the
-        fewest bands that hold it (:meth:`free_bands`), Fortran-ordered.
+    def matrix(self, free, deg, link, out=None):
+        """The reduced Hessian of the free weights of frames with free mask ``free`` (F, n),
+        degrees ``deg`` (F,), ``link`` (F − 1,) True where a frame is coupled to the next:
+        a row and column per free weight, frame by frame, in LAPACK's upper band storage
+        (kd + 1, N) of the fewest bands that hold it (:meth:`bandwidth`), Fortran-ordered
+        (LAPACK factors it in place).
 
-        The bound weights' rows of :meth:`matrix` are the fill on the diagonal alone: left
-        out, the band is about (N / F·n)·(kd / n)² of the work to factor (8,000 frames of
-        the ICT take, 33 of 53 weights free, kd 50: 160 → 107 ms). Written by the compiled loop
-        of :mod:`fit.solve._band_kernel` when numba is there, else by NumPy (the same
+        Without the bound weights' rows (the fill on the diagonal alone), the band is
+        about (N / F·n)·(kd / n)² of the work to factor (8,000 frames of the ICT take, 33
+        of 53 weights free, kd 50: 160 → 107 ms). Written by the compiled loop of
+        :mod:`fit.solve._band_kernel` when numba is there, else by NumPy (the same
         values, bit for bit); into the first (kd + 1)·N floats of the flat array `out`
         when given.
         """
         free = np.ascontiguousarray(free, dtype=bool)
-        n_free, kd = int(np.count_nonzero(free)), self.free_bands(free, link)
+        n_free, kd = int(np.count_nonzero(free)), self.bandwidth(free, link)
         size = (kd + 1) * n_free
         if out is not None and (out.ndim != 1 or out.dtype != np.float64 or len(out) < size):
             raise ValueError(f"out must be a flat float64 array of at least {size} floats")
         ab = (np.empty(size) if out is None else out[:size]).reshape((kd + 1, n_free),
                                                                       order="F")
-        kernel = _compiled_free_band()
+        if not n_free:
+            return ab
+        kernel = _compiled_band()
         if kernel is not None:
-            kernel(self.G, self.g_diag, self.ridge, self.lam, free,
+            kernel(self.G_rows, self.g_diag, self.ridge, self.lam, free,
                    np.asarray(deg, dtype=float), np.asarray(link, dtype=bool), ab)
             return ab
         n = self.n
         at = np.flatnonzero(free.ravel())
         frame, weight = np.divmod(at, n)
+        # column c holds, d rows above its diagonal, G's entry of the weight d columns back
+        # where that weight is of its frame (d ≤ its place among the frame's free weights):
+        # the columns of each place at once, each column's entries contiguous in the
+        # C-ordered transpose
+        rank = (np.cumsum(free, axis=1, dtype=np.min_scalar_type(n)) - free)[free]
+        order = np.argsort(rank, kind="stable")
+        ends = np.cumsum(np.bincount(rank, minlength=kd + 1))
+        columns = ab.T
         ab.fill(0.0)
-        ab[kd] = (self.g_diag[weight] + self.ridge) + self.lam * np.asarray(deg)[frame]
-        for d in range(1, kd + 1):          # two free weights of one frame, d columns apart
-            same = np.flatnonzero(frame[d:] == frame[:-d])
-            ab[kd - d, same + d] = self.G[weight[same], weight[same + d]]
+        flat_G = self.G.ravel()
+        for place in range(1, kd + 1):
+            cols = order[ends[place - 1]:ends[place]]
+            back = weight[cols[:, None] + np.arange(-place, 0)]
+            columns[cols, kd - place:kd] = flat_G[back * n + weight[cols, None]]
+        columns[:, kd] = (self.g_diag[weight] + self.ridge) + self.lam * np.asarray(deg)[frame]
         column = np.full(free.size, -1)
         column[at] = np.arange(n_free)
         earlier = column[np.maximum(at - n, 0)]
@@ -319,20 +278,11 @@ class _Band:
 
 
 @functools.cache
-def _compiled_free_band():
-    """:func:`fit.solve._band_kernel.free_band_matrix`, or None (NumPy forms the matrix):
-    :func:`mocap.util.optional.compiled`."""
-    return compiled("fit.solve._band_kernel", "free_band_matrix",
-                    what="banded matrix of the free weights",
-                    fallback="NumPy forms it, about half as fast")
-
-
-@functools.cache
 def _compiled_band():
     """:func:`fit.solve._band_kernel.band_matrix`, or None (NumPy forms the banded matrix):
     :func:`mocap.util.optional.compiled`."""
     return compiled("fit.solve._band_kernel", "band_matrix", what="banded matrix",
-                    fallback="NumPy forms it by pieces of frames, about half as fast")
+                    fallback="NumPy forms it, four to five times slower")
 
 
 def _reduced(qp: BoxQP, band: _Band, c, state, w, frames=None,
@@ -356,8 +306,12 @@ def _reduced(qp: BoxQP, band: _Band, c, state, w, frames=None,
     if frames is None:
         step = whole.solve(sub, rhs)
     else:
-        ab = band.matrix(free, degree(len(c))[frames], np.diff(frames) == 1)
-        step = scipy.linalg.solveh_banded(ab, rhs, overwrite_ab=True, check_finite=False)
+        step = np.zeros_like(rhs)
+        at = np.flatnonzero(free)
+        if at.size:
+            ab = band.matrix(free, degree(len(c))[frames], np.diff(frames) == 1)
+            step[at] = scipy.linalg.solveh_banded(ab, rhs[at], overwrite_ab=True,
+                                                  check_finite=False)
     return fixed_part + np.where(free, step.reshape(free.shape), 0.0)
 
 
@@ -374,7 +328,7 @@ class _WholeFactor:
     """Upper banded Cholesky factor M₀ of the whole sequence's reduced Hessian in one
     state, and the solves of nearby states through it.
 
-    The factor is the one of the free weights' matrix (:meth:`_Band.free_matrix`); the
+    The factor is the one of the free weights' matrix (:meth:`_Band.matrix`); the
     bound weights' rows of the reduced Hessian are the fill on its diagonal, solved as
     such.
 
@@ -460,8 +414,8 @@ class _WholeFactor:
         self.free, self.columns = None, {}  # the buffer is about to hold another factor
         if self.buffer is None:
             self.buffer = self._new_buffer()
-        ab = self.band.free_matrix(free.reshape(self.n_frames, -1), degree(self.n_frames),
-                                   np.ones(max(self.n_frames - 1, 0), bool), out=self.buffer)
+        ab = self.band.matrix(free.reshape(self.n_frames, -1), degree(self.n_frames),
+                              np.ones(max(self.n_frames - 1, 0), bool), out=self.buffer)
         self.factor = cholesky_banded_upper(ab) if ab.size else ab
         self.free, self.at = free, np.flatnonzero(free)
 
