@@ -37,7 +37,9 @@ _LINE_PIECE = 256
 #: about a tenth of a report's figure time (its heatmaps: 0.63 → 0.55 s).
 _TEXT_HINTING = "no_hinting"
 #: zlib level of the PNGs: the size of level 9 at a fraction of its time (charts are flat
-#: colours; a lower level or OpenCV's default RLE makes noisy heatmaps several times larger).
+#: colours). OpenCV's default (RLE, no row filter) makes noisy heatmaps ten times larger;
+#: level 1 with the Up filter below encodes a 35,000-frame run's 20 PNGs in half the time
+#: (0.19 s instead of 0.43 s), 12% larger.
 _PNG_LEVEL = 6
 #: OpenCV's PNG options: the zlib level, and every row filtered by its difference from the
 #: row above (PNG's "Up"; OpenCV 4.12 and later let the filter be chosen). A chart's rows
