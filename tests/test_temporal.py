@@ -315,6 +315,43 @@ def test_banded_matrix_without_numbas_cache_is_formed_by_numpy(monkeypatch):
     np.testing.assert_array_equal(got.weights, expected.weights)
 
 
+def test_the_rough_start_ends_at_its_bounds_exactly():
+    """The ADMM start steps in float32 but ends in float64: within bounds float32 cannot
+    hold (-0.01, 1.01), the weights at a bound are at it exactly, so that the active set
+    read from them is the start's; and that active set is the one of the same ADMM in
+    float64 but for a few weights."""
+    rng = np.random.default_rng(21)
+    T, n, K = 400, 6, 15
+    basis, data = _smooth_problem(rng, T, n, K, spread=(-0.4, 1.4))
+    lo, hi = np.full(n, -0.01), np.full(n, 1.01)
+    assert np.float32(lo[0]) != lo[0] and np.float32(hi[0]) != hi[0]
+    G, c, lam = basis.T @ basis, data @ basis, 3.0
+    spectrum = fit.solve._smooth.Spectrum.build(G, T)
+    start = fit.solve._smooth.rough(spectrum, spectrum.transform(c), lam, lo, hi, 25)
+    assert start.dtype == np.float64 and start.shape == (T, n)
+    assert ((start >= lo) & (start <= hi)).all()
+    at_lo, at_hi = start <= lo, start >= hi
+    assert at_lo.sum() > 100 and at_hi.sum() > 100
+    np.testing.assert_array_equal(start[at_lo], lo[0])
+    np.testing.assert_array_equal(start[at_hi], hi[0])
+    # the same steps in float64 (the oracle: the iteration as the docstring writes it)
+    eig = spectrum.eig
+    rho = float(np.sqrt(eig[0] * (eig[-1] + 4.0 * lam)))
+    denom = eig[None, :] + lam * spectrum.mu[:, None] + rho
+    spectral = spectrum.transform(c)
+    z = np.clip(fit.solve._smooth.unbounded(spectrum, spectral, lam), lo, hi)
+    u = np.zeros_like(z)
+    relax = fit.solve._smooth._ADMM_RELAXATION
+    for _ in range(25):
+        w = relax * spectrum.inverse((spectral + spectrum.transform(rho * (z - u))) / denom) \
+            + (1 - relax) * z
+        z = np.clip(w + u, lo, hi)
+        u += w - z
+    differ = ((z <= lo) != at_lo) | ((z >= hi) != at_hi)
+    assert differ.mean() < 0.002
+    np.testing.assert_allclose(start, z, rtol=0, atol=1e-5)
+
+
 def _counted_factorizations(monkeypatch) -> list:
     """A list that gets one item per factorization of the whole sequence from now on."""
     factors = []
