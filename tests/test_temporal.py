@@ -391,7 +391,7 @@ def test_follow_is_refused_without_smoothness_or_with_the_wrong_size():
 
 
 @pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "numpy"])
-@pytest.mark.parametrize("n, T, share", [(1, 6, 0.7), (4, 1, 0.7), (5, 300, 0.7),
+@pytest.mark.parametrize("n, T, share", [(1, 6, 0.7), (4, 1, 0.7), (5, 300, 0.7), (300, 3, 0.9),
                                           (6, 40, 1.0), (3, 5, 0.0)])
 def test_band_matrix_is_the_free_weights_reduced_hessian(n, T, share, compiled,
                                                                monkeypatch):
