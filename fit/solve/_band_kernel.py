@@ -23,7 +23,8 @@ def band_matrix(G_rows, g_diag, ridge, lam, free, deg, link,
 
     Parameters
     ----------
-    G : ndarray of shape (n, n)
+    G_rows : ndarray of shape (n, n), C-contiguous
+        Gᵀ: row i is G's column i (read along a row).
     g_diag : ndarray of shape (n,)
         G's diagonal.
     ridge, lam : float

@@ -283,7 +283,8 @@ class _Band:
         earlier = column[np.maximum(at - n, 0)]
         tied = (frame > 0) & (earlier >= 0)
         tied[tied] &= np.asarray(link, dtype=bool)[frame[tied] - 1]
-        ab[kd - (np.flatnonzero(tied) - earlier[tied]), np.flatnonzero(tied)] = -self.lam
+        coupled = np.flatnonzero(tied)
+        ab[kd - (coupled - earlier[coupled]), coupled] = -self.lam
         return ab
 
 
