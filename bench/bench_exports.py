@@ -17,8 +17,8 @@ which is not its floor: :mod:`mocap.util.float_text` formats whole arrays, by Nu
 process that has not loaded numba (the table's 1.9M cells do not pay for loading it), by
 its compiled kernel in one that has (``mocap2mesh run``, whose fit loads it); both are
 timed. A zip member carries the CRC-32 of its bytes: the npz's CRC-32 alone (the writer's,
-zlib-ng's with the speed extra and then zlib's too, on one thread; the writer sums it on a
-second thread beside the writes) is printed under it,
+zlib-ng's with the speed extra and then zlib's too, on one thread; the writer's threads sum
+the parts they write) is printed under it,
 the npz's floor where it takes longer than writing the bytes; and, since its float32
 members are made from float64, the time of converting and writing as many floats plus the
 CRC-32, halved (the least two cores could take for the file's work). The ``.glb``'s floats are

@@ -169,17 +169,22 @@ def test_a_failed_part_stops_the_file_once_every_thread_is_done(tmp_path):
         write_parts(positional_writer(fh, 0), parts, workers=1, part_bytes=100)
 
 
-@pytest.mark.parametrize("crc32", [npz.crc32, zlib.crc32], ids=["writer's", "stdlib"])
-@pytest.mark.parametrize("chunk_bytes", [100, npz._CHUNK_BYTES])
-def test_npz_holds_what_np_savez_writes(tmp_path, monkeypatch, chunk_bytes, crc32):
+@pytest.mark.parametrize("crc32, combine", [(npz.crc32, npz.crc32_combine), (zlib.crc32, None)],
+                         ids=["writer's", "stdlib and our combine"])
+@pytest.mark.parametrize("workers", [1, 3])
+@pytest.mark.parametrize("chunk_bytes", [100, npz._PART_BYTES])
+def test_npz_holds_what_np_savez_writes(tmp_path, monkeypatch, chunk_bytes, workers, crc32,
+                                        combine):
     """Member by member the bytes of ``np.savez`` of the arrays as stored (C order, the
-    stored dtype by ``astype``): summed where they are written (small members) or on
-    the helper thread, converted in chunks of a few rows (with a remainder) or, rows
-    longer than a chunk, of elements; a Fortran-ordered array reads back the same; the
-    CRC-32 set in each local header, by zlib-ng's (the speed extra) as by the standard
-    library's; the file ends where the archive does."""
-    monkeypatch.setattr(npz, "_CHUNK_BYTES", chunk_bytes)
+    stored dtype by ``astype``), on one worker thread or shared among three: converted
+    in parts of a few rows (with a remainder) or, rows longer than a part, of elements;
+    a Fortran-ordered array reads back the same; the CRC-32 set in each local header,
+    combined from the parts' by zlib-ng's (the speed extra) as by the standard library's
+    and our own combination; the file ends where the archive does."""
+    monkeypatch.setattr(npz, "_PART_BYTES", chunk_bytes)
+    monkeypatch.setattr(npz, "worker_threads", lambda: workers)
     monkeypatch.setattr(npz, "crc32", crc32)
+    monkeypatch.setattr(npz, "crc32_combine", combine)
     rng = np.random.default_rng(0)
     arrays = dict(weights=rng.normal(size=(101, 7)), faces=np.arange(30).reshape(10, 3),
                   names=np.array(["jawOpen", "eyeBlink_L"]), units=np.array("cm"),
@@ -228,12 +233,26 @@ def test_npz_sums_by_zlib_ng_where_the_speed_extra_is_installed():
     assert npz.crc32(data[1:], npz.crc32(data[:1])) == zlib.crc32(data)
 
 
+@pytest.mark.parametrize("n_bytes", [0, 1, 7, 1000, 3 << 20])
+def test_crc32_combination_is_the_crc32_of_the_joined_bytes(n_bytes):
+    """Our ``crc32_combine`` (the writer's without zlib-ng) against zlib's CRC-32 of the
+    joined bytes, and zlib-ng's own combination."""
+    from zlib_ng import zlib_ng
+    rng = np.random.default_rng(n_bytes)
+    for first in (b"", rng.bytes(1), rng.bytes(4099)):
+        second = rng.bytes(n_bytes)
+        combined = npz._crc32_combine(zlib.crc32(first), zlib.crc32(second), n_bytes)
+        assert combined == zlib.crc32(first + second)
+        assert combined == zlib_ng.crc32_combine(zlib.crc32(first), zlib.crc32(second),
+                                                 n_bytes)
+
+
 def test_npz_refuses_python_objects(tmp_path):
     with open(tmp_path / "o.npz", "wb") as fh, pytest.raises(ValueError, match="objects"):
         npz.write_npz(fh, {"o": np.array([{}, None], dtype=object)})
 
 
-@pytest.mark.parametrize("chunk_bytes", [100, npz._CHUNK_BYTES])
+@pytest.mark.parametrize("chunk_bytes", [100, npz._PART_BYTES])
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, 1e39])
 @pytest.mark.parametrize("where", [0, 57, 100])
 def test_npz_checks_members_finite_as_stored(tmp_path, monkeypatch, bad, where, chunk_bytes):
@@ -241,7 +260,7 @@ def test_npz_checks_members_finite_as_stored(tmp_path, monkeypatch, bad, where, 
     middle or the last chunk of rows (or in a member summed where it is written),
     refused in a member stored finite; the same values written where they are not
     asked to be finite (1e39 as float32's inf)."""
-    monkeypatch.setattr(npz, "_CHUNK_BYTES", chunk_bytes)
+    monkeypatch.setattr(npz, "_PART_BYTES", chunk_bytes)
     weights = np.random.default_rng(where).normal(size=(101, 7))
     weights[where, 3] = bad
     with np.errstate(over="ignore"):

@@ -37,7 +37,8 @@ def write_parts(write_at: Callable[[int, memoryview], None], parts: Sequence, *,
     parts : sequence of (int, object)
         Each part's size in bytes and its bytes: a bytes-like object, or a callable
         ``part(out)`` that makes them in `out` (a uint8 array of `part_bytes`) and returns
-        them (a bytes-like view of `out`, of the part's size).
+        them (a bytes-like view of `out`, of the part's size; or, bytes it need not
+        make, a view of their own memory).
     workers : int
         Threads that make and write the parts, part i on thread ``i % workers``: this
         one and ``workers - 1`` of :func:`mocap.util.blas.shared_pool`.
