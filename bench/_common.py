@@ -15,6 +15,13 @@ import tracemalloc
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
+# A benchmark times the code of the checkout it lives in, not the installed package's: an
+# editable install points at one checkout, and a copy of another commit beside it is how
+# two versions are timed side by side. The processes it starts (``mocap2mesh run``) get
+# the same path.
+sys.path.insert(0, str(REPO))
+os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO),
+                                                         os.environ.get("PYTHONPATH")]))
 #: The longest gap the benchmarks fill in facial-sing.c3d, frames: its longest face-marker
 #: gap is 192 frames (1.92 s), far beyond the default maximum gap, and they fill it.
 FACIAL_SING_MAX_GAP = 200
