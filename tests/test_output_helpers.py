@@ -257,9 +257,9 @@ def test_npz_refuses_python_objects(tmp_path):
 @pytest.mark.parametrize("where", [0, 57, 100])
 def test_npz_checks_members_finite_as_stored(tmp_path, monkeypatch, bad, where, chunk_bytes):
     """A NaN, an infinite value or a float64 beyond float32's range, in the first, a
-    middle or the last chunk of rows (or in a member summed where it is written),
-    refused in a member stored finite; the same values written where they are not
-    asked to be finite (1e39 as float32's inf)."""
+    middle or the last part of rows (or in a member of one part), refused in a member
+    stored finite; the same values written where they are not asked to be finite (1e39
+    as float32's inf)."""
     monkeypatch.setattr(npz, "_PART_BYTES", chunk_bytes)
     weights = np.random.default_rng(where).normal(size=(101, 7))
     weights[where, 3] = bad
