@@ -278,15 +278,20 @@ class PlacementUnderWeights:
         n = self.n_shapes
         weights = as_float_array(weights, "weights", shape=(None, n), copy=False)  # only read
         out = np.empty((len(weights), self.layout.n_markers, 3))
-        # a pass's weights, as columns, over a row of ones (the neutral's)
-        augmented = np.empty((n + 1, min(len(weights), _FRAMES_PER_PASS)))
+        # a pass's weights, as columns, over a row of ones (the neutral's), and its
+        # vertices: both made again in the same memory at every pass, which stays in cache
+        width = min(len(weights), _FRAMES_PER_PASS)
+        augmented = np.empty((n + 1, width))
         augmented[n] = 1.0
+        vertices = np.empty((len(self.operator), width))
         for first in range(0, len(weights), _FRAMES_PER_PASS):
             part = weights[first:first + _FRAMES_PER_PASS]
             columns = augmented[:, :len(part)]
             columns[:n] = part.T
-            near = (self.operator @ columns).reshape(3, -1, len(part))         # (3, K, B)
-            self.layout._place(near, out=out[first:first + len(part)])
+            near = vertices if len(part) == width else vertices[:, :len(part)]
+            np.matmul(self.operator, columns, out=near)
+            self.layout._place(near.reshape(3, -1, len(part)),
+                               out=out[first:first + len(part)])           # near: (3, K, B)
         return out
 
 
