@@ -288,10 +288,9 @@ class PlacementUnderWeights:
             part = weights[first:first + _FRAMES_PER_PASS]
             columns = augmented[:, :len(part)]
             columns[:n] = part.T
-            near = vertices if len(part) == width else vertices[:, :len(part)]
-            np.matmul(self.operator, columns, out=near)
-            self.layout._place(near.reshape(3, -1, len(part)),
-                               out=out[first:first + len(part)])           # near: (3, K, B)
+            near = np.matmul(self.operator, columns, out=vertices[:, :len(part)])
+            self.layout._place(near.reshape(3, -1, len(part)),                # (3, K, B)
+                               out=out[first:first + len(part)])
         return out
 
 
