@@ -122,15 +122,18 @@ def run_variant(root, capture, index, fit):
 PAIRS = 3
 
 
-def warm_fit_seconds(capture: Path) -> dict:
-    """The fit stage of the exact and the GCV options in this process, on the take as the
-    exact variant's ``run`` prepared it: each run once first (numba's kernels loaded, the
-    memory touched), then alternated ``PAIRS`` times; label to its seconds, run by run.
+def warm_fit_seconds(root: Path, capture: Path) -> dict:
+    """The fit stage of the exact and the GCV options in this process, on the take as
+    ``run`` prepares it with the configuration of :func:`config_text`: each run once first
+    (numba's kernels loaded, the memory touched), then alternated ``PAIRS`` times; label
+    to its seconds, run by run.
 
     A fresh ``run`` adds the same fixed costs to both fits (about 0.4 s on this take: the
     first load of compiled kernels, the first touch of memory): the ratio of the warm fits
     is the solvers' own."""
-    reconstruction = Reconstruction.from_config(OUT / "run-0.toml")
+    config = OUT / "warm.toml"
+    config.write_text(config_text(root, capture, OUT / "warm", {}), encoding="utf-8")
+    reconstruction = Reconstruction.from_config(config)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         prepared = reconstruction.prepare(capture)
@@ -188,7 +191,7 @@ def main() -> None:
     print(f"\nexact and GCV alternated {PAIRS} times (their rows: the median fit s): GCV fit / "
           f"exact fit per pair {', '.join(f'{g:.2f}/{e:.2f} = {g / e:.2f}' for g, e in pairs)}; "
           f"aim ≤ 2")
-    warm = warm_fit_seconds(capture)
+    warm = warm_fit_seconds(root, capture)
     print(f"the same fits in this process, warm (each run once before), alternated {PAIRS} "
           f"times: GCV fit / exact fit per pair "
           + ", ".join(f"{g:.2f}/{e:.2f} = {g / e:.2f}"
