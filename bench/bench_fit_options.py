@@ -117,6 +117,8 @@ def run_variant(root, capture, index, fit):
     return weights.drop(columns="time"), take, seconds
 
 
+#: The variants the speed aim compares (GCV ≤ 2× exact).
+COMPARED = ("exact", "smoothness GCV")
 #: Runs of the exact and the GCV variants, alternated: their fit times are the medians
 #: (this machine's speed changes from one minute to the next; one run each is noise).
 PAIRS = 3
@@ -140,7 +142,7 @@ def warm_fit_seconds(root: Path, capture: Path) -> dict:
         bases = basis_stage(prepared.retargeted, reconstruction.basis,
                             options=reconstruction.basis_options)
         options = {label: dataclasses.replace(reconstruction.fit, **fit)
-                   for label, fit in VARIANTS if label in ("exact", "smoothness GCV")}
+                   for label, fit in VARIANTS if label in COMPARED}
         seconds = {label: [] for label in options}
         for rounds in (1, PAIRS):
             for _ in range(rounds):
@@ -164,7 +166,7 @@ def main() -> None:
           f"bind.frame = 'hold', marker space, H in [0, 1]; "
           f"BLAS threads {os.environ['OPENBLAS_NUM_THREADS']}; {memory}\n")
     # the exact and GCV fits alternated PAIRS times first: the aim compares them
-    paired = {label: [] for label in ("exact", "smoothness GCV")}
+    paired = {label: [] for label in COMPARED}
     for _ in range(PAIRS):
         for index, (label, fit) in enumerate(VARIANTS):
             if label in paired:
