@@ -120,6 +120,7 @@ from fit.pipeline import (
 from fit.pipeline.stages import lip_seal_stage
 from fit.report import build_report
 from fit.report.figure_queue import FigureQueue
+from fit.report.forked_helpers import start_fork_server
 from fit.solve._reduced import BoxQP, reduced_solve
 from fit.solve.marker_basis import marker_basis
 from fit.solve.marker_centres import solve_at_marker_centres
@@ -499,6 +500,8 @@ def main() -> None:
     parser.add_argument("--naive-frames", type=int, default=200)
     args = parser.parse_args()
     memory = memory_as_the_command()
+    # as the command does: the figure helpers' server forked before any thread starts
+    start_fork_server()
     out = scratch_directory("bench_chain_")
     artist, markerset, sim_take = simulate(args.frames, out / "take.c3d")
     mesh = artist.neutral

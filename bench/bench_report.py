@@ -4,10 +4,11 @@ The inputs are those of ``bench_chain.py``: its simulated take (the ICT face, 60
 markers), read, ingested, bound, retargeted and fitted as the chain does. Timed:
 :func:`fit.report.build_report` (figures and HTML, no video) as its default draws them,
 every figure in this process; with the figure queue ``mocap2mesh run`` and
-``bench_chain.py`` give it (one helper process per spare core), started
-:data:`HELPER_LEAD_S` before, as they start it with the exports (a helper draws once it has
-imported the report's modules, about 0.7 s on 2 cores); and each figure's own time beside
-the time of encoding its pixels.
+``bench_chain.py`` give it (one helper process per spare core, forked by the server this
+process forks at its start, as the command does: :mod:`fit.report.forked_helpers`; where
+it cannot, fresh interpreters started :data:`HELPER_LEAD_S` before, as the command starts
+them with the exports: one draws once it has imported the report's modules, about 0.7 s
+on 2 cores); and each figure's own time beside the time of encoding its pixels.
 
 Floor: what the report must do however its figures are drawn, i.e. encode the pixels of
 every PNG it writes (decoded from its own files beforehand, then encoded again by
@@ -36,6 +37,7 @@ import mocap  # noqa: E402
 from fit import pipeline  # noqa: E402
 from fit.report import build_report  # noqa: E402
 from fit.report.figure_queue import FigureQueue  # noqa: E402
+from fit.report.forked_helpers import start_fork_server  # noqa: E402
 from mocap.clean.ingest import IngestOptions  # noqa: E402
 from mocap.mesh.landmarks import load_mesh_landmarks  # noqa: E402
 
@@ -102,6 +104,9 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=35_000)
     parser.add_argument("--repeat", type=int, default=2)
     options = parser.parse_args()
+    # as the command does: the figure helpers' server forked before any thread starts
+    forked = start_fork_server()
+    lead = 0.0 if forked else HELPER_LEAD_S
     out = scratch_directory("bench_report_")
     args = inputs(options.frames, out)
     take = args["take"]
@@ -115,7 +120,7 @@ def main() -> None:
         best = min(best, time.perf_counter() - tic)
         with FigureQueue() as figures:
             helpers = figures.helpers
-            time.sleep(HELPER_LEAD_S)
+            time.sleep(lead)
             tic = time.perf_counter()
             report(args, out / f"started-{k}", figures)
             started = min(started, time.perf_counter() - tic)
@@ -129,7 +134,8 @@ def main() -> None:
     print(f"\nfloor (PNG pixels encoded + HTML bytes written): {floor:.2f} s")
     print(f"build_report, every figure in this process (its default): {best:.2f} s = "
           f"{best / floor:.1f}× the floor; with run's figure queue ({helpers} "
-          f"helper(s), started {HELPER_LEAD_S:g} s before): {started:.2f} s = "
+          f"helper(s), {'forked by its server' if forked else 'fresh interpreters'}, "
+          f"started {lead:g} s before): {started:.2f} s = "
           f"{started / floor:.1f}× (aim: 3 s; the rest beside the figures: the errors of "
           "fit.metrics, the HTML)")
 

@@ -146,7 +146,9 @@ def console() -> None:  # pragma: no cover - the installed entry point
 
     The command and the processes it starts keep the memory they free for reuse, and on a
     virtual machine that reports its free memory to the host, NumPy's huge-page advice is
-    off (:func:`mocap.util.process_memory.configure_process_memory`).
+    off (:func:`mocap.util.process_memory.configure_process_memory`). A command that draws
+    figures forks the server of its figure helpers once its imports are done
+    (:func:`fit.report.forked_helpers.start_fork_server`).
     """
     configure_process_memory()
     argv = sys.argv[1:]
@@ -156,6 +158,10 @@ def console() -> None:  # pragma: no cover - the installed entry point
     finally:
         gc.enable()
     gc.freeze()
+    # a command that draws figures imported the helpers' module: their server is forked
+    # now, before any thread starts
+    if (helpers := sys.modules.get("fit.report.forked_helpers")) is not None:
+        helpers.start_fork_server()
     code = main(argv)
     gc.freeze()
     sys.exit(code)

@@ -1,6 +1,7 @@
 """A helper process of :class:`fit.report.figure_queue.FigureQueue`.
 
-Reads pickled figures on stdin, one at a time, draws each and answers on stdout:
+Reads pickled figures on stdin, one at a time, draws each and answers on stdout (a helper
+forked by :mod:`fit.report.forked_helpers`: on two pipes of its own):
 ``("ok", [(message, category), ...])`` with the figure's warnings, or
 ``("error", exception, traceback text)``, or ``(UNSENT,)`` when the answer does not
 pickle. Each answer goes as one pickled ``bytes``, so that the caller reads it whole even
@@ -47,14 +48,20 @@ def _send(outbox, outcome) -> None:
 
 
 def main() -> None:
+    """A fresh interpreter's helper: the figures come on stdin, the answers go on stdout."""
+    serve(sys.stdin.buffer, os.fdopen(os.dup(sys.stdout.fileno()), "wb"))
+
+
+def serve(inbox, outbox) -> None:
+    """Answer each figure read from the binary file `inbox` on `outbox` until `inbox`
+    ends, then end the process (a fresh interpreter's or one forked by
+    :mod:`fit.report.forked_helpers`)."""
     # the objects of the imports live as long as the helper: made with the collector off
-    # (the boot turned it off), its full passes while it draws skip them (see
-    # fit.cli.main.console)
+    # (a fresh interpreter's boot turned it off), its full passes while it draws skip them
+    # (see fit.cli.main.console)
     gc.freeze()
     gc.enable()
-    inbox = sys.stdin.buffer
-    outbox = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
-    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())   # what a figure prints: stderr
     _send(outbox, READY)
     while True:
         try:
@@ -63,4 +70,3 @@ def main() -> None:
             sys.stderr.flush()
             os._exit(0)
         _send(outbox, _draw(task))
-

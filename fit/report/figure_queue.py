@@ -2,12 +2,15 @@
 
 Matplotlib draws under the GIL, so threads cannot share out a report's figures; they do
 not depend on each other, so processes can. The caller and each helper take the next
-figure that nobody has taken yet. A helper is a fresh interpreter
-(:mod:`fit.report._figure_helper`), not a fork: a fork of a process running BLAS
-and other threads can deadlock, and a multiprocessing child would run the caller's
-script again when it has no ``__main__`` guard. A helper imports the report's modules as
-it starts, so a queue made before other work (the exports) has its helpers ready when the
-figures come; a helper still starting when the figures are done is stopped.
+figure that nobody has taken yet. A helper (:mod:`fit.report._figure_helper`) is not a
+fork of the caller: a fork of a process running BLAS and other threads can deadlock, and a
+multiprocessing child would run the caller's script again when it has no ``__main__``
+guard. Where the command forked a server before it started any thread (the
+``mocap2mesh`` command does: :mod:`fit.report.forked_helpers`), the server forks the
+helpers, which have its imports at once. Else a helper is a fresh interpreter that imports
+the report's modules as it starts (about a second of a core), so a queue made before
+other work (the exports) has its helpers ready when the figures come; a helper still
+starting when the figures are done is stopped.
 
 A figure is a call ``function(*args, **kwargs)`` that writes its file and returns
 nothing (the exports' weights CSVs go the same way:
@@ -31,6 +34,7 @@ from typing import Callable
 
 import matplotlib
 
+from fit.report.forked_helpers import forked_helper
 from mocap.util.blas import CoresTaken
 
 __all__ = ["FigureQueue", "MAX_HELPERS", "default_helpers"]
@@ -78,18 +82,23 @@ class _Figure:
 
 
 class _Helper:
-    """One helper process, fed pickles on its stdin, answering on its stdout."""
+    """One helper process, fed pickles on its stdin, answering on its stdout: forked by
+    this process's server when it has one (:mod:`fit.report.forked_helpers`), else a
+    fresh interpreter."""
 
     def __init__(self):
-        env = {**os.environ, "MPLBACKEND": "Agg",
-               # figures are no place for BLAS threads: the caller's process has them
-               "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-        self.process = subprocess.Popen([sys.executable, "-c", _BOOT], stdin=subprocess.PIPE,
-                                        stdout=subprocess.PIPE, env=env)
         self.ready = False
-        # the caller's import path, taken once the helper's interpreter is up (as
-        # PYTHONPATH it would come before the standard library, which a script's folder
-        # holding a "re.py" would then shadow)
+        self.process = forked_helper()
+        if self.process is None:
+            env = {**os.environ, "MPLBACKEND": "Agg",
+                   # figures are no place for BLAS threads: the caller's process has them
+                   "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+            self.process = subprocess.Popen([sys.executable, "-c", _BOOT],
+                                            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                            env=env)
+        # the caller's import path as it is now (not as it was at a fork server's fork),
+        # taken once the helper is up (as PYTHONPATH it would come before the standard
+        # library, which a script's folder holding a "re.py" would then shadow)
         pickle.dump(sys.path, self.process.stdin)
         self.process.stdin.flush()
 
@@ -208,9 +217,9 @@ class FigureQueue:
             figures, outcomes, lost = self._figures, self._outcomes, self._lost
             self._figures, self._outcomes, self._taken, self._lost = [], {}, 0, []
         for figure, pid, code in lost:
-            warnings.warn(f"figure helper (pid {pid}) exited with code {code} while drawing "
-                          f"{figure.name}; drawn in this process instead", RuntimeWarning,
-                          stacklevel=2)
+            ended = "ended" if code is None else f"exited with code {code}"
+            warnings.warn(f"figure helper (pid {pid}) {ended} while drawing {figure.name}; "
+                          "drawn in this process instead", RuntimeWarning, stacklevel=2)
         errors = []
         for index in range(len(figures)):
             outcome = outcomes[index]
