@@ -146,10 +146,11 @@ def process_take(capture, config: RunConfig, session_basis=None, *, name: str | 
                 result = dataclasses.replace(reconstruction.process(
                     source, session_basis=session_basis), name=name)
             stages = dict(result.stage_seconds)
-            # the helpers start with the exports (a core of a helper's start would slow the
-            # chain's threaded stages), write the weights CSVs while this process writes the
-            # other exports and gathers the report's errors and held-out fits, then draw the
-            # figures ("exports" is then the binary files, "report" the rest)
+            # the helpers start with the exports (a fresh interpreter's start, or a helper
+            # at work, would take a core from the chain's threaded stages), write the
+            # weights CSVs while this process writes the other exports and gathers the
+            # report's errors and held-out fits, then draw the figures ("exports" is then
+            # the binary files, "report" the rest)
             with FigureQueue(figure_helpers) as figures:
                 tic = time.perf_counter()
                 result.save(stage, inputs=[capture], figures=figures, wait=False)
