@@ -188,3 +188,37 @@ sys.argv = ["mocap2mesh", {command!r}]
 cli.console()
 """, tmp_path, prelude="")
     assert (out["server"] not in (None, out["caller"])) is server
+
+
+def test_a_server_that_cannot_fork_leaves_that_helper_to_a_fresh_interpreter(tmp_path):
+    out = _run("""
+caller, fork = os.getpid(), os.fork
+
+def refused():                                  # the system refuses the server a process
+    if os.getpid() != caller:
+        raise BlockingIOError(11, "Resource temporarily unavailable")
+    return fork()
+os.fork = refused
+forked_helpers.start_fork_server()
+with FigureQueue(helpers=1) as figures:
+    parents = [parent_of(pid) for pid in figures.pids]
+    figures.submit(figure_tasks.pid, "drawn.txt")
+    wait_for_file("drawn.txt")
+    figures.run()
+print(json.dumps({"caller": caller, "parents": parents, "drawn_by": int(open("drawn.txt").read()),
+                  "server": forked_helpers.fork_server_pid()}))
+""", tmp_path)
+    assert out["parents"] == [out["caller"]]            # a fresh interpreter
+    assert out["drawn_by"] != out["caller"]
+    assert out["server"] is not None                    # kept for the next helpers
+
+
+def test_no_server_when_the_system_refuses_a_process(tmp_path):
+    out = _run("""
+def refused():
+    raise BlockingIOError(11, "Resource temporarily unavailable")
+os.fork = refused
+print(json.dumps({"started": forked_helpers.start_fork_server(),
+                  "server": forked_helpers.fork_server_pid()}))
+""", tmp_path)
+    assert out == {"started": False, "server": None}

@@ -48,15 +48,19 @@ class _Server:
     def ask(self, request: bytes, fds: int = 0) -> tuple[int, list]:
         """Send `request`; return the server's answer (a word) and the `fds` it passed.
 
-        Raises OSError when the server is gone."""
+        Raises ChildProcessError when it could not fork a helper, another OSError when
+        it is gone."""
         with self.lock:
             self.channel.sendall(request)
             word, passed, _, _ = socket.recv_fds(self.channel, _WORD, fds)
-        if len(word) != _WORD or len(passed) != fds:
+        answer = int.from_bytes(word, "little", signed=True) if len(word) == _WORD else None
+        if len(passed) != fds:
             for fd in passed:
                 os.close(fd)
+            if answer == _UNKNOWN:
+                raise ChildProcessError("the figure helpers' fork server could not fork")
             raise ConnectionError("the figure helpers' fork server ended")
-        return int.from_bytes(word, "little", signed=True), passed
+        return answer, passed
 
 
 def _received(channel: socket.socket, size: int) -> bytes:
@@ -89,15 +93,23 @@ def start_fork_server() -> bool:
     if not (sys.platform.startswith("linux") and hasattr(os, "pidfd_open")
             and hasattr(socket, "send_fds")) or threading.active_count() > 1:
         return False
-    caller_end, server_end = socket.socketpair()
     for stream in (sys.stdout, sys.stderr):         # nothing buffered is written twice
         if stream is not None:
             stream.flush()
-    with warnings.catch_warnings():
-        # Python 3.12+ warns of any other OS thread: here only OpenBLAS's (see above)
-        warnings.filterwarnings("ignore", category=DeprecationWarning,
-                                message=".*multi-threaded.*fork")
-        pid = os.fork()
+    try:
+        caller_end, server_end = socket.socketpair()
+    except OSError:                                 # out of file descriptors: fresh helpers
+        return False
+    try:
+        with warnings.catch_warnings():
+            # Python 3.12+ warns of any other OS thread: here only OpenBLAS's (see above)
+            warnings.filterwarnings("ignore", category=DeprecationWarning,
+                                    message=".*multi-threaded.*fork")
+            pid = os.fork()
+    except OSError:                                 # no process to spare: fresh helpers
+        caller_end.close()
+        server_end.close()
+        return False
     if pid == 0:
         try:
             caller_end.close()
@@ -133,18 +145,28 @@ def _serve(channel: socket.socket) -> None:
 
 
 def _fork_helper(channel: socket.socket) -> None:
-    """Fork a helper; pass the caller its pid, its two pipes' other ends and its pidfd."""
-    from_caller, to_helper = os.pipe()
-    from_helper, to_caller = os.pipe()
-    pid = os.fork()
-    if pid == 0:
-        channel.close()
-        os.close(to_helper)
-        os.close(from_helper)
-        _run_helper(from_caller, to_caller)
+    """Fork a helper; pass the caller its pid, its two pipes' other ends and its pidfd
+    (:data:`_UNKNOWN` and no descriptor when the system refuses a process or a pipe)."""
+    opened = []
+    try:
+        from_caller, to_helper = os.pipe()
+        opened += [from_caller, to_helper]
+        from_helper, to_caller = os.pipe()
+        opened += [from_helper, to_caller]
+        pid = os.fork()
+        if pid == 0:
+            channel.close()
+            os.close(to_helper)
+            os.close(from_helper)
+            _run_helper(from_caller, to_caller)
+        pidfd = os.pidfd_open(pid)
+    except OSError:
+        for fd in opened:
+            os.close(fd)
+        channel.sendall(_UNKNOWN.to_bytes(_WORD, "little", signed=True))
+        return
     os.close(from_caller)
     os.close(to_caller)
-    pidfd = os.pidfd_open(pid)
     socket.send_fds(channel, [pid.to_bytes(_WORD, "little", signed=True)],
                     [to_helper, from_helper, pidfd])
     for fd in (to_helper, from_helper, pidfd):
@@ -185,7 +207,9 @@ def forked_helper() -> ForkedProcess | None:
         return None
     try:
         pid, (to_helper, from_helper, pidfd) = server.ask(_FORK, fds=3)
-    except OSError:
+    except ChildProcessError:                       # this time: a fresh interpreter
+        return None
+    except OSError:                                 # the server is gone: from now on
         _server = None
         return None
     return ForkedProcess(server, pid, pidfd, os.fdopen(to_helper, "wb"),
