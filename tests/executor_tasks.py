@@ -39,3 +39,8 @@ def worker_settings(job, shared):
 
     return (os.environ.get("MALLOC_TRIM_THRESHOLD_"),
             dask.config.get("distributed.worker.profile.enabled"), blas_threads())
+
+
+def process_id(job, shared):
+    """The process the job runs in."""
+    return os.getpid()

@@ -63,8 +63,22 @@ def test_names_select_and_order(ict_expressions_dir, ict_basis):
         load_artist_basis(ict_basis.neutral, ict_expressions_dir, names=["smile"])
 
 
+@pytest.fixture(params=["loadtxt", "compiled"])
+def shape_parser(request, monkeypatch) -> str:
+    """The parser of the shapes' vertex lines: NumPy's loadtxt, or the compiled loop of the
+    speed extra (used whatever the shapes' size)."""
+    import mocap.mesh.mesh as mesh_module
+
+    if request.param == "compiled":
+        pytest.importorskip("numba", reason="the compiled parser is the speed extra's")
+        monkeypatch.setattr(mesh_module, "_OBJ_BYTES_WORTH_COMPILING", 0)
+    else:
+        monkeypatch.setattr(mesh_module, "_compiled_vertex_rows", lambda: None)
+    return request.param
+
+
 @pytest.fixture()
-def small_dir(ict_expressions_dir, tmp_path) -> Path:
+def small_dir(ict_expressions_dir, tmp_path, shape_parser) -> Path:
     folder = tmp_path / "shapes"
     folder.mkdir()
     for name in ("jawOpen", "eyeBlink_L"):

@@ -11,7 +11,7 @@ from concurrent.futures import ProcessPoolExecutor
 import distributed  # the test extra installs Dask and psutil (.[test])
 import psutil
 import pytest
-from executor_tasks import blas_share, square, worker_settings
+from executor_tasks import blas_share, process_id, square, worker_settings
 
 from fit.pipeline.executors import (
     DASK_MISSING,
@@ -102,6 +102,15 @@ def test_a_killed_process_pool_worker_fails_its_tasks_with_the_reason():
 def test_serial_local_runs_in_this_process():
     outcomes = list(LocalExecutor(1).map_unordered(lambda job, shared: os.getpid(), [0]))
     assert outcomes[0].result == os.getpid()
+
+
+@pytest.mark.parametrize("workers, timeout", [(1, None), (1, 60.0), (2, None)])
+def test_runs_here_says_where_the_jobs_run(workers, timeout):
+    executor = LocalExecutor(workers)
+    outcomes = list(executor.map_unordered(process_id, [0], timeout=timeout))
+    assert executor.runs_here(timeout) == (outcomes[0].result == os.getpid())
+    with ProcessPoolExecutor(1) as pool:
+        assert not FuturesExecutor(pool).runs_here()
 
 
 def test_local_workers_share_the_cores_out():

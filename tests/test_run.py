@@ -209,6 +209,27 @@ def test_takes_side_by_side_leave_the_cores_to_each_other(session_root, monkeypa
     assert helpers[2:] == [0, 0] and sorted(calls) == ["a.c3d", "a.c3d", "b.c3d", "b.c3d"]
 
 
+def test_takes_run_here_load_numba_before_the_inputs(session_root, monkeypatch, tmp_path):
+    """The takes' fits load numba where they run: a run whose takes run in this process
+    loads it before it reads the inputs (so that the basis's shapes parse compiled); a run
+    on a pool leaves it to the pool's workers."""
+    from fit.pipeline.reconstruction import Reconstruction
+
+    events = []
+    monkeypatch.setattr("fit.pipeline.session._guarded", stub_take([]))
+    monkeypatch.setattr("fit.pipeline.session.load_numba", lambda: events.append("numba"))
+    original = Reconstruction.from_config.__func__
+    monkeypatch.setattr(Reconstruction, "from_config", classmethod(
+        lambda cls, config: events.append("inputs") or original(cls, config)))
+    config = load_run_config(_two_takes(session_root, tmp_path))
+    run_takes(config, workers=1, progress=False)
+    assert events == ["numba", "inputs"]
+    events.clear()
+    with ThreadPoolExecutor(2) as pool:
+        run_takes(config, executor=pool, force=True, progress=False)
+    assert events == ["inputs"]
+
+
 def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     """Skip logic alone: the chain is replaced by a stub that records its calls."""
     calls = []

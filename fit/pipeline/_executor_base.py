@@ -93,6 +93,10 @@ class SessionExecutor:
         """Jobs run side by side at most."""
         return 1
 
+    def runs_here(self, timeout: float | None = None) -> bool:
+        """Whether :meth:`map_unordered` with this `timeout` runs the jobs in this process."""
+        return False
+
     def close(self) -> None:
         """Release what this executor started (processes, a cluster)."""
 

@@ -108,9 +108,12 @@ class LocalExecutor(SessionExecutor):
     def slots(self) -> int:
         return self.workers
 
+    def runs_here(self, timeout=None) -> bool:
+        return self.workers == 1 and timeout_seconds(timeout) is None
+
     def map_unordered(self, task, jobs, *, shared=None, timeout=None):
         timeout = timeout_seconds(timeout)
-        if self.workers == 1 and timeout is None:
+        if self.runs_here(timeout):
             yield from _in_process(task, jobs, shared)
             return
         context = _process_context(task)

@@ -56,6 +56,7 @@ from fit.pipeline.take_warnings import capture_warnings, print_warnings, replay_
 from fit.report.figure_queue import FigureQueue
 from mocap.errors import Mocap2MeshError
 from mocap.util.atomic import refuse_overwrite
+from mocap.util.optional import load_numba
 from mocap.util.validation import as_int
 
 __all__ = ["RunOutcome", "process_take", "run_takes"]
@@ -336,6 +337,10 @@ def run_takes(config: RunConfig, *, executor=None, workers: int | None = None,
 def _run_on(pool, todo, config, names, provenances, manifest, timeout, progress) -> None:
     """Build the session basis (when the takes share one) and run `todo` on `pool`."""
     shared, kept = None, {}
+    if pool.runs_here(timeout):
+        # the takes' fits load numba in this process (the speed extra's kernels): loaded
+        # first, it parses the basis's shapes too (mocap.mesh.mesh.load_shape_vertices)
+        load_numba()
     try:                                 # once for every task, not in each
         built = SharedReconstruction.build(config)
     except Exception:  # noqa: BLE001 - then each take builds it, and fails, on its own

@@ -8,6 +8,7 @@ expression shapes) gets the same triangles in the same order.
 
 from __future__ import annotations
 
+import functools
 import io
 import warnings
 from dataclasses import dataclass
@@ -21,6 +22,7 @@ from mocap.units import mm_per_unit
 from mocap.util.arrays import read_only
 from mocap.util.atomic import atomic_path
 from mocap.util.files import open_input, read_input_bytes
+from mocap.util.optional import compiled, compiled_if_worth
 from mocap.util.validation import as_float_array
 
 __all__ = ["Mesh", "MESH_FORMATS", "load_mesh", "load_shape_vertices", "save_obj",
@@ -34,6 +36,11 @@ MESH_FORMATS = (".obj", ".ply", ".gltf", ".glb")
 _DEGENERATE_REL_AREA = 1e-12
 #: Largest vertex coordinate magnitude (areas and normals stay far from overflow).
 _MAX_COORDINATE = 1e15
+#: Bytes of shape OBJs (estimated as the neutral's size a shape) for which loading numba
+#: (about half a second, once a process) pays for itself in :func:`load_shape_vertices`
+#: (about 18 ns saved a byte of vertex lines, about half an OBJ's bytes); a process that
+#: has loaded it (``mocap2mesh run``) parses any shapes compiled.
+_OBJ_BYTES_WORTH_COMPILING = 56 << 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -406,9 +413,10 @@ def load_shape_vertices(paths, neutral: Mesh) -> np.ndarray:
     """The vertices of meshes of the neutral's topology (expression shapes), in order.
 
     An OBJ whose face lines are the very text of the neutral's OBJ has only its vertex lines
-    parsed, by one C call (:func:`numpy.loadtxt`; its triangles are the neutral's): 53 ICT
-    shapes load in about half the time :func:`load_mesh` takes. Any other file is read by
-    :func:`load_mesh` and compared with the neutral.
+    parsed (its triangles are the neutral's): by one C call (:func:`numpy.loadtxt`), or,
+    in a process that has loaded numba or for shapes that pay for loading it, by a
+    compiled loop about ten times as fast (:mod:`mocap.mesh._obj_kernel`, the same values
+    bit for bit). Any other file is read by :func:`load_mesh` and compared with the neutral.
 
     Parameters
     ----------
@@ -433,13 +441,18 @@ def load_shape_vertices(paths, neutral: Mesh) -> np.ndarray:
     UserWarning
         Degenerate triangles, as :func:`load_mesh`.
     """
-    faces_text = None
+    faces_text, parse = None, _loadtxt_vertices
     if neutral.path is not None and Path(neutral.path).suffix.lower() == ".obj":
         text = _obj_text(neutral.path)
         faces_text = _span(text, _line_starts(text), b"f")[0]
+        kernel = compiled_if_worth(_compiled_vertex_rows, len(paths) * len(text),
+                                   _OBJ_BYTES_WORTH_COMPILING)
+        if kernel is not None:
+            parse = functools.partial(_compiled_vertices, kernel,
+                                      np.empty((3 * neutral.n_vertices, 3), np.int64))
     out = np.empty((len(paths), neutral.n_vertices, 3))
     for row, path in enumerate(paths):
-        vertices = _vertices_beside(path, faces_text, neutral.n_vertices)
+        vertices = _vertices_beside(path, faces_text, neutral.n_vertices, parse)
         if vertices is None:                                  # read and compared whole
             mesh = load_mesh(path)
             if mesh.n_vertices != neutral.n_vertices:
@@ -458,10 +471,12 @@ def load_shape_vertices(paths, neutral: Mesh) -> np.ndarray:
     return out
 
 
-def _vertices_beside(path, faces_text: bytes | None, n_vertices: int) -> np.ndarray | None:
+def _vertices_beside(path, faces_text: bytes | None, n_vertices: int,
+                     parse) -> np.ndarray | None:
     """The (n_vertices, 3) vertices of the OBJ `path` when its face lines are `faces_text`
     (the neutral's, from its first face line to the end of its last) and its vertex lines one
-    run of ``v x y z ...`` lines; None otherwise (the file is then read whole)."""
+    run of ``v x y z ...`` lines, parsed by ``parse(text, n_vertices)``; None otherwise
+    (the file is then read whole)."""
     path = Path(path)
     if faces_text is None or path.suffix.lower() != ".obj":
         return None
@@ -472,6 +487,12 @@ def _vertices_beside(path, faces_text: bytes | None, n_vertices: int) -> np.ndar
     text, one_run = _span(data, starts, b"v")
     if not text or not one_run:
         return None
+    return parse(text, n_vertices)
+
+
+def _loadtxt_vertices(text: bytes, n_vertices: int) -> np.ndarray | None:
+    """The (n_vertices, 3) numbers of the lines ``v x y z ...`` `text`, or None when they
+    are not n_vertices such lines."""
     try:
         # the keyword is column 0; a row short of three numbers, or a field that is not
         # one (two spaces, a tab), raises; NumPy converts as float() does (correctly rounded)
@@ -480,6 +501,29 @@ def _vertices_beside(path, faces_text: bytes | None, n_vertices: int) -> np.ndar
     except ValueError:
         return None
     return vertices if len(vertices) == n_vertices else None
+
+
+def _compiled_vertices(kernel, slow: np.ndarray, text: bytes,
+                       n_vertices: int) -> np.ndarray | None:
+    """:func:`_loadtxt_vertices` by the compiled `kernel` (:func:`_compiled_vertex_rows`),
+    with `slow` (3 n_vertices, 3) int64 for the numbers it leaves to ``float``; lines the
+    kernel does not take are left to :func:`_loadtxt_vertices`."""
+    vertices = np.empty((n_vertices, 3))
+    rows, n_slow = kernel(np.frombuffer(text, np.uint8), vertices, slow)
+    if rows != n_vertices:
+        return _loadtxt_vertices(text, n_vertices)
+    flat = vertices.reshape(-1)
+    for index, first, end in slow[:n_slow].tolist():
+        flat[index] = float(text[first:end])
+    return vertices
+
+
+@functools.cache
+def _compiled_vertex_rows():
+    """:func:`mocap.mesh._obj_kernel.vertex_rows`, or None (NumPy parses the vertex lines):
+    :func:`mocap.util.optional.compiled`."""
+    return compiled("mocap.mesh._obj_kernel", "vertex_rows", what="OBJ vertex parser",
+                    fallback="NumPy parses the shapes' vertex lines, about ten times slower")
 
 
 def _read_trimesh(path) -> tuple[np.ndarray, np.ndarray]:

@@ -9,13 +9,15 @@ of the package never imports it.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import sys
 import warnings
 
 from mocap.errors import MissingDependencyError
 
-__all__ = ["require", "available", "compiled", "compiled_if_worth", "numba_loaded"]
+__all__ = ["require", "available", "compiled", "compiled_if_worth", "load_numba",
+           "numba_loaded"]
 
 
 def require(module: str, *, package: str, extra: str, purpose: str):
@@ -88,6 +90,14 @@ def compiled_if_worth(loader, work: int, worth: int):
     uses the kernel for any work.
     """
     return loader() if numba_loaded() or work >= worth else None
+
+
+def load_numba() -> None:
+    """Import numba (the ``speed`` extra) when it is installed: for a process that will use
+    its kernels anyway, so that work before them which :func:`compiled_if_worth` would
+    leave to NumPy takes them too."""
+    with contextlib.suppress(ImportError):
+        importlib.import_module("numba")
 
 
 def numba_loaded() -> bool:
