@@ -25,9 +25,12 @@ def _frames(n: int, width: int, height: int) -> np.ndarray:
 def test_both_encoders_write_vp9_webm_at_the_rate(tmp_path, encoder, fps):
     frames = _frames(24, 160, 96)
     path = tmp_path / "clip.webm"
+    drawn = np.empty_like(frames[0])        # one buffer, redrawn at once: the writer copies
     with WebmWriter(path, fps, (160, 96), encoder=encoder) as video:
         for frame in frames:
-            video.write(frame)
+            drawn[:] = frame
+            video.write(drawn)
+            drawn[:] = 0
     assert video.n_frames == len(frames)
     assert [p.name for p in tmp_path.iterdir()] == ["clip.webm"]          # no temporary left
     with av.open(str(path)) as container:                                # FFmpeg's reading
@@ -68,3 +71,38 @@ def test_bad_frames_and_paths_are_named(tmp_path, encoder):
         WebmWriter(tmp_path / "missing" / "a.webm", 25.0, (32, 32), encoder=encoder)
     with pytest.raises(InputError, match="encoder must be one of"):
         WebmWriter(tmp_path / "b.webm", 25.0, (32, 32), encoder="x264")
+
+
+class _FullDisk:
+    """A PyAV output container whose writes fail from the `after`-th packet on, as on a
+    full disk."""
+
+    def __init__(self, container, after: int):
+        self.container, self.after, self.muxed = container, after, 0
+
+    def mux(self, packets):
+        self.muxed += 1
+        if self.muxed > self.after:
+            raise OSError(28, "No space left on device")
+        self.container.mux(packets)
+
+    def close(self):
+        self.container.close()
+
+
+def test_an_encoding_error_is_raised_naming_the_file_and_nothing_waits(tmp_path):
+    """The frames are encoded on the writer's thread: its error reaches the caller (a
+    later write or the close), and frames written after it are dropped, not waited for."""
+    import threading
+
+    path = tmp_path / "full.webm"
+    frames = _frames(40, 160, 96)
+    video = WebmWriter(path, 30.0, (160, 96))
+    video._container = _FullDisk(video._container, after=3)
+    with pytest.raises(InputError, match=r"full\.webm: cannot write: No space left on device"):
+        try:
+            for frame in frames:
+                video.write(frame)
+        finally:
+            video.close()
+    assert not any(t.name == "webm-encoder" and t.is_alive() for t in threading.enumerate())

@@ -8,7 +8,6 @@ beside it draw each piece on its own. The page is a list of sections
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Mapping
 
@@ -163,10 +162,16 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         return files[key]
 
     queue = FigureQueue(helpers=0) if figures is None else figures
-    # The video's VP9 encoding is the report's longest part and runs in OpenCV without the
-    # GIL: it goes on beside the figures.
-    encoder, encoding = ThreadPoolExecutor(max_workers=1), None
     try:
+        if video:
+            # the report's longest part, queued as a figure, ahead of the rest: a helper
+            # process draws it (and encodes it on a thread of its own) while this process
+            # and the other helpers draw the figures; its drawing holds the GIL of the
+            # process that draws it, so it is no thread of this one
+            queue.submit(write_overlay_video, take.positions, reconstructions,
+                         out("video", VIDEO_SUFFIX), neutral=neutral, rate=take.rate,
+                         labels=take.labels, markerset=markerset, step=video_step,
+                         exaggerate=exaggerate, first_frame=number)
         results, worst = {}, {}
         captured = plottable_positions(take.positions, "captured", labels=take.labels,
                                        first_frame=number)
@@ -185,11 +190,6 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         queue.submit(plot_views_of_bases, views, view_paths, neutral=neutral,
                      labels=take.labels, markerset=markerset, exaggerate=exaggerate)
         first = next(iter(results.values()))
-        if video:
-            encoding = encoder.submit(
-                write_overlay_video, take.positions, reconstructions,
-                out("video", VIDEO_SUFFIX), neutral=neutral, rate=take.rate, labels=take.labels,
-                markerset=markerset, step=video_step, exaggerate=exaggerate, first_frame=number)
         held_out, held, page = _figures(
             take, neutral, results, worst, reconstructions, out, files, number, queue.submit,
             markerset=markerset, pca=pca, pictures=pictures, video=video,
@@ -207,9 +207,6 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
     finally:
         if figures is None:
             queue.close()
-        if encoding is not None:
-            encoding.result()               # its error, if any, is the report's
-        encoder.shutdown()
     page += list(sections)
     graded = []
     for basis, res in results.items():

@@ -179,14 +179,16 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     with atomic_path(path) as tmp, WebmWriter(tmp, fps, background.shape[1::-1]) as video:
         for k in range(len(cap)):
             np.copyto(img, background)
+            dots = cap_px[k][seen_cap[k]]
             for n, px in rec_px.items():
                 shift16, seen = offsets[n], seen_cap[k] & seen_rec[n][k]
                 lines = np.stack([cap_px[k] + shift16, px[k] + shift16], axis=1)[seen]
                 cv2.polylines(img, list(lines), False, _BLACK, 1, cv2.LINE_AA, 4)
-                for p in cap_px[k][seen_cap[k]] + shift16:
-                    cv2.circle(img, (int(p[0]), int(p[1])), r16, _RED, -1, cv2.LINE_AA, 4)
-                for p in px[k][seen_rec[n][k]] + shift16:
-                    cv2.circle(img, (int(p[0]), int(p[1])), r16_rec, _BLUE, -1, cv2.LINE_AA, 4)
+                # the centres as Python ints, for OpenCV's point arguments
+                for x, y in (dots + shift16).tolist():
+                    cv2.circle(img, (x, y), r16, _RED, -1, cv2.LINE_AA, 4)
+                for x, y in (px[k][seen_rec[n][k]] + shift16).tolist():
+                    cv2.circle(img, (x, y), r16_rec, _BLUE, -1, cv2.LINE_AA, 4)
                 x0 = offsets[n][0] // 16 + 10
                 title = f"{n}: RMS {rms[n][k]:.2f} mm" if n else f"RMS {rms[n][k]:.2f} mm"
                 cv2.putText(img, title, (x0, 38), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _BLACK, 1,

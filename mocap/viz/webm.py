@@ -5,14 +5,22 @@ libvpx-vp9 in its real-time mode; without PyAV, through OpenCV's FFmpeg backend,
 which leaves libvpx in its slow default mode and takes no encoder options (the
 demo's overlay video: 10.7 s against 1.4 s, ``bench/bench_report_video.py``).
 Either way the file is VP9 in WebM at the frame rate asked for.
+
+The frames are encoded on a thread of the writer's own, in order, while the caller
+draws the next ones: both encoders (libvpx and FFmpeg's conversion to YUV through
+PyAV, OpenCV's writer) leave the GIL, so drawing and encoding share two cores. A
+frame is copied when it is written (the caller may draw the next one in the same
+memory); at most :data:`_FRAMES_AHEAD` wait for the encoder.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import queue
 import sys
 import tempfile
+import threading
 from fractions import Fraction
 from pathlib import Path
 
@@ -29,6 +37,8 @@ ENCODERS = ("pyav", "opencv")
 #: Bits a second per pixel a second of the real-time encoder's target: sharp dots and
 #: lines on flat colour (1.2 Mbit/s for 864 × 320 at 30 frames a second).
 _BITS_PER_PIXEL = 0.15
+#: Frames written and not yet encoded, at most (each a copy: 0.8 MB for 864 × 320).
+_FRAMES_AHEAD = 4
 
 
 class WebmWriter:
@@ -74,6 +84,13 @@ class WebmWriter:
             self._open_pyav(float(fps))
         else:
             self._open_opencv(float(fps))
+        # the encoding thread: frames in order, None to stop; its first error kept
+        self._frames: queue.Queue = queue.Queue(maxsize=_FRAMES_AHEAD)
+        self._failure: BaseException | None = None
+        self._reported = False              # the failure raised already (by write)
+        self._encoding = threading.Thread(target=self._encode_frames, daemon=True,
+                                          name="webm-encoder")
+        self._encoding.start()
 
     def _open_pyav(self, fps: float) -> None:
         av = require("av", package="av", extra="speech", purpose="VP9 encoding by PyAV")
@@ -106,32 +123,72 @@ class WebmWriter:
                              + (f" ({said[0].strip()})" if said and said[0].strip() else ""))
 
     def write(self, frame: np.ndarray) -> None:
-        """Append one BGR frame, uint8 of shape (height, width, 3)."""
+        """Append one BGR frame, uint8 of shape (height, width, 3) (copied: the caller may
+        reuse its memory at once).
+
+        Raises
+        ------
+        InputError
+            A frame of another shape or type; the file could not be written (an error of
+            the encoding of an earlier frame, raised here or by :meth:`close`).
+        """
         if frame.shape != (self.size[1], self.size[0], 3) or frame.dtype != np.uint8:
             raise InputError(f"{self.path}: frame {self.n_frames} is {frame.dtype} of shape "
                              f"{frame.shape}, expected uint8 of shape "
                              f"({self.size[1]}, {self.size[0]}, 3)")
+        if self._failure is not None:
+            self._reported = True
+            raise self._failure
         if self.encoder == "pyav":
             image = self._av.VideoFrame.from_ndarray(frame, format="bgr24")
             image.pts, image.time_base = self.n_frames, self._time_base
-            with self._writing():
-                self._container.mux(self._stream.encode(image))
         else:
-            self._writer.write(frame)
+            image = frame.copy()
+        self._frames.put(image)
         self.n_frames += 1
 
+    def _encode_frames(self) -> None:
+        """The encoding thread: each frame of the queue, until None. After an error it
+        keeps taking the frames (dropped), so that :meth:`write` never waits for it."""
+        while (image := self._frames.get()) is not None:
+            if self._failure is not None:
+                continue
+            try:
+                if self.encoder == "pyav":
+                    with self._writing():
+                        self._container.mux(self._stream.encode(image))
+                else:
+                    self._writer.write(image)
+            except BaseException as exc:  # noqa: BLE001 - raised in the caller's thread
+                self._failure = exc
+
     def close(self) -> None:
-        """Finish the file (flush the encoder, write the index)."""
+        """Finish the file (the frames written encoded, the encoder flushed, the index
+        written).
+
+        Raises
+        ------
+        InputError
+            The file could not be written (unless :meth:`write` raised it already).
+        """
+        self._frames.put(None)
+        self._encoding.join()
         if self.encoder == "pyav":
             with self._writing():
                 try:
-                    self._container.mux(self._stream.encode(None))
+                    if self._failure is None:
+                        self._container.mux(self._stream.encode(None))
                 finally:
                     self._container.close()
         else:
             self._writer.release()
             if self._opencv_path.exists():
-                os.replace(self._opencv_path, self.path)
+                if self._failure is None:
+                    os.replace(self._opencv_path, self.path)
+                else:
+                    self._opencv_path.unlink()
+        if self._failure is not None and not self._reported:
+            raise self._failure
 
     @contextlib.contextmanager
     def _writing(self):
