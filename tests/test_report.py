@@ -269,6 +269,50 @@ def test_video_round_trip(sing_case, tmp_path, step, fps):
     assert [p.name for p in tmp_path.iterdir()] == ["overlay.webm"]   # no temp file left
 
 
+def _decoded(path) -> list:
+    import av
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        return [(frame.pts * frame.time_base, frame.to_ndarray(format="bgr24"))
+                for frame in container.decode(stream)], float(stream.average_rate)
+
+
+def test_a_video_written_in_parts_and_joined_is_the_whole_video(sing_case, tmp_path):
+    """The oracle is the video written whole: the parts joined have its frames, in order,
+    at its times and rate (each part starts with a key frame, so the pictures match to
+    VP9's loss, not to the bit)."""
+    from fit.report.video import overlay_frames
+    from mocap.viz.webm import join_webm
+
+    ms, face, recs, neutral = sing_case
+    frames = overlay_frames(face.positions[:90], {b: recs[b][:90] for b in ("H", "QE")},
+                            neutral=neutral, rate=face.rate, labels=face.labels, markerset=ms,
+                            step=2, size=(160, 160), first_frame=face.first_frame)
+    frames.write(tmp_path / "whole.webm")
+    parts = [tmp_path / f"part{k}.webm" for k in range(3)]
+    for part, rows in zip(parts, (slice(0, 10), slice(10, 31), slice(31, None))):
+        frames[rows].write(part)
+    join_webm(parts, tmp_path / "joined.webm")
+    (whole, rate), (joined, joined_rate) = (_decoded(tmp_path / f"{name}.webm")
+                                            for name in ("whole", "joined"))
+    assert len(joined) == len(whole) == len(frames) == 45
+    assert joined_rate == pytest.approx(rate) and rate == pytest.approx(face.rate / 2)
+    assert [t for t, _ in joined] == [t for t, _ in whole]
+    for (_, a), (_, b) in zip(whole, joined):
+        assert np.abs(a.astype(int) - b).mean() < 3
+    with pytest.raises(ValueError, match="a run of its frames"):
+        frames[::2]
+
+
+def test_join_webm_names_a_part_that_is_no_video(tmp_path):
+    from mocap.viz.webm import join_webm
+
+    (tmp_path / "bad.webm").write_bytes(b"not a video")
+    with pytest.raises(InputError, match=r"bad\.webm: not a part of a WebM video"):
+        join_webm([tmp_path / "bad.webm"], tmp_path / "out.webm")
+    assert not (tmp_path / "out.webm").exists()
+
+
 def test_view_and_video_errors(sing_case, tmp_path):
     ms, face, recs, neutral = sing_case
     with pytest.raises(InputError, match="frames must be 1 or more indices"):

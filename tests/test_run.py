@@ -35,11 +35,15 @@ PER_TAKE = ("take.c3d", "head_motion.npz", "binding.json", "report/gaps.png",
 REPORT_PER_BASIS = ("heatmap", "markers", "views", "mesh")
 
 
+#: Frames of the take per frame of the report's video, in these runs.
+VIDEO_STEP = 12
+
+
 def _config(root, captures, *, extra=""):
     text = demo_config_toml().replace('captures = ["session/capture.c3d"]',
                                       "captures = [" + ", ".join(f'"{c}"' for c in captures)
                                       + "]")
-    text = text.replace("video_step = 4", "video_step = 12")
+    text = text.replace("video_step = 4", f"video_step = {VIDEO_STEP}")
     path = root / "run.toml"
     path.write_text(text + extra, encoding="utf-8")
     return path
@@ -85,6 +89,14 @@ def test_every_promised_file_is_written(session_root, first_run):
         for picture in ("gaps.png", "head_residuals.png"):       # ingestion QA embedded
             encoded = base64.b64encode((out / take / "report" / picture).read_bytes())
             assert encoded.decode() in html
+        # the video, drawn in parts by the figure helpers and this process and joined, has
+        # every frame it draws, and no part is left
+        report = out / take / "report"
+        assert not [p.name for p in report.iterdir() if p.name.startswith(".")]
+        import av
+        with av.open(str(report / f"{take}-video.webm")) as video:
+            shown = sum(1 for _ in video.decode(video=0))
+        assert shown == len(range(0, count, VIDEO_STEP))
 
 
 def test_outputs_read_back(session_root, first_run):

@@ -71,6 +71,9 @@ def test_bad_frames_and_paths_are_named(tmp_path, encoder):
         WebmWriter(tmp_path / "missing" / "a.webm", 25.0, (32, 32), encoder=encoder)
     with pytest.raises(InputError, match="encoder must be one of"):
         WebmWriter(tmp_path / "b.webm", 25.0, (32, 32), encoder="x264")
+    if encoder == "opencv":         # its time stamps are its own: no part of a video
+        with pytest.raises(InputError, match=r"only PyAV's encoder writes a part"):
+            WebmWriter(tmp_path / "c.webm", 25.0, (32, 32), encoder=encoder, start=10)
 
 
 class _FullDisk:

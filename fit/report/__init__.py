@@ -33,11 +33,12 @@ from fit.report.retarget_qa import (
     plot_cross_validation,
     plot_lip_seal,
 )
-from fit.report.video import VIDEO_SUFFIX, write_overlay_video
+from fit.report.video import VIDEO_SUFFIX, overlay_frames
 from fit.report.views import FrameViews, plot_views_of_bases, plottable_positions
 from mocap.errors import InputError
 from mocap.util.order_statistics import percentile
 from mocap.viz.render import compiled_renders
+from mocap.viz.webm import can_join, join_webm
 
 __all__ = ["build_report"]
 
@@ -61,6 +62,29 @@ def _given_errors(errors: Mapping, basis: str, take, neutral, origin):
                          f"origin (name {given.name!r}, {given.errors.shape[0]} frames, "
                          f"{len(given.labels)} markers)")
     return given
+
+
+def _queue_video(queue: FigureQueue, take, reconstructions: Mapping, path: Path, *, neutral,
+                 markerset, step, exaggerate) -> list:
+    """Queue the overlay video to `path`, ahead of the figures: in as many parts as there
+    are processes to draw them (the queue's helpers and this one), when its parts can be
+    joined; returns the parts' paths, to join once they are written (just `path` for one).
+
+    The video is the report's longest part. Its drawing holds the GIL of the process that
+    draws it, so it is no thread of this process (whose figures need the GIL); each part
+    is drawn by one process while another thread of it encodes the frames before."""
+    frames = overlay_frames(take.positions, reconstructions, neutral=neutral, rate=take.rate,
+                            labels=take.labels, markerset=markerset, step=step,
+                            exaggerate=exaggerate, first_frame=take.first_frame)
+    n_parts = max(1, min(queue.helpers + 1 if can_join() else 1, len(frames)))
+    if n_parts == 1:
+        queue.submit(frames.write, path)
+        return [path]
+    bounds = np.linspace(0, len(frames), n_parts + 1).round().astype(int)
+    parts = [path.with_name(f".{path.stem}-part{k}{path.suffix}") for k in range(n_parts)]
+    for part, first, stop in zip(parts, bounds[:-1], bounds[1:]):
+        queue.submit(frames[first:stop].write, part)
+    return parts
 
 
 def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=None,
@@ -162,16 +186,12 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
         return files[key]
 
     queue = FigureQueue(helpers=0) if figures is None else figures
+    video_parts = []
     try:
         if video:
-            # the report's longest part, queued as a figure, ahead of the rest: a helper
-            # process draws it (and encodes it on a thread of its own) while this process
-            # and the other helpers draw the figures; its drawing holds the GIL of the
-            # process that draws it, so it is no thread of this one
-            queue.submit(write_overlay_video, take.positions, reconstructions,
-                         out("video", VIDEO_SUFFIX), neutral=neutral, rate=take.rate,
-                         labels=take.labels, markerset=markerset, step=video_step,
-                         exaggerate=exaggerate, first_frame=number)
+            video_parts = _queue_video(queue, take, reconstructions, out("video", VIDEO_SUFFIX),
+                                       neutral=neutral, markerset=markerset, step=video_step,
+                                       exaggerate=exaggerate)
         results, worst = {}, {}
         captured = plottable_positions(take.positions, "captured", labels=take.labels,
                                        first_frame=number)
@@ -204,9 +224,14 @@ def build_report(take, reconstructions: Mapping, neutral, out_dir, *, markerset=
             queue.submit(plot_lip_seal, lip_seal, out("lip-seal"))
             page.append(lip_seal_section(lip_seal, image=files["lip-seal"]))
         queue.run()
+        if len(video_parts) > 1:
+            join_webm(video_parts, files["video"])
     finally:
         if figures is None:
             queue.close()
+        if len(video_parts) > 1:
+            for part in video_parts:
+                part.unlink(missing_ok=True)
     page += list(sections)
     graded = []
     for basis, res in results.items():

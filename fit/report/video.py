@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import dataclass, replace
 from typing import Mapping
 
 import cv2
@@ -19,7 +20,8 @@ from mocap.util.validation import as_int, as_positions, as_positive_float
 from mocap.viz.figures import plottable
 from mocap.viz.webm import WebmWriter
 
-__all__ = ["VIDEO_SUFFIX", "VIDEO_MIME", "MAX_AUTO_FPS", "video_step", "write_overlay_video"]
+__all__ = ["VIDEO_SUFFIX", "VIDEO_MIME", "MAX_AUTO_FPS", "video_step", "write_overlay_video",
+           "overlay_frames", "OverlayFrames"]
 
 #: The container of the overlay videos, and its MIME type with the codec.
 VIDEO_SUFFIX = ".webm"
@@ -108,6 +110,109 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     """
     if os.path.splitext(os.fspath(path))[1].lower() != VIDEO_SUFFIX:
         raise InputError(f"{path}: the overlay video is VP9 in WebM: name it *{VIDEO_SUFFIX}")
+    return overlay_frames(captured, reconstructed, neutral=neutral, rate=rate, labels=labels,
+                          markerset=markerset, fps=fps, step=step, size=size,
+                          exaggerate=exaggerate, first_frame=first_frame,
+                          radius=radius).write(path)
+
+
+@dataclass(frozen=True)
+class OverlayFrames:
+    """The frames of an overlay video as they are drawn, without the drawing: what
+    :func:`overlay_frames` laid out (every panel on one scale), small enough to send to
+    another process (pixel coordinates, not positions). A slice of the frames,
+    ``frames[a:b]``, is a part of the video (:meth:`write` of each part, then
+    :func:`mocap.viz.webm.join_webm`, is the video in parts).
+
+    Attributes
+    ----------
+    background : ndarray of shape (height, width · panels, 3), uint8
+        The rest pose, scale bar and legend of every panel (BGR).
+    captured : ndarray of shape (F, M, 2), int32
+        The captured markers' centres, 1/16 pixel, in the first panel.
+    seen : ndarray of shape (F, M), bool
+        Where a captured marker is drawn.
+    panels : tuple of (name, centres (F, M, 2) int32, seen (F, M) bool, rms (F,))
+        Each panel's reconstructed markers (its own pixel coordinates) and RMS, mm.
+    heads : tuple of str
+        Each frame's counter (the capture's frame number and time).
+    width : int
+        One panel's width, pixels.
+    radius : int
+        The captured dots' radius, pixels.
+    fps : float
+        Frames a second of the video.
+    start : int
+        The first frame's index in the whole video (its time stamp).
+    """
+
+    background: np.ndarray
+    captured: np.ndarray
+    seen: np.ndarray
+    panels: tuple
+    heads: tuple
+    width: int
+    radius: int
+    fps: float
+    start: int = 0
+
+    def __len__(self) -> int:
+        return len(self.captured)
+
+    def __getitem__(self, part: slice) -> OverlayFrames:
+        """The frames of `part` (a slice of steps 1), a part of the video."""
+        first, stop, stride = part.indices(len(self))
+        if stride != 1:
+            raise ValueError("a part of a video is a run of its frames")
+        rows = slice(first, stop)
+        return replace(self, captured=self.captured[rows], seen=self.seen[rows],
+                       panels=tuple((name, px[rows], seen[rows], rms[rows])
+                                    for name, px, seen, rms in self.panels),
+                       heads=self.heads[rows], start=self.start + first)
+
+    def write(self, path) -> int:
+        """Draw the frames and write them as a VP9 WebM to `path` (atomically), their time
+        stamps from :attr:`start`; returns how many."""
+        r16 = 16 * self.radius                              # radius in 1/16 pixel (shift 4)
+        r16_rec = max(16, round(0.6 * r16))                 # smaller: a red ring stays visible
+        offsets = [np.array([k * self.width * 16, 0]) for k in range(len(self.panels))]
+        img = np.empty_like(self.background)
+        with atomic_path(path) as tmp, WebmWriter(tmp, self.fps, self.background.shape[1::-1],
+                                                  start=self.start) as video:
+            for k in range(len(self)):
+                np.copyto(img, self.background)
+                dots = self.captured[k][self.seen[k]]
+                for (name, px, seen_rec, rms), shift16 in zip(self.panels, offsets):
+                    seen = self.seen[k] & seen_rec[k]
+                    lines = np.stack([self.captured[k] + shift16, px[k] + shift16],
+                                     axis=1)[seen]
+                    cv2.polylines(img, list(lines), False, _BLACK, 1, cv2.LINE_AA, 4)
+                    # the centres as Python ints, for OpenCV's point arguments
+                    for x, y in (dots + shift16).tolist():
+                        cv2.circle(img, (x, y), r16, _RED, -1, cv2.LINE_AA, 4)
+                    for x, y in (px[k][seen_rec[k]] + shift16).tolist():
+                        cv2.circle(img, (x, y), r16_rec, _BLUE, -1, cv2.LINE_AA, 4)
+                    title = (f"{name}: RMS {rms[k]:.2f} mm" if name
+                             else f"RMS {rms[k]:.2f} mm")
+                    cv2.putText(img, title, (shift16[0] // 16 + 10, 38),
+                                cv2.FONT_HERSHEY_SIMPLEX, 0.5, _BLACK, 1, cv2.LINE_AA)
+                cv2.putText(img, self.heads[k], (10, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                            _BLACK, 1, cv2.LINE_AA)
+                video.write(img)
+        return len(self)
+
+
+def overlay_frames(captured, reconstructed, *, neutral, rate: float, labels=None,
+                   markerset=None, fps: float | None = None, step: int = 1,
+                   size: tuple = (288, 320), exaggerate: float = 1.0, first_frame: int = 0,
+                   radius: int = 4) -> OverlayFrames:
+    """The frames of :func:`write_overlay_video` (its parameters but the path), laid out.
+
+    Raises
+    ------
+    InputError
+        Bad shapes or options.
+    """
     captured = plottable(as_positions(captured, "captured"), "captured positions",
                          labels=labels, first_frame=first_frame)
     panels = dict(reconstructed) if isinstance(reconstructed, Mapping) else {"": reconstructed}
@@ -147,10 +252,6 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
     centre = (lo + hi) / 2
     shift = np.array([width / 2 - scale * centre[0],
                       top + (height - top - bottom) / 2 + scale * centre[1]])
-    cap_px = _project(cap, axes, scale, shift)              # (F, M, 2), all frames at once
-    rec_px = {n: _project(v, axes, scale, shift) for n, v in shown.items()}
-    seen_cap = np.isfinite(cap).all(axis=2)
-    seen_rec = {n: np.isfinite(v).all(axis=2) for n, v in shown.items()}
 
     panel = np.full((height, width, 3), 255, np.uint8)
     for p in _project(neutral, axes, scale, shift):
@@ -169,31 +270,11 @@ def write_overlay_video(captured, reconstructed, path, *, neutral, rate: float,
         background[height - 30:, width:] = 255
         cv2.putText(background, legend, (width + 10, height - 12), cv2.FONT_HERSHEY_SIMPLEX,
                     0.4, _BLACK, 1, cv2.LINE_AA)
-
-    r16 = 16 * radius                                  # radius in 1/16 pixel (shift 4)
-    r16_rec = max(16, round(0.6 * r16))                # smaller: a red ring stays visible
-    offsets = {n: np.array([k * width * 16, 0]) for k, n in enumerate(panels)}
-    img = np.empty_like(background)
     index = np.arange(captured.shape[0])[::step]
-    heads = [f"frame {i + first_frame}  t = {i / rate:.2f} s" for i in index]
-    with atomic_path(path) as tmp, WebmWriter(tmp, fps, background.shape[1::-1]) as video:
-        for k in range(len(cap)):
-            np.copyto(img, background)
-            dots = cap_px[k][seen_cap[k]]
-            for n, px in rec_px.items():
-                shift16, seen = offsets[n], seen_cap[k] & seen_rec[n][k]
-                lines = np.stack([cap_px[k] + shift16, px[k] + shift16], axis=1)[seen]
-                cv2.polylines(img, list(lines), False, _BLACK, 1, cv2.LINE_AA, 4)
-                # the centres as Python ints, for OpenCV's point arguments
-                for x, y in (dots + shift16).tolist():
-                    cv2.circle(img, (x, y), r16, _RED, -1, cv2.LINE_AA, 4)
-                for x, y in (px[k][seen_rec[n][k]] + shift16).tolist():
-                    cv2.circle(img, (x, y), r16_rec, _BLUE, -1, cv2.LINE_AA, 4)
-                x0 = offsets[n][0] // 16 + 10
-                title = f"{n}: RMS {rms[n][k]:.2f} mm" if n else f"RMS {rms[n][k]:.2f} mm"
-                cv2.putText(img, title, (x0, 38), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _BLACK, 1,
-                            cv2.LINE_AA)
-            cv2.putText(img, heads[k], (10, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _BLACK, 1,
-                        cv2.LINE_AA)
-            video.write(img)
-    return len(cap)
+    return OverlayFrames(
+        background=background, captured=_project(cap, axes, scale, shift),
+        seen=np.isfinite(cap).all(axis=2),
+        panels=tuple((name, _project(v, axes, scale, shift), np.isfinite(v).all(axis=2),
+                      rms[name]) for name, v in shown.items()),
+        heads=tuple(f"frame {i + first_frame}  t = {i / rate:.2f} s" for i in index),
+        width=width, radius=radius, fps=fps)

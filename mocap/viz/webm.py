@@ -28,9 +28,11 @@ import cv2
 import numpy as np
 
 from mocap.errors import InputError
+from mocap.util.atomic import atomic_path
 from mocap.util.optional import available, require
+from mocap.util.validation import as_int
 
-__all__ = ["WebmWriter", "ENCODERS"]
+__all__ = ["WebmWriter", "ENCODERS", "can_join", "join_webm"]
 
 #: Who encodes: PyAV's libvpx-vp9 in real-time mode, or OpenCV's VideoWriter.
 ENCODERS = ("pyav", "opencv")
@@ -54,6 +56,9 @@ class WebmWriter:
         Width and height of every frame, pixels (even numbers: VP9's 4:2:0 chroma).
     encoder : {"pyav", "opencv"}, optional
         Default PyAV's when it is installed, else OpenCV's.
+    start : int, default 0
+        The first frame's index in a longer video, of which this file is a part (its
+        time stamps count from there: :func:`join_webm`); PyAV's encoder only.
 
     Raises
     ------
@@ -70,12 +75,16 @@ class WebmWriter:
     True
     """
 
-    def __init__(self, path, fps: float, size: tuple, *, encoder: str | None = None):
+    def __init__(self, path, fps: float, size: tuple, *, encoder: str | None = None,
+                 start: int = 0):
         self.path = Path(path)
         self.size = (int(size[0]), int(size[1]))
         self.encoder = ("pyav" if available("av") else "opencv") if encoder is None else encoder
         if self.encoder not in ENCODERS:
             raise InputError(f"encoder must be one of {ENCODERS}, got {self.encoder!r}")
+        self.start = as_int(start, "start", minimum=0)
+        if self.start and self.encoder != "pyav":
+            raise InputError("only PyAV's encoder writes a part of a video (start > 0)")
         if not self.path.parent.is_dir():
             raise InputError(f"{self.path}: cannot write: directory {self.path.parent} does "
                              "not exist")
@@ -141,7 +150,7 @@ class WebmWriter:
             raise self._failure
         if self.encoder == "pyav":
             image = self._av.VideoFrame.from_ndarray(frame, format="bgr24")
-            image.pts, image.time_base = self.n_frames, self._time_base
+            image.pts, image.time_base = self.start + self.n_frames, self._time_base
         else:
             image = frame.copy()
         self._frames.put(image)
@@ -203,6 +212,49 @@ class WebmWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def can_join() -> bool:
+    """Whether :func:`join_webm` can join parts here (it needs PyAV, the ``speech`` extra)."""
+    return available("av")
+
+
+def join_webm(parts, path) -> None:
+    """Write the videos `parts`, one after the other, as one WebM video at `path`.
+
+    Their VP9 packets are copied as they are, not encoded again: the parts are
+    :class:`WebmWriter` files of one size, frame rate and encoder, each with the time
+    stamps of its frames in the whole video (``start``), and each starts with a key frame
+    (as every video does), which a player shows as it shows any other.
+
+    Parameters
+    ----------
+    parts : sequence of path
+        The parts, in order.
+    path : str or os.PathLike
+        Written atomically.
+
+    Raises
+    ------
+    InputError
+        A part that is not such a video, or `path` cannot be written (named).
+    """
+    av = require("av", package="av", extra="speech", purpose="joining WebM videos")
+    with atomic_path(path) as tmp, av.open(os.fspath(tmp), mode="w", format="webm") as out:
+        stream = None
+        for part in parts:
+            try:
+                with av.open(os.fspath(part)) as source:
+                    video = source.streams.video[0]
+                    if stream is None:
+                        stream = out.add_stream_from_template(video)
+                    for packet in source.demux(video):
+                        if packet.dts is None:          # the demuxer's flush packet
+                            continue
+                        packet.stream = stream
+                        out.mux(packet)
+            except (av.FFmpegError, IndexError) as exc:
+                raise InputError(f"{part}: not a part of a WebM video ({exc})") from None
 
 
 @contextlib.contextmanager
