@@ -69,8 +69,7 @@ def shape_parser(request, monkeypatch) -> str:
     speed extra (used whatever the shapes' size)."""
     import mocap.mesh.mesh as mesh_module
 
-    if request.param == "compiled":
-        pytest.importorskip("numba", reason="the compiled parser is the speed extra's")
+    if request.param == "compiled":         # the speed extra, which the tests install
         monkeypatch.setattr(mesh_module, "_OBJ_BYTES_WORTH_COMPILING", 0)
     else:
         monkeypatch.setattr(mesh_module, "_compiled_vertex_rows", lambda: None)

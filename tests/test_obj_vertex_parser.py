@@ -10,13 +10,11 @@ import pytest
 
 import mocap.mesh.mesh as mesh_module
 from basis.artist import load_artist_basis
-
-pytest.importorskip("numba", reason="the compiled parser is the speed extra's")
+from mocap.mesh._obj_kernel import vertex_rows  # the speed extra, which the tests install
 
 
 def _parse(text: bytes, n: int):
-    kernel = mesh_module._compiled_vertex_rows()
-    return mesh_module._compiled_vertices(kernel, np.empty((3 * n, 3), np.int64), text, n)
+    return mesh_module._compiled_vertices(vertex_rows, np.empty((3 * n, 3), np.int64), text, n)
 
 
 def _loadtxt(text: bytes) -> np.ndarray:
@@ -72,8 +70,7 @@ def test_every_number_is_floats_and_loadtxts_bit_for_bit(seed, monkeypatch):
     got = _parse(text, n)
     expected = np.array([float(x) for x in numbers]).reshape(n, 3)
     slow = np.empty((3 * n, 3), np.int64)
-    rows, n_slow = mesh_module._compiled_vertex_rows()(np.frombuffer(text, np.uint8),
-                                                       np.empty((n, 3)), slow)
+    rows, n_slow = vertex_rows(np.frombuffer(text, np.uint8), np.empty((n, 3)), slow)
     assert rows == n and 0 < n_slow < 3 * n // 2     # both ways of converting are tried
     assert np.isinf(expected).any() and (expected == 0).any()
     np.testing.assert_array_equal(got.view(np.int64), expected.view(np.int64))

@@ -1,17 +1,15 @@
-"""Optional dependencies: numba loaded on request, or silently absent."""
+"""Optional dependencies: numba (the speed extra, which the tests install) loaded on
+request, or silently absent."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
 
-import pytest
-
 from mocap.util.optional import load_numba
 
 
 def test_load_numba_imports_it_in_a_process_without_it():
-    pytest.importorskip("numba", reason="the speed extra")
     script = ("from mocap.util.optional import load_numba, numba_loaded\n"
               "assert not numba_loaded()\n"
               "load_numba()\n"
