@@ -304,12 +304,21 @@ def test_a_video_written_in_parts_and_joined_is_the_whole_video(sing_case, tmp_p
         frames[::2]
 
 
-def test_join_webm_names_a_part_that_is_no_video(tmp_path):
-    from mocap.viz.webm import join_webm
+def test_join_webm_names_a_part_that_is_no_video_or_of_another(tmp_path):
+    from mocap.viz.webm import WebmWriter, join_webm
 
     (tmp_path / "bad.webm").write_bytes(b"not a video")
     with pytest.raises(InputError, match=r"bad\.webm: not a part of a WebM video"):
         join_webm([tmp_path / "bad.webm"], tmp_path / "out.webm")
+    for name, size, fps in (("a", (64, 48), 30.0), ("wide", (96, 48), 30.0),
+                            ("fast", (64, 48), 60.0)):
+        with WebmWriter(tmp_path / f"{name}.webm", fps, size) as video:
+            video.write(np.zeros((size[1], size[0], 3), np.uint8))
+    with pytest.raises(InputError, match=r"wide\.webm: a part of another video \(vp9 96 x 48 "
+                                         r"at 30 frames a second, not vp9 64 x 48 at 30\)"):
+        join_webm([tmp_path / "a.webm", tmp_path / "wide.webm"], tmp_path / "out.webm")
+    with pytest.raises(InputError, match=r"fast\.webm: a part of another video"):
+        join_webm([tmp_path / "a.webm", tmp_path / "fast.webm"], tmp_path / "out.webm")
     assert not (tmp_path / "out.webm").exists()
 
 

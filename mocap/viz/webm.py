@@ -237,17 +237,25 @@ def join_webm(parts, path) -> None:
     Raises
     ------
     InputError
-        A part that is not such a video, or `path` cannot be written (named).
+        A part that is not such a video, or not of the first part's codec, size and rate,
+        or `path` cannot be written (named).
     """
     av = require("av", package="av", extra="speech", purpose="joining WebM videos")
     with atomic_path(path) as tmp, av.open(os.fspath(tmp), mode="w", format="webm") as out:
-        stream = None
+        stream = first = None
         for part in parts:
             try:
                 with av.open(os.fspath(part)) as source:
                     video = source.streams.video[0]
+                    kind = (video.codec_context.name, video.codec_context.width,
+                            video.codec_context.height, video.average_rate)
                     if stream is None:
-                        stream = out.add_stream_from_template(video)
+                        stream, first = out.add_stream_from_template(video), kind
+                    elif kind != first:
+                        raise InputError(f"{part}: a part of another video ({kind[0]} "
+                                         f"{kind[1]} x {kind[2]} at {float(kind[3]):g} frames "
+                                         f"a second, not {first[0]} {first[1]} x {first[2]} at "
+                                         f"{float(first[3]):g})")
                     for packet in source.demux(video):
                         if packet.dts is None:          # the demuxer's flush packet
                             continue
