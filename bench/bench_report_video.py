@@ -6,7 +6,11 @@ side by side on the demo take (20 s at 120 Hz, every 4th frame as the demo's
 run.toml draws it, reconstructions = the capture plus 0.3 mm noise):
 
 * ours: :func:`fit.report.video.write_overlay_video` with three panels, encoded by
-  PyAV's libvpx-vp9 in real-time mode (:class:`mocap.viz.webm.WebmWriter`);
+  PyAV's libvpx-vp9 in real-time mode (:class:`mocap.viz.webm.WebmWriter`, on a thread
+  of its own while the frames are drawn);
+* ours as the report writes it: in parts, one for each of a figure queue's helpers
+  (forked, as ``mocap2mesh`` forks them; one a spare core) and one for this process,
+  joined (:func:`mocap.viz.webm.join_webm`);
 * the same video encoded by OpenCV's VP9 writer (libvpx's default mode, which
   OpenCV does not let one change: the encoder without PyAV);
 * baseline: the same number of frames encoded with OpenCV's mp4v at the old
@@ -32,11 +36,13 @@ from _common import scratch_directory  # noqa: E402
 
 import mocap  # noqa: E402
 from fit.demo import make_demo_session  # noqa: E402
-from fit.report import video  # noqa: E402
+from fit.report import _queue_video, video  # noqa: E402
+from fit.report.figure_queue import FigureQueue  # noqa: E402
+from fit.report.forked_helpers import start_fork_server  # noqa: E402
 from fit.report.video import write_overlay_video  # noqa: E402
 from mocap.markerset import load_markerset  # noqa: E402
 from mocap.stabilize import stabilize  # noqa: E402
-from mocap.viz.webm import WebmWriter  # noqa: E402
+from mocap.viz.webm import WebmWriter, join_webm  # noqa: E402
 
 STEP = 4
 
@@ -57,6 +63,7 @@ def mp4v_baseline(n_frames: int, size: tuple, path: Path) -> None:
 
 
 def main() -> None:
+    start_fork_server()             # as the command: helpers forked, not fresh interpreters
     work = scratch_directory("bench-video-")
     session = make_demo_session(work / "session", seconds=20.0)
     markerset = load_markerset(session.paths["markerset"])
@@ -73,6 +80,15 @@ def main() -> None:
     tic = time.perf_counter()
     write_overlay_video(positions, recs, work / "all.webm", **common)
     ours = time.perf_counter() - tic
+    with FigureQueue() as queue:    # made before, as the report's queue is
+        tic = time.perf_counter()
+        parts = _queue_video(queue, face.replace(positions=positions), recs,
+                             work / "parts.webm", neutral=neutral, markerset=markerset,
+                             step=STEP, exaggerate=1.0)
+        queue.run()
+        if len(parts) > 1:
+            join_webm(parts, work / "parts.webm")
+        in_parts = time.perf_counter() - tic
     tic = time.perf_counter()
     with mock.patch.object(video, "WebmWriter", partial(WebmWriter, encoder="opencv")):
         write_overlay_video(positions, recs, work / "opencv.webm", **common)
@@ -89,6 +105,9 @@ def main() -> None:
     old_size = sum((work / f"{b}.mp4").stat().st_size for b in recs) / 1e6
     print(f"{n} video frames, {len(recs)} bases (machine load {os.getloadavg()[0]:.1f})")
     print(f"  ours: one VP9 WebM, 3 panels 288x320: {ours:6.1f} s, {size:5.1f} MB")
+    print(f"  the same in {len(parts)} part(s), joined:      {in_parts:6.1f} s "
+          f"({ours / in_parts:.2f}x as fast; {len(parts) - 1} "
+          f"helper(s))")
     print(f"  the same by OpenCV's VP9 writer:      {opencv:6.1f} s, "
           f"{(work / 'opencv.webm').stat().st_size / 1e6:5.1f} MB")
     print(f"  baseline: 3 mp4v MP4 512x512:         {old:6.1f} s, {old_size:5.1f} MB "
