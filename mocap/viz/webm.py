@@ -93,7 +93,9 @@ class WebmWriter:
             self._open_pyav(float(fps))
         else:
             self._open_opencv(float(fps))
-        # the encoding thread: frames in order, None to stop; its first error kept
+        # the encoding thread: frames in order, None to stop; its first error kept. A thread
+        # of its own, not one of mocap.util.blas.shared_pool's: it is busy for the whole
+        # video, while the caller may share work on the pool meanwhile
         self._frames: queue.Queue = queue.Queue(maxsize=_FRAMES_AHEAD)
         self._failure: BaseException | None = None
         self._reported = False              # the failure raised already (by write)
