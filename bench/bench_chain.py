@@ -56,8 +56,9 @@ under.
   costs at least one product of the vertices the markers read (the centres)
   and one of the moved data's right-hand sides (:func:`chord_step_floor`);
 * lip seal: the lips' vertices of every frame of each sequence (one product each)
-  and, for every pair of an upper- and a lower-lip vertex in every frame, the three
-  multiply-adds of its squared distance at the rate of a square GEMM of as many;
+  and one pass over them (each frame's centroid): the gap reads every vertex, but not
+  every pair of an upper- and a lower-lip vertex (those it can rule out, it does not
+  measure: :mod:`mocap.mesh._mouth_kernel`);
 * exports: the same number of bytes written by one ``ndarray.tofile``. The weights
   CSVs' text (the shortest that reads back exactly) is not bound by it: its floats'
   formatting by ``repr`` alone is printed beside it, which the CSV writer's whole-array
@@ -383,16 +384,18 @@ def lip_seal_floor(retargeted, bases, weights) -> tuple[float, str]:
     rows = rows.toarray() if scipy.sparse.issparse(rows) else np.asarray(rows)
     shapes = [b.displacements[:, lips].reshape(len(b.displacements), -1)
               for b in bases.bases.values()]
-    T, n_pairs, n_sequences = len(retargeted.displacements), \
-        len(mouth.upper) * len(mouth.lower), 1 + len(shapes)
-    side = round((3 * n_sequences * T * n_pairs) ** (1 / 3))
-    square = np.random.default_rng(0).standard_normal((side, side))
-    seconds = best_time(lambda: (np.matmul(rows, retargeted.displacements),
-                                 [w @ e for w, e in zip(weights.values(), shapes)])) \
-        + best_time(lambda: square @ square)
+    n_sequences = 1 + len(shapes)
+    average = np.full(len(lips), 1.0 / len(lips))
+
+    def vertices():
+        return [np.matmul(rows, retargeted.displacements),
+                *(w @ e for w, e in zip(weights.values(), shapes))]
+    made = vertices()
+    seconds = best_time(vertices) + best_time(
+        lambda: [np.matmul(average, m.reshape(len(m), len(lips), -1)) for m in made])
     return seconds, (f"the lips' {len(lips)} vertices of the {n_sequences} sequences (one "
-                     f"product each), 3 multiply-adds for each of their {n_pairs:,} pairs a "
-                     f"frame at the rate of a {side}² GEMM")
+                     f"product each) and one pass over them (not their "
+                     f"{len(mouth.upper) * len(mouth.lower):,} pairs a frame)")
 
 
 def run_as_a_user(out: Path, capture: Path, frames: int) -> str:

@@ -228,6 +228,14 @@ def test_the_compiled_gap_is_loaded_for_frames_that_pay_for_it(demo_face, monkey
     assert used == [1]
 
 
+def _all_pairs_least(x: np.ndarray, n_up: int) -> np.ndarray:
+    """Every pair's ``(dx·dx + dy·dy) + dz·dz`` and its least, per frame (the oracle)."""
+    d = x[:, :n_up, None, :] - x[:, None, n_up:, :]
+    with np.errstate(over="ignore"):                    # points 1e305 mm apart: inf
+        pairs = (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]) + d[..., 2] * d[..., 2]
+    return pairs.reshape(len(x), -1).min(axis=1, initial=np.inf)
+
+
 @pytest.mark.parametrize("n_up", [0, 1, 3, 4, 5, 8, 11])
 def test_the_compiled_gap_is_the_least_pair_distance_bit_for_bit(n_up):
     """The compiled loop (upper points four at a time, then the rest) against every pair's
@@ -238,13 +246,44 @@ def test_the_compiled_gap_is_the_least_pair_distance_bit_for_bit(n_up):
     x = rng.normal(0.0, 5.0, (40, n_up + 9, 3)) + [0.0, -50.0, 100.0]
     x[7, 0, 1] = np.nan
     x[11, -1, 2] = np.inf
-    d = x[:, :n_up, None, :] - x[:, None, n_up:, :]                  # (T, up, low, 3)
-    pairs = (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]) + d[..., 2] * d[..., 2]
-    expected = pairs.reshape(len(x), -1).min(axis=1, initial=np.inf)
+    expected = _all_pairs_least(x, n_up)
     expected[~np.isfinite(x).all(axis=(1, 2))] = np.nan
     got = np.empty(len(x))
     least_squared_distances(x, n_up, got)
     np.testing.assert_array_equal(got, expected)
+
+
+def test_the_compiled_gap_leaves_out_only_pairs_that_cannot_be_the_nearest(demo_face):
+    """The compiled loop measures only the pairs its bound along the lips' axis cannot rule
+    out, starting from the frame before's nearest pair: the least is still every pair's, to
+    the bit, as the lips close, touch, cross and open again, slide sideways (the frame
+    before's pair far from the nearest), sit 1 km from the origin, after a frame with NaN
+    (no pair to start from), with both lips about one centroid (no axis), and with
+    coordinates whose sums overflow (every pair measured)."""
+    from mocap.mesh._mouth_kernel import least_squared_distances  # the speed extra
+    mouth = find_mouth(demo_face.mesh, demo_face.landmarks)
+    n_up = len(mouth.upper)
+    lips = demo_face.mesh.vertices[mouth.vertex_ids]
+    lower = np.arange(len(lips)) >= n_up
+    t = np.linspace(0.0, 4.0 * np.pi, 240)
+    frames = np.repeat(lips[None], len(t), axis=0)
+    frames[:, lower, 1] -= (8.0 * np.sin(t) - 2.0)[:, None]          # open, touch, cross
+    frames[:, lower, 0] += (15.0 * np.sin(3.0 * t))[:, None]         # and slide sideways
+    frames += np.random.default_rng(1).normal(0.0, 0.3, frames.shape)
+    frames[120:] += [1e6, -2e6, 5e5]                                  # mm: far from the origin
+    frames[60, 3, 2] = np.nan
+    rng = np.random.default_rng(2)
+    up, low = rng.integers(-20, 20, (2, 5, 6, 3)).astype(float)       # both about 0 exactly
+    centred = np.concatenate([up, -up, low, -low], axis=1)
+    huge = frames[:5] * 1e305                       # sums overflow: every pair, inf not NaN
+    for x, k in ((frames, n_up), (centred, 12), (huge, n_up)):
+        got = np.empty(len(x))
+        least_squared_distances(x, k, got)
+        expected = _all_pairs_least(x, k)
+        expected[~np.isfinite(x).all(axis=(1, 2))] = np.nan
+        np.testing.assert_array_equal(got, expected)
+    gap = np.sqrt(_all_pairs_least(frames[:120], n_up))
+    assert (gap < 0.5).any() and (gap > 5.0).any()                    # it did close and open
 
 
 def test_numba_without_a_cache_folder_measures_the_gap_with_numpy_and_a_warning(
