@@ -82,6 +82,56 @@ def test_every_number_is_floats_and_loadtxts_bit_for_bit(seed, monkeypatch):
     np.testing.assert_array_equal(_parse(text.rstrip(b"\n"), n), got)
 
 
+def _converted_here(numbers: list[bytes]) -> tuple[np.ndarray, int]:
+    """The loop's values of `numbers` (three a line) and how many it left to ``float``."""
+    n = len(numbers) // 3
+    text = b"".join(b"v " + b" ".join(numbers[3 * i:3 * i + 3]) + b"\n" for i in range(n))
+    out, slow = np.empty((n, 3)), np.empty((3 * n, 3), np.int64)
+    rows, n_slow = vertex_rows(np.frombuffer(text, np.uint8), out, slow)
+    assert rows == n
+    flat = out.reshape(-1)
+    for index, first, end in slow[:n_slow].tolist():
+        flat[index] = float(text[first:end])
+    return flat, n_slow
+
+
+def test_significands_of_17_to_19_digits_are_rounded_by_the_loop_as_float_rounds_them():
+    """``repr`` (17 digits), ``numpy.savetxt``'s default ``%.18e`` (19) and random 16-19
+    digit decimals, powers of ten across the 128-bit table and past it: the loop converts
+    nearly all of them itself, each to ``float``'s bits; what it leaves (ties, exact
+    products, powers past the table) ``float`` converts."""
+    rng = np.random.default_rng(7)
+    values = rng.standard_normal(30_000) * 10.0 ** rng.integers(-50, 50, 30_000)
+    digits = ["".join(map(str, rng.integers(0, 10, k))) for k in rng.integers(16, 20, 30_000)]
+    for numbers, most_left in (
+            ([repr(v).encode() for v in values.tolist()], 0.05),
+            ([b"%.18e" % v for v in values.tolist()], 0.10),
+            ([f"9{d[1:]}e{q}".encode() for d, q in zip(digits,
+                                                       rng.integers(-90, 90, 30_000))], 0.5)):
+        got, left = _converted_here(numbers)
+        expected = np.array([float(x) for x in numbers])
+        np.testing.assert_array_equal(got.view(np.int64), expected.view(np.int64))
+        assert 0 < left < most_left * len(numbers)
+
+
+def test_ties_and_carries_the_128_bit_product_cannot_settle_are_left_to_float():
+    """Decimals exactly halfway between two doubles (an odd 54-bit integer over a power of
+    two, written exactly in up to 19 digits) and exactly representable ones whose
+    truncated product lands just under them: ``float`` breaks the tie to even."""
+    rng = np.random.default_rng(8)
+    ties = []
+    for odd, k in zip((2 * rng.integers(2 ** 52, 2 ** 53, 3000) + 1).tolist(),
+                      rng.integers(0, 3, 3000).tolist()):
+        text = str(odd * 5 ** k)                        # odd / 2^k = odd·5^k / 10^k
+        ties.append((text[:-k] + "." + text[-k:] if k else text).encode())
+    got, left = _converted_here(ties)
+    assert left == len(ties)
+    np.testing.assert_array_equal(got, [float(x) for x in ties])
+    exact = [repr(v).encode() for v in (rng.integers(2 ** 51, 2 ** 52, 3000) + 0.5).tolist()]
+    got, _ = _converted_here(exact)
+    np.testing.assert_array_equal(got, [float(x) for x in exact])
+
+
 def test_the_ict_shapes_parse_as_loadtxt_parses_them(ict_basis, ict_expressions_dir,
                                                         monkeypatch):
     monkeypatch.setattr(mesh_module, "_OBJ_BYTES_WORTH_COMPILING", 0)
