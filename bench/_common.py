@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import atexit
 import io
+import json
 import os
 import shutil
 import subprocess
@@ -112,3 +113,38 @@ def export_tree(ref: str, into: Path) -> Path:
     with tarfile.open(fileobj=io.BytesIO(blob)) as tar:
         tar.extractall(into, filter="data")
     return into
+
+
+def run_take(out: Path, capture: Path, *, mesh: Path, basis: Path, landmarks: Path,
+             max_gap: int) -> tuple[float, dict]:
+    """``mocap2mesh run`` of the ICT-markered take `capture` onto `mesh` (cm) and its shapes
+    `basis`, in a fresh process as a user runs it (2 mm skin offset, every gap up to
+    `max_gap` frames filled, no video), into `out` / "run": its wall seconds and the take's
+    record in the manifest (``seconds``, ``stage_seconds``...)."""
+    config = out / "run.toml"
+    config.write_text(f"""[inputs]
+captures = ["{capture}"]
+markerset = "{REPO / 'tests' / 'ict_markerset.toml'}"
+mesh = "{mesh}"
+mesh_units = "cm"
+landmarks = "{landmarks}"
+basis = "{basis}"
+
+[output]
+directory = "{out / 'run'}"
+
+[ingest]
+max_gap = {max_gap}
+
+[bind]
+skin_offset = 2.0
+
+[report]
+video = false
+""", encoding="utf-8")
+    tic = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "fit.cli.main", "run", str(config)], check=True,
+                   stderr=subprocess.DEVNULL)
+    wall = time.perf_counter() - tic
+    manifest = json.loads((out / "run" / "manifest.json").read_text(encoding="utf-8"))
+    return wall, next(iter(manifest["takes"].values()))

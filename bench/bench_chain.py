@@ -80,11 +80,8 @@ Usage: ``python bench/bench_chain.py [--frames 35000] [--naive-frames 200]``.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import resource
-import subprocess
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -98,6 +95,7 @@ from _common import (
     best_time,
     memory_as_the_command,
     report_floor,
+    run_take,
     scratch_directory,
     shared_data,
 )
@@ -402,32 +400,10 @@ def run_as_a_user(out: Path, capture: Path, frames: int) -> str:
     """``mocap2mesh run`` on `capture` in a fresh process, as a user runs the take: a line of
     its wall time and the stages the manifest records (which take the held-out fits, the
     renders and the other figures the chain leaves out)."""
-    config = out / "run.toml"
-    config.write_text(f"""[inputs]
-captures = ["{capture}"]
-markerset = "{REPO / 'tests' / 'ict_markerset.toml'}"
-mesh = "{shared_data() / 'ict-face' / 'generic_neutral_mesh.obj'}"
-mesh_units = "cm"
-landmarks = "{REPO / 'tests' / 'ict_landmarks.toml'}"
-basis = "{shared_data() / 'ict-face' / 'expressions'}"
-
-[output]
-directory = "{out / 'run'}"
-
-[ingest]
-max_gap = {frames}
-
-[bind]
-skin_offset = 2.0
-
-[report]
-video = false
-""", encoding="utf-8")
-    tic = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "fit.cli.main", "run", str(config)], check=True,
-                   stderr=subprocess.DEVNULL)
-    wall = time.perf_counter() - tic
-    take = next(iter(json.loads((out / "run" / "manifest.json").read_text())["takes"].values()))
+    ict = shared_data() / "ict-face"
+    wall, take = run_take(out, capture, mesh=ict / "generic_neutral_mesh.obj",
+                          basis=ict / "expressions",
+                          landmarks=REPO / "tests" / "ict_landmarks.toml", max_gap=frames)
     stages = ", ".join(f"{k} {v:.2f}" for k, v in take["stage_seconds"].items())
     return (f"\nmocap2mesh run on the same take, a fresh process as a user runs it (2 mm skin "
             f"offset, no video): {wall:.1f} s (aim ≤ 20 s); in the take "

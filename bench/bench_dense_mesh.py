@@ -21,10 +21,7 @@ Run: ``python bench/bench_dense_mesh.py [--frames 35000]``.
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -32,7 +29,7 @@ import numpy as np
 import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import REPO, best_time, scratch_directory, shared_data  # noqa: E402
+from _common import REPO, best_time, run_take, scratch_directory, shared_data  # noqa: E402
 from bench_chain import simulate  # noqa: E402
 
 import mocap.mesh.mesh as mesh_module  # noqa: E402
@@ -71,33 +68,9 @@ def run(capture: Path, mesh: Path, shapes: Path, landmarks: Path, out: Path,
         frames: int) -> tuple[float, dict]:
     """``mocap2mesh run`` of `capture` on the face (a fresh process): wall seconds and the
     stage seconds of the take."""
-    config = out / "run.toml"
     out.mkdir()
-    config.write_text(f"""[inputs]
-captures = ["{capture}"]
-markerset = "{TESTS / 'ict_markerset.toml'}"
-mesh = "{mesh}"
-mesh_units = "cm"
-landmarks = "{landmarks}"
-basis = "{shapes}"
-
-[output]
-directory = "{out / 'run'}"
-
-[ingest]
-max_gap = {frames}
-
-[bind]
-skin_offset = 2.0
-
-[report]
-video = false
-""", encoding="utf-8")
-    tic = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "fit.cli.main", "run", str(config)], check=True,
-                   stderr=subprocess.DEVNULL)
-    wall = time.perf_counter() - tic
-    take = next(iter(json.loads((out / "run" / "manifest.json").read_text())["takes"].values()))
+    wall, take = run_take(out, capture, mesh=mesh, basis=shapes, landmarks=landmarks,
+                          max_gap=frames)
     return wall, {"start, inputs, record": wall - take["seconds"], **take["stage_seconds"]}
 
 
