@@ -12,8 +12,9 @@ projections are; so once some pair is known to be `r` apart, an upper point proj
 more than `r` above the lower lip's highest point, or a lower point more than `r` below
 the upper lip's lowest, has no nearer partner. The known pair is the nearer of the
 frame before's nearest pair (the lips move little from frame to frame) and the two
-points nearest each other along the axis. On the ICT face's lips about a sixth of the
-pairs are left; the least of them is the least of all, to the bit.
+points nearest each other along the axis. Of a 35,000-frame take of the ICT face's lips
+about a sixth of the pairs are left (more while the lips touch, fewer while they part);
+the least of them is the least of all, to the bit.
 """
 
 from __future__ import annotations
