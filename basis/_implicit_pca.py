@@ -85,7 +85,7 @@ def operator_pca(operator: np.ndarray, displacements: np.ndarray, *,
 
 
 def pooled_spectrum(operators, moments, *, n_components: int | None,
-                    coverage: float | None = None) -> Spectrum:
+                    coverage: float | None = None, factor=None) -> Spectrum:
     """Exact PCA of the pooled mesh sequences of several takes; see the module notes.
 
     Parameters
@@ -98,11 +98,14 @@ def pooled_spectrum(operators, moments, *, n_components: int | None,
     coverage : float in (0, 1], optional
         Instead of `n_components`: the fewest components whose share of the
         total variance reaches it (only those are lifted to the mesh).
+    factor : (Q, R), optional
+        :func:`orthonormal_factor` of the operators side by side, when it is known
+        already (several PCAs of the same operators); default computed here.
     """
     counts = np.array([m[0] for m in moments], dtype=np.float64)
     n_frames = int(counts.sum())
     shares = counts / counts.sum()
-    q, r = orthonormal_factor(np.concatenate(operators, axis=1))
+    q, r = orthonormal_factor(np.concatenate(operators, axis=1)) if factor is None else factor
     k = r.shape[0]
     small = np.zeros((k, 3, k, 3))
     centres = np.empty((len(operators), k, 3))

@@ -26,14 +26,14 @@ import numpy as np
 from scipy import sparse
 
 from basis._implicit_pca import marker_moments as _moments
-from basis._implicit_pca import operator_pca, pooled_spectrum
+from basis._implicit_pca import operator_pca, orthonormal_factor, pooled_spectrum
 from basis._streaming_pca import Spectrum, frame_chunks, incremental_pca, randomized_pca
 from mocap.errors import InputError
 from mocap.util.arrays import read_only
 from mocap.util.validation import as_choice, as_float_array, as_int
 
 __all__ = ["PCAModel", "PCA_METHODS", "MarkerMoments", "marker_moments", "pca_from_operator",
-           "pca_from_operators", "pca_streaming", "pool_moments"]
+           "pca_from_operators", "pca_streaming", "pool_moments", "OperatorFactor"]
 
 #: Methods of :func:`pca_streaming`.
 PCA_METHODS = ("randomized", "incremental")
@@ -375,8 +375,34 @@ def pool_moments(moments) -> MarkerMoments:
     return MarkerMoments(int(counts.sum()), mean.reshape(-1, 3), cov)
 
 
+@dataclass(frozen=True, eq=False)
+class OperatorFactor:
+    """The operators of takes side by side, ``[W_1 … W_K] = Q R``: Q (N, k) with orthonormal
+    columns, R (k, Σ M_k), k their numerical rank (:mod:`basis._implicit_pca`).
+
+    What :func:`pca_from_operators` makes of the operators before it reads any frame;
+    made once with :meth:`of`, it serves several PCAs of the same operators (each of other
+    frames).
+    """
+
+    q: np.ndarray
+    r: np.ndarray
+
+    @classmethod
+    def of(cls, operators) -> OperatorFactor:
+        """The factor of `operators` (sequence of array_like or sparse, each (N, M_k))."""
+        dense = [as_float_array(op.toarray() if sparse.issparse(op) else op,
+                                f"operators[{i}]", ndim=2, allow_nan=False)
+                 for i, op in enumerate(operators)]
+        if not dense or len({op.shape[0] for op in dense}) > 1:
+            raise InputError("operators must be one or more of one mesh (the same rows)")
+        q, r = orthonormal_factor(np.concatenate(dense, axis=1))
+        return cls(read_only(q), read_only(r))
+
+
 def pca_from_operators(operators, displacements, *, n_components: int | None = None,
-                       coverage: float | None = None) -> PCAModel:
+                       coverage: float | None = None,
+                       factor: OperatorFactor | None = None) -> PCAModel:
     """Exact PCA of the mesh sequences of several takes pooled, Ξ_k(t) = W_k · D_k(t).
 
     The PCA of a session: every frame of every take counts once, each take
@@ -397,6 +423,10 @@ def pca_from_operators(operators, displacements, *, n_components: int | None = N
         Instead of `n_components`: keep the fewest components whose coverage
         (:meth:`PCAModel.coverage`) reaches it; only those are computed on
         the mesh, the costly part for a long session.
+    factor : OperatorFactor, optional
+        :meth:`OperatorFactor.of` these operators, for several PCAs of them (the
+        held-out folds of a take): its products with the mesh, the costly part on a
+        dense mesh, are made once. Default: made here.
 
     Returns
     -------
@@ -459,8 +489,15 @@ def pca_from_operators(operators, displacements, *, n_components: int | None = N
             raise InputError("give n_components or coverage, not both")
         if isinstance(coverage, bool) or not 0 < coverage <= 1:
             raise InputError(f"coverage must be in (0, 1], got {coverage!r}")
+    if factor is not None and (len(factor.q) != len(dense[0])
+                               or factor.r.shape[1] != sum(op.shape[1] for op in dense)):
+        raise InputError(f"factor is of operators of {len(factor.q)} vertices and "
+                         f"{factor.r.shape[1]} markers, these have {len(dense[0])} and "
+                         f"{sum(op.shape[1] for op in dense)}")
     return _model(pooled_spectrum(dense, moments, n_components=n_components,
-                                  coverage=coverage), "implicit")
+                                  coverage=coverage,
+                                  factor=None if factor is None else (factor.q, factor.r)),
+                  "implicit")
 
 
 def pca_streaming(frames, *, n_components: int, chunk_frames: int = 512,

@@ -19,6 +19,7 @@ from tolerances import (
 
 from basis.pca import (
     PCA_METHODS,
+    OperatorFactor,
     PCAModel,
     pca_from_operator,
     pca_from_operators,
@@ -124,6 +125,26 @@ def test_components_up_to_a_coverage_keep_the_whole_spectrum():
                                rtol=PCA_IMPLICIT_RTOL)
     np.testing.assert_array_equal(cut.coverage(), curve[:m])
     np.testing.assert_array_equal(full.truncate(m).coverage_curve(), full.coverage_curve())
+
+
+def test_the_operators_factor_made_once_serves_several_pcas_of_them():
+    """A factor made once (:class:`OperatorFactor`), given to the PCAs of several sets of
+    frames of the same operator (held-out folds), gives each the PCA it makes alone, to
+    the bit, and each is the dense SVD's; a factor of other operators is refused."""
+    operator, disp, xi = make_case(**CASES["signal+noise"])
+    factor = OperatorFactor.of([operator])
+    assert not factor.q.flags.writeable and not factor.r.flags.writeable
+    for frames in (slice(0, None), slice(0, 60), slice(60, None)):
+        alone = pca_from_operators([operator], [disp[frames]], n_components=4)
+        shared = pca_from_operators([operator], [disp[frames]], n_components=4, factor=factor)
+        for name in ("components", "eigenvalues", "mean", "spectrum"):
+            np.testing.assert_array_equal(getattr(shared, name), getattr(alone, name))
+        _, evals, _, _ = dense_pca(xi[frames])
+        np.testing.assert_allclose(shared.eigenvalues, evals[:4], rtol=PCA_IMPLICIT_RTOL)
+    with pytest.raises(InputError, match="factor is of operators of"):
+        pca_from_operators([operator[:-1]], [disp], factor=factor)
+    with pytest.raises(InputError, match="one mesh"):
+        OperatorFactor.of([operator, operator[:-1]])
 
 
 def test_a_model_without_spectrum_keeps_its_eigenvalues_when_truncated():

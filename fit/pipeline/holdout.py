@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from basis.pca import marker_moments, pca_from_operators, pool_moments
+from basis.pca import OperatorFactor, marker_moments, pca_from_operators, pool_moments
 from fit.pipeline.options import BasisOptions, FitOptions
 from fit.pipeline.stages import BasisResult, basis_stage, fit_stage
 from mocap.errors import InputError
@@ -135,9 +135,11 @@ def held_out_fits(take, bound, retargeted, artist, *, splits, label: str,
     frame's weights come from its own markers, its basis from other frames.
     """
     splits = [(train, _as_slice(np.asarray(test))) for train, test in splits]
-    # the take's own basis stage on each training set: its PCA from the set's moments
+    # the take's own basis stage on each training set: its PCA from the set's moments, the
+    # operator's factor (its products with the mesh) made once for all the sets
     moments = _training_moments(retargeted.displacements, splits) if make_bases is None \
         else [None] * len(splits)
+    factor = OperatorFactor.of([retargeted.operator.matrix]) if make_bases is None else None
     shape = (take.n_frames, len(retargeted.labels), 3)
     out = {name: np.full(shape, np.nan) for name in bases}
     sizes = []
@@ -145,7 +147,7 @@ def held_out_fits(take, bound, retargeted, artist, *, splits, label: str,
     independent = fit_options.smoothness == 0 and fit_options.moving_average <= 1
     for (train, test), training in zip(splits, moments):
         made = make_bases(train) if training is None else \
-            _bases_from_moments(retargeted, artist, training, basis_options)
+            _bases_from_moments(retargeted, artist, training, basis_options, factor)
         if not isinstance(made, BasisResult):
             raise InputError(f"make_bases must return a BasisResult, got {type(made).__name__}")
         chosen = BasisResult(bases={n: made.bases[n] for n in bases}, pca=made.pca,
@@ -188,11 +190,14 @@ def _training_moments(displacements: np.ndarray, splits) -> list:
     return [pool_moments([runs[r] for r in np.flatnonzero(row)]) for row in taken]
 
 
-def _bases_from_moments(retargeted, artist, moments, options: BasisOptions) -> BasisResult:
-    """The basis stage of a take on the frames whose marker `moments` are given."""
+def _bases_from_moments(retargeted, artist, moments, options: BasisOptions,
+                        factor: OperatorFactor) -> BasisResult:
+    """The basis stage of a take on the frames whose marker `moments` are given (`factor`:
+    of the take's operator)."""
     pca = pca_from_operators([retargeted.operator.matrix], [moments],
                              n_components=options.pca_components,
-                             coverage=None if options.pca_components else options.pca_coverage)
+                             coverage=None if options.pca_components else options.pca_coverage,
+                             factor=factor)
     return basis_stage(retargeted, artist, options=options, pca=pca)
 
 
