@@ -375,6 +375,14 @@ def pool_moments(moments) -> MarkerMoments:
     return MarkerMoments(int(counts.sum()), mean.reshape(-1, 3), cov)
 
 
+def _dense_operator(operator, index: int) -> np.ndarray:
+    """Take `index`'s operator (array_like or sparse, (N, M)) as a dense float64 array,
+    checked (no NaN or infinity; named ``operators[index]``)."""
+    if sparse.issparse(operator):
+        operator = operator.toarray()
+    return as_float_array(operator, f"operators[{index}]", ndim=2, allow_nan=False)
+
+
 @dataclass(frozen=True, eq=False)
 class OperatorFactor:
     """The operators of takes side by side, ``[W_1 … W_K] = Q R``: Q (N, k) with orthonormal
@@ -391,9 +399,7 @@ class OperatorFactor:
     @classmethod
     def of(cls, operators) -> OperatorFactor:
         """The factor of `operators` (sequence of array_like or sparse, each (N, M_k))."""
-        dense = [as_float_array(op.toarray() if sparse.issparse(op) else op,
-                                f"operators[{i}]", ndim=2, allow_nan=False)
-                 for i, op in enumerate(operators)]
+        dense = [_dense_operator(op, i) for i, op in enumerate(operators)]
         if not dense or len({op.shape[0] for op in dense}) > 1:
             raise InputError("operators must be one or more of one mesh (the same rows)")
         q, r = orthonormal_factor(np.concatenate(dense, axis=1))
@@ -467,9 +473,7 @@ def pca_from_operators(operators, displacements, *, n_components: int | None = N
                          "displacements: give one of each per take")
     dense, moments = [], []
     for i, (operator, data) in enumerate(zip(operators, displacements)):
-        if sparse.issparse(operator):
-            operator = operator.toarray()
-        operator = as_float_array(operator, f"operators[{i}]", ndim=2, allow_nan=False)
+        operator = _dense_operator(operator, i)
         if operator.shape[0] != (dense[0].shape[0] if dense else operator.shape[0]):
             raise InputError(f"operators[{i}] has {operator.shape[0]} rows (vertices), "
                              f"operators[0] {dense[0].shape[0]}: the takes must share a mesh")
