@@ -241,6 +241,28 @@ def test_writer_output_read_back_by_ezc3d_and_us(tmp_path, n_markers):
     assert (back.source.byte_order, back.source.storage) == ("intel", "float")
 
 
+def test_writer_parts_make_the_bytes_of_one_piece(tmp_path, monkeypatch):
+    """Frames encoded a part at a time on the worker threads (parts of a few frames here)
+    hold what ezc3d reads, gaps across the parts' ends; an overflow in a late part leaves
+    no file."""
+    import mocap.io._c3d_write as c3d_write
+    monkeypatch.setattr(c3d_write, "PART_BYTES", 700)
+    take = _take(n_frames=203, n_markers=7)
+    positions = take.positions.copy()
+    positions[40:90, 2] = np.nan                    # a gap over several parts
+    take = take.replace(positions=positions)
+    assert len(c3d_write.encode_c3d(take)) > 50
+    write_c3d(take, tmp_path / "out.c3d")
+    ez = ezc3d.c3d(str(tmp_path / "out.c3d"))
+    np.testing.assert_array_equal(ez["data"]["points"][:3].transpose(2, 1, 0),
+                                  _f32(take.positions))
+    np.testing.assert_array_equal(ez["data"]["analogs"][0].T, _f32(take.analog.values))
+    positions[-1, 1, 1] = 1e39
+    with pytest.raises(InputError, match="positions exceed the float32 range"):
+        write_c3d(take.replace(positions=positions), tmp_path / "late.c3d")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.c3d"]
+
+
 def test_writer_stores_missing_as_residual_minus_one_and_zeros(tmp_path):
     take = _take(analog=False)
     write_c3d(take, tmp_path / "out.c3d")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import struct
 
 import numpy as np
@@ -10,7 +11,7 @@ from mocap.errors import InputError
 from mocap.io._c3d_header import BLOCK, KEY
 from mocap.take import Take
 
-__all__ = ["encode_c3d"]
+__all__ = ["PART_BYTES", "encode_c3d"]
 
 _INTEL = 84
 _MAX_DIM = 255           # a parameter dimension is one byte
@@ -108,50 +109,61 @@ def _parameters(take: Take, per_frame: int, data_block: int) -> bytes:
     return b"".join(out)
 
 
-_CHUNK_FRAMES_BYTES = 16 << 20     # bytes of frames encoded at a time
+#: Bytes of frames one worker thread encodes at a time (cache-sized, as the npz's parts).
+PART_BYTES = 1 << 21
 
 
-def _frames(take: Take, per_frame: int):
-    """The data section in chunks of frames (little-endian float32 arrays, bytes-like),
-    each encoded vectorized."""
+def _frame_parts(take: Take, per_frame: int) -> list:
+    """The data section as parts of :func:`mocap.util.parallel_writes.write_parts`: (size,
+    maker) of a few frames each, encoded vectorized by the thread that writes them."""
     n, m = take.n_frames, take.n_markers
-    limit = np.finfo(np.float32).max
     values = None if not per_frame else take.analog.values
-    if values is not None and np.abs(np.nan_to_num(values)).max(initial=0.0) > limit:
+    if values is not None and np.abs(np.nan_to_num(values)).max(initial=0.0) > \
+            np.finfo(np.float32).max:
         raise InputError("analog values exceed the float32 range of a C3D file")
     width = 4 * m + (0 if values is None else per_frame * values.shape[1])
-    step = max(1, _CHUNK_FRAMES_BYTES // (4 * width))
-    for first in range(0, n, step):
-        stop = min(n, first + step)
-        positions = take.positions[first:stop]
-        words = np.empty((stop - first, width), dtype="<f4")
-        points = words[:, :4 * m].reshape(stop - first, m, 4)
-        # narrowed in place; a value beyond float32's range overflows the cast, which
-        # checks them as it goes (no pass of its own; a NaN is no overflow)
-        try:
-            with np.errstate(over="raise"):
-                points[:, :, :3] = positions
-        except FloatingPointError:
-            raise InputError("positions exceed the float32 range of a C3D file") from None
-        missing = np.isnan(positions[:, :, 0])
-        points[:, :, 3] = np.where(missing, -1.0, 0.0)
-        # xyz 0 where missing, by flat indices: a boolean mask's assignment visits every sample
-        points.reshape(-1, 4)[np.flatnonzero(missing), :3] = 0.0
-        if values is not None:
-            words[:, 4 * m:] = values[first * per_frame:stop * per_frame].reshape(
-                stop - first, -1)
-        yield words                     # written from its own memory (no copy into bytes)
+    step = max(1, PART_BYTES // (4 * width))
+    return [(4 * width * (min(n, first + step) - first),
+             functools.partial(_encoded_frames, take, values, per_frame, first,
+                               min(n, first + step), width))
+            for first in range(0, n, step)]
 
 
-def encode_c3d(take: Take):
-    """The bytes of a C3D file holding `take` (see :func:`mocap.io.c3d.write_c3d`), in
-    bytes-like pieces: the header and parameter blocks (bytes), then the frames a chunk at
-    a time (float32 arrays).
+def _encoded_frames(take: Take, values, per_frame: int, first: int, stop: int, width: int,
+                    out: np.ndarray) -> np.ndarray:
+    """Frames `first` to `stop` as little-endian float32 words (stop - first, width) in the
+    uint8 buffer `out`: each marker's xyz and residual, then the frame's analog values."""
+    m = take.n_markers
+    positions = take.positions[first:stop]
+    words = out[:4 * width * (stop - first)].view("<f4").reshape(stop - first, width)
+    points = words[:, :4 * m].reshape(stop - first, m, 4)
+    # narrowed in place; a value beyond float32's range overflows the cast, which
+    # checks them as it goes (no pass of its own; a NaN is no overflow)
+    try:
+        with np.errstate(over="raise"):
+            points[:, :, :3] = positions
+    except FloatingPointError:
+        raise InputError("positions exceed the float32 range of a C3D file") from None
+    missing = np.isnan(positions[:, :, 0])
+    points[:, :, 3] = np.where(missing, -1.0, 0.0)
+    # xyz 0 where missing, by flat indices: a boolean mask's assignment visits every sample
+    points.reshape(-1, 4)[np.flatnonzero(missing), :3] = 0.0
+    if values is not None:
+        words[:, 4 * m:] = values[first * per_frame:stop * per_frame].reshape(stop - first, -1)
+    return words
+
+
+def encode_c3d(take: Take) -> list:
+    """The bytes of a C3D file holding `take` (see :func:`mocap.io.c3d.write_c3d`), as
+    parts of :func:`mocap.util.parallel_writes.write_parts` (of at most
+    :data:`PART_BYTES` made at a time): the header and parameter blocks (bytes), then the
+    frames a few at a time, each part encoded when it is made.
 
     Raises
     ------
     InputError
-        As :func:`mocap.io.c3d.write_c3d`, before the first piece.
+        As :func:`mocap.io.c3d.write_c3d`: what C3D cannot hold but positions beyond float32's
+        range here, those when their part is made.
     """
     if take.n_frames == 0:
         raise InputError("a take with no frames cannot be written to C3D")
@@ -172,10 +184,7 @@ def encode_c3d(take: Take):
                      min(take.first_frame, _MAX_WORD),
                      min(take.first_frame + take.n_frames - 1, _MAX_WORD), 0)
     struct.pack_into("<fHHf", header, 12, -1.0, data_block, per_frame, take.rate)
-    frames = _frames(take, per_frame)
-    first = next(frames)            # raises here, before anything is written
     # The data section is not padded to a whole block: readers that count frames
     # from the file size past 65535 frames (ezc3d) would read the padding as frames.
-    yield bytes(header) + params.ljust(n_blocks * BLOCK, b"\x00")
-    yield first
-    yield from frames
+    head = bytes(header) + params.ljust(n_blocks * BLOCK, b"\x00")
+    return [(len(head), head), *_frame_parts(take, per_frame)]

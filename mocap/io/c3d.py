@@ -20,7 +20,7 @@ from mocap.io._c3d_write import encode_c3d
 from mocap.take import Analog, SourceInfo, Take, as_take, take_of_checked_samples
 from mocap.units import mm_per_unit
 from mocap.util.arrays import read_only
-from mocap.util.atomic import atomic_path
+from mocap.util.atomic import atomic_path, preallocate
 from mocap.util.budget import check_allocation
 from mocap.util.files import as_path, mapped_input
 
@@ -355,12 +355,17 @@ def write_c3d(take: Take, path, *, inputs=()) -> None:
     InputError
         A take C3D cannot hold: no frames, a negative first frame, labels longer
         than 255 bytes, analog sampled at a rate that is not a whole multiple of
-        the frame rate, or more than 255 analog channels.
+        the frame rate, more than 255 analog channels, or values beyond float32's
+        range (no file is left then).
     """
     take = as_take(take)
-    pieces = encode_c3d(take)
-    first = next(pieces)            # a take C3D cannot hold fails before any file exists
+    parts = encode_c3d(take)        # a take C3D cannot hold fails before any file exists
+    # here: the worker threads' module loads SciPy's BLAS, which reading a C3D never needs
+    from mocap.util.blas import worker_threads
+    from mocap.util.parallel_writes import positional_writer, write_parts
     with atomic_path(as_path(path), inputs=inputs) as tmp, open(tmp, "wb") as fh:
-        fh.write(first)
-        for piece in pieces:        # frames a chunk at a time: no copy of the whole take
-            fh.write(piece)
+        preallocate(fh, sum(size for size, _ in parts))
+        # the frames encoded and written a part at a time by the worker threads: no copy
+        # of the whole take
+        write_parts(positional_writer(fh, 0), parts, workers=worker_threads(),
+                    part_bytes=max(size for size, _ in parts[1:]))
