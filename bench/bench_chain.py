@@ -59,11 +59,13 @@ under.
   and one pass over them (each frame's centroid): the gap reads every vertex, but not
   every pair of an upper- and a lower-lip vertex (those it can rule out, it does not
   measure: :mod:`mocap.mesh._mouth_kernel`);
-* exports: the same number of bytes written by one ``ndarray.tofile``. The weights
-  CSVs' text (the shortest that reads back exactly) is not bound by it: its floats'
-  formatting by ``repr`` alone is printed beside it, which the CSV writer's whole-array
-  formatting (:mod:`mocap.util.float_text`) runs under (``mocap2mesh run`` writes the
-  CSVs in a figure helper, alongside the binary exports);
+* exports (the cleaned take's C3D, and per basis its npz, weights CSV, mesh sequence and
+  glb): the same number of bytes written by one ``ndarray.tofile``. The weights CSVs'
+  text (the shortest that reads back exactly) is not bound by it: its floats' formatting
+  by ``repr`` alone is printed beside it, which the CSV writer's whole-array formatting
+  (:mod:`mocap.util.float_text`) runs under (``mocap2mesh run`` writes the CSVs on a
+  thread of their own beside the binary exports, and takes the ones still waiting once
+  those are written; without the compiled text, in a figure helper);
 * QA figures + HTML: the figures' pixels encoded once more by the report's PNG
   encoder and the page's bytes written (:func:`_common.report_floor`).
 
@@ -84,6 +86,7 @@ import os
 import resource
 import time
 import warnings
+from functools import partial
 from pathlib import Path
 
 import igl
@@ -131,7 +134,7 @@ from mocap.mesh.landmarks import load_mesh_landmarks
 from mocap.mesh.layout import load_marker_layout
 from mocap.synth.capture import simulate_capture
 from mocap.synth.performance import read_performance
-from mocap.util.blas import run_beside
+from mocap.util.blas import TasksBeside
 from mocap.util.float_text import compiled_lines_ready, csv_lines
 
 
@@ -336,7 +339,7 @@ def measure_floors(path: Path, out: Path, take, bound, retargeted, bases, fill,
                                   f"the right-hand sides), put the exact fit at ≥ "
                                   f"{1 + steps * step_floor / linear_h:.1f}× the linear model)")
     floors["lip seal"] = lip_seal_floor(retargeted, bases, weights)
-    exported = [f for f in out.iterdir() if f.suffix in {".csv", ".npz", ".glb"}]
+    exported = [f for f in out.iterdir() if f.suffix in {".c3d", ".csv", ".npz", ".glb"}]
     size = sum(f.stat().st_size for f in exported)
     blob = np.zeros(size, np.uint8)
     target = out / "floor.bin"
@@ -440,14 +443,16 @@ def run_chain(source: Path, out: Path, artist, markerset, landmarks, max_gap: in
 
         def exports():
             # as `mocap2mesh run` does: the CSVs (text) queued first, for the figure helpers,
-            # or written on a thread here meanwhile where the fit loaded the compiled CSV text
+            # or, where the fit loaded the compiled CSV text, written on a thread here
+            # meanwhile, this one taking those it has not started once its own are written
             here = compiled_lines_ready()
             csvs = [(out / f"weights-{name}.csv", fitted.weights[name], b.names)
                     for name, b in bases.bases.items()]
             for task in csvs if not here else ():
                 figures.submit(write_weights_csv, *task, rate=take.rate)
-            texts = run_beside(lambda: [write_weights_csv(*task, rate=take.rate)
-                                        for task in csvs]) if here else None
+            texts = TasksBeside(partial(write_weights_csv, *task, rate=take.rate)
+                                for task in csvs) if here else None
+            mocap.write(take, out / "take.c3d")
             for name, b in bases.bases.items():
                 w = fitted.weights[name]
                 save_basis(ArtistBasis(b.names, mesh, b.displacements), out / f"basis-{name}.npz",
@@ -457,7 +462,7 @@ def run_chain(source: Path, out: Path, artist, markerset, landmarks, max_gap: in
                 write_gltf(out / f"face-{name}.glb", mesh, b.displacements, b.names, weights=w,
                            rate=take.rate)
             if texts is not None:
-                texts.result()
+                texts.finish()
             figures.run()
         # as `mocap2mesh run` does: the figure helpers start with the exports, write the
         # weights CSVs, then draw the figures

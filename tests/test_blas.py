@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import multiprocessing
 import threading
 
@@ -16,6 +17,7 @@ from fit.report.figure_queue import FigureQueue
 from fit.solve.weights import solve_weights
 from mocap.util.blas import (
     CoresTaken,
+    TasksBeside,
     blas_threads,
     map_on_blas_threads,
     on_one_blas_thread,
@@ -150,6 +152,54 @@ def test_work_beside_holds_up_no_shared_work():
         assert job.result(timeout=30) == 1
         after.result(timeout=30)
     assert order == ["long", "after"]
+
+
+def test_tasks_beside_are_shared_with_the_caller_once_its_work_is_done():
+    """The background thread takes the tasks in order while the caller works; the caller
+    then takes those still waiting; each runs once."""
+    started, release, ran = threading.Event(), threading.Event(), []
+
+    def first():
+        started.set()
+        assert release.wait(timeout=30), "the caller did not take the waiting tasks"
+        ran.append((0, threading.get_ident()))
+
+    def later(k):
+        ran.append((k, threading.get_ident()))
+        if k == 3:
+            release.set()           # the caller runs the rest while the thread is held
+
+    tasks = TasksBeside([first, *(functools.partial(later, k) for k in range(1, 4))])
+    assert started.wait(timeout=30)
+    caller = threading.get_ident()
+    tasks.finish()
+    assert sorted(k for k, _ in ran) == [0, 1, 2, 3]
+    assert [k for k, who in ran if who == caller] == [1, 2, 3]
+    assert dict(ran)[0] != caller
+
+
+def test_tasks_beside_stop_at_the_first_error():
+    """An error of a task is raised by finish, and no task waiting then runs; cancel drops
+    the waiting tasks."""
+    ran = []
+
+    def failing():
+        raise ValueError("task 1 failed")
+    tasks = TasksBeside([failing, functools.partial(ran.append, 2)])
+    with pytest.raises(ValueError, match="task 1 failed"):
+        tasks.finish()
+    assert ran == []
+    held, release = threading.Event(), threading.Event()
+
+    def hold():
+        held.set()
+        assert release.wait(timeout=30)
+        ran.append("held")
+    tasks = TasksBeside([hold, functools.partial(ran.append, "dropped")])
+    assert held.wait(timeout=30)
+    threading.Timer(0.05, release.set).start()
+    tasks.cancel()
+    assert ran == ["held"]
 
 
 def test_a_forked_child_makes_its_own_threads():

@@ -24,7 +24,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, partial
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +69,7 @@ from mocap.retarget.lip_seal import LipSealCheck
 from mocap.retarget.retargeting import Retargeting, RetargetOptions
 from mocap.take import Take
 from mocap.units import mm_per_unit
-from mocap.util.blas import run_beside
+from mocap.util.blas import TasksBeside
 from mocap.util.float_text import compiled_lines_ready
 from mocap.util.order_statistics import nan_column_medians
 
@@ -450,25 +450,25 @@ class ReconstructionResult:
         timing = dict(rate=self.take.rate, first_frame=self.take.first_frame)
         # the CSVs' text by the compiled kernel costs less here than the weights' trip to a
         # helper and its NumPy formatting there (three times the kernel's time); the kernel
-        # lets go of the GIL, so a thread writes them while this one writes the others
+        # lets go of the GIL, so a thread writes them while this one writes the others, and
+        # this one takes those it has not started once its own are written
         here = compiled_lines_ready()
         csvs = [(out / f"weights-{name}.csv", self.fitted.weights[name], basis.names)
                 for name, basis in self.bases.bases.items()]
         if not here:
             for task in csvs:
                 figures.submit(write_weights_csv, *task, inputs=inputs, **timing)
-        texts = run_beside(
-            lambda: [write_weights_csv(*task, inputs=inputs, **timing) for task in csvs]
-        ) if here else None
+        texts = TasksBeside(partial(write_weights_csv, *task, inputs=inputs, **timing)
+                            for task in csvs) if here else None
         try:
             files = self._save_binary(out, inputs, timing)
         except BaseException:
             figures.close()     # a CSV a helper is writing is finished, the others dropped
             if texts is not None:
-                texts.exception()   # waited for: nor does our thread write on behind it
+                texts.cancel()  # nor does our thread write on behind the error
             raise
         if texts is not None:
-            texts.result()      # its first error
+            texts.finish()
         if wait or not figures.helpers:
             figures.run()
         return files

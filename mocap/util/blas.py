@@ -24,6 +24,7 @@ milliseconds of work many times over paid at every call.
 
 from __future__ import annotations
 
+import collections
 import functools
 import os
 import threading
@@ -36,7 +37,7 @@ import threadpoolctl
 
 __all__ = ["CoresTaken", "blas_threads", "finished", "map_on_blas_threads",
            "on_one_blas_thread", "one_blas_thread", "run_beside", "shared_pool",
-           "worker_threads"]
+           "TasksBeside", "worker_threads"]
 
 #: Per thread: the BLAS's threads outside this thread's outermost :func:`one_blas_thread`.
 _outside = threading.local()
@@ -134,6 +135,52 @@ def run_beside(function: Callable, /, *args, **kwargs) -> Future:
     :func:`worker_threads`.
     """
     return _kept_pool(1, "beside").submit(function, *args, **kwargs)
+
+
+class TasksBeside:
+    """Tasks shared between the process's background thread and the caller: the thread
+    takes them one by one, in order, while the caller does other work, and
+    :meth:`finish` has the caller take the ones still waiting (so that both end about
+    together, whichever work was the longer).
+
+    Parameters
+    ----------
+    tasks : iterable of callable
+        Called with no arguments, each once, on either thread; the longest first shares
+        best.
+    """
+
+    def __init__(self, tasks: Iterable[Callable]):
+        self._waiting = collections.deque(tasks)
+        self._beside = run_beside(self._take)
+
+    def _take(self) -> None:
+        """Run waiting tasks until none is left; after an error, none are run."""
+        while True:
+            try:
+                task = self._waiting.popleft()      # one thread gets each task
+            except IndexError:
+                return
+            try:
+                task()
+            except BaseException:
+                self._waiting.clear()
+                raise
+
+    def finish(self) -> None:
+        """Run the tasks still waiting here, then wait for the background thread's; the
+        first error raised (this thread's, else the background thread's)."""
+        try:
+            self._take()
+        finally:
+            self._beside.exception()            # nothing runs on behind an error
+        self._beside.result()
+
+    def cancel(self) -> None:
+        """Drop the tasks still waiting and wait for the one the background thread runs
+        (its error dropped)."""
+        self._waiting.clear()
+        self._beside.exception()
 
 
 def _pooled() -> None:
