@@ -291,7 +291,7 @@ def test_a_video_written_in_parts_and_joined_is_the_whole_video(sing_case, tmp_p
     frames.write(tmp_path / "whole.webm")
     parts = [tmp_path / f"part{k}.webm" for k in range(3)]
     for part, rows in zip(parts, (slice(0, 10), slice(10, 31), slice(31, None))):
-        frames[rows].write(part)
+        frames[rows].write(part, threads=1)         # as the report's parts are encoded
     join_webm(parts, tmp_path / "joined.webm")
     (whole, rate), (joined, joined_rate) = (_decoded(tmp_path / f"{name}.webm")
                                             for name in ("whole", "joined"))
@@ -302,6 +302,33 @@ def test_a_video_written_in_parts_and_joined_is_the_whole_video(sing_case, tmp_p
         assert np.abs(a.astype(int) - b).mean() < 3
     with pytest.raises(ValueError, match="a run of its frames"):
         frames[::2]
+
+
+def test_the_report_queues_a_part_of_the_video_per_process_each_on_one_thread(sing_case,
+                                                                               tmp_path):
+    """Each process (the queue's helpers and the caller) gets a part, encoded on one thread:
+    the parts cover the frames in order."""
+    from fit.report import _queue_video
+
+    class Recording:
+        helpers = 2
+
+        def __init__(self):
+            self.queued = []
+
+        def submit(self, function, *args, **kwargs):
+            self.queued.append((function.__self__, args, kwargs))
+
+    ms, face, recs, neutral = sing_case
+    queue = Recording()
+    parts = _queue_video(queue, face, {b: recs[b] for b in ("H", "QE")},
+                         tmp_path / "take-video.webm", neutral=neutral, markerset=ms, step=2,
+                         exaggerate=1.0)
+    assert [args for _, args, _ in queue.queued] == [(part,) for part in parts]
+    assert len(parts) == 3 and all(kwargs == {"threads": 1} for _, _, kwargs in queue.queued)
+    starts = [frames.start for frames, _, _ in queue.queued]
+    assert starts[0] == 0 and starts == sorted(starts)
+    assert sum(len(frames) for frames, _, _ in queue.queued) == -(-face.n_frames // 2)
 
 
 def test_join_webm_names_a_part_that_is_no_video_or_of_another(tmp_path):

@@ -76,6 +76,30 @@ def test_bad_frames_and_paths_are_named(tmp_path, encoder):
             WebmWriter(tmp_path / "c.webm", 25.0, (32, 32), encoder=encoder, start=10)
 
 
+def test_one_encoder_thread_writes_the_frames_the_same_each_time(tmp_path):
+    """A part's encoder on one thread (the report's parts, a core each): the frames drawn,
+    and the same pictures from the same frames (the files differ only in the muxer's random
+    track and segment ids); OpenCV's writer takes no thread count."""
+    frames = _frames(24, 160, 96)
+    videos = []
+    for name in ("a", "b"):
+        with WebmWriter(tmp_path / f"{name}.webm", 30.0, (160, 96), threads=1) as video:
+            for frame in frames:
+                video.write(frame)
+        with av.open(str(tmp_path / f"{name}.webm")) as container:
+            videos.append(np.stack([f.to_ndarray(format="bgr24")
+                                    for f in container.decode(video=0)]))
+    np.testing.assert_array_equal(videos[0], videos[1])
+    decoded = videos[0]
+    assert len(decoded) == len(frames)
+    assert max(np.abs(shown.astype(int) - drawn).mean()
+               for shown, drawn in zip(decoded, frames)) < 6
+    with pytest.raises(InputError, match="only PyAV's encoder takes a number of threads"):
+        WebmWriter(tmp_path / "c.webm", 30.0, (160, 96), encoder="opencv", threads=1)
+    with pytest.raises(InputError, match="threads"):
+        WebmWriter(tmp_path / "d.webm", 30.0, (160, 96), threads=-1)
+
+
 class _FullDisk:
     """A PyAV output container whose writes fail from the `after`-th packet on, as on a
     full disk."""

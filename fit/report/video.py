@@ -170,15 +170,16 @@ class OverlayFrames:
                                     for name, px, seen, rms in self.panels),
                        heads=self.heads[rows], start=self.start + first)
 
-    def write(self, path) -> int:
+    def write(self, path, *, threads: int = 0) -> int:
         """Draw the frames and write them as a VP9 WebM to `path` (atomically), their time
-        stamps from :attr:`start`; returns how many."""
+        stamps from :attr:`start`, encoded by `threads` threads (0: FFmpeg's choice;
+        :class:`mocap.viz.webm.WebmWriter`); returns how many."""
         r16 = 16 * self.radius                              # radius in 1/16 pixel (shift 4)
         r16_rec = max(16, round(0.6 * r16))                 # smaller: a red ring stays visible
         offsets = [np.array([k * self.width * 16, 0]) for k in range(len(self.panels))]
         img = np.empty_like(self.background)
         with atomic_path(path) as tmp, WebmWriter(tmp, self.fps, self.background.shape[1::-1],
-                                                  start=self.start) as video:
+                                                  start=self.start, threads=threads) as video:
             for k in range(len(self)):
                 np.copyto(img, self.background)
                 dots = self.captured[k][self.seen[k]]

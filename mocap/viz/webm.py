@@ -59,6 +59,10 @@ class WebmWriter:
     start : int, default 0
         The first frame's index in a longer video, of which this file is a part (its
         time stamps count from there: :func:`join_webm`); PyAV's encoder only.
+    threads : int, default 0
+        The encoder's threads; 0: FFmpeg's choice (one per core). PyAV's encoder only.
+        One where other processes encode the video's other parts, a core each: no thread
+        then waits for a busy core, and the same frames give the same bytes.
 
     Raises
     ------
@@ -76,7 +80,7 @@ class WebmWriter:
     """
 
     def __init__(self, path, fps: float, size: tuple, *, encoder: str | None = None,
-                 start: int = 0):
+                 start: int = 0, threads: int = 0):
         self.path = Path(path)
         self.size = (int(size[0]), int(size[1]))
         self.encoder = ("pyav" if available("av") else "opencv") if encoder is None else encoder
@@ -85,12 +89,15 @@ class WebmWriter:
         self.start = as_int(start, "start", minimum=0)
         if self.start and self.encoder != "pyav":
             raise InputError("only PyAV's encoder writes a part of a video (start > 0)")
+        threads = as_int(threads, "threads", minimum=0)
+        if threads and self.encoder != "pyav":
+            raise InputError("only PyAV's encoder takes a number of threads")
         if not self.path.parent.is_dir():
             raise InputError(f"{self.path}: cannot write: directory {self.path.parent} does "
                              "not exist")
         self.n_frames = 0
         if self.encoder == "pyav":
-            self._open_pyav(float(fps))
+            self._open_pyav(float(fps), threads)
         else:
             self._open_opencv(float(fps))
         # the encoding thread: frames in order, None to stop; its first error kept. A thread
@@ -103,7 +110,7 @@ class WebmWriter:
                                           name="webm-encoder")
         self._encoding.start()
 
-    def _open_pyav(self, fps: float) -> None:
+    def _open_pyav(self, fps: float, threads: int) -> None:
         av = require("av", package="av", extra="speech", purpose="VP9 encoding by PyAV")
         self._av = av
         rate = Fraction(fps).limit_denominator(1001)
@@ -120,6 +127,8 @@ class WebmWriter:
                              f"({exc})") from None
         self._stream.width, self._stream.height = width, height
         self._stream.pix_fmt = "yuv420p"
+        if threads:
+            self._stream.codec_context.thread_count = threads
         self._stream.bit_rate = int(_BITS_PER_PIXEL * width * height * fps)
         self._time_base = Fraction(1, 1) / rate
 
