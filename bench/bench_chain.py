@@ -34,9 +34,11 @@ under.
   axes of its window (one GEMM of the window's rows of the target and its
   donors, and its eigh); not a tight floor: the fill's distance weights and
   the stabilization's robust weights read the take a few times more;
-* bind: one pass over the face markers' positions that selects each
-  coordinate's middle sample (``np.partition``: the median of the neutral
-  frame's rest pose), and the AABB tree of the mesh that the closest-point
+* bind: one pass over the face markers' positions, each coordinate's column
+  read in full once (what selecting its middle sample, the median of the
+  neutral frame's rest pose, costs at least: every sample compared once; the
+  selection, :mod:`mocap.util.order_statistics`, reads them twice and
+  partitions a tenth), and the AABB tree of the mesh that the closest-point
   queries of ICP search;
 * retarget: the heat method's geodesic fields from the corners of the
   markers' faces (its three factorizations and three back-substitutions per
@@ -261,11 +263,11 @@ def measure_floors(path: Path, out: Path, take, bound, retargeted, bases, fill,
     face = take.select(retargeted.labels).positions
     tree = igl.AABB()
     floors["bind"] = (
-        best_time(lambda: np.partition(face.reshape(take.n_frames, -1).T.copy(),
-                                       take.n_frames // 2, axis=1))
+        best_time(lambda: np.count_nonzero(face.reshape(take.n_frames, -1).T.copy() < 0.0,
+                                           axis=1))
         + best_time(lambda: tree.init(retargeted.mesh.vertices, retargeted.mesh.faces)),
-        "one pass over the face markers, each coordinate's middle sample selected (the rest "
-        "pose's median), the mesh's AABB tree")
+        "one pass over the face markers, each coordinate's samples compared once (the least "
+        "a selection of the rest pose's median reads), the mesh's AABB tree")
     M = len(retargeted.labels)
     selection = retargeted.selection
     n_variants = len(selection.candidates) if selection else 1

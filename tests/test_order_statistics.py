@@ -148,3 +148,52 @@ def test_percentiles_outside_the_range_or_of_nothing_are_refused():
         percentile([], 50)
     with pytest.raises(ValueError, match="rows"):
         nan_column_percentiles(np.zeros(3), 50)
+
+
+def _sampling_adversaries(rng, n_rows: int = 35_000) -> np.ndarray:
+    """Long columns that a sample can mislead, or that hold what a bracket must handle:
+    sorted and reversed, heavy ties, infinities, every sampled value an outlier, counts of
+    values about where sampling starts (4,096), and a column of one value."""
+    columns = [np.sort(rng.normal(size=n_rows)), np.sort(rng.normal(size=n_rows))[::-1],
+               rng.integers(0, 4, n_rows).astype(float), rng.normal(size=n_rows),
+               rng.normal(size=n_rows), rng.normal(size=n_rows), rng.normal(size=n_rows),
+               np.full(n_rows, 2.5)]
+    columns[3][rng.random(n_rows) < 0.02] = np.inf
+    columns[3][rng.random(n_rows) < 0.02] = -np.inf
+    columns[4][::n_rows // 1024] = -50.0          # the strided sample: outliers only
+    for column, kept in ((5, 4096), (6, 4095)):
+        columns[column][rng.permutation(n_rows)[kept:]] = np.nan
+    return np.column_stack(columns)
+
+
+@pytest.mark.parametrize("q", QS)
+def test_long_columns_sampled_or_not_give_numpys_order_statistics(q, monkeypatch):
+    """The sampled selection's answers are NumPy's, including where the sample misleads the
+    bracket (that column is partitioned whole)."""
+    import mocap.util.order_statistics as order_statistics
+
+    values = _sampling_adversaries(np.random.default_rng(11))
+    whole = []
+    partitioned = order_statistics._partitioned
+
+    def spied(rows, n, k):
+        if rows.shape[1] == len(values):
+            whole.append(n)
+        return partitioned(rows, n, k)
+    monkeypatch.setattr(order_statistics, "_partitioned", spied)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)         # inf - inf in NumPy's lerp
+        np.testing.assert_array_equal(nan_column_percentiles(values, q),
+                                      np.nanpercentile(values, q, axis=0))
+        np.testing.assert_array_equal(nan_column_medians(values), np.nanmedian(values, axis=0))
+        for column in values.T:
+            finite = column[~np.isnan(column)]
+            assert np.array_equal(percentile(finite, q), np.percentile(finite, q),
+                                  equal_nan=True)
+    assert len(values) in whole and 4095 in whole           # misled, and too few to sample
+
+
+def test_a_long_array_with_a_nan_has_nan_percentiles():
+    values = np.random.default_rng(2).normal(size=50_000)
+    values[123] = np.nan
+    np.testing.assert_array_equal(percentile(values, [0.0, 50.0, 100.0]), [np.nan] * 3)

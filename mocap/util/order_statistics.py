@@ -3,12 +3,15 @@
 NumPy asks ``np.partition`` for every order statistic its answer reads at once: both
 middle values of an even count (``np.nanmedian``), or both neighbours of a percentile's
 virtual index plus the smallest and the largest value (``np.percentile``). Two adjacent
-order statistics cost it several times one. Here each answer costs one selection: the
-lower (median: upper) neighbour is partitioned into place, and the other one is the
-largest value below it or the smallest above it, one contiguous pass. Medians average
-the two middle values as ``np.nanmedian`` does; percentiles interpolate by
-``np.percentile``'s own formula (its ``"linear"`` method): the values are NumPy's, to the
-bit. Tables are read a few columns at a time, each copied contiguously.
+order statistics cost it several times one. Here each answer costs one selection of the
+pair of neighbours. In a long row (a marker's track, a take's errors) the selection is
+Floyd and Rivest's: an evenly spaced sample of the row brackets the pair between two of
+its values, one pass counts the values below the bracket and gathers those inside it
+(a tenth of a take's track, less of longer rows), and only those are partitioned; a row
+whose sample misled the bracket is partitioned whole, so the answer is always exact.
+Medians average the two middle values as ``np.nanmedian`` does; percentiles interpolate
+by ``np.percentile``'s own formula (its ``"linear"`` method): the values are NumPy's, to
+the bit. Tables are read a few columns at a time, each copied contiguously.
 """
 
 from __future__ import annotations
@@ -111,15 +114,21 @@ def percentile(values, q, *, overwrite_input: bool = False):
     flat = values.reshape(-1) if in_place else values.flatten()
     quantiles = np.asarray(_quantile(q), dtype=float)
     out = np.empty(quantiles.shape)
-    # ascending: each selection partitions only the values above the last one
+    # a NaN makes NumPy's every percentile NaN: the partition (NaN last) reads it
+    sampled = len(flat) >= _SAMPLED_FROM and not np.isnan(flat).any()
+    # ascending: each partition reorders only the values above the last one
     ordered = 0                     # flat[:ordered] lie below every value after them
     for i in np.argsort(quantiles, axis=None, kind="stable"):
         below, gamma = _neighbour(len(flat), float(quantiles.flat[i]))
-        if below >= ordered:
-            flat[ordered:].partition(below - ordered)
-            ordered = below + 1
-        upper = flat[below + 1:].min() if below + 1 < len(flat) else flat[below]
-        out.flat[i] = _lerp(flat[below], upper, gamma)
+        if sampled:
+            low, high = (float(v[0]) for v in _pairs(flat[None], len(flat), below))
+        else:
+            if below >= ordered:
+                flat[ordered:].partition(below - ordered)
+                ordered = below + 1
+            low = flat[below]
+            high = flat[below + 1:].min() if below + 1 < len(flat) else low
+        out.flat[i] = _lerp(low, high, gamma)
     return float(out) if out.ndim == 0 else out
 
 
@@ -151,22 +160,80 @@ def _lerp(low, high, gamma: float):
 
 
 def _at_quantile(part: np.ndarray, n: int, quantile: float) -> np.ndarray:
-    """The percentile at `quantile` of the first `n` entries of each row of `part` (the
-    others NaN), partitioned in place."""
+    """The percentile at `quantile` of the `n` non-NaN entries of each row of `part` (R, T)
+    (which may be reordered)."""
     below, gamma = _neighbour(n, quantile)
-    part.partition(below, axis=1)
-    low = part[:, below]
-    high = part[:, below + 1:n].min(axis=1) if below + 1 < n else low
-    return _lerp(low, high, gamma)
+    return _lerp(*_pairs(part, n, below), gamma)
 
 
 def _middle(part: np.ndarray, n: int) -> np.ndarray:
-    """The median of the first `n` entries of each row of `part` (the others NaN),
-    partitioned in place."""
-    upper = n // 2
-    part.partition(upper, axis=1)
-    high = part[:, upper]
-    return high if n % 2 else (part[:, :upper].max(axis=1) + high) / 2
+    """The median of the `n` non-NaN entries of each row of `part` (R, T) (which may be
+    reordered)."""
+    if n % 2:
+        return _pairs(part, n, n // 2)[0]
+    low, high = _pairs(part, n, n // 2 - 1)
+    return (low + high) / 2
+
+
+#: Values a row holds at least for its order statistics to be found from a sample of it
+#: (with fewer, one partition of the row costs less than the sample and its passes).
+_SAMPLED_FROM = 4096
+
+
+def _pairs(rows: np.ndarray, n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The order statistics k and k + 1 (from 0; k again when k = n − 1) of the `n` non-NaN
+    values of each row of `rows` (R, T), (R,) each; `rows` may be reordered.
+
+    With many values, those between a bracket of the pair made from a sample of the row
+    (:func:`_bracket`) are gathered in one pass, and only they are partitioned; a row whose
+    bracket misses the pair is partitioned whole.
+    """
+    if n < _SAMPLED_FROM:
+        return _partitioned(rows, n, k)
+    upper = min(k + 1, n - 1)
+    low, high = _bracket(rows, n, k, upper)
+    below = np.count_nonzero(rows < low[:, None], axis=1)
+    inside = (rows >= low[:, None]) & (rows <= high[:, None])       # a NaN is neither
+    counts = np.count_nonzero(inside, axis=1)
+    gathered, ends = rows[inside], np.cumsum(counts)                # row after row
+    first, second = np.empty(len(rows)), np.empty(len(rows))
+    for row in range(len(rows)):
+        if below[row] <= k and upper < below[row] + counts[row]:
+            part = gathered[ends[row] - counts[row]:ends[row]][None]
+            pair = _partitioned(part, counts[row], k - below[row])
+        else:                                       # the sample misled the bracket
+            pair = _partitioned(rows[row:row + 1], n, k)
+        first[row], second[row] = pair[0][0], pair[1][0]
+    return first, second
+
+
+def _partitioned(rows: np.ndarray, n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_pairs` by partitioning each row of `rows` whole (in place)."""
+    rows.partition(k, axis=1)                       # NaN last: the n values come first
+    first = rows[:, k]
+    return first, (rows[:, k + 1:n].min(axis=1) if k + 1 < n else first)
+
+
+def _bracket(rows: np.ndarray, n: int, k: int, upper: int) -> tuple[np.ndarray, np.ndarray]:
+    """Values of each row of `rows` (R, T) between which its order statistics k to `upper`
+    of `n` most likely lie, (R,) each (−∞ or ∞ where the sample cannot tell).
+
+    From every j-th value of the row, about T^(2/3) of its T (as Floyd and Rivest's sample:
+    the sort of a larger one, or the partition of the values of a wider bracket, would cost
+    more): the statistic of rank r sits near rank r m / n of the sample's m values, off by a
+    binomial count whose standard deviation is at most √m / 2; the bracket reaches three of
+    them further, and two values more.
+    """
+    step = max(1, round(rows.shape[1] ** (1 / 3)))
+    sample = np.sort(rows[:, ::step], axis=1)                                   # NaN last
+    m = sample.shape[1] - np.count_nonzero(np.isnan(sample), axis=1)
+    margin = 1.5 * np.sqrt(m) + 2
+    lowest = np.floor(k / n * m - margin).astype(np.intp)
+    highest = np.ceil((upper + 1) / n * m + margin).astype(np.intp)
+    every = np.arange(len(rows))
+    low = sample[every, np.clip(lowest, 0, sample.shape[1] - 1)]
+    high = sample[every, np.clip(highest, 0, sample.shape[1] - 1)]
+    return np.where(lowest >= 0, low, -np.inf), np.where(highest < m, high, np.inf)
 
 
 #: Bytes of a table's transposed columns partitioned at a time.
@@ -175,7 +242,7 @@ _BLOCK_BYTES = 1 << 21
 
 def _by_count(rows: np.ndarray, select: Callable[[np.ndarray, int], np.ndarray]) -> np.ndarray:
     """``select(part, n)`` of the rows of `rows` (R, T) with `n` non-NaN entries, for each
-    count n, into (R,) (NaN for a row without one); `rows` is partitioned in place.
+    count n, into (R,) (NaN for a row without one); `rows` may be reordered.
 
     np.partition orders NaN last: a row's n values are its first n entries after it.
     """
