@@ -82,8 +82,8 @@ def _queue_video(queue: FigureQueue, take, reconstructions: Mapping, path: Path,
         return [path]
     bounds = np.linspace(0, len(frames), n_parts + 1).round().astype(int)
     parts = [path.with_name(f".{path.stem}-part{k}{path.suffix}") for k in range(n_parts)]
-    # a core for each part's process: one encoder thread each (FFmpeg's choice, a thread
-    # per core, had each wait for the other's core: 10% longer; see WebmWriter)
+    # a core for each part's process: one encoder thread each (FFmpeg's default, a thread
+    # per core, has the parts' encoders wait for each other's cores; see WebmWriter)
     for part, first, stop in zip(parts, bounds[:-1], bounds[1:]):
         queue.submit(frames[first:stop].write, part, threads=1)
     return parts
