@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import igl
 import numpy as np
 import pytest
@@ -110,3 +112,70 @@ def test_point_errors():
         geo.from_surface_points([32], [[1.0, 0.0, 0.0]])
     with pytest.raises(InputError, match="sources must be vertex ids"):
         geo.from_vertices([25])
+
+
+def _grid_sources(monkeypatch):
+    """A mesh and sources whose solves here are slowed (20 ms a chunk), so that a helper is
+    ready before this process is done; the chunks helpers answered are counted."""
+    import mocap.mesh._geodesic_helpers as helpers
+
+    v, f, _, _ = slit_grid()
+    geo = HeatGeodesics(v, f)
+    solve, answered = geo._solve, []
+
+    def slowly(sources):
+        time.sleep(0.02)
+        return solve(sources)
+    monkeypatch.setattr(geo, "_solve", slowly)
+    answer = helpers._Helper.answer
+    monkeypatch.setattr(helpers._Helper, "answer",
+                        lambda self: (answered.append(True), answer(self))[1])
+    return geo, np.arange(0, len(v), 3), answered
+
+
+@pytest.mark.parametrize("processes", [1, 2])
+def test_fields_shared_with_helper_processes_are_the_same_bits(processes, monkeypatch):
+    """Helper processes (fresh interpreters, each factorizing the mesh again) solve chunks
+    of the sources: the fields are those solved here alone, bit for bit."""
+    geo, sources, answered = _grid_sources(monkeypatch)
+    alone = geo.from_vertices(sources, processes=0)
+    np.testing.assert_array_equal(geo.from_vertices(sources, processes=processes), alone)
+    assert answered                                     # the helpers took their share
+
+
+@pytest.mark.parametrize("program", [
+    "import sys; sys.exit(3)",                                     # dies at its start
+    "import pickle, sys; pickle.load(sys.stdin.buffer); pickle.load(sys.stdin.buffer); "
+    "out = sys.stdout.buffer; pickle.dump('ready', out); out.flush(); "
+    "pickle.load(sys.stdin.buffer)",                               # dies on its first chunk
+    "import pickle, sys; pickle.load(sys.stdin.buffer); pickle.load(sys.stdin.buffer); "
+    "out = sys.stdout.buffer; pickle.dump('ready', out); out.flush(); "
+    "[(pickle.load(sys.stdin.buffer), pickle.dump('solve failed', out), out.flush()) "
+    "for _ in iter(int, 1)]",                                      # answers with an error
+])
+def test_what_a_helper_cannot_solve_is_solved_here(program, monkeypatch):
+    import mocap.mesh._geodesic_helpers as helpers
+
+    monkeypatch.setattr(helpers, "_BOOT", program)
+    geo, sources, _ = _grid_sources(monkeypatch)
+    np.testing.assert_array_equal(geo.from_vertices(sources, processes=1),
+                                  geo.from_vertices(sources, processes=0))
+
+
+def test_large_fields_are_shared_by_default_with_a_helper_per_spare_core(monkeypatch):
+    import mocap.mesh.geodesic as geodesic
+
+    shared = []
+    monkeypatch.setattr(geodesic, "solve_shared",
+                        lambda solve, mesh, sources, out, helpers: (
+                            shared.append(helpers), out.__setitem__(slice(None),
+                                                                    solve(sources))))
+    monkeypatch.setattr(geodesic, "worker_threads", lambda: 3)
+    geo, sources, _ = _grid_sources(monkeypatch)
+    geo.from_vertices(sources)
+    assert shared == []                                 # too few values to share
+    monkeypatch.setattr(geodesic, "SHARED_FROM", sources.size * geo.n_vertices)
+    geo.from_vertices(sources)
+    assert shared == [2]
+    with pytest.raises(InputError, match="processes"):
+        geo.from_vertices(sources, processes=-1)

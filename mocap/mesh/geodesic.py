@@ -14,9 +14,19 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from mocap.errors import InputError
-from mocap.util.validation import as_float_array, as_positive_float
+from mocap.mesh._geodesic_helpers import SOURCES_PER_CHUNK, solve_shared
+from mocap.util.blas import worker_threads
+from mocap.util.validation import as_float_array, as_int, as_positive_float
 
-__all__ = ["HeatGeodesics"]
+__all__ = ["HeatGeodesics", "SHARED_FROM"]
+
+#: Values of the fields (sources × vertices) from which :meth:`HeatGeodesics.from_vertices`
+#: shares its sources with helper processes by default: a helper's start (a fresh
+#: interpreter's imports, about 0.4 s of a core) and its own factorization of the mesh then
+#: cost less than the sources it takes (the 180 fields of 60 markers' faces on a mesh of
+#: about 33,000 vertices or more). The solves stream the mesh's factor from memory: two
+#: processes on two cores share its bandwidth, so a helper takes less than half.
+SHARED_FROM = 6_000_000
 
 
 def _as_triangles(faces, n_vertices: int) -> np.ndarray:
@@ -89,19 +99,27 @@ class HeatGeodesics:
         igl.heat_geodesics_precompute(vertices, faces, time_factor * h * h, self._data)
         self.vertices = vertices
         self.faces = faces
+        self._options = (time_factor, bool(intrinsic_delaunay))
 
     @property
     def n_vertices(self) -> int:
         """Number of mesh vertices."""
         return len(self.vertices)
 
-    def from_vertices(self, sources) -> np.ndarray:
+    def from_vertices(self, sources, *, processes: int | None = None) -> np.ndarray:
         """Distance fields from each source vertex.
 
         Parameters
         ----------
         sources : array_like of int, shape (n_sources,)
             Vertex ids.
+        processes : int, optional
+            Helper processes that solve a share of the sources (libigl's solve holds the
+            GIL: threads of this process cannot share it); each factorizes the mesh once
+            more. Default: one per spare core of this process's share
+            (:func:`mocap.util.blas.worker_threads` less one) when the fields hold at
+            least :data:`SHARED_FROM` values, else none. The fields are the same, bit for
+            bit, however many there are.
 
         Returns
         -------
@@ -115,8 +133,23 @@ class HeatGeodesics:
                              f"shape {sources.shape} dtype {sources.dtype}")
         if len(sources) and (sources.min() < 0 or sources.max() >= self.n_vertices):
             raise InputError(f"sources must be vertex ids in 0..{self.n_vertices - 1}")
+        sources = sources.astype(np.int64)
+        if processes is None:
+            processes = worker_threads() - 1 if sources.size * self.n_vertices >= SHARED_FROM \
+                else 0
+        processes = min(as_int(processes, "processes", minimum=0),
+                        -(-len(sources) // SOURCES_PER_CHUNK) - 1)
+        if processes == 0:
+            return self._solve(sources)
         out = np.empty((len(sources), self.n_vertices))
-        for row, vertex in enumerate(sources.astype(np.int64)):
+        solve_shared(self._solve, (self.vertices, self.faces, *self._options), sources, out,
+                     processes)
+        return out
+
+    def _solve(self, sources: np.ndarray) -> np.ndarray:
+        """The fields of the vertices `sources` (S,) int64 here, (S, n_vertices)."""
+        out = np.empty((len(sources), self.n_vertices))
+        for row, vertex in enumerate(sources):
             out[row] = igl.heat_geodesics_solve(self._data, np.array([vertex]))
         return out
 
@@ -174,7 +207,8 @@ class HeatGeodesics:
         return self.at_surface_points(fields, face_ids, bary)
 
     def at_surface_points(self, fields, face_ids, bary) -> np.ndarray:
-        """Values (n_fields, n_points) of per-vertex fields (n_fields, n_vertices) at surface points."""
+        """Values (n_fields, n_points) of per-vertex fields (n_fields, n_vertices) at surface
+        points."""
         face_ids, bary = self._as_surface_points(face_ids, bary)
         fields = as_float_array(fields, "fields", shape=(None, self.n_vertices))
         return np.einsum("jk,ijk->ij", bary, fields[:, self.faces[face_ids]])
