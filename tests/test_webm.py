@@ -100,6 +100,20 @@ def test_one_encoder_thread_writes_the_frames_the_same_each_time(tmp_path):
         WebmWriter(tmp_path / "d.webm", 30.0, (160, 96), threads=-1)
 
 
+def test_rows_the_encoder_pads_are_copied_whole(tmp_path):
+    """A width whose BGR rows FFmpeg pads to its alignment (166 px: 498 bytes in rows of
+    512): each row is copied into its padded place, the picture is the one drawn."""
+    frames = _frames(12, 166, 96)
+    with WebmWriter(tmp_path / "odd.webm", 30.0, (166, 96), threads=1) as video:
+        for frame in frames:
+            video.write(frame)
+    with av.open(str(tmp_path / "odd.webm")) as container:
+        decoded = [f.to_ndarray(format="bgr24") for f in container.decode(video=0)]
+    assert len(decoded) == len(frames)
+    assert max(np.abs(shown.astype(int) - drawn).mean()
+               for shown, drawn in zip(decoded, frames)) < 6
+
+
 class _FullDisk:
     """A PyAV output container whose writes fail from the `after`-th packet on, as on a
     full disk."""

@@ -160,7 +160,10 @@ class WebmWriter:
             self._reported = True
             raise self._failure
         if self.encoder == "pyav":
-            image = self._av.VideoFrame.from_ndarray(frame, format="bgr24")
+            image = self._av.VideoFrame(self.size[0], self.size[1], "bgr24")
+            plane = image.planes[0]         # its rows may be padded: copied into, not over
+            np.copyto(np.frombuffer(plane, np.uint8).reshape(-1, plane.line_size)[
+                :, :frame.shape[1] * 3].reshape(frame.shape), frame)
             image.pts, image.time_base = self.start + self.n_frames, self._time_base
         else:
             image = frame.copy()
