@@ -8,6 +8,8 @@ two back-substitutions. Distances follow the surface: across a mouth opening
 
 from __future__ import annotations
 
+import functools
+
 import igl
 import numpy as np
 import scipy.sparse as sp
@@ -46,7 +48,8 @@ def _as_triangles(faces, n_vertices: int) -> np.ndarray:
 
 
 class HeatGeodesics:
-    """Heat-method geodesic distances on one triangle mesh, factorized once.
+    """Heat-method geodesic distances on one triangle mesh, factorized once (at its first
+    solve).
 
     Parameters
     ----------
@@ -94,12 +97,19 @@ class HeatGeodesics:
                              "vertices): geodesic distances need one connected surface")
         h = float(np.mean(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]],
                                          axis=1)))
-        self._data = igl.HeatGeodesicsData()
-        self._data.use_intrinsic_delaunay = bool(intrinsic_delaunay)
-        igl.heat_geodesics_precompute(vertices, faces, time_factor * h * h, self._data)
         self.vertices = vertices
         self.faces = faces
+        self._heat_time = time_factor * h * h
         self._options = (time_factor, bool(intrinsic_delaunay))
+
+    @functools.cached_property
+    def _factorized(self) -> igl.HeatGeodesicsData:
+        """libigl's factorizations of the mesh, made at the first solve (so that helper
+        processes started for the solves factorize beside this one)."""
+        data = igl.HeatGeodesicsData()
+        data.use_intrinsic_delaunay = self._options[1]
+        igl.heat_geodesics_precompute(self.vertices, self.faces, self._heat_time, data)
+        return data
 
     @property
     def n_vertices(self) -> int:
@@ -150,7 +160,7 @@ class HeatGeodesics:
         """The fields of the vertices `sources` (S,) int64 here, (S, n_vertices)."""
         out = np.empty((len(sources), self.n_vertices))
         for row, vertex in enumerate(sources):
-            out[row] = igl.heat_geodesics_solve(self._data, np.array([vertex]))
+            out[row] = igl.heat_geodesics_solve(self._factorized, np.array([vertex]))
         return out
 
     def from_surface_points(self, face_ids, bary, *, symmetric: bool = False) -> np.ndarray:
