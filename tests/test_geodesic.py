@@ -177,5 +177,8 @@ def test_large_fields_are_shared_by_default_with_a_helper_per_spare_core(monkeyp
     monkeypatch.setattr(geodesic, "SHARED_FROM", sources.size * geo.n_vertices)
     geo.from_vertices(sources)
     assert shared == [2]
+    monkeypatch.setattr(geodesic, "worker_threads", lambda: 16)
+    geo.from_vertices(sources)
+    assert shared == [2, geodesic.MAX_HELPERS]          # each helper factorizes the mesh
     with pytest.raises(InputError, match="processes"):
         geo.from_vertices(sources, processes=-1)

@@ -20,7 +20,7 @@ from mocap.mesh._geodesic_helpers import SOURCES_PER_CHUNK, solve_shared
 from mocap.util.blas import worker_threads
 from mocap.util.validation import as_float_array, as_int, as_positive_float
 
-__all__ = ["HeatGeodesics", "SHARED_FROM"]
+__all__ = ["HeatGeodesics", "MAX_HELPERS", "SHARED_FROM"]
 
 #: Values of the fields (sources × vertices) from which :meth:`HeatGeodesics.from_vertices`
 #: shares its sources with helper processes by default: a helper's start (a fresh
@@ -29,6 +29,9 @@ __all__ = ["HeatGeodesics", "SHARED_FROM"]
 #: about 33,000 vertices or more). The solves stream the mesh's factor from memory: two
 #: processes on two cores share its bandwidth, so a helper takes less than half.
 SHARED_FROM = 6_000_000
+#: Most helper processes by default: each holds its own factorization of the mesh (about
+#: 0.5 GB for 150,000 vertices), and they share the memory's bandwidth.
+MAX_HELPERS = 3
 
 
 def _as_triangles(faces, n_vertices: int) -> np.ndarray:
@@ -127,8 +130,9 @@ class HeatGeodesics:
             Helper processes that solve a share of the sources (libigl's solve holds the
             GIL: threads of this process cannot share it); each factorizes the mesh once
             more. Default: one per spare core of this process's share
-            (:func:`mocap.util.blas.worker_threads` less one) when the fields hold at
-            least :data:`SHARED_FROM` values, else none. The fields are the same, bit for
+            (:func:`mocap.util.blas.worker_threads` less one), at most
+            :data:`MAX_HELPERS`, when the fields hold at least :data:`SHARED_FROM` values,
+            else none. The fields are the same, bit for
             bit, however many there are.
 
         Returns
@@ -145,8 +149,8 @@ class HeatGeodesics:
             raise InputError(f"sources must be vertex ids in 0..{self.n_vertices - 1}")
         sources = sources.astype(np.int64)
         if processes is None:
-            processes = worker_threads() - 1 if sources.size * self.n_vertices >= SHARED_FROM \
-                else 0
+            processes = min(worker_threads() - 1, MAX_HELPERS) \
+                if sources.size * self.n_vertices >= SHARED_FROM else 0
         processes = min(as_int(processes, "processes", minimum=0),
                         -(-len(sources) // SOURCES_PER_CHUNK) - 1)
         if processes == 0:
