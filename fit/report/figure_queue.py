@@ -26,7 +26,6 @@ from __future__ import annotations
 import os
 import pickle
 import subprocess
-import sys
 import threading
 import warnings
 from dataclasses import dataclass
@@ -36,6 +35,7 @@ import matplotlib
 
 from fit.report.forked_helpers import forked_helper
 from mocap.util.blas import CoresTaken
+from mocap.util.python_helpers import can_start_python, send_import_path, start_python
 
 __all__ = ["FigureQueue", "MAX_HELPERS", "default_helpers"]
 
@@ -64,7 +64,7 @@ def _usable_cores() -> int:
 def default_helpers() -> int:
     """One helper per usable core beyond the caller's, at most :data:`MAX_HELPERS`; none
     when this interpreter cannot start another (a frozen application)."""
-    if getattr(sys, "frozen", False) or not sys.executable:
+    if not can_start_python():
         return 0
     return max(0, min(MAX_HELPERS, _usable_cores() - 1))
 
@@ -90,16 +90,9 @@ class _Helper:
         self.ready = False
         self.process = forked_helper()
         if self.process is None:
-            env = {**os.environ, "MPLBACKEND": "Agg",
-                   # figures are no place for BLAS threads: the caller's process has them
-                   "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-            self.process = subprocess.Popen([sys.executable, "-c", _BOOT],
-                                            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                            env=env)
-        # the caller's import path as it is now (not as it was at a fork server's fork),
-        # taken once the helper is up (as PYTHONPATH it would come before the standard
-        # library, which a script's folder holding a "re.py" would then shadow)
-        pickle.dump(sys.path, self.process.stdin)
+            self.process = start_python(_BOOT, MPLBACKEND="Agg")
+        # the caller's import path as it is now (not as it was at a fork server's fork)
+        send_import_path(self.process)
         self.process.stdin.flush()
 
     def wait_ready(self) -> bool:

@@ -1,12 +1,12 @@
 """Heat-method fields of many sources shared with helper processes.
 
 libigl's solve holds the GIL, so another thread of this process cannot use a spare core;
-another process can. Each helper is a fresh interpreter (``python -c``, which imports this
-module and never the caller's ``__main__``) that factorizes the mesh once, says it is
-ready, and then answers chunks of sources with their fields. This process takes chunks
-from the front of the same queue meanwhile and the helpers from its back, so that all end
-about together; a chunk a helper could not answer is solved here. A helper that is still
-starting when the work is done is stopped: it never holds this process up.
+another process can. Each helper is a fresh interpreter (:mod:`mocap.util.python_helpers`:
+it imports this module, never the caller's ``__main__``) that factorizes the mesh once,
+says it is ready, and then answers chunks of sources with their fields. This process takes
+chunks from the front of the same queue meanwhile and the helpers from its back, so that
+all end about together; a chunk a helper could not answer is solved here. A helper that is
+still starting when the work is done is stopped: it never holds this process up.
 """
 
 from __future__ import annotations
@@ -19,6 +19,8 @@ import threading
 from collections import deque
 
 import numpy as np
+
+from mocap.util.python_helpers import can_start_python, send_import_path, start_python
 
 __all__ = ["solve_shared", "main"]
 
@@ -44,8 +46,8 @@ def solve_shared(solve, mesh: tuple, sources: np.ndarray, out: np.ndarray,
         ``(vertices, faces, time_factor, intrinsic_delaunay)``: what a helper builds its
         :class:`mocap.mesh.geodesic.HeatGeodesics` from (the same fields, bit for bit).
     """
-    if getattr(sys, "frozen", False) or not sys.executable:
-        helpers = 0                     # no interpreter to start (a frozen application)
+    if not can_start_python():
+        helpers = 0
     chunks = deque(slice(first, first + SOURCES_PER_CHUNK)
                    for first in range(0, len(sources), SOURCES_PER_CHUNK))
     returned: list = []                 # chunks a helper took but could not answer
@@ -115,12 +117,9 @@ class _Helper:
 
     def __init__(self, mesh: tuple):
         self.ready = False
-        env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-               "MKL_NUM_THREADS": "1"}
-        self.process = subprocess.Popen([sys.executable, "-c", _BOOT], stdin=subprocess.PIPE,
-                                        stdout=subprocess.PIPE, env=env)
+        self.process = start_python(_BOOT)
         try:
-            pickle.dump(sys.path, self.process.stdin)
+            send_import_path(self.process)
             pickle.dump(mesh, self.process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
             self.process.stdin.flush()
         except OSError:

@@ -132,8 +132,7 @@ class HeatGeodesics:
             more. Default: one per spare core of this process's share
             (:func:`mocap.util.blas.worker_threads` less one), at most
             :data:`MAX_HELPERS`, when the fields hold at least :data:`SHARED_FROM` values,
-            else none. The fields are the same, bit for
-            bit, however many there are.
+            else none. The fields are the same, bit for bit, however many there are.
 
         Returns
         -------
