@@ -242,6 +242,22 @@ def test_takes_run_here_load_numba_before_the_inputs(session_root, monkeypatch, 
     assert events == ["inputs"]
 
 
+def test_the_pretouched_heap_is_kept_for_takes_run_here_and_given_back_otherwise(
+        session_root, monkeypatch, tmp_path):
+    """The block the console's imports wrote (mocap.util.pretouch) is freed before the
+    takes run: its pages kept when they run in this process, given back when they run
+    on a pool."""
+    kept = []
+    monkeypatch.setattr("fit.pipeline.session._guarded", stub_take([]))
+    monkeypatch.setattr("fit.pipeline.session.release_pretouch",
+                        lambda keep=True: kept.append(keep))
+    config = load_run_config(_two_takes(session_root, tmp_path))
+    run_takes(config, workers=1, progress=False)
+    with ThreadPoolExecutor(2) as pool:
+        run_takes(config, executor=pool, force=True, progress=False)
+    assert kept == [True, False]
+
+
 def test_rerun_redoes_only_changed_takes(session_root, monkeypatch, tmp_path):
     """Skip logic alone: the chain is replaced by a stub that records its calls."""
     calls = []

@@ -21,7 +21,9 @@ import warnings
 from pathlib import Path
 
 from fit.cli import commands
+from fit.cli.run_heap import expected_run_heap
 from mocap.errors import Mocap2MeshError
+from mocap.util.pretouch import finish_pretouch, start_pretouch
 from mocap.util.process_memory import configure_process_memory
 
 __all__ = ["main", "COMMANDS", "build_parser", "full_parser"]
@@ -148,16 +150,22 @@ def console() -> None:  # pragma: no cover - the installed entry point
     virtual machine that reports its free memory to the host, NumPy's huge-page advice is
     off (:func:`mocap.util.process_memory.configure_process_memory`). A command that draws
     figures forks the server of its figure helpers once its imports are done
-    (:func:`fit.report.forked_helpers.start_fork_server`).
+    (:func:`fit.report.forked_helpers.start_fork_server`). While ``run`` imports, a thread
+    writes the pages of a block of its heap as large as its take is expected to need
+    (:func:`fit.cli.run_heap.expected_run_heap`), which the take's arrays then reuse
+    (:mod:`mocap.util.pretouch`; :func:`fit.pipeline.session.run_takes` frees it).
     """
     configure_process_memory()
     argv = sys.argv[1:]
+    if argv[:1] == ["run"]:
+        start_pretouch(expected_run_heap(argv[1:]))
     gc.disable()
     try:
         build_parser(argv)  # the command's imports
     finally:
         gc.enable()
     gc.freeze()
+    finish_pretouch()
     # a command that draws figures imported the helpers' module: their server is forked
     # now, before any thread starts
     if (helpers := sys.modules.get("fit.report.forked_helpers")) is not None:

@@ -57,6 +57,7 @@ from fit.report.figure_queue import FigureQueue
 from mocap.errors import Mocap2MeshError
 from mocap.util.atomic import refuse_overwrite
 from mocap.util.optional import load_numba
+from mocap.util.pretouch import release_pretouch
 from mocap.util.validation import as_int
 
 __all__ = ["RunOutcome", "process_take", "run_takes"]
@@ -337,7 +338,11 @@ def run_takes(config: RunConfig, *, executor=None, workers: int | None = None,
 def _run_on(pool, todo, config, names, provenances, manifest, timeout, progress) -> None:
     """Build the session basis (when the takes share one) and run `todo` on `pool`."""
     shared, kept = None, {}
-    if pool.runs_here(timeout):
+    here = pool.runs_here(timeout)
+    # the heap's pages written while the command imported (mocap.util.pretouch): kept for
+    # the take when it runs in this process, given back when it runs elsewhere
+    release_pretouch(keep=here)
+    if here:
         # the takes' fits load numba in this process (the speed extra's kernels): loaded
         # first, it parses the basis's shapes too (mocap.mesh.mesh.load_shape_vertices)
         load_numba()
