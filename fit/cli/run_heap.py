@@ -13,10 +13,10 @@ __all__ = ["expected_run_heap", "HEAP_PER_CAPTURE_BYTE"]
 
 #: The heap a take's chain uses beyond what every take needs whatever its length (the
 #: mesh's arrays, the figures'), in bytes per byte of its capture file: about 20 for a C3D
-#: of float samples (the 35,000-frame take of ``bench/bench_chain.py``: 37 MB, about
-#: 800 MB of fresh pages after the command's start; its 3,870 frames: 4 MB, 230 MB).
-#: A text capture holds fewer samples a byte, so that its need is overestimated, up to
-#: :data:`mocap.util.pretouch.MAX_PRETOUCH`.
+#: of float samples. After the command's start, the 35,000-frame take of
+#: ``bench/bench_chain.py`` (37 MB) faulted about 800 MB of fresh pages, a 3,870-frame
+#: take (4 MB) 230 MB. A text capture holds fewer samples a byte, so that its need is
+#: overestimated, up to :data:`mocap.util.pretouch.MAX_PRETOUCH`.
 HEAP_PER_CAPTURE_BYTE = 20
 
 

@@ -9,9 +9,10 @@ command's imports keep one core busy for about a second and leave the others idl
 :func:`start_pretouch` takes a block of the heap and has a thread write its pages while
 the imports run; :func:`finish_pretouch` stops that thread (before the command forks the
 figure helpers' server, which needs no other thread); :func:`release_pretouch` frees the
-block, its pages kept or given back. glibc, keeping freed memory (:func:`mocap.util.process_memory.
-keep_freed_memory`), then hands the touched pages to the arrays that follow. As a Java
-VM's ``AlwaysPreTouch`` does for its heap, only earlier and on a core that idles.
+block, its pages kept or given back. glibc, keeping freed memory
+(:func:`mocap.util.process_memory.keep_freed_memory`), then hands the written pages to
+the arrays that follow. A Java VM's ``AlwaysPreTouch`` does the same for its heap; here
+it is done on a core that would idle.
 
 Until it is freed, the block is left out of any forked child (``MADV_WIPEONFORK``): a
 child would otherwise share its pages copy-on-write, and this process would fault on
