@@ -221,6 +221,9 @@ def test_no_run_heap_without_one_readable_capture(tmp_path, inputs):
 
 def test_no_run_heap_without_one_configuration(tmp_path):
     assert expected_run_heap([]) == 0
+    if hasattr(os, "mkfifo"):
+        os.mkfifo(tmp_path / "piped.toml")      # not read: its text is the command's
+        assert expected_run_heap([str(tmp_path / "piped.toml")]) == 0
     assert expected_run_heap(["--check"]) == 0
     assert expected_run_heap([str(tmp_path / "a.toml"), str(tmp_path / "b.toml")]) == 0
     assert expected_run_heap([str(tmp_path / "missing.toml")]) == 0

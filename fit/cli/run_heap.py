@@ -32,12 +32,13 @@ def expected_run_heap(args) -> int:
     -------
     int
         :data:`HEAP_PER_CAPTURE_BYTE` times the size of the capture file when the
-        configuration (the one ``.toml`` word) lists exactly one in ``inputs.captures``
-        (a take that runs in this process); else 0, as for anything unreadable: the
-        command reports a configuration's errors itself.
+        configuration (the one ``.toml`` word, a regular file) lists exactly one in
+        ``inputs.captures`` (a take that runs in this process); else 0, as for anything
+        unreadable: the command reports a configuration's errors itself.
     """
     configs = [Path(word) for word in args if word.endswith(".toml")]
-    if len(configs) != 1:
+    # a regular file only: a pipe's text would be gone for the command's own reading
+    if len(configs) != 1 or not configs[0].is_file():
         return 0
     try:
         captures = read_toml(configs[0], "run configuration")["inputs"]["captures"]
