@@ -11,7 +11,9 @@ import trimesh
 from helpers import slit_grid
 from tolerances import EXACT_FLOAT64, GEODESIC_HEAT_MAX_REL, GEODESIC_HEAT_MEAN_REL, MESH_EXACT
 
+import mocap.mesh.geodesic as geodesic
 from mocap import InputError
+from mocap.mesh._geodesic_cache import FieldCache
 from mocap.mesh.geodesic import HeatGeodesics
 
 
@@ -122,6 +124,7 @@ def _grid_sources(monkeypatch):
     v, f, _, _ = slit_grid()
     geo = HeatGeodesics(v, f)
     solve, answered = geo._solve, []
+    monkeypatch.setattr(geodesic, "FIELDS", FieldCache(0))     # every call solves
 
     def slowly(sources):
         time.sleep(0.02)
@@ -163,8 +166,6 @@ def test_what_a_helper_cannot_solve_is_solved_here(program, monkeypatch):
 
 
 def test_large_fields_are_shared_by_default_with_a_helper_per_spare_core(monkeypatch):
-    import mocap.mesh.geodesic as geodesic
-
     shared = []
     monkeypatch.setattr(geodesic, "solve_shared",
                         lambda solve, mesh, sources, out, helpers: (
@@ -182,3 +183,74 @@ def test_large_fields_are_shared_by_default_with_a_helper_per_spare_core(monkeyp
     assert shared == [2, geodesic.MAX_HELPERS]          # each helper factorizes the mesh
     with pytest.raises(InputError, match="processes"):
         geo.from_vertices(sources, processes=-1)
+
+
+def _counted(monkeypatch):
+    """A fresh cache of fields for the test, and the vertices libigl solves, in order."""
+    monkeypatch.setattr(geodesic, "FIELDS", FieldCache(1 << 30))
+    solved = []
+    solve = igl.heat_geodesics_solve
+    monkeypatch.setattr(igl, "heat_geodesics_solve",
+                        lambda data, gamma: (solved.extend(gamma.tolist()), solve(data, gamma))[1])
+    return solved
+
+
+def test_the_next_geodesics_on_the_same_mesh_solve_only_new_sources(monkeypatch):
+    """A session's next take: another object on a copy of the same mesh finds the fields
+    solved before (the same bits as solved afresh) and solves only the sources it lacks,
+    whatever their order and repeats."""
+    v, f, _, _ = slit_grid()
+    solved = _counted(monkeypatch)
+    first = HeatGeodesics(v, f).from_vertices([3, 40, 7])
+    assert solved == [3, 7, 40]
+    solved.clear()
+    again = HeatGeodesics(v.copy(), f.copy())
+    fields = again.from_vertices([40, 5, 3, 40])
+    assert solved == [5]
+    geodesic.FIELDS.clear()
+    fresh = HeatGeodesics(v, f).from_vertices([40, 5, 3, 40])       # the oracle: solved
+    np.testing.assert_array_equal(fields, fresh)
+    np.testing.assert_array_equal(fields[[0, 2, 3]], first[[1, 0, 1]])
+    fields[0] = -1.0                             # the caller's copy: the kept field stays
+    np.testing.assert_array_equal(again.from_vertices([40])[0], fresh[0])
+
+
+@pytest.mark.parametrize("change", ["vertex", "faces", "time", "delaunay"])
+def test_another_mesh_or_heat_method_solves_its_own(monkeypatch, change):
+    v, f, _, _ = slit_grid()
+    solved = _counted(monkeypatch)
+    HeatGeodesics(v, f).from_vertices([3])
+    options = {}
+    if change == "vertex":
+        v = v.copy()
+        v[10, 2] += 1e-9
+    elif change == "faces":                       # the same triangles, another corner first
+        f = np.roll(f, 1, axis=1)
+    elif change == "time":
+        options = {"time_factor": 0.5}
+    else:
+        options = {"intrinsic_delaunay": True}
+    solved.clear()
+    HeatGeodesics(v, f, **options).from_vertices([3])
+    assert solved == [3]
+
+
+def test_the_kept_fields_stay_within_their_bound_the_least_recent_mesh_first():
+    cache, rows = FieldCache(5 * 80), np.arange(3 * 10, dtype=float).reshape(3, 10)
+    cache.keep(b"a", [1, 2, 3], rows)                    # fields of 80 bytes: 5 fit
+    cache.keep(b"b", [1, 2], rows[:2])
+    assert cache.nbytes == 400 and set(cache.take(b"a", [1])) == {1}     # "a" used last
+    cache.keep(b"c", [7], rows[2:])                      # "b" is the least recent: 1 goes
+    assert cache.nbytes == 400
+    assert set(cache.take(b"b", [1, 2])) == {2} and set(cache.take(b"a", [1, 2, 3])) == {1, 2, 3}
+    np.testing.assert_array_equal(cache.take(b"c", [7])[7], rows[2])
+    cache.keep(b"d", [1, 2, 3, 4, 5], np.zeros((5, 10)))   # a whole bound's worth: the rest go
+    assert cache.nbytes == 400 and not cache.take(b"a", [1, 2, 3]) and not cache.take(b"c", [7])
+    none = FieldCache(0)
+    none.keep(b"a", [1], rows[:1])
+    assert none.take(b"a", [1]) == {} and none.nbytes == 0
+    kept = cache.take(b"d", [4])[4]
+    with pytest.raises(ValueError):                       # read-only: shared by the takes
+        kept[0] = 1.0
+    cache.clear()
+    assert cache.nbytes == 0 and cache.take(b"d", [4]) == {}

@@ -16,6 +16,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from mocap.errors import InputError
+from mocap.mesh._geodesic_cache import FIELD_CACHE_BYTES, FieldCache, mesh_key
 from mocap.mesh._geodesic_helpers import SOURCES_PER_CHUNK, solve_shared
 from mocap.util.blas import worker_threads
 from mocap.util.validation import as_float_array, as_int, as_positive_float
@@ -32,6 +33,8 @@ SHARED_FROM = 6_000_000
 #: Most helper processes by default: each holds its own factorization of the mesh (about
 #: 0.5 GB for 150,000 vertices), and they share the memory's bandwidth.
 MAX_HELPERS = 3
+#: The fields this process keeps for the next geodesics on the same mesh (the next take's).
+FIELDS = FieldCache(FIELD_CACHE_BYTES)
 
 
 def _as_triangles(faces, n_vertices: int) -> np.ndarray:
@@ -114,6 +117,11 @@ class HeatGeodesics:
         igl.heat_geodesics_precompute(self.vertices, self.faces, self._heat_time, data)
         return data
 
+    @functools.cached_property
+    def _key(self) -> bytes:
+        """What its fields depend on (:func:`mocap.mesh._geodesic_cache.mesh_key`)."""
+        return mesh_key(self.vertices, self.faces, self._options)
+
     @property
     def n_vertices(self) -> int:
         """Number of mesh vertices."""
@@ -139,6 +147,12 @@ class HeatGeodesics:
         ndarray of shape (n_sources, n_vertices)
             Row ``i``: geodesic distance from ``sources[i]`` to every vertex,
             mesh units (0 at the source).
+
+        Notes
+        -----
+        The fields solved are kept for the next call on the same mesh, by this object or
+        another (:data:`FIELDS`: a session's next take), which solves only the sources it
+        does not find there.
         """
         sources = np.asarray(sources)
         if sources.ndim != 1 or not np.issubdtype(sources.dtype, np.integer):
@@ -146,13 +160,29 @@ class HeatGeodesics:
                              f"shape {sources.shape} dtype {sources.dtype}")
         if len(sources) and (sources.min() < 0 or sources.max() >= self.n_vertices):
             raise InputError(f"sources must be vertex ids in 0..{self.n_vertices - 1}")
-        sources = sources.astype(np.int64)
+        if processes is not None:
+            processes = as_int(processes, "processes", minimum=0)
+        unique, inverse = np.unique(sources.astype(np.int64), return_inverse=True)
+        kept = FIELDS.take(self._key, unique)
+        missing = np.array([v for v in unique.tolist() if v not in kept], dtype=np.int64)
+        solved = self._solve_all(missing, processes)
+        FIELDS.keep(self._key, missing, solved)
+        fields = solved
+        if kept:                        # the unique sources' fields, kept or solved, in order
+            fields = np.empty((len(unique), self.n_vertices))
+            solved_rows = dict(zip(missing.tolist(), solved))
+            for row, vertex in enumerate(unique.tolist()):
+                fields[row] = kept[vertex] if vertex in kept else solved_rows[vertex]
+        return fields if np.array_equal(unique, sources) else fields[inverse.reshape(-1)]
+
+    def _solve_all(self, sources: np.ndarray, processes: int | None) -> np.ndarray:
+        """The fields of the vertices `sources` (S,) int64, (S, n_vertices), solved here and
+        by `processes` helper processes (see :meth:`from_vertices`)."""
         if processes is None:
             processes = min(worker_threads() - 1, MAX_HELPERS) \
                 if sources.size * self.n_vertices >= SHARED_FROM else 0
-        processes = min(as_int(processes, "processes", minimum=0),
-                        -(-len(sources) // SOURCES_PER_CHUNK) - 1)
-        if processes == 0:
+        processes = min(processes, -(-len(sources) // SOURCES_PER_CHUNK) - 1)
+        if processes <= 0:
             return self._solve(sources)
         out = np.empty((len(sources), self.n_vertices))
         solve_shared(self._solve, (self.vertices, self.faces, *self._options), sources, out,
