@@ -63,6 +63,13 @@ def scratch_directory(prefix: str) -> Path:
     return path
 
 
+def without_kept_geodesics() -> None:
+    """Drop the geodesic fields this process kept (:data:`mocap.mesh.geodesic.FIELDS`): the
+    retargeting timed next solves its own, as a take run alone does."""
+    from mocap.mesh.geodesic import FIELDS
+    FIELDS.clear()
+
+
 def best_time(fn, *, repeat: int = 3) -> float:
     """Best wall-clock time of `repeat` calls of ``fn()``, seconds."""
     best = float("inf")

@@ -103,6 +103,7 @@ from _common import (
     run_take,
     scratch_directory,
     shared_data,
+    without_kept_geodesics,
 )
 from scipy.interpolate import RBFInterpolator
 from scipy.optimize import least_squares, lsq_linear
@@ -420,6 +421,7 @@ def run_chain(source: Path, out: Path, artist, markerset, landmarks, max_gap: in
     """The chain's stages on the take `source` / "take.c3d", as ``mocap2mesh run`` runs them,
     writing into `out`; return the seconds of each stage and what they made."""
     out.mkdir()
+    without_kept_geodesics()            # one take, as `run` of one take solves its fields
     mesh = artist.neutral
     times = {}
 

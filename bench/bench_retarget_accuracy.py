@@ -37,7 +37,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import REPO, shared_data  # noqa: E402
+from _common import REPO, shared_data, without_kept_geodesics  # noqa: E402
 
 sys.path.insert(0, str(REPO / "tests"))
 from helpers import layout_binding  # noqa: E402
@@ -171,6 +171,7 @@ def main() -> None:
     print(head + "\n" + "-" * len(head))
     results, pictures = {}, {}
     for name in args.variants:
+        without_kept_geodesics()        # each variant's build its own geodesics
         start = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
