@@ -32,7 +32,7 @@ import platform
 import threading
 from dataclasses import dataclass, field
 
-from mocap.util.process_memory import KEPT_MEMORY
+from mocap.util.process_memory import KEPT_MEMORY, glibc
 
 __all__ = ["start_pretouch", "finish_pretouch", "release_pretouch", "pretouched_bytes",
            "MAX_PRETOUCH"]
@@ -159,11 +159,8 @@ def _libc():
         return None                    # freed memory not kept: the block would go back
     if len(os.sched_getaffinity(0)) < 2:
         return None                    # no idle core to write it
-    try:
-        if not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"):
-            return None
-        libc = ctypes.CDLL(None)
-    except (AttributeError, OSError, ValueError):
+    libc = glibc()
+    if libc is None:
         return None
     pointer, size = ctypes.c_void_p, ctypes.c_size_t
     for name, restype, argtypes in (("malloc", pointer, (size,)), ("free", None, (pointer,)),

@@ -40,7 +40,7 @@ import importlib
 import os
 from pathlib import Path
 
-__all__ = ["configure_process_memory", "keep_freed_memory", "reports_free_pages",
+__all__ = ["configure_process_memory", "keep_freed_memory", "reports_free_pages", "glibc",
            "configure_hugepage_advice", "ADVICE_VARIABLE", "KEPT_MEMORY"]
 
 #: NumPy's environment variable for the advice, read when numpy is imported.
@@ -97,14 +97,22 @@ def keep_freed_memory(environ=None) -> bool:
     return True
 
 
-def _glibc_mallopt():
-    """glibc's ``mallopt`` (int parameter, int value) -> int, or None off glibc."""
+def glibc():
+    """This process's C library through ctypes when it is glibc, else None."""
     try:
         if not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"):
             return None
-        mallopt = ctypes.CDLL(None).mallopt
+        return ctypes.CDLL(None)
     except (AttributeError, OSError, ValueError):
         return None
+
+
+def _glibc_mallopt():
+    """glibc's ``mallopt`` (int parameter, int value) -> int, or None off glibc."""
+    libc = glibc()
+    if libc is None:
+        return None
+    mallopt = libc.mallopt
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
     return mallopt
 
